@@ -1,0 +1,218 @@
+"""Tonal range, MTF loss and image information capacity (Tisse et al. 2008, Eq. 2, 6-9).
+
+Everything here is vectorised over a leading axis of posterior draws: pass arrays of shape
+``(n_draws,)`` and get arrays back; no Python loop runs over draws.
+
+Conventions (also in the README, "How capacity is computed"):
+
+* The noise model is quadratic in the mean signal ``S`` (electrons):
+  ``σ²(S) = a + b·S + c·S²`` with ``a = σ_read² + D·t + σ_DSNU² + K²/12`` (read, dark-current
+  shot, DSNU and quantization noise, e⁻²), ``b = 1`` (photon shot noise) and
+  ``c = PRNU²`` (PRNU as a fraction). This is Eq. 1's denominator.
+* Tonal range, Eq. 7, is evaluated on an **8-bit-equivalent grey scale over the sensor's dynamic
+  range**: the signal axis from 0 to ``S_max`` (the largest non-saturating signal, Eq. 2) is
+  mapped linearly onto ``n_levels = 256`` grey levels, so one grey level is ``S_max/256``
+  electrons, and the ``max(σ, 1)`` floor of Eq. 7 acts in those grey levels: in electrons the
+  integrand is ``1/max(σ(S), S_max/256)``. The integral runs over the dynamic range, from
+  ``S_min = σ(0)`` (the dark noise floor, Eq. 2's denominator) to ``S_max``. Hence
+  ``TR ≤ 256`` and ``b' = log2 TR ≤ 8`` bits, as in the paper's Figs. 4 and 8.
+* The integral of ``1/sqrt(a + bS + cS²)`` is evaluated in closed form (log/asinh), piecewise
+  with the floor; it is exact to rounding (tested against quadrature).
+* MTF loss, Eq. 9: ``Δs = π f_N⁻² ∫₀^{f_N} f log2 MTF(f) df`` with ``f`` in cycles per pixel
+  and ``f_N = 0.5``. Where the MTF reaches zero inside the band (a lens cut-off ``f_c`` below
+  Nyquist), the frequencies above ``f_c`` carry no image information at all: the band is cut,
+  the integral runs over ``[0, f_c]`` and the lost band costs ``log2((f_c/f_N)²)`` bits, the
+  fraction of the Nyquist disc that survives. The result stays finite, and the report says so.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+__all__ = [
+    "NoiseCoefficients",
+    "integral_inv_sqrt_quadratic",
+    "tonal_range",
+    "snr_db",
+    "dynamic_range_db",
+    "mtf_loss_bits",
+    "MTFLoss",
+    "NYQUIST_CY_PER_PX",
+    "N_GREY_LEVELS",
+]
+
+NYQUIST_CY_PER_PX = 0.5
+N_GREY_LEVELS = 256
+
+
+@dataclass(frozen=True)
+class NoiseCoefficients:
+    """σ²(S) = a + b·S + c·S² in e⁻², vectorised over draws."""
+
+    a: np.ndarray
+    b: np.ndarray
+    c: np.ndarray
+
+    def variance(self, s_e):
+        s_e = np.asarray(s_e, float)
+        return self.a + self.b * s_e + self.c * s_e * s_e
+
+    @classmethod
+    def from_parameters(cls, *, read_noise_e, dark_current_e_per_s=0.0, exposure_time_s=0.0,
+                        dsnu_e=0.0, prnu_frac=0.0, conversion_gain_e_per_dn=0.0,
+                        dark_noise_e=None):
+        """Eq. 1 terms. ``dark_noise_e``, if given, replaces ``read² + D·t`` (used when only
+        their sum is identifiable)."""
+        k = np.asarray(conversion_gain_e_per_dn, float)
+        if dark_noise_e is None:
+            rd2 = np.asarray(read_noise_e, float) ** 2 + np.asarray(dark_current_e_per_s, float) * exposure_time_s
+        else:
+            rd2 = np.asarray(dark_noise_e, float) ** 2
+        a = rd2 + np.asarray(dsnu_e, float) ** 2 + k * k / 12.0
+        b = np.ones_like(a)
+        c = np.asarray(prnu_frac, float) ** 2 * np.ones_like(a)
+        return cls(a=np.asarray(a, float), b=b, c=c)
+
+
+def _antiderivative_diff(a, b, c, s1, s2):
+    """∫_{s1}^{s2} dS / sqrt(a + bS + cS²), s2 ≥ s1 ≥ 0, a > 0, b ≥ 0, c ≥ 0 (stable form).
+
+    For c > 0 the antiderivative is ln(2√c·√q + 2cS + b)/√c. The difference is written as
+    log1p of a small ratio divided by √c, computed as y·log1p(z)/z with z = √c·y, so that
+    c → 0 (negligible PRNU) loses no digits and tends to the c = 0 result 2(√q₂ − √q₁)/b.
+    """
+    a, b, c, s1, s2 = np.broadcast_arrays(*(np.asarray(x, float) for x in (a, b, c, s1, s2)))
+    q1 = a + b * s1 + c * s1 * s1
+    q2 = a + b * s2 + c * s2 * s2
+    r1, r2 = np.sqrt(q1), np.sqrt(q2)
+    ds = s2 - s1
+    rc = np.sqrt(c)
+    a1 = 2.0 * rc * r1 + 2.0 * c * s1 + b  # > 0
+    # (A2 - A1)/√c without cancellation:
+    y = (2.0 * ds * (b + c * (s1 + s2)) / (r1 + r2) + 2.0 * rc * ds) / a1
+    z = rc * y
+    with np.errstate(divide="ignore", invalid="ignore"):
+        ratio = np.where(z > 1e-8, np.log1p(z) / np.where(z > 1e-8, z, 1.0), 1.0 - z / 2.0 + z * z / 3.0)
+    return y * ratio
+
+
+def integral_inv_sqrt_quadratic(a, b, c, s1, s2, floor=0.0):
+    """∫_{s1}^{s2} dS / max(sqrt(a + bS + cS²), floor), vectorised, closed form.
+
+    ``σ(S)`` is increasing for S ≥ 0, so the floor applies on ``[s1, S*]`` with σ(S*) = floor;
+    that part contributes ``(S* − s1)/floor``. Returns 0 where s2 ≤ s1.
+    """
+    a, b, c, s1, s2, floor = np.broadcast_arrays(*(np.asarray(x, float) for x in (a, b, c, s1, s2, floor)))
+    s2 = np.maximum(s2, s1)
+    # S* solves c S² + b S + (a − floor²) = 0, the positive root (stable form)
+    d = a - floor * floor
+    with np.errstate(divide="ignore", invalid="ignore"):
+        disc = np.sqrt(np.maximum(b * b - 4.0 * c * d, 0.0))
+        s_star = np.where(d >= 0, 0.0, (-2.0 * d) / (b + disc))
+    s_star = np.clip(s_star, s1, s2)
+    flat_part = np.where(floor > 0, (s_star - s1) / np.where(floor > 0, floor, 1.0), 0.0)
+    return flat_part + _antiderivative_diff(a, b, c, s_star, s2)
+
+
+def tonal_range(coeffs: NoiseCoefficients, s_max_e, *, n_levels: int = N_GREY_LEVELS, s_min_e=None):
+    """Tonal range TR (Eq. 7) in distinguishable grey levels, 8-bit-equivalent scale.
+
+    Parameters
+    ----------
+    coeffs : noise model σ²(S) = a + bS + cS² (e⁻²), arrays over draws.
+    s_max_e : largest non-saturating signal (e⁻), the top of the dynamic range (Eq. 2).
+    n_levels : grey levels spanning [0, s_max_e]; the max(σ, 1) floor acts in these units.
+    s_min_e : bottom of the dynamic range (e⁻); default σ(0), the dark noise floor (Eq. 2).
+
+    Returns TR (≤ n_levels); b' = log2(TR).
+    """
+    s_max_e = np.asarray(s_max_e, float)
+    s_min = np.sqrt(coeffs.a) if s_min_e is None else np.asarray(s_min_e, float)
+    grey_e = s_max_e / n_levels
+    return integral_inv_sqrt_quadratic(coeffs.a, coeffs.b, coeffs.c, s_min, s_max_e, floor=grey_e)
+
+
+def snr_db(coeffs: NoiseCoefficients, s_e):
+    """SNR of Eq. 1 in dB at signal ``s_e`` (e⁻): 10 log10(S²/σ²(S))."""
+    s_e = np.asarray(s_e, float)
+    return 10.0 * np.log10(s_e * s_e / coeffs.variance(s_e))
+
+
+def dynamic_range_db(coeffs: NoiseCoefficients, s_max_e):
+    """DR of Eq. 2: 20 log10(S_max / σ_dark) with σ_dark² = a (read, DC, DSNU, quantization)."""
+    return 20.0 * np.log10(np.asarray(s_max_e, float) / np.sqrt(coeffs.a))
+
+
+@dataclass(frozen=True)
+class MTFLoss:
+    """Result of :func:`mtf_loss_bits`: Δs (bits, ≤ 0) and how the band was treated."""
+
+    delta_s_bits: np.ndarray
+    band_cut: bool
+    f_end_cy_per_px: float
+    band_cut_bits: float
+
+    def to_dict(self):
+        return {"band_cut": self.band_cut, "band_end_cy_per_px": self.f_end_cy_per_px,
+                "band_cut_bits": self.band_cut_bits}
+
+
+def _gauss_legendre(n, lo, hi):
+    x, w = np.polynomial.legendre.leggauss(n)
+    return 0.5 * (hi - lo) * x + 0.5 * (hi + lo), 0.5 * (hi - lo) * w
+
+
+def mtf_loss_bits(mtf, *, n_nodes: int = 256, f_nyquist_cy_per_px: float = NYQUIST_CY_PER_PX,
+                  draws: bool = False) -> MTFLoss:
+    """MTF loss Δs by Eq. 9 (bits, ≤ 0) for a radial MTF.
+
+    ``mtf`` is an MTF component (``.radial(f)``, ``.cutoff_cy_per_px``) or a plain callable of
+    frequency (cy/px). With ``draws=True`` and a component that carries draws, Δs is returned
+    per draw. Gauss-Legendre quadrature on ``[0, f_end]`` (``f_end = min(f_N, cut-off)``);
+    the integrand ``f log2 MTF`` is smooth except for a logarithmic end-point singularity at a
+    lens cut-off, which the nodes never touch. A cut band adds ``log2((f_end/f_N)²)``.
+    """
+    cutoff = float(getattr(mtf, "cutoff_cy_per_px", np.inf))
+    f_end = min(f_nyquist_cy_per_px, cutoff)
+    band_cut = f_end < f_nyquist_cy_per_px
+    if f_end <= 0:
+        raise ValueError("the MTF is zero at every frequency: no image information passes")
+    f, w = _gauss_legendre(n_nodes, 0.0, f_end)
+    if draws and hasattr(mtf, "radial"):
+        try:
+            m = mtf.radial(f, draws=True)
+        except TypeError:
+            m = mtf.radial(f)
+    else:
+        m = mtf.radial(f) if hasattr(mtf, "radial") else mtf(f)
+    m = np.asarray(m, float)
+    tiny = np.finfo(float).tiny
+    if np.any(m <= 0):
+        # a zero inside the band that the component did not declare: cut the band there
+        zero_idx = np.argmax(np.any(np.atleast_2d(m) <= 0, axis=0))
+        f_zero = float(f[zero_idx])
+        if zero_idx == 0:
+            raise ValueError("the MTF is zero at every frequency: no image information passes")
+        return mtf_loss_bits(_CutAt(mtf, f_zero), n_nodes=n_nodes,
+                             f_nyquist_cy_per_px=f_nyquist_cy_per_px, draws=draws)
+    integral = np.sum(w * f * np.log2(np.maximum(m, tiny)), axis=-1)
+    ds = np.pi / f_nyquist_cy_per_px**2 * integral
+    cut_bits = 2.0 * np.log2(f_end / f_nyquist_cy_per_px) if band_cut else 0.0
+    return MTFLoss(delta_s_bits=ds + cut_bits, band_cut=bool(band_cut), f_end_cy_per_px=float(f_end),
+                   band_cut_bits=float(cut_bits))
+
+
+class _CutAt:
+    """Wraps an MTF whose first zero inside the band is at ``f_zero``."""
+
+    def __init__(self, mtf, f_zero):
+        self._mtf, self.cutoff_cy_per_px = mtf, f_zero
+
+    def radial(self, f, draws=False):
+        if hasattr(self._mtf, "radial"):
+            try:
+                return self._mtf.radial(f, draws=draws) if draws else self._mtf.radial(f)
+            except TypeError:
+                return self._mtf.radial(f)
+        return self._mtf(f)

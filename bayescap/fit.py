@@ -1,0 +1,264 @@
+"""Posterior sampling of the noise model: MAP start, several independent emcee ensembles,
+rank-normalised R-hat and bulk/tail ESS from ArviZ.
+
+Why several ensembles: the walkers of one affine-invariant ensemble are not independent chains,
+so R-hat across them means little. We run ``n_ensembles`` independently seeded ensembles,
+each started from its own draw around the optimum, and compute R-hat with one chain per
+ensemble (Vehtari et al. 2021), and ESS with one chain per walker. The diagnostics are checked
+on every parameter and on the capacity (see :mod:`bayescap.posterior`).
+"""
+from __future__ import annotations
+
+import time
+import warnings
+from dataclasses import dataclass, field
+
+import emcee
+import numpy as np
+from scipy import optimize
+
+from .model import PTCModel
+
+__all__ = ["SamplerSettings", "QUALITY_PRESETS", "find_map", "laplace_covariance", "run_ensembles",
+           "diagnostics", "ConvergenceWarning"]
+
+
+class ConvergenceWarning(UserWarning):
+    """The sampler did not meet its convergence targets; the result says so."""
+
+
+@dataclass(frozen=True)
+class SamplerSettings:
+    """Knobs of the sampler (see README, "Quality presets")."""
+
+    n_ensembles: int = 4
+    walkers_per_dim: int = 8
+    min_walkers: int = 32
+    n_burn: int = 150
+    n_steps: int = 250          # production steps per round
+    max_rounds: int = 6         # extend until converged, at most this many rounds
+    rhat_target: float = 1.01
+    ess_target: float = 400.0   # bulk and tail, every parameter and capacity
+    tau_factor: float = 10.0    # production length ≥ tau_factor × integrated autocorrelation time
+    max_draws: int = 8000       # posterior draws kept for propagation
+    de_fraction: float = 0.8    # DEMove share, the rest StretchMove
+
+
+QUALITY_PRESETS = {
+    "fast": SamplerSettings(n_ensembles=2, n_burn=120, n_steps=150, max_rounds=3, ess_target=200,
+                            tau_factor=20, max_draws=4000),
+    "standard": SamplerSettings(),
+    "accurate": SamplerSettings(n_ensembles=8, n_burn=400, n_steps=800, max_rounds=8,
+                                rhat_target=1.005, ess_target=2000, tau_factor=50, max_draws=20000),
+}
+
+
+def _vectorised_grad(model: PTCModel, x, h=1e-5):
+    """log-prob and its gradient by central differences, in one vectorised call."""
+    n = x.size
+    step = h * np.maximum(1.0, np.abs(x))
+    pts = np.vstack([x, x + np.diag(step), x - np.diag(step)])
+    lp = model.log_prob(pts)
+    g = (lp[1:n + 1] - lp[n + 1:]) / (2 * step)
+    return lp[0], g
+
+
+def find_map(model: PTCModel, x0=None, *, n_restarts: int = 2):
+    """Maximum a posteriori point by L-BFGS on the unconstrained coordinates.
+
+    Deterministic: starts from :meth:`PTCModel.initial_guess` and from fixed perturbations of
+    it, keeps the best. Returns (x_map, log_prob_map)."""
+    x0 = model.initial_guess() if x0 is None else np.asarray(x0, float)
+
+    def fun(x):
+        lp, g = _vectorised_grad(model, x)
+        if not np.isfinite(lp):
+            return 1e300, np.zeros_like(x)
+        g = np.where(np.isfinite(g), g, 0.0)
+        return -lp, -g
+
+    starts = [x0]
+    offsets = np.linspace(-1, 1, model.ndim)
+    for r in range(n_restarts):
+        starts.append(x0 + (0.3 * (r + 1)) * np.roll(offsets, r) * (1 if r % 2 == 0 else -1))
+    best = None
+    for s in starts:
+        if not np.isfinite(model.log_prob(s[None])[0]):
+            continue
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            res = optimize.minimize(fun, s, jac=True, method="L-BFGS-B",
+                                    options=dict(maxiter=2000, ftol=1e-13, gtol=1e-8))
+        if best is None or res.fun < best.fun:
+            best = res
+    if best is None:
+        raise RuntimeError("no finite starting point for the optimiser: the data may be inconsistent "
+                           "with the model (check the units of the columns)")
+    return best.x, -best.fun
+
+
+def laplace_covariance(model: PTCModel, x, h=1e-4):
+    """Inverse of the negative Hessian of log-prob at ``x`` (finite differences, one
+    vectorised call), made positive definite by eigenvalue clipping."""
+    n = x.size
+    step = h * np.maximum(1.0, np.abs(x))
+    E = np.diag(step)
+    pts = [x]
+    for i in range(n):
+        for j in range(n):
+            pts += [x + E[i] + E[j], x + E[i] - E[j], x - E[i] + E[j], x - E[i] - E[j]]
+    lp = model.log_prob(np.array(pts))
+    H = np.empty((n, n))
+    q = lp[1:].reshape(n, n, 4)
+    H = (q[..., 0] - q[..., 1] - q[..., 2] + q[..., 3]) / (4 * np.outer(step, step))
+    H = 0.5 * (H + H.T)
+    if not np.all(np.isfinite(H)):
+        return np.diag(np.full(n, 1e-4))
+    w, V = np.linalg.eigh(-H)
+    w = np.clip(w, 1e-8 * max(w.max(), 1e-8), None)
+    w = np.maximum(w, 1.0)  # no direction wider than sd 1 in log units
+    w = np.where(w > 0, w, 1.0)
+    return (V / w) @ V.T
+
+
+def _moves(settings: SamplerSettings):
+    de = settings.de_fraction
+    if de >= 1:
+        return [(emcee.moves.DEMove(), 1.0)]
+    return [(emcee.moves.DEMove(), de), (emcee.moves.StretchMove(), 1.0 - de)]
+
+
+def _initial_ball(model, x_map, cov, n_walkers, rng):
+    """Walkers drawn from the Laplace approximation, kept inside the prior support."""
+    L = np.linalg.cholesky(cov + 1e-12 * np.eye(cov.shape[0]))
+    out = np.empty((n_walkers, x_map.size))
+    filled = 0
+    for _ in range(50):
+        z = x_map + rng.standard_normal((n_walkers, x_map.size)) @ L.T
+        ok = np.isfinite(model.log_prob(z))
+        take = min(ok.sum(), n_walkers - filled)
+        out[filled:filled + take] = z[ok][:take]
+        filled += take
+        if filled == n_walkers:
+            return out
+        L = 0.5 * L
+    raise RuntimeError("could not place walkers inside the prior support around the optimum")
+
+
+@dataclass
+class ChainResult:
+    """Raw output of the ensembles: chain (n_ensembles, n_steps, n_walkers, ndim)."""
+
+    chain: np.ndarray
+    log_prob: np.ndarray
+    acceptance: np.ndarray          # per ensemble, mean acceptance fraction
+    tau: np.ndarray                 # integrated autocorrelation time per parameter (steps)
+    x_map: np.ndarray
+    lp_map: float
+    settings: SamplerSettings
+    wall_s: float
+    n_rounds: int
+    extra: dict = field(default_factory=dict)
+
+
+def run_ensembles(model: PTCModel, *, settings: SamplerSettings = SamplerSettings(), seed=None,
+                  progress: bool = False, converged_fn=None) -> ChainResult:
+    """Run ``settings.n_ensembles`` independently seeded emcee ensembles.
+
+    Each ensemble: walkers drawn from the Laplace approximation at the MAP, a burn-in, then
+    production rounds of ``n_steps``; after each round the ensembles are checked together by
+    ``converged_fn(chain)`` (default: R-hat/ESS of the parameters, and length ≥ tau_factor·τ)
+    and extended while it fails, up to ``max_rounds``.
+    """
+    t0 = time.perf_counter()
+    x_map, lp_map = find_map(model)
+    cov = laplace_covariance(model, x_map)
+    ss = np.random.SeedSequence(seed)
+    children = ss.spawn(settings.n_ensembles)
+    nw = max(settings.min_walkers, settings.walkers_per_dim * model.ndim)
+    nw += nw % 2
+    samplers, states = [], []
+    pbar = None
+    if progress:
+        from tqdm.auto import tqdm
+        pbar = tqdm(total=settings.n_ensembles * (settings.n_burn + settings.n_steps),
+                    desc="sampling", unit="step", leave=False)
+    for child in children:
+        rng = np.random.default_rng(child)
+        p0 = _initial_ball(model, x_map, cov, nw, rng)
+        s = emcee.EnsembleSampler(nw, model.ndim, model.log_prob, vectorize=True, moves=_moves(settings))
+        s.random_state = np.random.RandomState(child.generate_state(1)[0]).get_state()
+        state = s.run_mcmc(p0, settings.n_burn, progress=False)
+        if pbar is not None:
+            pbar.update(settings.n_burn)
+        s.reset()
+        samplers.append(s)
+        states.append(state)
+    rounds = 0
+    while True:
+        rounds += 1
+        for i, s in enumerate(samplers):
+            states[i] = s.run_mcmc(states[i], settings.n_steps, progress=False)
+            if pbar is not None:
+                pbar.update(settings.n_steps)
+        chain = np.stack([s.get_chain() for s in samplers])  # (E, S, W, D)
+        ok = (converged_fn or _default_converged)(chain, settings)
+        if ok or rounds >= settings.max_rounds:
+            break
+        if pbar is not None:
+            pbar.total += settings.n_ensembles * settings.n_steps
+            pbar.refresh()
+    if pbar is not None:
+        pbar.close()
+    lp = np.stack([s.get_log_prob() for s in samplers])
+    acc = np.array([s.acceptance_fraction.mean() for s in samplers])
+    tau = integrated_time(chain)
+    return ChainResult(chain=chain, log_prob=lp, acceptance=acc, tau=tau, x_map=x_map, lp_map=lp_map,
+                       settings=settings, wall_s=time.perf_counter() - t0, n_rounds=rounds)
+
+
+def integrated_time(chain):
+    """Integrated autocorrelation time (steps) per parameter, emcee's estimator applied to each
+    ensemble (walkers averaged, as emcee does) and the largest over ensembles kept."""
+    taus = []
+    for e in range(chain.shape[0]):
+        taus.append(emcee.autocorr.integrated_time(chain[e], quiet=True, tol=0))
+    return np.max(np.array(taus), axis=0)
+
+
+def _draws_by_ensemble(x):
+    """(E, S, W) -> (E, W*S) walker-major: each ensemble's draws as one chain for R-hat."""
+    E, S, W = x.shape
+    return np.transpose(x, (0, 2, 1)).reshape(E, W * S)
+
+
+def diagnostics(x_esw, arviz_module=None):
+    """R-hat (chains = ensembles) and bulk/tail ESS (chains = walkers) of one quantity whose
+    draws are shaped (n_ensembles, n_steps, n_walkers)."""
+    import arviz as az
+
+    x = np.asarray(x_esw, float)
+    E, S, W = x.shape
+    if not np.all(np.isfinite(x)):
+        return {"rhat": float("nan"), "ess_bulk": 0.0, "ess_tail": 0.0}
+    if np.ptp(x) == 0:
+        return {"rhat": 1.0, "ess_bulk": float(E * S * W), "ess_tail": float(E * S * W)}
+    by_walker = np.transpose(x, (0, 2, 1)).reshape(E * W, S)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        rhat = float(az.rhat(_draws_by_ensemble(x) if E > 1 else by_walker, method="rank"))
+        ess_b = float(az.ess(by_walker, method="bulk"))
+        ess_t = float(az.ess(by_walker, method="tail"))
+    return {"rhat": rhat, "ess_bulk": ess_b, "ess_tail": ess_t}
+
+
+def _default_converged(chain, settings):
+    E, S, W, D = chain.shape
+    tau = integrated_time(chain)
+    if np.any(S < settings.tau_factor * tau):
+        return False
+    for j in range(D):
+        d = diagnostics(chain[..., j])
+        if not (d["rhat"] < settings.rhat_target and min(d["ess_bulk"], d["ess_tail"]) >= settings.ess_target):
+            return False
+    return True

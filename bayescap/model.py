@@ -1,0 +1,541 @@
+"""The photon-transfer noise model (Tisse et al. 2008, Eq. 1) and its posterior density.
+
+Everything is in electrons with the conversion gain ``K`` (e⁻/DN). For a bright row at mean
+signal ``S`` (DN above the dark level) and exposure time ``t`` the temporal variance of the
+pixel values is, before clipping,
+
+    σ²_y(S) = S/K + (σ_read² + D·t)/K² + 1/12          [DN²]
+
+(photon shot noise, dark-current shot noise, read noise, quantization), and for the dark row
+``σ²_dark = (σ_read² + D·t)/K² + 1/12``. Pair differences cancel fixed-pattern noise, so DSNU and
+PRNU enter only through the spatial columns: ``spatial_var = (PRNU·S)² + DSNU²/K² + σ²_y/L``.
+
+**Saturation.** Pixel values clip at a level ``c`` (DN): the ADC maximum or the full well,
+whichever comes first. Across the ROI, pixels approach the clip at different light levels
+(PRNU, per-pixel well depth), described by a spread ``τ`` (DN) of the pixel means. The mean and
+temporal variance of a clipped Gaussian, averaged over that spread by Gauss–Hermite quadrature,
+give the smooth roll-off of the measured variance; the latent (unclipped) signal of each row
+near the clip is found by inverting the clipped-mean relation with a monotone Newton iteration.
+Fully clipped rows (variance ≈ 0) locate the clip level only: they enter through their mean.
+With no row near saturation no clip term is fitted and the full well is reported as a lower
+bound.
+
+**Likelihood.** A temporal variance from a frame pair over ``n`` pixels follows a scaled χ²
+with ``ν = n − 1`` degrees of freedom around the *model* variance: Gamma(ν/2, 2σ²/ν). Real
+data carry systematics (illumination drift, non-linearity) far above the 0.4 % statistical
+error of a 10⁵-pixel variance; a fitted fractional discrepancy ``f`` widens the distribution
+to an effective ``ν_eff`` with ``2/ν_eff = 2/ν + f²`` (same mean, relative variance
+``2/ν + f²``), so the intervals stay honest. ``f`` is reported: a large value says the model
+or the data are inadequate. With ``photons_per_pixel`` the means are fitted jointly:
+``S = QE·μ_p/K`` with a fractional mean discrepancy ``g`` (non-linearity).
+
+**Terms enter only when the data can inform them** (:func:`select_terms`); the reasons for
+every left-out term are recorded.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+from scipy.special import gammaln, ndtr
+
+from .ptc import PTCData
+
+__all__ = ["PTCModel", "ModelTerms", "select_terms", "saturation_flags", "gamma_logpdf", "PARAMETER_INFO"]
+
+_LOG_2PI = np.log(2.0 * np.pi)
+_GH_X, _GH_W = np.polynomial.hermite_e.hermegauss(9)
+_GH_W = _GH_W / _GH_W.sum()
+
+# physical parameter -> (unit, description)
+PARAMETER_INFO = {
+    "conversion_gain_e_per_dn": ("e-/DN", "conversion gain K"),
+    "read_noise_e": ("e-", "temporal read noise"),
+    "dark_current_e_per_s": ("e-/s", "dark current (from the dark-noise growth with time)"),
+    "dark_noise_e": ("e-", "read noise and dark-current shot noise combined at the single exposure time"),
+    "full_well_e": ("e-", "charge at which the pixel output clips"),
+    "quantum_efficiency": ("", "quantum efficiency"),
+    "prnu_percent": ("%", "photo-response non-uniformity"),
+    "dsnu_e": ("e-", "dark-signal non-uniformity"),
+    "clip_spread_dn": ("DN", "spread of the pixel means about the clip level"),
+    "variance_discrepancy": ("", "fractional discrepancy of the variances (systematics)"),
+    "mean_discrepancy": ("", "fractional discrepancy of the means (non-linearity)"),
+}
+
+
+def gamma_logpdf(v, sigma2, k):
+    """log Gamma(v; shape k, scale σ²/k) (mean σ²), stable for huge k.
+
+    Written as ``k(log r − r + 1) + [k log k − k − lgamma(k)] − log v`` with ``r = v/σ²``;
+    ``log r − r + 1 = log1p(d) − d`` with ``d = r − 1``; the bracket uses Stirling's series for
+    k > 10 (no cancellation between two 10⁶-sized numbers).
+    """
+    r = v / sigma2
+    d = r - 1.0
+    core = np.log1p(d) - d
+    kk = np.asarray(k, float)
+    with np.errstate(divide="ignore"):
+        stirling = 0.5 * np.log(kk) - 0.5 * _LOG_2PI - 1.0 / (12.0 * kk) + 1.0 / (360.0 * kk**3)
+    small = kk * np.log(kk) - kk - gammaln(kk)
+    bracket = np.where(kk > 10.0, stirling, small)
+    return kk * core + bracket - np.log(v)
+
+
+def _norm_logpdf(x, mu, sd):
+    z = (x - mu) / sd
+    return -0.5 * z * z - np.log(sd) - 0.5 * _LOG_2PI
+
+
+def _halfnormal_log_prior(u, scale):
+    """log density of u = log x when x ~ HalfNormal(scale) (Jacobian included)."""
+    x = np.exp(u)
+    return u - 0.5 * (x / scale) ** 2
+
+
+@dataclass(frozen=True)
+class ModelTerms:
+    """Which terms the data can inform, and why the others are left out."""
+
+    dark_current: bool
+    clip: str  # "none" | "fixed_adc" | "sampled"
+    clip_spread: bool
+    quantum_efficiency: bool
+    prnu: bool
+    dsnu: bool
+    reasons: dict = field(default_factory=dict)  # term -> why it is left out
+    how: dict = field(default_factory=dict)      # term -> how an included term enters (caveats)
+
+    def names(self) -> list[str]:
+        out = ["photon_shot", "read"]
+        out.append("dark_current_shot" if self.dark_current else "read_plus_dark_combined")
+        out.append("quantization")
+        if self.prnu:
+            out.append("prnu")
+        if self.dsnu:
+            out.append("dsnu")
+        if self.clip != "none":
+            out.append("saturation")
+        out.append("variance_discrepancy")
+        if self.quantum_efficiency:
+            out += ["quantum_efficiency", "mean_discrepancy"]
+        return out
+
+
+def saturation_flags(d: PTCData):
+    """Rows fully clipped (variance collapsed at the top) and whether saturation is reached."""
+    v, m = d.temporal_var_dn2, d.mean_dn
+    vmax = float(v.max())
+    if d.frac_saturated is not None:
+        full = d.frac_saturated >= 0.999
+        partial = (d.frac_saturated > 0) & ~full
+    else:
+        full = (m >= m.max() - max(1.0, 1e-4 * m.max())) & (v < 0.1 * vmax)
+        partial = np.zeros_like(full)
+    # a variance turn-over at the top of the series also marks saturation
+    i_peak = int(np.argmax(np.where(full, -np.inf, v)))
+    above = (~full) & (np.arange(v.size) > i_peak)
+    turnover = bool(np.any(above & (v < 0.8 * v[i_peak])))
+    adc = d.adc_max_dn
+    near_adc = False
+    if adc is not None:
+        nf = ~full
+        if np.any(nf):
+            near_adc = bool(np.any(m[nf] + 4.0 * np.sqrt(v[nf]) >= adc))
+    reached = bool(np.any(full) or np.any(partial) or turnover or near_adc)
+    return full, reached
+
+
+def select_terms(d: PTCData, *, force: dict | None = None) -> ModelTerms:
+    """Decide from the data which terms enter the fit (module docstring), with reasons."""
+    reasons, how = {}, {}
+    t = d.exposure_time_s
+    t_pos = t[t > 0]
+    multi_t = t_pos.size >= 2 and (t_pos.max() / t_pos.min() >= 1.5)
+    if not multi_t:
+        reasons["dark_current"] = ("all rows share one exposure time: only read² + D·t is "
+                                   "identifiable (reported as dark_noise_e)")
+    full, reached = saturation_flags(d)
+    adc = d.adc_max_dn
+    if not reached:
+        clip = "none"
+        reasons["saturation"] = ("no row approaches saturation: the full well is reported as a "
+                                 "lower bound (the largest measured signal)")
+    elif adc is not None and np.any(full) and np.all(d.mean_dn[full] >= adc - 0.5):
+        clip = "fixed_adc"
+        how["saturation"] = (f"the fully clipped rows sit at the ADC maximum {adc:g} DN: the "
+                                 "clip level is the ADC's, and the photodiode's own well may be deeper")
+    else:
+        clip = "sampled"
+    # partially clipped rows need the spread of pixel means about the clip
+    clip_spread = clip != "none"
+    qe = d.photons_per_pixel is not None
+    if not qe:
+        reasons["quantum_efficiency"] = "no photons_per_pixel column"
+    prnu = d.spatial_var_dn2 is not None and np.any(np.isfinite(d.spatial_var_dn2))
+    dsnu = (d.dark_spatial_var_dn2 is not None and np.any(np.isfinite(d.dark_spatial_var_dn2))) or prnu
+    if not prnu:
+        reasons["prnu"] = "no spatial_var_dn2 column: pair differences cancel fixed-pattern noise"
+    if not dsnu:
+        reasons["dsnu"] = "no dark_spatial_var_dn2 column: pair differences cancel fixed-pattern noise"
+    terms = dict(dark_current=multi_t, clip=clip, clip_spread=clip_spread, quantum_efficiency=qe,
+                 prnu=prnu, dsnu=dsnu)
+    if force:
+        terms.update(force)
+    return ModelTerms(**terms, reasons=reasons, how=how)
+
+
+class PTCModel:
+    """Posterior density of the noise-model parameters for one PTCData.
+
+    Sampling coordinates are unconstrained (logs of scales) with the Jacobians in the priors;
+    :meth:`log_prob` takes an array ``(n_walkers, n_dim)`` and returns ``(n_walkers,)``.
+    :meth:`physical` maps draws to named physical parameters.
+    """
+
+    #: prior scales (see README, "Priors")
+    PRIOR = dict(log_k_bounds=(np.log(1e-3), np.log(1e3)), read_scale_e=1000.0,
+                 dark_current_scale_e_per_s=1e4, prnu_scale=0.05, dsnu_scale_e=100.0,
+                 f_center=0.01, f_log_sd=1.5, g_center=0.005, g_log_sd=1.5,
+                 tau_log_sd=1.5, tau_max_frac=0.02)
+
+    def __init__(self, data: PTCData, terms: ModelTerms | None = None):
+        self.data = data
+        self.terms = terms or select_terms(data)
+        d, tm = data, self.terms
+        self.full_sat, self.saturation_reached = saturation_flags(d)
+        ok = ~self.full_sat
+        self.rows = np.nonzero(ok)[0]
+        self.t = d.exposure_time_s
+        self.adc = d.adc_max_dn
+        self.black_dn = float(d.dark_mean_dn[np.argmin(d.exposure_time_s)])
+        names = ["log_k"]
+        names.append("log_read" if tm.dark_current else "log_dark_noise")
+        if tm.dark_current:
+            names.append("log_dc")
+        m_ok = d.mean_dn[ok]
+        v_ok = d.temporal_var_dn2[ok]
+        self.max_mean_ok = float(m_ok.max())
+        if tm.clip == "sampled":
+            names.append("clip_dn")
+            lo = self.max_mean_ok + 1e-6 * max(1.0, self.max_mean_ok)
+            if np.any(self.full_sat):
+                hi = float(d.mean_dn[self.full_sat].max()) + 10.0 * np.sqrt(max(v_ok.max(), 1.0))
+            else:
+                hi = self.adc if self.adc is not None else 2.0 * self.max_mean_ok
+                hi = max(hi, lo * 1.05)
+            if self.adc is not None:
+                hi = min(hi, self.adc + 0.5)
+            self.clip_bounds = (lo, max(hi, lo + 1e-3))
+        elif tm.clip == "fixed_adc":
+            self.clip_bounds = (self.adc, self.adc)
+        else:
+            self.clip_bounds = None
+        if tm.clip_spread:
+            names.append("log_tau")
+        if tm.quantum_efficiency:
+            names += ["qe", "log_g"]
+        if tm.prnu:
+            names.append("log_prnu")
+        if tm.dsnu:
+            names.append("log_dsnu")
+        names.append("log_f")
+        self.names = names
+        self.ndim = len(names)
+        self.idx = {n: i for i, n in enumerate(names)}
+        # data arrays (non-fully-clipped rows)
+        self.m = d.mean_dn[ok]
+        self.v = np.maximum(d.temporal_var_dn2[ok], 1e-6)
+        self.vd = np.maximum(d.dark_temporal_var_dn2, 1e-6)
+        self.dm = d.dark_mean_dn[ok]
+        self.tt = self.t[ok]
+        self.nu = d.n_pixels[ok] - 1.0
+        self.nu_d = d.n_pixels - 1.0
+        self.s_obs = self.m - self.dm
+        # rows near enough to a possible clip level to need the clipped-moment model
+        if self.clip_bounds is not None:
+            tau_max = self.PRIOR["tau_max_frac"] * self.clip_bounds[1]
+            reach = self.m + 8.0 * np.sqrt(self.v + tau_max**2)
+            self.clip_rows = np.nonzero(reach >= self.clip_bounds[0])[0]
+        else:
+            self.clip_rows = np.zeros(0, int)
+        self.lin_rows = np.setdiff1d(np.arange(self.m.size), self.clip_rows)
+        if tm.quantum_efficiency:
+            self.mu_p = d.photons_per_pixel[ok]
+        # fully clipped rows: their mean locates a sampled clip level
+        self.full_means = d.mean_dn[self.full_sat]
+        self.full_sd = np.sqrt(d.temporal_var_dn2[self.full_sat] / d.n_pixels[self.full_sat]
+                               + (1e-4 * np.maximum(self.full_means, 1.0)) ** 2 + 0.01**2)
+        # spatial rows
+        self.sp_rows = np.zeros(0, int)
+        self.spd_rows = np.zeros(0, int)
+        if tm.prnu and d.spatial_var_dn2 is not None:
+            sp = d.spatial_var_dn2[ok]
+            self.sp_rows = np.setdiff1d(np.nonzero(np.isfinite(sp))[0], self.clip_rows)
+            self.sp = sp
+        if tm.dsnu and d.dark_spatial_var_dn2 is not None:
+            self.spd_rows = np.nonzero(np.isfinite(d.dark_spatial_var_dn2))[0]
+            self.spd = d.dark_spatial_var_dn2
+        nfr = d.n_frames if d.n_frames is not None else np.full(d.n_levels, 2.0)
+        nfr = np.where(np.isfinite(nfr), nfr, 2.0)
+        self.L_ok = nfr[ok]
+        self.L_all = nfr
+
+    # ------------------------------------------------------------------ parameters
+    def physical(self, theta) -> dict:
+        """Named physical parameters for draws ``theta`` (n, ndim)."""
+        th = np.atleast_2d(theta)
+        g = lambda n: th[:, self.idx[n]]  # noqa: E731
+        k = np.exp(g("log_k"))
+        out = {"conversion_gain_e_per_dn": k}
+        if self.terms.dark_current:
+            out["read_noise_e"] = np.exp(g("log_read"))
+            out["dark_current_e_per_s"] = np.exp(g("log_dc"))
+        else:
+            out["dark_noise_e"] = np.exp(g("log_dark_noise"))
+        if self.terms.clip == "sampled":
+            c = g("clip_dn")
+        elif self.terms.clip == "fixed_adc":
+            c = np.full(th.shape[0], self.adc)
+        else:
+            c = None
+        if c is not None:
+            out["clip_dn"] = c
+            out["full_well_e"] = (c - self.black_dn) * k
+        if self.terms.clip_spread:
+            out["clip_spread_dn"] = np.exp(g("log_tau"))
+        if self.terms.quantum_efficiency:
+            out["quantum_efficiency"] = g("qe")
+            out["mean_discrepancy"] = np.exp(g("log_g"))
+        if self.terms.prnu:
+            out["prnu_percent"] = 100.0 * np.exp(g("log_prnu"))
+        if self.terms.dsnu:
+            out["dsnu_e"] = np.exp(g("log_dsnu"))
+        out["variance_discrepancy"] = np.exp(g("log_f"))
+        return out
+
+    def dark_var_e2(self, p, t):
+        """σ_read² + D·t (e⁻²) for each draw at exposure times t: shape (n_draws, n_t)."""
+        t = np.atleast_1d(np.asarray(t, float))
+        if self.terms.dark_current:
+            return p["read_noise_e"][:, None] ** 2 + p["dark_current_e_per_s"][:, None] * t[None, :]
+        return np.broadcast_to(p["dark_noise_e"][:, None] ** 2, (p["dark_noise_e"].size, t.size))
+
+    # ------------------------------------------------------------------ prior
+    def log_prior(self, th):
+        P = self.PRIOR
+        g = lambda n: th[:, self.idx[n]]  # noqa: E731
+        lk = g("log_k")
+        lp = np.where((lk > P["log_k_bounds"][0]) & (lk < P["log_k_bounds"][1]), 0.0, -np.inf)
+        if self.terms.dark_current:
+            lp = lp + _halfnormal_log_prior(g("log_read"), P["read_scale_e"])
+            lp = lp + _halfnormal_log_prior(g("log_dc"), P["dark_current_scale_e_per_s"])
+        else:
+            lp = lp + _halfnormal_log_prior(g("log_dark_noise"), P["read_scale_e"])
+        if self.terms.clip == "sampled":
+            c = g("clip_dn")
+            lo, hi = self.clip_bounds
+            lp = lp + np.where((c > lo) & (c < hi), -np.log(hi - lo), -np.inf)
+            cref = c
+        elif self.terms.clip == "fixed_adc":
+            cref = np.full(th.shape[0], self.adc)
+        if self.terms.clip_spread:
+            lt = g("log_tau")
+            center = np.log(0.005 * np.maximum(cref - self.black_dn, 1.0))
+            lp = lp + _norm_logpdf(lt, center, P["tau_log_sd"])
+            lp = lp + np.where(np.exp(lt) < P["tau_max_frac"] * cref, 0.0, -np.inf)
+        if self.terms.quantum_efficiency:
+            qe = g("qe")
+            lp = lp + np.where((qe > 0) & (qe <= 1), 0.0, -np.inf)
+            lp = lp + _norm_logpdf(g("log_g"), np.log(P["g_center"]), P["g_log_sd"])
+        if self.terms.prnu:
+            lp = lp + _halfnormal_log_prior(g("log_prnu"), P["prnu_scale"])
+        if self.terms.dsnu:
+            lp = lp + _halfnormal_log_prior(g("log_dsnu"), P["dsnu_scale_e"])
+        lp = lp + _norm_logpdf(g("log_f"), np.log(P["f_center"]), P["f_log_sd"])
+        return lp
+
+    # ------------------------------------------------------------------ likelihood
+    def _clip_moments(self, mu, s, tau, c):
+        """Mean and variance of clip(N(mu + τξ, s²), c) averaged over ξ (Gauss–Hermite).
+
+        Shapes broadcast; a trailing node axis is summed. Returns (mean, var, dmean/dmu,
+        unclipped fraction)."""
+        x = mu[..., None] + tau[..., None] * _GH_X
+        ss = s[..., None]
+        alpha = (c[..., None] - x) / ss
+        Phi = ndtr(alpha)
+        phi = np.exp(-0.5 * alpha * alpha) / np.sqrt(2.0 * np.pi)
+        cc = c[..., None]
+        m1 = x * Phi - ss * phi + cc * (1.0 - Phi)
+        m2 = (x * x + ss * ss) * Phi - ss * phi * (x + cc) + cc * cc * (1.0 - Phi)
+        var_t = np.maximum(m2 - m1 * m1, 0.0)
+        return (m1 @ _GH_W, var_t @ _GH_W, Phi @ _GH_W)
+
+    def loglik_terms(self, th):
+        """Pointwise log-likelihood blocks (each (n_walkers, n_obs))."""
+        p = self.physical(th)
+        k = p["conversion_gain_e_per_dn"]
+        K = k[:, None]
+        f2 = np.exp(2.0 * th[:, self.idx["log_f"]])[:, None]
+        rd2_ok = self.dark_var_e2(p, self.tt)  # (n, rows)
+        rd2_all = self.dark_var_e2(p, self.t)
+        out = {}
+        # dark temporal variances (all rows)
+        vdm = rd2_all / (K * K) + 1.0 / 12.0
+        kd = 1.0 / (2.0 / self.nu_d[None, :] + f2)
+        out["dark_var"] = gamma_logpdf(self.vd[None, :], vdm, kd)
+        # bright temporal variances, unclipped rows: S from the measured mean
+        S = np.broadcast_to(self.s_obs[None, :], rd2_ok.shape).copy()
+        vm = S / K + rd2_ok / (K * K) + 1.0 / 12.0
+        slope = np.ones_like(vm)
+        if self.clip_rows.size:
+            c = p["clip_dn"]
+            tau = p["clip_spread_dn"]
+            rd2c = rd2_ok[:, self.clip_rows]
+            mu, var_c, sl, _ = self._latent_clip_rows(k, rd2c, tau, c)
+            # quantization variance survives only for the unclipped fraction of the pixels
+            vm[:, self.clip_rows] = var_c + sl / 12.0
+            S[:, self.clip_rows] = mu - self.dm[self.clip_rows][None, :]
+            slope[:, self.clip_rows] = sl
+        kb = 1.0 / (2.0 / self.nu[None, :] + f2)
+        out["bright_var"] = gamma_logpdf(self.v[None, :], np.maximum(vm, 1e-12), kb)
+        if self.terms.quantum_efficiency:
+            qe = p["quantum_efficiency"][:, None]
+            g2 = p["mean_discrepancy"][:, None] ** 2
+            s_model = qe * self.mu_p[None, :] / K
+            m_err2 = (self.v + self.vd[~self.full_sat]) / (self.nu + 1.0)
+            sd = np.sqrt(g2 * s_model**2 + m_err2[None, :] / np.maximum(slope, 1e-6) ** 2)
+            out["mean"] = _norm_logpdf(S, s_model, sd)
+        if self.terms.clip == "sampled" and self.full_means.size:
+            out["clip_mean"] = _norm_logpdf(self.full_means[None, :], p["clip_dn"][:, None],
+                                            self.full_sd[None, :])
+        if self.sp_rows.size:
+            r = self.sp_rows
+            prnu = p["prnu_percent"][:, None] / 100.0
+            dsnu_dn = p["dsnu_e"][:, None] / K
+            model = (prnu * S[:, r]) ** 2 + dsnu_dn**2 + vm[:, r] / self.L_ok[r][None, :]
+            ks = 1.0 / (2.0 / self.nu[r][None, :] + f2)
+            out["spatial_var"] = gamma_logpdf(self.sp[r][None, :], model, ks)
+        if self.spd_rows.size:
+            r = self.spd_rows
+            dsnu_dn = p["dsnu_e"][:, None] / K
+            model = dsnu_dn**2 + vdm[:, r] / self.L_all[r][None, :]
+            ks = 1.0 / (2.0 / self.nu_d[r][None, :] + f2)
+            out["dark_spatial_var"] = gamma_logpdf(np.maximum(self.spd[r], 1e-9)[None, :], model, ks)
+        return out
+
+    @staticmethod
+    def _clip_mean(mu, s, tau, c):
+        """Mean of the clipped values and its derivative in mu (Gauss–Hermite over ξ)."""
+        x = mu[..., None] + tau[..., None] * _GH_X
+        ss = s[..., None]
+        alpha = (c[..., None] - x) / ss
+        Phi = ndtr(alpha)
+        phi = np.exp(-0.5 * alpha * alpha) * 0.3989422804014327
+        m1 = c[..., None] - (c[..., None] - x) * Phi - ss * phi
+        return m1 @ _GH_W, Phi @ _GH_W
+
+    def _latent_clip_rows(self, k, rd2c, tau, c):
+        """Latent unclipped row means (DN) of the clip rows: solve E[clip(μ)] = measured mean.
+
+        The clipped mean is increasing and concave in μ, so Newton steps from μ = measured mean
+        approach the root from below without overshoot."""
+        rows = self.clip_rows
+        m_obs = self.m[rows][None, :]
+        dm = self.dm[rows][None, :]
+        K = k[:, None]
+        dark_var = rd2c / (K * K) + 1.0 / 12.0
+        cc = np.broadcast_to(c[:, None], dark_var.shape)
+        tt_ = np.broadcast_to(tau[:, None], dark_var.shape)
+        mu = np.broadcast_to(m_obs, dark_var.shape).copy()
+        for _ in range(30):
+            s = np.sqrt(np.maximum(mu - dm, 0.0) / K + dark_var)
+            mean, slope = self._clip_mean(mu, s, tt_, cc)
+            gap = m_obs - mean
+            if np.all(gap < 1e-7 * s):
+                break
+            mu = mu + np.clip(gap / np.maximum(slope, 1e-12), 0.0, 50.0 * (s + tt_))
+        s = np.sqrt(np.maximum(mu - dm, 0.0) / K + dark_var)
+        mean, var, slope = self._clip_moments(mu, s, tt_, cc)
+        return mu, var, slope, mean
+
+    def log_likelihood(self, th):
+        terms = self.loglik_terms(th)
+        return sum(v.sum(axis=1) for v in terms.values())
+
+    def log_prob(self, theta):
+        th = np.atleast_2d(np.asarray(theta, float))
+        lp = self.log_prior(th)
+        good = np.isfinite(lp)
+        out = np.full(th.shape[0], -np.inf)
+        if np.any(good):
+            with np.errstate(over="ignore", invalid="ignore", divide="ignore"):
+                ll = self.log_likelihood(th[good])
+            ll = np.where(np.isfinite(ll), ll, -np.inf)
+            out[good] = lp[good] + ll
+        return out
+
+    # ------------------------------------------------------------------ start point
+    def initial_guess(self) -> np.ndarray:
+        """A deterministic starting point from EMVA-1288-style linear fits (no randomness)."""
+        d, tm = self.data, self.terms
+        s, v = self.s_obs, self.v
+        vd_ok = self.vd[~self.full_sat]
+        lin = s <= 0.7 * s.max()
+        if lin.sum() < 2:
+            lin = np.ones_like(s, bool)
+        y = v[lin] - vd_ok[lin]
+        x = s[lin]
+        slope = np.sum(x * y) / max(np.sum(x * x), 1e-300)
+        if len(x) >= 3:
+            A = np.vstack([x, np.ones_like(x)]).T
+            slope = np.linalg.lstsq(A, y, rcond=None)[0][0]
+        slope = slope if np.isfinite(slope) and slope > 0 else 1.0
+        k0 = float(np.clip(1.0 / slope, 2e-3, 5e2))
+        vd0 = float(np.median(self.vd))
+        sig0_e2 = max((vd0 - 1.0 / 12.0) * k0 * k0, (0.05 * k0) ** 2)
+        th = {"log_k": np.log(k0)}
+        if tm.dark_current:
+            t = self.t
+            if np.ptp(t) > 0:
+                b = np.polyfit(t, self.vd, 1)[0] * k0 * k0
+            else:
+                b = 0.0
+            tmax = max(t.max(), 1e-9)
+            dc0 = b if b > 0 else 0.05 * sig0_e2 / tmax
+            dc0 = min(dc0, 0.5 * sig0_e2 / tmax) if b <= 0 else dc0
+            r2 = max(sig0_e2 - dc0 * np.median(t), 0.25 * sig0_e2)
+            th["log_read"] = 0.5 * np.log(r2)
+            th["log_dc"] = np.log(max(dc0, 1e-6))
+        else:
+            th["log_dark_noise"] = 0.5 * np.log(sig0_e2)
+        if tm.clip == "sampled":
+            lo, hi = self.clip_bounds
+            if self.full_means.size:
+                th["clip_dn"] = float(np.clip(self.full_means.mean(), lo + 1e-6 * (hi - lo), hi - 1e-6 * (hi - lo)))
+            else:
+                th["clip_dn"] = lo + 0.02 * (hi - lo)
+        if tm.clip_spread:
+            cref = th.get("clip_dn", self.adc if self.adc is not None else self.max_mean_ok)
+            th["log_tau"] = np.log(max(0.005 * (cref - self.black_dn), 0.5))
+        if tm.quantum_efficiency:
+            x = self.mu_p[lin]
+            r = np.sum(x * s[lin]) / max(np.sum(x * x), 1e-300)
+            th["qe"] = float(np.clip(r * k0, 0.01, 0.99))
+            th["log_g"] = np.log(0.005)
+        if tm.prnu or tm.dsnu:
+            dsnu_dn2 = 1e-4
+            if self.spd_rows.size:
+                r = self.spd_rows
+                dsnu_dn2 = max(np.median(self.spd[r] - self.vd[r] / self.L_all[r]), 1e-4)
+            if tm.dsnu:
+                th["log_dsnu"] = 0.5 * np.log(dsnu_dn2 * k0 * k0)
+            if tm.prnu:
+                pr2 = 1e-6
+                if self.sp_rows.size:
+                    r = self.sp_rows
+                    est = (self.sp[r] - v[r] / self.L_ok[r] - dsnu_dn2) / np.maximum(s[r], 1e-9) ** 2
+                    pr2 = max(np.median(est), 1e-8)
+                th["log_prnu"] = 0.5 * np.log(pr2)
+        th["log_f"] = np.log(0.01)
+        return np.array([th[n] for n in self.names], float)

@@ -1,0 +1,356 @@
+"""The fit result: posterior draws of the noise model, their summaries, derived quantities
+(SNR, DR, TR, Δs, s', C) pushed through every draw, and convergence diagnostics.
+
+``FitResult.to_dict()`` is the fit JSON of the contract (README, "Fit result JSON").
+"""
+from __future__ import annotations
+
+import math
+import warnings
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from . import __version__
+from .capacity import (NoiseCoefficients, dynamic_range_db, mtf_loss_bits, snr_db, tonal_range,
+                       N_GREY_LEVELS)
+from .fit import ChainResult, ConvergenceWarning, diagnostics
+from .model import PARAMETER_INFO, PTCModel
+from .optics import default_mtf
+
+__all__ = ["FitResult", "Scene", "summarize", "DERIVED_INFO"]
+
+DERIVED_INFO = {
+    "tonal_range_bits": ("bits", "b' = log2 TR (Eq. 7), 8-bit-equivalent grey scale"),
+    "dynamic_range_db": ("dB", "DR (Eq. 2)"),
+    "snr_max_db": ("dB", "SNR at the largest non-saturating signal (Eq. 1)"),
+    "mtf_loss_bits": ("bits", "Δs (Eq. 9)"),
+    "effective_pixels": ("pixels", "s' = s·2^Δs"),
+    "capacity_bits": ("bits", "C = s'·b' (Eq. 6)"),
+}
+
+
+@dataclass(frozen=True)
+class Scene:
+    """Where TR and capacity are evaluated: exposure time (dark-current charge and shot noise).
+
+    ``temperature_c`` with ``reference_temperature_c`` scales the dark current by 2^(ΔT/6 °C)
+    (paper, Section 2.2)."""
+
+    exposure_time_s: float
+    source: str = "given"
+    temperature_c: float | None = None
+    reference_temperature_c: float | None = None
+
+    @property
+    def dark_current_factor(self) -> float:
+        if self.temperature_c is None or self.reference_temperature_c is None:
+            return 1.0
+        return 2.0 ** ((self.temperature_c - self.reference_temperature_c) / 6.0)
+
+    def to_dict(self):
+        d = {"exposure_time_s": self.exposure_time_s, "source": self.source}
+        if self.temperature_c is not None:
+            d["temperature_c"] = self.temperature_c
+            d["reference_temperature_c"] = self.reference_temperature_c
+            d["dark_current_factor"] = self.dark_current_factor
+        return d
+
+
+def _q(x, qs):
+    return [float(v) for v in np.quantile(x, qs)]
+
+
+def summarize(x, unit="", constrained=True, **extra):
+    """Median, 68 % and 95 % equal-tailed intervals of a 1-D array of draws."""
+    x = np.asarray(x, float).ravel()
+    q = _q(x, [0.025, 0.16, 0.5, 0.84, 0.975])
+    out = {"median": q[2], "ci68": [q[1], q[3]], "ci95": [q[0], q[4]], "unit": unit,
+           "constrained": bool(constrained)}
+    out.update(extra)
+    return out
+
+
+def _json_float(x):
+    if x is None:
+        return None
+    x = float(x)
+    return x if math.isfinite(x) else None
+
+
+@dataclass
+class FitResult:
+    """Posterior of one sensor's noise model and everything derived from it."""
+
+    model: PTCModel
+    chains: ChainResult
+    metadata: dict
+    scene: Scene
+    mtf: object
+    seed: int | None
+    quality: str
+    draws: dict = field(default_factory=dict)        # physical name -> (n_samples,) all samples
+    derived: dict = field(default_factory=dict)      # derived name -> (n_samples,)
+    notes: list = field(default_factory=list)        # human-readable caveats, in order
+    flags: dict = field(default_factory=dict)        # machine-readable caveats
+    diag: dict = field(default_factory=dict)
+    mtf_info: dict = field(default_factory=dict)
+
+    # ----------------------------------------------------------------- construction
+    @classmethod
+    def from_chains(cls, model: PTCModel, chains: ChainResult, *, metadata, scene, mtf, seed, quality):
+        self = cls(model=model, chains=chains, metadata=metadata, scene=scene, mtf=mtf, seed=seed,
+                   quality=quality)
+        E, S, W, D = chains.chain.shape
+        flat = chains.chain.reshape(E * S * W, D)
+        self.draws = model.physical(flat)
+        self._derive()
+        self._diagnose()
+        return self
+
+    @property
+    def shape_esw(self):
+        E, S, W, _ = self.chains.chain.shape
+        return (E, S, W)
+
+    def _noise_coefficients(self, p, t_s):
+        m = self.model
+        k = p["conversion_gain_e_per_dn"]
+        fac = self.scene.dark_current_factor
+        if m.terms.dark_current:
+            rd2 = p["read_noise_e"] ** 2 + fac * p["dark_current_e_per_s"] * t_s
+        else:
+            rd2 = p["dark_noise_e"] ** 2
+        dsnu = p.get("dsnu_e", 0.0)
+        prnu = p.get("prnu_percent", 0.0) / 100.0
+        return NoiseCoefficients.from_parameters(read_noise_e=0.0, dark_noise_e=np.sqrt(rd2), dsnu_e=dsnu,
+                                                 prnu_frac=prnu, conversion_gain_e_per_dn=k)
+
+    def signal_max_e(self, p=None):
+        """Largest non-saturating signal (e⁻) per draw, and whether it is only a lower bound."""
+        p = self.draws if p is None else p
+        m = self.model
+        k = p["conversion_gain_e_per_dn"]
+        t = self.scene.exposure_time_s
+        dark_charge = 0.0
+        if m.terms.dark_current:
+            dark_charge = self.scene.dark_current_factor * p["dark_current_e_per_s"] * t
+        if "full_well_e" in p:
+            return np.maximum(p["full_well_e"] - dark_charge, 1e-9), False
+        return np.maximum((m.max_mean_ok - m.black_dn) * k - dark_charge, 1e-9), True
+
+    def _derive(self):
+        p = self.draws
+        coeffs = self._noise_coefficients(p, self.scene.exposure_time_s)
+        s_max, lower = self.signal_max_e(p)
+        tr = tonal_range(coeffs, s_max)
+        bprime = np.log2(np.maximum(tr, 1.0))
+        ml = mtf_loss_bits(self.mtf, draws=True)
+        ds = np.asarray(ml.delta_s_bits, float)
+        if ds.ndim == 1 and ds.size > 1:
+            # MTF with its own draws (measured): pair them with posterior samples at random
+            rng = np.random.default_rng(np.random.SeedSequence(self.seed).spawn(2)[1])
+            ds = ds[rng.integers(0, ds.size, size=bprime.size)]
+        else:
+            ds = np.full_like(bprime, float(ds))
+        self.mtf_info = {"model": self.mtf.describe(), **ml.to_dict()}
+        w, h = self.metadata.get("width_px"), self.metadata.get("height_px")
+        self.derived = {
+            "tonal_range_bits": bprime,
+            "dynamic_range_db": dynamic_range_db(coeffs, s_max),
+            "snr_max_db": snr_db(coeffs, s_max),
+            "mtf_loss_bits": ds,
+        }
+        if w and h:
+            s = float(w) * float(h)
+            self.derived["effective_pixels"] = s * np.exp2(ds)
+            self.derived["capacity_bits"] = self.derived["effective_pixels"] * bprime
+        else:
+            self.derived["capacity_bits_per_pixel"] = np.exp2(ds) * bprime
+            self.notes.append("width_px/height_px unknown: capacity is given per pixel "
+                              "(capacity_bits_per_pixel); add '# width_px:' and '# height_px:'")
+        if lower:
+            self.flags["capacity_lower_bound"] = True
+            self.notes.append("no row reaches saturation: the full well, DR, TR and capacity use "
+                              "the largest measured signal and are lower bounds")
+        if ml.band_cut:
+            self.flags["mtf_band_cut"] = True
+            self.notes.append(f"the MTF reaches zero at {ml.f_end_cy_per_px:.3f} cy/px, below Nyquist "
+                              f"(0.5): the band is cut there, costing {ml.band_cut_bits:.2f} bits of Δs")
+        if np.any(tr >= 0.999 * N_GREY_LEVELS * (1 - 1e-9)):
+            self.notes.append("noise stays below one 8-bit grey level over part of the range: TR is "
+                              "limited by the 8-bit-equivalent scale (the max(σ, 1) floor of Eq. 7)")
+
+    # ----------------------------------------------------------------- diagnostics
+    def _diagnose(self):
+        c = self.chains
+        E, S, W, D = c.chain.shape
+        per = {}
+        for j, n in enumerate(self.model.names):
+            per[n] = diagnostics(c.chain[..., j])
+        for n in ("capacity_bits", "capacity_bits_per_pixel", "tonal_range_bits"):
+            if n in self.derived:
+                per[n] = diagnostics(self.derived[n].reshape(E, S, W))
+        rhat_max = max(v["rhat"] for v in per.values())
+        ess_min = min(min(v["ess_bulk"], v["ess_tail"]) for v in per.values())
+        st = c.settings
+        tau_max = float(np.max(c.tau))
+        converged = bool(rhat_max < st.rhat_target and ess_min >= st.ess_target
+                         and S >= st.tau_factor * tau_max and np.all((c.acceptance > 0.05)))
+        self.diag = {
+            "method": "emcee ensembles (DEMove + StretchMove), Gamma likelihood with discrepancy",
+            "quality": self.quality,
+            "converged": converged,
+            "rhat_max": rhat_max,
+            "ess_min": ess_min,
+            "rhat_target": st.rhat_target,
+            "ess_target": st.ess_target,
+            "n_ensembles": E,
+            "n_walkers": W,
+            "n_steps": S,
+            "n_burn": st.n_burn,
+            "tau_max_steps": tau_max,
+            "acceptance": [float(a) for a in c.acceptance],
+            "wall_s": c.wall_s,
+            "seed": self.seed,
+            "per_quantity": per,
+        }
+        if not converged:
+            worst = max(per, key=lambda n: per[n]["rhat"])
+            self.notes.insert(0, f"NOT CONVERGED: R-hat max {rhat_max:.4f} ({worst}), ESS min "
+                                 f"{ess_min:.0f} (targets < {st.rhat_target}, ≥ {st.ess_target:.0f}); "
+                                 "rerun with --quality accurate")
+            warnings.warn(self.notes[0], ConvergenceWarning, stacklevel=3)
+        f = np.median(self.draws["variance_discrepancy"])
+        if f > 0.05:
+            self.notes.append(f"the variances scatter {100 * f:.1f} % beyond their statistical error: "
+                              "the model or the measurements are inadequate (check linearity, lamp "
+                              "stability, outlier rows)")
+
+    # ----------------------------------------------------------------- API
+    def push(self, fn, n_max=None):
+        """Push a function of the physical-parameter dict through the posterior draws.
+
+        ``fn(draws: dict[str, ndarray]) -> ndarray`` must be vectorised over the leading axis."""
+        p = self.draws if n_max is None else {k: v[self.thin_index(n_max)] for k, v in self.draws.items()}
+        return fn(p)
+
+    def thin_index(self, n_max):
+        n = next(iter(self.draws.values())).size
+        if n <= n_max:
+            return np.arange(n)
+        return np.linspace(0, n - 1, n_max).round().astype(int)
+
+    def parameter_summary(self) -> dict:
+        """The contract's ``parameters`` block, with identifiability flags."""
+        p, m, out = self.draws, self.model, {}
+        k = p["conversion_gain_e_per_dn"]
+        out["conversion_gain_e_per_dn"] = summarize(k, "e-/DN")
+
+        def nonneg(name, x, unit, why_floor=None):
+            q = np.quantile(x, [0.025, 0.5, 0.95])
+            detected = q[0] > 0.2 * q[1] and why_floor is None
+            extra = {}
+            if not detected:
+                extra["upper_limit_95"] = float(q[2])
+                extra["note"] = why_floor or ("the posterior reaches down to zero: an upper limit, "
+                                              "not a detection")
+            out[name] = summarize(x, unit, constrained=detected, **extra)
+
+        if m.terms.dark_current:
+            rn = p["read_noise_e"]
+            floor = None
+            if np.median(rn / k) < 0.4:
+                floor = ("read noise below 0.4 DN is masked by quantization (EMVA 1288): an upper "
+                         "limit only")
+            nonneg("read_noise_e", rn, "e-", floor)
+            nonneg("dark_current_e_per_s", p["dark_current_e_per_s"], "e-/s")
+        else:
+            dn = p["dark_noise_e"]
+            t = float(np.unique(m.t[m.t > 0])[0]) if np.any(m.t > 0) else 0.0
+            out["dark_noise_e"] = summarize(dn, "e-", note=f"sqrt(read² + D·t) at t = {t:g} s: the only "
+                                            "identifiable combination with one exposure time")
+            out["read_noise_e"] = summarize(dn, "e-", constrained=False, upper_limit_95=float(np.quantile(dn, 0.95)),
+                                            note="not separable from dark current with one exposure time: "
+                                                 "the interval is that of sqrt(read² + D·t), an upper limit")
+            if t > 0:
+                dc = dn**2 / t
+                out["dark_current_e_per_s"] = summarize(dc, "e-/s", constrained=False,
+                                                        upper_limit_95=float(np.quantile(dc, 0.95)),
+                                                        note="upper limit (all dark noise attributed to D·t)")
+        if "full_well_e" in p:
+            extra = {}
+            if m.terms.clip == "fixed_adc":
+                extra = {"clip_source": "adc",
+                         "note": "the output clips at the ADC maximum: this is the charge at the clip; "
+                                 "the photodiode's own well may be deeper"}
+            else:
+                extra = {"clip_source": "full_well_or_adc"}
+            out["full_well_e"] = summarize(p["full_well_e"], "e-", **extra)
+        else:
+            lb = float(np.quantile((m.max_mean_ok - m.black_dn) * k, 0.025))
+            out["full_well_e"] = {"median": None, "ci68": [lb, None], "ci95": [lb, None], "unit": "e-",
+                                  "constrained": False, "lower_bound": lb,
+                                  "note": "no row reaches saturation: only a lower bound (the largest "
+                                          "measured signal)"}
+        if "quantum_efficiency" in p:
+            out["quantum_efficiency"] = summarize(p["quantum_efficiency"], "")
+        if "prnu_percent" in p:
+            nonneg("prnu_percent", p["prnu_percent"], "%")
+        if "dsnu_e" in p:
+            nonneg("dsnu_e", p["dsnu_e"], "e-")
+        out["variance_discrepancy"] = summarize(p["variance_discrepancy"], "",
+                                                note="fractional scatter of the variances beyond statistics")
+        if "clip_spread_dn" in p:
+            out["clip_spread_dn"] = summarize(p["clip_spread_dn"], "DN", note="spread of pixel means at the clip")
+        if "mean_discrepancy" in p:
+            out["mean_discrepancy"] = summarize(p["mean_discrepancy"], "", note="fractional non-linearity scatter")
+        return out
+
+    def derived_summary(self) -> dict:
+        out = {}
+        lower = self.flags.get("capacity_lower_bound", False)
+        for name, x in self.derived.items():
+            unit = DERIVED_INFO.get(name, ("bits/pixel", ""))[0]
+            extra = {}
+            if lower and name not in ("mtf_loss_bits",):
+                extra["lower_bound"] = True
+            out[name] = summarize(x, unit, **extra)
+            out[name].pop("constrained")
+        return out
+
+    def to_dict(self) -> dict:
+        sensor = dict(self.metadata)
+        diag = {k: v for k, v in self.diag.items()}
+        return _clean({
+            "bayescap_version": __version__,
+            "input": self.model.data.source,
+            "sensor": sensor,
+            "scene": self.scene.to_dict(),
+            "parameters": self.parameter_summary(),
+            "derived": self.derived_summary(),
+            "model_terms": self.model.terms.names(),
+            "terms_left_out": dict(self.model.terms.reasons),
+            "term_notes": dict(self.model.terms.how),
+            "mtf": self.mtf_info,
+            "notes": list(self.notes),
+            "flags": dict(self.flags),
+            "diagnostics": diag,
+        })
+
+
+def _clean(obj):
+    """JSON-safe: numpy scalars to Python, non-finite floats to None."""
+    if isinstance(obj, dict):
+        return {str(k): _clean(v) for k, v in obj.items()}
+    if isinstance(obj, (list, tuple)):
+        return [_clean(v) for v in obj]
+    if isinstance(obj, (np.bool_, bool)):
+        return bool(obj)
+    if isinstance(obj, (np.integer,)):
+        return int(obj)
+    if isinstance(obj, (float, np.floating)):
+        return _json_float(obj)
+    if isinstance(obj, np.ndarray):
+        return _clean(obj.tolist())
+    return obj

@@ -1,0 +1,318 @@
+"""Photon-transfer data: reading and validating the contract CSV, the immutable PTCData object.
+
+The format (see README, "Photon-transfer CSV"): optional ``# key: value`` metadata lines, one
+header row, one row per exposure level. Required columns ``exposure_time_s, mean_dn,
+temporal_var_dn2, dark_mean_dn, dark_temporal_var_dn2, n_pixels``; optional
+``photons_per_pixel, exposure_lux_s, spatial_var_dn2, dark_spatial_var_dn2, n_frames,
+frac_saturated``. Every refusal raises :class:`PTCInputError` naming file, row and column.
+"""
+from __future__ import annotations
+
+import csv
+import io
+import math
+import os
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+__all__ = ["PTCData", "PTCInputError", "read_ptc_csv", "write_ptc_csv", "REQUIRED_COLUMNS",
+           "OPTIONAL_COLUMNS", "METADATA_TYPES"]
+
+REQUIRED_COLUMNS = ("exposure_time_s", "mean_dn", "temporal_var_dn2", "dark_mean_dn",
+                    "dark_temporal_var_dn2", "n_pixels")
+OPTIONAL_COLUMNS = ("photons_per_pixel", "exposure_lux_s", "spatial_var_dn2",
+                    "dark_spatial_var_dn2", "n_frames", "frac_saturated")
+
+#: known metadata keys and their types (unknown keys are kept as strings)
+METADATA_TYPES = {
+    "sensor": str, "manufacturer": str, "pixel_pitch_um": float, "width_px": int,
+    "height_px": int, "adc_bits": int, "black_level_dn": float, "f_number": float,
+    "wavelength_nm": float, "fill_factor": float, "analog_gain": float, "channel": str,
+    "temperature_c": float,
+}
+
+
+class PTCInputError(ValueError):
+    """A photon-transfer input that cannot be used; the message names file, row and column."""
+
+    def __init__(self, message, *, path=None, row=None, column=None):
+        where = []
+        if path is not None:
+            where.append(str(path))
+        if row is not None:
+            where.append(f"row {row}")
+        if column is not None:
+            where.append(f"column '{column}'")
+        super().__init__((": ".join([", ".join(where), message])) if where else message)
+        self.path, self.row, self.column = path, row, column
+
+
+def _readonly(a):
+    a = np.array(a, dtype=float)
+    a.setflags(write=False)
+    return a
+
+
+@dataclass(frozen=True)
+class PTCData:
+    """Validated photon-transfer measurements of one sensor/channel/gain (immutable).
+
+    Arrays are read-only, sorted by increasing bright mean. ``metadata`` holds the typed
+    ``# key: value`` lines; ``source`` the file name as given.
+    """
+
+    exposure_time_s: np.ndarray
+    mean_dn: np.ndarray
+    temporal_var_dn2: np.ndarray
+    dark_mean_dn: np.ndarray
+    dark_temporal_var_dn2: np.ndarray
+    n_pixels: np.ndarray
+    photons_per_pixel: np.ndarray | None = None
+    exposure_lux_s: np.ndarray | None = None
+    spatial_var_dn2: np.ndarray | None = None
+    dark_spatial_var_dn2: np.ndarray | None = None
+    n_frames: np.ndarray | None = None
+    frac_saturated: np.ndarray | None = None
+    metadata: dict = field(default_factory=dict)
+    source: str = "<memory>"
+    row_numbers: np.ndarray | None = None  # 1-based data-row numbers in the file (for messages)
+
+    @property
+    def n_levels(self) -> int:
+        return int(self.mean_dn.size)
+
+    @property
+    def adc_max_dn(self) -> float | None:
+        bits = self.metadata.get("adc_bits")
+        return None if bits is None else float(2 ** int(bits) - 1)
+
+    @property
+    def signal_dn(self) -> np.ndarray:
+        """Dark-subtracted bright mean (DN)."""
+        return self.mean_dn - self.dark_mean_dn
+
+    @property
+    def has_spatial(self) -> bool:
+        return self.spatial_var_dn2 is not None or self.dark_spatial_var_dn2 is not None
+
+    def with_metadata(self, **overrides) -> "PTCData":
+        md = dict(self.metadata)
+        md.update({k: v for k, v in overrides.items() if v is not None})
+        return _replace(self, metadata=md)
+
+    def select(self, mask) -> "PTCData":
+        """A new PTCData with only the rows where ``mask`` is true."""
+        mask = np.asarray(mask, bool)
+        kw = {}
+        for name in REQUIRED_COLUMNS + OPTIONAL_COLUMNS + ("row_numbers",):
+            v = getattr(self, name)
+            kw[name] = None if v is None else _readonly(np.asarray(v)[mask])
+        return PTCData(**kw, metadata=dict(self.metadata), source=self.source)
+
+    def row_label(self, i) -> int:
+        return int(self.row_numbers[i]) if self.row_numbers is not None else int(i) + 1
+
+
+def _replace(obj, **kw):
+    from dataclasses import replace
+    return replace(obj, **kw)
+
+
+def _parse_metadata(lines, path):
+    md = {}
+    for lineno, line in lines:
+        body = line.lstrip("#").strip()
+        if not body:
+            continue
+        if ":" not in body:
+            continue  # a plain comment
+        key, value = (s.strip() for s in body.split(":", 1))
+        typ = METADATA_TYPES.get(key)
+        if typ is None:
+            md[key] = value
+            continue
+        try:
+            v = typ(float(value)) if typ is int else typ(value)
+            if typ is int and float(value) != int(float(value)):
+                raise ValueError
+        except ValueError:
+            raise PTCInputError(f"metadata '{key}' must be {typ.__name__}, got '{value}'",
+                                path=path, row=f"metadata line {lineno}") from None
+        if typ is float and not math.isfinite(v):
+            raise PTCInputError(f"metadata '{key}' must be finite, got '{value}'", path=path,
+                                row=f"metadata line {lineno}")
+        md[key] = v
+    _check_metadata(md, path)
+    return md
+
+
+def _check_metadata(md, path):
+    positive = ("pixel_pitch_um", "width_px", "height_px", "adc_bits", "f_number", "wavelength_nm")
+    for k in positive:
+        if k in md and not md[k] > 0:
+            raise PTCInputError(f"metadata '{k}' must be positive, got {md[k]}", path=path)
+    if "adc_bits" in md and not 1 <= md["adc_bits"] <= 32:
+        raise PTCInputError(f"metadata 'adc_bits' must be between 1 and 32, got {md['adc_bits']}", path=path)
+    if "fill_factor" in md and not 0 < md["fill_factor"] <= 1:
+        raise PTCInputError(f"metadata 'fill_factor' must be in (0, 1], got {md['fill_factor']}", path=path)
+
+
+def read_ptc_csv(path, *, overrides: dict | None = None) -> PTCData:
+    """Read and validate a photon-transfer CSV (see module docstring).
+
+    ``overrides`` (e.g. from the command line) replace metadata values. Raises
+    :class:`PTCInputError` naming the file, the row (1 = first data row) and the column.
+    """
+    path_str = str(path)
+    try:
+        raw = Path(path).read_bytes()
+    except FileNotFoundError:
+        raise PTCInputError("file not found", path=path_str) from None
+    except OSError as e:
+        raise PTCInputError(f"cannot read file ({e.strerror})", path=path_str) from None
+    try:
+        text = raw.decode("utf-8-sig")
+    except UnicodeDecodeError:
+        raise PTCInputError("not a UTF-8 text file", path=path_str) from None
+    lines = text.splitlines()
+    meta_lines, body_start = [], None
+    for i, line in enumerate(lines):
+        s = line.strip()
+        if not s:
+            continue
+        if s.startswith("#"):
+            meta_lines.append((i + 1, s))
+            continue
+        body_start = i
+        break
+    if body_start is None:
+        raise PTCInputError("empty file: expected a header row and at least two data rows",
+                            path=path_str)
+    md = _parse_metadata(meta_lines, path_str)
+    if overrides:
+        md.update({k: v for k, v in overrides.items() if v is not None})
+        _check_metadata(md, path_str)
+    reader = csv.reader(io.StringIO("\n".join(lines[body_start:])))
+    header = [h.strip() for h in next(reader)]
+    if len(set(header)) != len(header):
+        dup = sorted({h for h in header if header.count(h) > 1})
+        raise PTCInputError(f"duplicate column(s) {', '.join(dup)} in the header", path=path_str, row="header")
+    missing = [c for c in REQUIRED_COLUMNS if c not in header]
+    if missing:
+        raise PTCInputError(f"missing required column(s): {', '.join(missing)} "
+                            f"(required: {', '.join(REQUIRED_COLUMNS)})", path=path_str, row="header",
+                            column=missing[0])
+    wanted = [c for c in REQUIRED_COLUMNS + OPTIONAL_COLUMNS if c in header]
+    cols = {c: [] for c in wanted}
+    rownums = []
+    rowno = 0
+    for rec in reader:
+        if not rec or all(not x.strip() for x in rec):
+            continue
+        if rec[0].lstrip().startswith("#"):
+            continue
+        rowno += 1
+        if len(rec) != len(header):
+            raise PTCInputError(f"has {len(rec)} fields, the header has {len(header)}",
+                                path=path_str, row=rowno)
+        for c in wanted:
+            s = rec[header.index(c)].strip()
+            if s == "" and c in OPTIONAL_COLUMNS:
+                raise PTCInputError("empty value in an optional column (leave the column out "
+                                    "or give every row a value)", path=path_str, row=rowno, column=c)
+            try:
+                v = float(s)
+            except ValueError:
+                raise PTCInputError(f"expected a number, got '{s}'" if s else "missing value",
+                                    path=path_str, row=rowno, column=c) from None
+            if not math.isfinite(v):
+                raise PTCInputError(f"expected a finite number, got '{s}'", path=path_str, row=rowno, column=c)
+            _check_value(c, v, path_str, rowno)
+            cols[c].append(v)
+        rownums.append(rowno)
+    if rowno < 2:
+        raise PTCInputError(f"needs at least 2 data rows (exposure levels), found {rowno}", path=path_str)
+    order = np.argsort(np.asarray(cols["mean_dn"]) - np.asarray(cols["dark_mean_dn"]), kind="stable")
+    kw = {c: _readonly(np.asarray(v)[order]) for c, v in cols.items()}
+    data = PTCData(**kw, metadata=md, source=path_str, row_numbers=_readonly(np.asarray(rownums)[order]))
+    _check_consistency(data, path_str)
+    return data
+
+
+def _check_value(col, v, path, row):
+    nonneg = ("exposure_time_s", "temporal_var_dn2", "dark_temporal_var_dn2", "photons_per_pixel",
+              "exposure_lux_s", "spatial_var_dn2", "dark_spatial_var_dn2")
+    if col in nonneg and v < 0:
+        what = "variance" if "var" in col else "value"
+        raise PTCInputError(f"negative {what} {v:g} is physically impossible", path=path, row=row, column=col)
+    if col == "n_pixels" and (v < 2 or v != int(v)):
+        raise PTCInputError(f"n_pixels must be a whole number >= 2, got {v:g}", path=path, row=row, column=col)
+    if col == "n_frames" and (v < 2 or v != int(v)):
+        raise PTCInputError(f"n_frames must be a whole number >= 2, got {v:g}", path=path, row=row, column=col)
+    if col == "frac_saturated" and not 0 <= v <= 1:
+        raise PTCInputError(f"frac_saturated must be in [0, 1], got {v:g}", path=path, row=row, column=col)
+
+
+def _check_consistency(d: PTCData, path):
+    adc = d.adc_max_dn
+    if adc is not None:
+        for col in ("mean_dn", "dark_mean_dn"):
+            bad = np.nonzero(getattr(d, col) > adc + 1e-6)[0]
+            if bad.size:
+                i = bad[0]
+                raise PTCInputError(f"{getattr(d, col)[i]:g} DN exceeds the ADC maximum {adc:g} "
+                                    f"of adc_bits={d.metadata['adc_bits']}", path=path,
+                                    row=d.row_label(i), column=col)
+    if np.all(d.signal_dn <= 0):
+        raise PTCInputError("no row has a bright mean above its dark mean: not a photon-transfer "
+                            "series", path=path, column="mean_dn")
+
+
+def write_ptc_csv(data_or_rows, path, *, metadata: dict | None = None, columns=None):
+    """Write a contract CSV atomically (temp file + rename).
+
+    ``data_or_rows`` is a PTCData or a dict of column -> array.
+    """
+    if isinstance(data_or_rows, PTCData):
+        d = data_or_rows
+        cols = {c: getattr(d, c) for c in REQUIRED_COLUMNS + OPTIONAL_COLUMNS if getattr(d, c) is not None}
+        md = dict(d.metadata) if metadata is None else metadata
+    else:
+        cols = {k: np.asarray(v) for k, v in data_or_rows.items()}
+        md = metadata or {}
+    if columns is not None:
+        cols = {c: cols[c] for c in columns}
+    names = list(cols)
+    n = len(next(iter(cols.values())))
+    buf = io.StringIO()
+    for k, v in md.items():
+        buf.write(f"# {k}: {v}\n")
+    w = csv.writer(buf, lineterminator="\n")
+    w.writerow(names)
+    for i in range(n):
+        w.writerow([_fmt(cols[c][i], c) for c in names])
+    atomic_write_text(path, buf.getvalue())
+
+
+def _fmt(v, col):
+    if col in ("n_pixels", "n_frames"):
+        return str(int(round(float(v))))
+    return repr(float(v))
+
+
+def atomic_write_text(path, text: str):
+    """Write ``text`` to ``path`` atomically: a temp file in the same folder, then rename."""
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    tmp = path.with_name(f".{path.name}.tmp-{os.getpid()}")
+    try:
+        with open(tmp, "w", encoding="utf-8", newline="") as fh:
+            fh.write(text)
+            fh.flush()
+            os.fsync(fh.fileno())
+        os.replace(tmp, path)
+    finally:
+        if tmp.exists():
+            tmp.unlink()
