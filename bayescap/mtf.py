@@ -414,21 +414,25 @@ def _edge_locations(a: np.ndarray, sign: float, npol: int, window: str) -> tuple
     return loc, _EdgeFit(y, loc, npol)
 
 
-def _project(a: np.ndarray, y: np.ndarray, fit: _EdgeFit, nbin: int, nlin: int,
+def _project(a: np.ndarray, x_edge: np.ndarray, ref: _EdgeFit, nbin: int, nlin: int,
              ) -> tuple[np.ndarray, int]:
     """ISO step 6: project pixels along the edge into 1/nbin-pixel bins (sfrmat ``project2``).
 
-    ``a`` are the rows (any subset, possibly repeated) at row coordinates ``y``; ``nlin``
-    is the number of rows of the analysed array (sets the bin offset).  Returns the
-    supersampled ESF (length ``npix*nbin``) and the number of empty bins that were filled.
+    ``a`` are the rows (any subset, possibly repeated) and ``x_edge`` the fitted edge
+    position in each of them; ``nlin`` is the number of rows of the analysed array.  The
+    bin origin is set by the full-data fit ``ref`` (``x - (x_edge - ref(0))`` with the bin
+    offset from ``ref``'s slope at row 0, as sfrmat), so that bootstrap replicates, whose
+    own polynomial may be extrapolated wildly at rows they do not contain, share the bin
+    grid of the main analysis.  Returns the supersampled ESF (length ``npix*nbin``) and
+    the number of empty bins that were filled.
     """
     npix = a.shape[1]
     nn = npix * nbin
-    offset = int(_mround(-nbin * (nlin - 1) * fit.slope0))
+    offset = int(_mround(-nbin * (nlin - 1) * ref.slope0))
     dl = abs(offset)
     offset = min(offset, 0)
     bwidth = nn + dl + 150
-    p2 = fit(y) - fit(np.zeros(1))[0]
+    p2 = x_edge - ref(np.zeros(1))[0]
     x = np.arange(npix, dtype=float)
     ling = np.ceil((x[None, :] - p2[:, None]) * nbin).astype(np.int64) - offset  # 0-based
     ling = np.clip(ling, 0, bwidth - 1).ravel()
@@ -687,7 +691,7 @@ def measure_sfr(image: Any, *, roi: tuple[int, int, int, int] | None = None, npo
     mtf_by: dict[str, np.ndarray] = {}
     n_empty_by: dict[str, int] = {}
     for k in range(ncol):
-        esf, n_empty = _project(a[:, :, k], y1, fits[k], nbin, nlin1)
+        esf, n_empty = _project(a[:, :, k], fits[k](y1), fits[k], nbin, nlin1)
         n_empty_by[names[k]] = n_empty
         mtf_by[names[k]] = _esf_to_mtf(esf, sign, window)[0, :nn2out]
     for name, n_empty in n_empty_by.items():
@@ -720,7 +724,7 @@ def measure_sfr(image: Any, *, roi: tuple[int, int, int, int] | None = None, npo
             if np.unique(rows).size <= npol + 1:
                 rows = np.arange(nlin1)
             fit_b = _EdgeFit(y1[rows], loc_p[rows], npol)
-            esfs[b], _ = _project(rec[rows], y1[rows], fit_b, nbin, nlin1)
+            esfs[b], _ = _project(rec[rows], fit_b(y1[rows]), fits[primary], nbin, nlin1)
         samples = _esf_to_mtf(esfs, sign, window)[:, :nn2out]
     mtf50_samples = _crossing_cy_per_px(freq, samples, 0.5) if n_boot > 0 else np.empty(0)
 
