@@ -809,6 +809,13 @@ def group_levels(frameset: FrameSet) -> list[ExposureLevel]:
                               f"exposure_time_s={texp:g} (a dark set needs at least two frames)",
                               **_where(dark[0][0]))
         levels.append(ExposureLevel(texp, photons, lux, tuple(members), tuple(dark[0])))
+    for column in _OPTIONAL_MANIFEST_COLUMNS:  # all levels or none: the contract has no gaps
+        known = [getattr(lv, column) is not None for lv in levels]
+        if any(known) and not all(known):
+            lacking = levels[known.index(False)].bright[0]
+            raise IngestError(f"{column} is empty for bright frame {lacking.path.name} but given "
+                              "for other levels; give it for every bright frame or for none",
+                              column=column, **_where(lacking))
     nan_last = lambda v: (v is None, v if v is not None else 0.0)  # noqa: E731
     levels.sort(key=lambda lv: (lv.exposure_time_s, nan_last(lv.photons_per_pixel),
                                 nan_last(lv.exposure_lux_s)))
@@ -952,7 +959,7 @@ class SetStatistics:
     """Statistics of one set of frames (bright level or dark set) in one channel.
 
     ``mean_dn`` and ``temporal_var_dn2`` come from the first two frames;
-    ``spatial_var_dn2`` from all ``n_frames`` frames when ``n_frames`` > 2 (else ``None``);
+    ``spatial_var_dn2`` from the average of all ``n_frames`` frames;
     ``frac_saturated`` is the fraction of ROI pixel values at or above the white level over all
     frames; ``n_pixels`` counts the ROI pixels of the channel; ``black_level_dn`` is the mean
     black level of the channel's CFA positions.
@@ -960,7 +967,7 @@ class SetStatistics:
 
     mean_dn: float
     temporal_var_dn2: float
-    spatial_var_dn2: float | None
+    spatial_var_dn2: float
     n_frames: int
     frac_saturated: float
     n_pixels: int
@@ -994,8 +1001,7 @@ class _SetAccumulator:
 
     def result(self) -> SetStatistics:
         mean_dn, temporal_var_dn2 = pair_statistics(self.first, self.second)
-        spatial = (spatial_variance_dn2(self.total / self.n_frames) if self.n_frames > 2
-                   else None)
+        spatial = spatial_variance_dn2(self.total / self.n_frames)
         return SetStatistics(mean_dn=mean_dn, temporal_var_dn2=temporal_var_dn2,
                              spatial_var_dn2=spatial, n_frames=self.n_frames,
                              frac_saturated=self.n_saturated / self.n_values,
@@ -1116,12 +1122,13 @@ def _fmt(value: float | int | None) -> str:
 def _table_text(metadata: dict[str, str], rows: list[dict[str, float | int | None]]) -> str:
     columns = ["exposure_time_s", "mean_dn", "temporal_var_dn2", "dark_mean_dn",
                "dark_temporal_var_dn2", "n_pixels"]
-    for optional in ("photons_per_pixel", "exposure_lux_s", "spatial_var_dn2",
-                     "dark_spatial_var_dn2"):
+    for optional in ("photons_per_pixel", "exposure_lux_s"):
         if any(r.get(optional) is not None for r in rows):
             columns.append(optional)
-    if "spatial_var_dn2" in columns or "dark_spatial_var_dn2" in columns:
-        columns += ["n_frames", "dark_n_frames"]
+    if any(r["n_frames"] > 2 or r["dark_n_frames"] > 2 for r in rows):
+        # one stack makes the spatial columns appear, and then every row carries them (the
+        # contract refuses empty cells; a pair gives the spatial variance of its average)
+        columns += ["spatial_var_dn2", "dark_spatial_var_dn2", "n_frames", "dark_n_frames"]
     columns.append("frac_saturated")
     buf = io.StringIO()
     for key, value in metadata.items():
@@ -1239,6 +1246,13 @@ def ingest(source: os.PathLike | str, *, out: os.PathLike | str,
         if key not in dark_cache:
             dark_cache[key] = _set_statistics(level.dark, reader, roi, stat_channels, state)
         dark = dark_cache[key]
+        n_bright, n_dark = len(level.bright), len(level.dark)
+        if n_bright != n_dark and max(n_bright, n_dark) > 2:
+            warnings.warn(f"{frameset.source}: at exposure_time_s={level.exposure_time_s:g} "
+                          f"the bright stack has {n_bright} frames and the dark set {n_dark}; "
+                          "the CSV gives both (n_frames, dark_n_frames), but a reader that "
+                          "knows only n_frames will misjudge the residual temporal part of "
+                          "dark_spatial_var_dn2", IngestWarning, stacklevel=2)
         for c, sc in zip(channels, stat_channels):
             b, d = bright[sc], dark[sc]
             rows[c].append({

@@ -353,6 +353,7 @@ def test_crop_means_agree_with_the_full_frame_table(png_result, crops):
 
 
 def test_spatial_stacks_give_spatial_variance(crops, tmp_path):
+    """50-frame stacks plus one pair level: spatial columns on every row, n_frames = L."""
     texp = crops["spatial_bright_texp_ns"] / 1e9
     photons = crops["spatial_bright_photons_per_pixel"]
     rows = []
@@ -362,21 +363,39 @@ def test_spatial_stacks_give_spatial_variance(crops, tmp_path):
             write_png(tmp_path / f"{kind}_{f:02d}.png", image)
             rows.append((f"{kind}_{f:02d}.png", kind, repr(float(texp)),
                          repr(float(photons)) if kind == "bright" else ""))
-    manifest = write_manifest(tmp_path / "manifest.csv", rows, metadata={"adc_bits": 12})
+    centre = (slice(32, 96), slice(32, 96))  # a pair level cut to the stacks' 64x64
+    pair_texp = repr(float(crops["bright_texp_ns"][10] / 1e9))
+    for kind, key in (("bright", "bright_pairs"), ("dark", "dark_pairs")):
+        for f in range(2):
+            write_png(tmp_path / f"pair_{kind}_{f}.png", crops[key][10, f][centre])
+            rows.append((f"pair_{kind}_{f}.png", kind, pair_texp,
+                         repr(float(crops["bright_photons_per_pixel"][10]))
+                         if kind == "bright" else ""))
+    write_manifest(tmp_path / "manifest.csv", rows, metadata={"adc_bits": 12})
     out = tmp_path / "stack.csv"
     raw.ingest(tmp_path, out=out, roi=1.0)  # a directory with manifest.csv inside
     meta, cols = read_ptc_csv(out)
-    assert cols["n_frames"][0] == 50 and cols["dark_n_frames"][0] == 50
+    assert meta["roi_px"] == "x0=0 y0=0 x1=64 y1=64"
+    # row 1: the stacks (5.16 ms)
+    assert cols["n_frames"][1] == 50 and cols["dark_n_frames"][1] == 50
     for kind, col in (("bright", "spatial_var_dn2"), ("dark", "dark_spatial_var_dn2")):
         stack = crops[f"spatial_{kind}_stack"].astype(np.float64)
         expected = np.var(stack.mean(axis=0), ddof=1)
-        np.testing.assert_allclose(cols[col][0], expected, rtol=1e-10)
+        np.testing.assert_allclose(cols[col][1], expected, rtol=1e-10)
     mean, var = pair_numpy(*crops["spatial_bright_stack"][:2])
-    np.testing.assert_allclose(cols["mean_dn"][0], mean, rtol=1e-13)
-    np.testing.assert_allclose(cols["temporal_var_dn2"][0], var, rtol=1e-10)
+    np.testing.assert_allclose(cols["mean_dn"][1], mean, rtol=1e-13)
+    np.testing.assert_allclose(cols["temporal_var_dn2"][1], var, rtol=1e-10)
     # PRNU sanity: the stack average still holds temporal_var/50; what is left is positive
-    assert cols["spatial_var_dn2"][0] > cols["temporal_var_dn2"][0] / 50
-    assert manifest.exists() and meta["roi_px"] == "x0=0 y0=0 x1=64 y1=64"
+    assert cols["spatial_var_dn2"][1] > cols["temporal_var_dn2"][1] / 50
+    # row 0: the pair (2.9 ms) carries the spatial variance of its two-frame average
+    assert cols["n_frames"][0] == 2 and cols["dark_n_frames"][0] == 2
+    pair = crops["bright_pairs"][10][:, centre[0], centre[1]].astype(np.float64)
+    np.testing.assert_allclose(cols["spatial_var_dn2"][0], np.var(pair.mean(axis=0), ddof=1),
+                               rtol=1e-10)
+    # the project's own contract reader takes the table as it is
+    from bayescap.ptc import read_ptc_csv as contract_reader
+    data = contract_reader(out)
+    assert data.n_levels == 2 and data.metadata["adc_bits"] == 12
 
 
 def test_dng_crops_through_a_manifest(crops, tmp_path):
@@ -492,8 +511,16 @@ def case_missing_dark(root, crops, rows):
     return [r for r in rows if not r[0].startswith("d_1_")], "b_1_0.png"
 
 
+def case_photons_on_some_levels(root, crops, rows):
+    for row in rows:
+        if row[0].startswith("b_0_"):
+            row[3] = "120.0"
+    return rows, "row 6, column 'photons_per_pixel': photons_per_pixel is empty for bright frame b_1_0.png"
+
+
 @pytest.mark.parametrize("case", [case_mismatched_size, case_missing_partner, case_truncated,
-                                  case_text_exposure, case_missing_dark])
+                                  case_text_exposure, case_missing_dark,
+                                  case_photons_on_some_levels])
 def test_bad_input_is_refused_naming_the_file(crops, tmp_path, case):
     rows = small_png_set(tmp_path, crops)
     rows, expected = case(tmp_path, crops, rows)
