@@ -558,3 +558,30 @@ def test_output_never_overwrites_an_input(crops, tmp_path):
     with pytest.raises(IngestError, match="overwrite an input"):
         raw.ingest(manifest, out=manifest)
     assert manifest.read_bytes() == before
+
+
+def test_tiff_npy_and_8bit_png_readers(tmp_path):
+    rng = np.random.default_rng(5)
+    pixels = rng.integers(0, 65536, (40, 50), dtype=np.uint16)
+    tifffile.imwrite(tmp_path / "f.tif", pixels, extratags=[(33434, "2I", 1, (1, 50), True)])
+    np.save(tmp_path / "f.npy", pixels)
+    small = rng.integers(0, 256, (40, 50), dtype=np.uint8)
+    write_png(tmp_path / "f8.png", small)
+    tif = raw.read_frame(tmp_path / "f.tif")
+    assert np.array_equal(tif.pixels, pixels) and tif.exposure_time_s == 0.02
+    assert tif.white_level_dn == 65535 and tif.cfa_pattern is None
+    assert np.array_equal(raw.read_frame(tmp_path / "f.npy").pixels, pixels)
+    png8 = raw.read_frame(tmp_path / "f8.png")
+    assert np.array_equal(png8.pixels, small) and png8.white_level_dn == 255
+
+
+def test_truncated_dng_and_tiff_are_refused(tmp_path):
+    data = (DATA / "dng_mono_crops" / "bright_step005_a.dng").read_bytes()
+    (tmp_path / "half.dng").write_bytes(data[: len(data) // 2])
+    with pytest.raises(IngestError, match="half.dng"):
+        raw.read_frame(tmp_path / "half.dng")
+    tifffile.imwrite(tmp_path / "full.tif", np.ones((64, 64), dtype=np.uint16))
+    data = (tmp_path / "full.tif").read_bytes()
+    (tmp_path / "half.tif").write_bytes(data[: len(data) // 2])
+    with pytest.raises(IngestError, match="half.tif.*truncated"):
+        raw.read_frame(tmp_path / "half.tif")
