@@ -410,8 +410,8 @@ class FrameEntry:
     """One frame of a frame set: its file, its kind and the exposure it was taken with.
 
     ``exposure_time_s`` in s; ``photons_per_pixel`` (EMVA 1288 μ_p, photons) and
-    ``exposure_lux_s`` (lux·s) only for bright frames, when known. ``where`` locates the entry
-    in its description (file and row or line) for error messages.
+    ``exposure_lux_s`` (lux·s) only for bright frames, when known. ``source`` and ``row`` locate
+    the entry in its description (file and line number) for error messages.
     """
 
     path: Path
