@@ -97,7 +97,7 @@ class ModelTerms:
     """Which terms the data can inform, and why the others are left out."""
 
     dark_current: bool
-    clip: str  # "none" | "fixed_adc" | "sampled"
+    clip: str  # "none" | "adc" (fixed at the ADC maximum) | "adc_sampled" | "well"
     clip_spread: bool
     quantum_efficiency: bool
     prnu: bool
@@ -122,16 +122,25 @@ class ModelTerms:
 
 
 def saturation_flags(d: PTCData):
-    """Rows fully clipped (variance collapsed at the top) and whether saturation is reached."""
+    """Rows fully clipped (plateau at the top of the series) and whether saturation is reached.
+
+    A row is fully clipped when ``frac_saturated`` ≥ 0.999, or when its mean sits at the top of
+    the series and its temporal variance has collapsed below a tenth of the peak variance (a
+    well that clips before the read-out keeps only read noise there)."""
     v, m = d.temporal_var_dn2, d.mean_dn
     vmax = float(v.max())
+    top = m >= m.max() - max(1.0, 1e-4 * m.max())
+    full = top & (v < 0.1 * vmax)
+    if np.any(full):
+        # only rows at the plateau's own variance level (not partly clipped rows beside it)
+        v_pl = float(np.min(v[full]))
+        full = full & (v <= 1.5 * v_pl + 0.1)
+    partial = np.zeros_like(full)
     if d.frac_saturated is not None:
-        full = d.frac_saturated >= 0.999
+        full = full | (d.frac_saturated >= 0.999)
         partial = (d.frac_saturated > 0) & ~full
-    else:
-        full = (m >= m.max() - max(1.0, 1e-4 * m.max())) & (v < 0.1 * vmax)
-        partial = np.zeros_like(full)
-    # a variance turn-over at the top of the series also marks saturation
+    if np.all(full):
+        full = np.zeros_like(full)  # nothing but plateau: leave it to the input checks
     i_peak = int(np.argmax(np.where(full, -np.inf, v)))
     above = (~full) & (np.arange(v.size) > i_peak)
     turnover = bool(np.any(above & (v < 0.8 * v[i_peak])))
@@ -145,6 +154,31 @@ def saturation_flags(d: PTCData):
     return full, reached
 
 
+def _clip_mechanism(d: PTCData, full, reached):
+    """How the output clips: at the ADC maximum (everything clipped, plateau variance ≈ 0), or
+    at the full well before the read-out (plateau keeps the read noise)."""
+    adc = d.adc_max_dn
+    if not reached:
+        return "none", None
+    if np.any(full):
+        plateau_m = d.mean_dn[full]
+        plateau_v = d.temporal_var_dn2[full]
+        if adc is not None and np.all(plateau_m >= adc - 0.5):
+            return "adc", (f"the fully clipped rows sit at the ADC maximum {adc:g} DN: the clip level "
+                           "is the ADC's, and the photodiode's own well may be deeper")
+        dark_v = float(np.median(d.dark_temporal_var_dn2))
+        if np.median(plateau_v) >= 0.3 * dark_v:
+            return "well", ("the plateau keeps the read noise: the full well clips before the read-out; "
+                            "its variance also informs the read noise")
+        return "adc_sampled", "the plateau has no noise left: an ADC-like clip at a fitted level"
+    if adc is not None:
+        nf = ~full
+        if np.any(d.mean_dn[nf] + 4.0 * np.sqrt(d.temporal_var_dn2[nf]) >= adc):
+            return "adc", f"the top rows approach the ADC maximum {adc:g} DN"
+        return "well", "the variance turns over below the ADC maximum: the full well clips first"
+    return "adc_sampled", "the variance turns over: a clip at a fitted level"
+
+
 def select_terms(d: PTCData, *, force: dict | None = None) -> ModelTerms:
     """Decide from the data which terms enter the fit (module docstring), with reasons."""
     reasons, how = {}, {}
@@ -155,17 +189,12 @@ def select_terms(d: PTCData, *, force: dict | None = None) -> ModelTerms:
         reasons["dark_current"] = ("all rows share one exposure time: only read² + D·t is "
                                    "identifiable (reported as dark_noise_e)")
     full, reached = saturation_flags(d)
-    adc = d.adc_max_dn
-    if not reached:
-        clip = "none"
+    clip, why = _clip_mechanism(d, full, reached)
+    if clip == "none":
         reasons["saturation"] = ("no row approaches saturation: the full well is reported as a "
                                  "lower bound (the largest measured signal)")
-    elif adc is not None and np.any(full) and np.all(d.mean_dn[full] >= adc - 0.5):
-        clip = "fixed_adc"
-        how["saturation"] = (f"the fully clipped rows sit at the ADC maximum {adc:g} DN: the "
-                                 "clip level is the ADC's, and the photodiode's own well may be deeper")
     else:
-        clip = "sampled"
+        how["saturation"] = why
     # partially clipped rows need the spread of pixel means about the clip
     clip_spread = clip != "none"
     qe = d.photons_per_pixel is not None
@@ -215,7 +244,7 @@ class PTCModel:
         m_ok = d.mean_dn[ok]
         v_ok = d.temporal_var_dn2[ok]
         self.max_mean_ok = float(m_ok.max())
-        if tm.clip == "sampled":
+        if tm.clip in ("adc_sampled", "well"):
             names.append("clip_dn")
             lo = self.max_mean_ok + 1e-6 * max(1.0, self.max_mean_ok)
             if np.any(self.full_sat):
@@ -226,7 +255,7 @@ class PTCModel:
             if self.adc is not None:
                 hi = min(hi, self.adc + 0.5)
             self.clip_bounds = (lo, max(hi, lo + 1e-3))
-        elif tm.clip == "fixed_adc":
+        elif tm.clip == "adc":
             self.clip_bounds = (self.adc, self.adc)
         else:
             self.clip_bounds = None
@@ -263,6 +292,8 @@ class PTCModel:
             self.mu_p = d.photons_per_pixel[ok]
         # fully clipped rows: their mean locates a sampled clip level
         self.full_means = d.mean_dn[self.full_sat]
+        self.full_v = d.temporal_var_dn2[self.full_sat]
+        self.full_nu = d.n_pixels[self.full_sat] - 1.0
         self.full_sd = np.sqrt(d.temporal_var_dn2[self.full_sat] / d.n_pixels[self.full_sat]
                                + (1e-4 * np.maximum(self.full_means, 1.0)) ** 2 + 0.01**2)
         # spatial rows
@@ -292,9 +323,9 @@ class PTCModel:
             out["dark_current_e_per_s"] = np.exp(g("log_dc"))
         else:
             out["dark_noise_e"] = np.exp(g("log_dark_noise"))
-        if self.terms.clip == "sampled":
+        if self.terms.clip in ("adc_sampled", "well"):
             c = g("clip_dn")
-        elif self.terms.clip == "fixed_adc":
+        elif self.terms.clip == "adc":
             c = np.full(th.shape[0], self.adc)
         else:
             c = None
@@ -331,12 +362,12 @@ class PTCModel:
             lp = lp + _halfnormal_log_prior(g("log_dc"), P["dark_current_scale_e_per_s"])
         else:
             lp = lp + _halfnormal_log_prior(g("log_dark_noise"), P["read_scale_e"])
-        if self.terms.clip == "sampled":
+        if self.terms.clip in ("adc_sampled", "well"):
             c = g("clip_dn")
             lo, hi = self.clip_bounds
             lp = lp + np.where((c > lo) & (c < hi), -np.log(hi - lo), -np.inf)
             cref = c
-        elif self.terms.clip == "fixed_adc":
+        elif self.terms.clip == "adc":
             cref = np.full(th.shape[0], self.adc)
         if self.terms.clip_spread:
             lt = g("log_tau")
@@ -371,8 +402,14 @@ class PTCModel:
         var_t = np.maximum(m2 - m1 * m1, 0.0)
         return (m1 @ _GH_W, var_t @ _GH_W, Phi @ _GH_W)
 
-    def loglik_terms(self, th):
-        """Pointwise log-likelihood blocks (each (n_walkers, n_obs))."""
+    def predict(self, th):
+        """Model predictions per observation block, for draws ``th`` (n, ndim).
+
+        Returns ``{block: (observed, model, spread, kind)}``: for ``kind == "gamma"`` the
+        spread is the shape ``k`` (the observed value ~ Gamma(k, model/k)); for
+        ``"normal"`` it is the standard deviation. Blocks: ``dark_var`` (every row),
+        ``bright_var`` and ``mean`` (rows not fully clipped), ``clip_mean`` (fully clipped rows,
+        sampled clip), ``spatial_var``/``dark_spatial_var`` (rows with spatial columns)."""
         p = self.physical(th)
         k = p["conversion_gain_e_per_dn"]
         K = k[:, None]
@@ -382,8 +419,7 @@ class PTCModel:
         out = {}
         # dark temporal variances (all rows)
         vdm = rd2_all / (K * K) + 1.0 / 12.0
-        kd = 1.0 / (2.0 / self.nu_d[None, :] + f2)
-        out["dark_var"] = gamma_logpdf(self.vd[None, :], vdm, kd)
+        out["dark_var"] = (self.vd, vdm, 1.0 / (2.0 / self.nu_d[None, :] + f2), "gamma")
         # bright temporal variances, unclipped rows: S from the measured mean
         S = np.broadcast_to(self.s_obs[None, :], rd2_ok.shape).copy()
         vm = S / K + rd2_ok / (K * K) + 1.0 / 12.0
@@ -391,38 +427,75 @@ class PTCModel:
         if self.clip_rows.size:
             c = p["clip_dn"]
             tau = p["clip_spread_dn"]
-            rd2c = rd2_ok[:, self.clip_rows]
-            mu, var_c, sl, _ = self._latent_clip_rows(k, rd2c, tau, c)
-            # quantization variance survives only for the unclipped fraction of the pixels
-            vm[:, self.clip_rows] = var_c + sl / 12.0
-            S[:, self.clip_rows] = mu - self.dm[self.clip_rows][None, :]
-            slope[:, self.clip_rows] = sl
-        kb = 1.0 / (2.0 / self.nu[None, :] + f2)
-        out["bright_var"] = gamma_logpdf(self.v[None, :], np.maximum(vm, 1e-12), kb)
+            rows = self.clip_rows
+            if self.terms.clip == "well":
+                # the well clips the collected charge; read noise and quantization come after
+                dc_e2 = (p["dark_current_e_per_s"][:, None] * self.tt[None, rows]
+                         if self.terms.dark_current else np.zeros((k.size, rows.size)))
+                pre = dc_e2 / (K * K)
+                post = (rd2_ok[:, rows] - dc_e2) / (K * K) + 1.0 / 12.0
+                mu, var_c, sl = self._latent_clip_rows(k, pre, tau, c)
+                vm[:, rows] = var_c + post
+            else:
+                # the ADC clips everything; quantization survives only for the unclipped pixels
+                mu, var_c, sl = self._latent_clip_rows(k, rd2_ok[:, rows] / (K * K), tau, c)
+                vm[:, rows] = var_c + sl / 12.0
+            S[:, rows] = mu - self.dm[rows][None, :]
+            slope[:, rows] = sl
+        out["bright_var"] = (self.v, np.maximum(vm, 1e-12), 1.0 / (2.0 / self.nu[None, :] + f2), "gamma")
+        self._last_latent_signal_dn = S
         if self.terms.quantum_efficiency:
             qe = p["quantum_efficiency"][:, None]
             g2 = p["mean_discrepancy"][:, None] ** 2
             s_model = qe * self.mu_p[None, :] / K
             m_err2 = (self.v + self.vd[~self.full_sat]) / (self.nu + 1.0)
             sd = np.sqrt(g2 * s_model**2 + m_err2[None, :] / np.maximum(slope, 1e-6) ** 2)
-            out["mean"] = _norm_logpdf(S, s_model, sd)
-        if self.terms.clip == "sampled" and self.full_means.size:
-            out["clip_mean"] = _norm_logpdf(self.full_means[None, :], p["clip_dn"][:, None],
-                                            self.full_sd[None, :])
+            out["mean"] = (S, s_model, sd, "normal")
+        if self.terms.clip == "well" and self.full_means.size:
+            # plateau rows: charge at the (spread) well; read noise and quantization remain
+            post_full = self.dark_var_e2(p, self.t[self.full_sat])
+            if self.terms.dark_current:
+                post_full = post_full - p["dark_current_e_per_s"][:, None] * self.t[self.full_sat][None, :]
+            vfull = post_full / (K * K) + 1.0 / 12.0
+            out["plateau_var"] = (np.maximum(self.full_v, 1e-9), vfull,
+                                  1.0 / (2.0 / self.full_nu[None, :] + f2), "gamma")
+        if self.terms.clip in ("adc_sampled", "well") and self.full_means.size:
+            out["clip_mean"] = (self.full_means, np.broadcast_to(p["clip_dn"][:, None], (k.size, self.full_means.size)),
+                                self.full_sd[None, :], "normal")
         if self.sp_rows.size:
             r = self.sp_rows
             prnu = p["prnu_percent"][:, None] / 100.0
             dsnu_dn = p["dsnu_e"][:, None] / K
             model = (prnu * S[:, r]) ** 2 + dsnu_dn**2 + vm[:, r] / self.L_ok[r][None, :]
-            ks = 1.0 / (2.0 / self.nu[r][None, :] + f2)
-            out["spatial_var"] = gamma_logpdf(self.sp[r][None, :], model, ks)
+            out["spatial_var"] = (self.sp[r], model, 1.0 / (2.0 / self.nu[r][None, :] + f2), "gamma")
         if self.spd_rows.size:
             r = self.spd_rows
             dsnu_dn = p["dsnu_e"][:, None] / K
             model = dsnu_dn**2 + vdm[:, r] / self.L_all[r][None, :]
-            ks = 1.0 / (2.0 / self.nu_d[r][None, :] + f2)
-            out["dark_spatial_var"] = gamma_logpdf(np.maximum(self.spd[r], 1e-9)[None, :], model, ks)
+            out["dark_spatial_var"] = (np.maximum(self.spd[r], 1e-9), model,
+                                       1.0 / (2.0 / self.nu_d[r][None, :] + f2), "gamma")
         return out
+
+    def loglik_terms(self, th):
+        """Pointwise log-likelihood blocks (each (n_draws, n_obs))."""
+        out = {}
+        for name, (obs, model, spread, kind) in self.predict(th).items():
+            obs = obs if np.ndim(obs) == 2 else obs[None, :]
+            if kind == "gamma":
+                out[name] = gamma_logpdf(obs, model, spread)
+            else:
+                out[name] = _norm_logpdf(obs, model, spread)
+        return out
+
+    def observation_rows(self, block):
+        """Data-row labels (1-based file rows) of the observations of a block."""
+        d = self.data
+        ok = np.nonzero(~self.full_sat)[0]
+        idx = {"dark_var": np.arange(d.n_levels), "bright_var": ok, "mean": ok,
+               "clip_mean": np.nonzero(self.full_sat)[0], "plateau_var": np.nonzero(self.full_sat)[0],
+               "spatial_var": ok[self.sp_rows],
+               "dark_spatial_var": self.spd_rows}[block]
+        return np.array([d.row_label(i) for i in idx], int)
 
     @staticmethod
     def _clip_mean(mu, s, tau, c):
@@ -435,29 +508,30 @@ class PTCModel:
         m1 = c[..., None] - (c[..., None] - x) * Phi - ss * phi
         return m1 @ _GH_W, Phi @ _GH_W
 
-    def _latent_clip_rows(self, k, rd2c, tau, c):
+    def _latent_clip_rows(self, k, pre_var_dn2, tau, c):
         """Latent unclipped row means (DN) of the clip rows: solve E[clip(μ)] = measured mean.
 
-        The clipped mean is increasing and concave in μ, so Newton steps from μ = measured mean
-        approach the root from below without overshoot."""
+        The clipped quantity has variance ``(μ − dark)/K + pre_var_dn2`` (shot noise plus what
+        is added before the clip). The clipped mean is increasing and concave in μ, so Newton
+        steps from μ = measured mean approach the root from below without overshoot.
+        Returns (μ, variance of the clipped values, unclipped fraction = dE/dμ)."""
         rows = self.clip_rows
         m_obs = self.m[rows][None, :]
         dm = self.dm[rows][None, :]
         K = k[:, None]
-        dark_var = rd2c / (K * K) + 1.0 / 12.0
-        cc = np.broadcast_to(c[:, None], dark_var.shape)
-        tt_ = np.broadcast_to(tau[:, None], dark_var.shape)
-        mu = np.broadcast_to(m_obs, dark_var.shape).copy()
+        cc = np.broadcast_to(c[:, None], pre_var_dn2.shape)
+        tt_ = np.broadcast_to(tau[:, None], pre_var_dn2.shape)
+        mu = np.broadcast_to(m_obs, pre_var_dn2.shape).copy()
         for _ in range(30):
-            s = np.sqrt(np.maximum(mu - dm, 0.0) / K + dark_var)
+            s = np.sqrt(np.maximum(mu - dm, 0.0) / K + pre_var_dn2)
             mean, slope = self._clip_mean(mu, s, tt_, cc)
             gap = m_obs - mean
             if np.all(gap < 1e-7 * s):
                 break
             mu = mu + np.clip(gap / np.maximum(slope, 1e-12), 0.0, 50.0 * (s + tt_))
-        s = np.sqrt(np.maximum(mu - dm, 0.0) / K + dark_var)
+        s = np.sqrt(np.maximum(mu - dm, 0.0) / K + pre_var_dn2)
         mean, var, slope = self._clip_moments(mu, s, tt_, cc)
-        return mu, var, slope, mean
+        return mu, var, slope
 
     def log_likelihood(self, th):
         terms = self.loglik_terms(th)
@@ -509,7 +583,7 @@ class PTCModel:
             th["log_dc"] = np.log(max(dc0, 1e-6))
         else:
             th["log_dark_noise"] = 0.5 * np.log(sig0_e2)
-        if tm.clip == "sampled":
+        if tm.clip in ("adc_sampled", "well"):
             lo, hi = self.clip_bounds
             if self.full_means.size:
                 th["clip_dn"] = float(np.clip(self.full_means.mean(), lo + 1e-6 * (hi - lo), hi - 1e-6 * (hi - lo)))

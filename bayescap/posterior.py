@@ -280,7 +280,7 @@ class FitResult:
                                                         note="upper limit (all dark noise attributed to D·t)")
         if "full_well_e" in p:
             extra = {}
-            if m.terms.clip == "fixed_adc":
+            if m.terms.clip == "adc":
                 extra = {"clip_source": "adc",
                          "note": "the output clips at the ADC maximum: this is the charge at the clip; "
                                  "the photodiode's own well may be deeper"}

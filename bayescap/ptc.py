@@ -25,6 +25,9 @@ REQUIRED_COLUMNS = ("exposure_time_s", "mean_dn", "temporal_var_dn2", "dark_mean
 OPTIONAL_COLUMNS = ("photons_per_pixel", "exposure_lux_s", "spatial_var_dn2",
                     "dark_spatial_var_dn2", "n_frames", "frac_saturated")
 
+#: optional columns that may be left empty on rows where they were not measured
+SPARSE_COLUMNS = ("spatial_var_dn2", "dark_spatial_var_dn2", "n_frames")
+
 #: known metadata keys and their types (unknown keys are kept as strings)
 METADATA_TYPES = {
     "sensor": str, "manufacturer": str, "pixel_pitch_um": float, "width_px": int,
@@ -219,6 +222,9 @@ def read_ptc_csv(path, *, overrides: dict | None = None) -> PTCData:
                                 path=path_str, row=rowno)
         for c in wanted:
             s = rec[header.index(c)].strip()
+            if s == "" and c in SPARSE_COLUMNS:
+                cols[c].append(math.nan)  # not measured at this level
+                continue
             if s == "" and c in OPTIONAL_COLUMNS:
                 raise PTCInputError("empty value in an optional column (leave the column out "
                                     "or give every row a value)", path=path_str, row=rowno, column=c)
@@ -297,6 +303,8 @@ def write_ptc_csv(data_or_rows, path, *, metadata: dict | None = None, columns=N
 
 
 def _fmt(v, col):
+    if col in SPARSE_COLUMNS and not math.isfinite(float(v)):
+        return ""
     if col in ("n_pixels", "n_frames"):
         return str(int(round(float(v))))
     return repr(float(v))

@@ -1,0 +1,253 @@
+"""Outputs of a fit: the text report, the JSON, plots and the InferenceData (NetCDF) file.
+
+Every file is written atomically (temp file in the target folder, then rename).
+"""
+from __future__ import annotations
+
+import json
+import os
+from pathlib import Path
+
+import numpy as np
+
+from .posterior import FitResult
+from .ptc import atomic_write_text
+
+__all__ = ["format_text", "to_json", "write_outputs", "to_inference_data", "plot_ptc", "plot_corner"]
+
+_PARAM_ORDER = ["conversion_gain_e_per_dn", "read_noise_e", "dark_noise_e", "dark_current_e_per_s",
+                "full_well_e", "quantum_efficiency", "prnu_percent", "dsnu_e", "clip_spread_dn",
+                "variance_discrepancy", "mean_discrepancy"]
+_DERIVED_ORDER = ["snr_max_db", "dynamic_range_db", "tonal_range_bits", "mtf_loss_bits",
+                  "effective_pixels", "capacity_bits", "capacity_bits_per_pixel"]
+
+
+def _fmt(x):
+    if x is None:
+        return "—"
+    ax = abs(x)
+    if ax != 0 and (ax >= 1e6 or ax < 1e-3):
+        return f"{x:.4g}"
+    if ax >= 1000:
+        return f"{x:,.0f}"
+    return f"{x:.4g}"
+
+
+def _row(name, s):
+    lo68, hi68 = s["ci68"]
+    lo95, hi95 = s["ci95"]
+    unit = s.get("unit", "")
+    line = (f"  {name:<28} {_fmt(s['median']):>11}   [{_fmt(lo68)}, {_fmt(hi68)}]"
+            f"   [{_fmt(lo95)}, {_fmt(hi95)}]  {unit}")
+    tags = []
+    if s.get("constrained") is False:
+        if "upper_limit_95" in s:
+            tags.append(f"upper limit {_fmt(s['upper_limit_95'])} (95 %)")
+        elif "lower_bound" in s:
+            tags.append(f"lower bound {_fmt(s['lower_bound'])}")
+        else:
+            tags.append("not constrained")
+    if s.get("lower_bound") is True:
+        tags.append("lower bound")
+    if tags:
+        line += "   <- " + "; ".join(tags)
+    return line
+
+
+def format_text(result: FitResult | dict) -> str:
+    """The human-readable report printed by ``bayescap fit``."""
+    d = result.to_dict() if isinstance(result, FitResult) else result
+    dg = d["diagnostics"]
+    lines = []
+    name = d["sensor"].get("sensor", "")
+    lines.append(f"bayescap {d['bayescap_version']}: {d['input']}" + (f"  ({name})" if name else ""))
+    conv = "converged" if dg["converged"] else "NOT CONVERGED"
+    lines.append(f"sampler: {conv}: R-hat max {dg['rhat_max']:.4f} (target < {dg['rhat_target']}), "
+                 f"ESS min {dg['ess_min']:.0f} (target ≥ {dg['ess_target']:.0f}); {dg['n_ensembles']} "
+                 f"ensembles × {dg['n_walkers']} walkers × {dg['n_steps']} steps, {dg['wall_s']:.1f} s, "
+                 f"quality {dg['quality']}, seed {dg['seed']}")
+    if "fast_path" in dg:
+        lines.append(f"  {dg['fast_path']}")
+    lines.append("")
+    lines.append(f"  {'parameter':<28} {'median':>11}   68 % interval   95 % interval")
+    params = d["parameters"]
+    for n in _PARAM_ORDER + [k for k in params if k not in _PARAM_ORDER]:
+        if n in params:
+            lines.append(_row(n, params[n]))
+    sc = d["scene"]
+    lines.append("")
+    lines.append(f"  derived at t = {sc['exposure_time_s']:.4g} s ({sc['source']})")
+    der = d["derived"]
+    for n in _DERIVED_ORDER + [k for k in der if k not in _DERIVED_ORDER]:
+        if n in der:
+            lines.append(_row(n, der[n]))
+    cap = der.get("capacity_bits") or der.get("capacity_bits_per_pixel")
+    if cap:
+        unit = "bits" if "capacity_bits" in der else "bits/pixel"
+        lines.append("")
+        lines.append(f"  capacity C = {_fmt(cap['median'])} {unit}, 95 % interval "
+                     f"[{_fmt(cap['ci95'][0])}, {_fmt(cap['ci95'][1])}]"
+                     + (" (lower bound)" if cap.get("lower_bound") else ""))
+    lines.append("")
+    lines.append("  model terms: " + ", ".join(d["model_terms"]))
+    for t, why in d.get("terms_left_out", {}).items():
+        lines.append(f"  left out: {t}: {why}")
+    for t, how in d.get("term_notes", {}).items():
+        lines.append(f"  note on {t}: {how}")
+    if d.get("notes"):
+        lines.append("")
+        for n in d["notes"]:
+            lines.append(f"  ! {n}")
+    return "\n".join(lines) + "\n"
+
+
+def to_json(result: FitResult, *, indent=2) -> str:
+    d = result.to_dict()
+    return json.dumps(d, indent=indent, ensure_ascii=False, allow_nan=False) + "\n"
+
+
+def to_inference_data(result: FitResult):
+    """ArviZ InferenceData: posterior (chain = ensemble × walker, draw = step) of the physical
+    parameters and derived quantities, sample stats, observed data."""
+    import arviz as az
+
+    E, S, W = result.shape_esw
+
+    def chains(x):
+        return np.asarray(x).reshape(E, S, W).transpose(0, 2, 1).reshape(E * W, S)
+
+    post = {k: chains(v) for k, v in result.draws.items()}
+    post.update({k: chains(v) for k, v in result.derived.items()})
+    lp = result.chains.log_prob.transpose(0, 2, 1).reshape(E * W, S)
+    d = result.model.data
+    obs = {"exposure_time_s": np.asarray(d.exposure_time_s), "mean_dn": np.asarray(d.mean_dn),
+           "temporal_var_dn2": np.asarray(d.temporal_var_dn2), "dark_mean_dn": np.asarray(d.dark_mean_dn),
+           "dark_temporal_var_dn2": np.asarray(d.dark_temporal_var_dn2)}
+    idata = az.from_dict(posterior=post, sample_stats={"lp": lp}, observed_data=obs,
+                         dims={k: ["row"] for k in obs},
+                         attrs={"bayescap_input": str(d.source), "seed": str(result.seed),
+                                "quality": result.quality})
+    return idata
+
+
+def _posterior_predictive(result: FitResult, n_draws=300):
+    m = result.model
+    E, S, W, D = result.chains.chain.shape
+    flat = result.chains.chain.reshape(-1, D)
+    idx = result.thin_index(n_draws)
+    th = flat[idx]
+    pred = m.predict(th)
+    rng = np.random.default_rng(np.random.SeedSequence(result.seed).spawn(3)[2])
+    out = {}
+    for name in ("bright_var", "dark_var"):
+        obs, model, k, _ = pred[name]
+        k = np.broadcast_to(k, model.shape)
+        rep = rng.gamma(k, model / k)
+        out[name] = (obs, model, rep)
+    out["signal_dn"] = np.median(m._last_latent_signal_dn, axis=0)
+    return out
+
+
+def plot_ptc(result: FitResult, path=None):
+    """Photon-transfer curve: measured temporal variances against signal, the posterior
+    predictive 95 % band, and residuals relative to the posterior median model."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    m = result.model
+    pp = _posterior_predictive(result)
+    obs, model, rep = pp["bright_var"]
+    S = pp["signal_dn"]
+    med = np.median(model, axis=0)
+    lo, hi = np.quantile(rep, [0.025, 0.975], axis=0)
+    order = np.argsort(S)
+    fig, (ax, ax2) = plt.subplots(2, 1, figsize=(7, 7), sharex=True, gridspec_kw={"height_ratios": [3, 1]})
+    ax.fill_between(S[order], lo[order], hi[order], color="C0", alpha=0.3, label="posterior predictive 95 %")
+    ax.plot(S[order], med[order], "C0-", lw=1, label="model (posterior median)")
+    ax.plot(S, obs, "k.", ms=4, label="measured (bright pairs)")
+    full = m.full_sat
+    d = m.data
+    if np.any(full):
+        ax.plot(d.signal_dn[full], np.maximum(d.temporal_var_dn2[full], 1e-3), "rx", ms=5,
+                label="fully clipped rows (locate the clip only)")
+    dobs, dmodel, drep = pp["dark_var"]
+    ax.plot(np.zeros_like(dobs) + max(S.min() * 0.5, 1e-3), dobs, "g.", ms=3, label="dark pairs")
+    ax.set_ylabel("temporal variance (DN²)")
+    ax.set_title(f"photon transfer: {Path(str(d.source)).name}")
+    ax.legend(fontsize=8)
+    ax.grid(alpha=0.3)
+    res = 100 * (obs - med) / med
+    rlo = 100 * (lo - med) / med
+    rhi = 100 * (hi - med) / med
+    ax2.fill_between(S[order], rlo[order], rhi[order], color="C0", alpha=0.3)
+    ax2.axhline(0, color="C0", lw=1)
+    ax2.plot(S, res, "k.", ms=4)
+    ax2.set_xlabel("signal above dark (DN)")
+    ax2.set_ylabel("residual (%)")
+    ax2.grid(alpha=0.3)
+    fig.tight_layout()
+    if path is not None:
+        _savefig(fig, path)
+        plt.close(fig)
+    return fig
+
+
+def plot_corner(result: FitResult, path=None, n_max=20000):
+    """Corner plot of the physical parameters (corner.py)."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import corner
+    import matplotlib.pyplot as plt
+
+    names = [n for n in _PARAM_ORDER if n in result.draws and np.ptp(result.draws[n]) > 0]
+    idx = result.thin_index(n_max)
+    X = np.column_stack([result.draws[n][idx] for n in names])
+    fig = corner.corner(X, labels=names, quantiles=[0.025, 0.5, 0.975], show_titles=True,
+                        title_fmt=".4g", label_kwargs={"fontsize": 7}, title_kwargs={"fontsize": 7})
+    if path is not None:
+        _savefig(fig, path)
+        plt.close(fig)
+    return fig
+
+
+def _savefig(fig, path):
+    path = Path(path)
+    tmp = path.with_name(f".{path.stem}.tmp-{os.getpid()}{path.suffix}")
+    try:
+        fig.savefig(tmp, dpi=110)
+        os.replace(tmp, path)
+    finally:
+        if tmp.exists():
+            tmp.unlink()
+
+
+def write_outputs(result: FitResult, out_dir) -> list[Path]:
+    """Write result.json, report.txt, posterior.nc, ptc.png and corner.png into ``out_dir``."""
+    out = Path(out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    written = []
+    p = out / "result.json"
+    atomic_write_text(p, to_json(result))
+    written.append(p)
+    p = out / "report.txt"
+    atomic_write_text(p, format_text(result))
+    written.append(p)
+    p = out / "posterior.nc"
+    tmp = out / f".posterior.nc.tmp-{os.getpid()}"
+    try:
+        to_inference_data(result).to_netcdf(str(tmp), engine="h5netcdf")
+        os.replace(tmp, p)
+    finally:
+        if tmp.exists():
+            tmp.unlink()
+    written.append(p)
+    p = out / "ptc.png"
+    plot_ptc(result, p)
+    written.append(p)
+    p = out / "corner.png"
+    plot_corner(result, p)
+    written.append(p)
+    return written
