@@ -452,6 +452,13 @@ def _project(a: np.ndarray, x_edge: np.ndarray, ref: _EdgeFit, nbin: int, nlin: 
                 sums[i] = (sums[i - 1] + sums[i + 1]) / 2
     with np.errstate(divide="ignore", invalid="ignore"):
         esf = sums[start:start + nn] / counts[start:start + nn]
+    bad = ~np.isfinite(esf)
+    if bad.any() and not bad.all():
+        # Still empty after the sfrmat fill (only possible at the ends of the range, e.g.
+        # for a bootstrap replicate lacking the first rows): nearest populated value.
+        good = np.flatnonzero(~bad)
+        pos = np.clip(np.searchsorted(good, np.flatnonzero(bad)), 0, good.size - 1)
+        esf[bad] = esf[good[pos]]
     return esf, n_empty
 
 
@@ -523,7 +530,8 @@ def _clip_fraction(img: np.ndarray, white_level: float | None) -> tuple[float, f
 def measure_sfr(image: Any, *, roi: tuple[int, int, int, int] | None = None, npol: int = 5,
                 nbin: int = 4, window: str = "tukey", channel: str | int | None = None,
                 n_boot: int = 200, seed: int | None = 0,
-                white_level: float | None = None) -> SFRResult:
+                white_level: float | None = None,
+                correct_bin_width: bool = False) -> SFRResult:
     """Slanted-edge MTF (ISO 12233:2023 e-SFR, as sfrmat5) with bootstrap uncertainty.
 
     Parameters
@@ -550,6 +558,11 @@ def measure_sfr(image: Any, *, roi: tuple[int, int, int, int] | None = None, npo
     white_level : float, optional
         Saturation level for the clipping test; default: the integer dtype maximum
         (no high-clipping test for float data unless given).
+    correct_bin_width : bool
+        Not part of ISO 12233 (default False = standard result).  Divide the MTF (and
+        every replicate) by ``sinc(f * cos(angle) / nbin)``, the response of averaging the
+        ESF over the projection bins.  This removes the method's systematic low bias
+        (about -1 % of MTF at 0.3 cy/px, -2.6 % at 0.5 cy/px, -10 % at 1 cy/px for nbin=4).
 
     Returns
     -------
@@ -674,8 +687,9 @@ def measure_sfr(image: Any, *, roi: tuple[int, int, int, int] | None = None, npo
     # ---- Step 5: whole number of phase cycles ---------------------------------------
     n_cycles = int(math.floor(nlin * abs(slope)))
     if n_cycles < 1:
-        raise MTFInputError(f"less than one phase cycle: {nlin} lines at slope {slope:.4f} "
-                            "(use a taller ROI or a larger edge angle)")
+        raise MTFInputError(f"less than one phase cycle: {nlin} lines at an edge slant of "
+                            f"{slant_deg:.3f} deg (edge nearly aligned with the pixel grid; "
+                            "use a taller ROI or a larger edge angle, ISO: about 5 deg)")
     nlin1 = int(_mround(n_cycles / abs(slope)))
     nlin1 = min(nlin1, nlin)
     a = a[:nlin1]
@@ -688,12 +702,13 @@ def measure_sfr(image: Any, *, roi: tuple[int, int, int, int] | None = None, npo
     nn2out = int(_mround(nn2 / 2)) if nbin > 1 else nn2
     freq = np.arange(nn) / (delfac / nbin * nn)
     freq = freq[:nn2out]
+    bin_corr = (1.0 / np.sinc(freq * delfac / nbin)) if correct_bin_width else np.ones_like(freq)
     mtf_by: dict[str, np.ndarray] = {}
     n_empty_by: dict[str, int] = {}
     for k in range(ncol):
         esf, n_empty = _project(a[:, :, k], fits[k](y1), fits[k], nbin, nlin1)
         n_empty_by[names[k]] = n_empty
-        mtf_by[names[k]] = _esf_to_mtf(esf, sign, window)[0, :nn2out]
+        mtf_by[names[k]] = _esf_to_mtf(esf, sign, window)[0, :nn2out] * bin_corr
     for name, n_empty in n_empty_by.items():
         if n_empty:
             warn_list.append(f"{n_empty} empty projection bin(s) in record {name} were filled "
@@ -725,7 +740,7 @@ def measure_sfr(image: Any, *, roi: tuple[int, int, int, int] | None = None, npo
                 rows = np.arange(nlin1)
             fit_b = _EdgeFit(y1[rows], loc_p[rows], npol)
             esfs[b], _ = _project(rec[rows], fit_b(y1[rows]), fits[primary], nbin, nlin1)
-        samples = _esf_to_mtf(esfs, sign, window)[:, :nn2out]
+        samples = _esf_to_mtf(esfs, sign, window)[:, :nn2out] * bin_corr
     mtf50_samples = _crossing_cy_per_px(freq, samples, 0.5) if n_boot > 0 else np.empty(0)
 
     for msg in warn_list:
