@@ -12,6 +12,7 @@ __version__ = "0.1.0"
 from .api import fit, load, default_scene  # noqa: E402
 from .posterior import FitResult, Scene  # noqa: E402
 from .ptc import PTCData, PTCInputError, read_ptc_csv, write_ptc_csv  # noqa: E402
+from . import simulate  # noqa: E402,F401
 
 __all__ = ["fit", "load", "default_scene", "FitResult", "Scene", "PTCData", "PTCInputError",
-           "read_ptc_csv", "write_ptc_csv", "__version__"]
+           "read_ptc_csv", "write_ptc_csv", "simulate", "__version__"]

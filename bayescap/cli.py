@@ -65,6 +65,15 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--no-progress", dest="progress", action="store_false")
     _add_metadata_overrides(p)
     p.set_defaults(func=_cmd_fit)
+
+    from .raw import add_ingest_arguments, run_ingest
+
+    p = sub.add_parser("ingest", help="frames (RAW/DNG/TIFF/PNG/npy) -> photon-transfer CSV",
+                       description="Compute a photon-transfer CSV from flat-field and dark frames "
+                                   "described by a manifest CSV or an EMVA 1288 descriptor "
+                                   "(docs/ingest.md).")
+    add_ingest_arguments(p)
+    p.set_defaults(func=run_ingest)
     return parser
 
 

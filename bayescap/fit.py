@@ -33,9 +33,9 @@ class SamplerSettings:
 
     n_ensembles: int = 4
     walkers_per_dim: int = 8
-    min_walkers: int = 32
-    n_burn: int = 150
-    n_steps: int = 250          # production steps per round
+    min_walkers: int = 48
+    n_burn: int = 100
+    n_steps: int = 200          # production steps per round
     max_rounds: int = 6         # extend until converged, at most this many rounds
     rhat_target: float = 1.01
     ess_target: float = 400.0   # bulk and tail, every parameter and capacity
@@ -45,8 +45,8 @@ class SamplerSettings:
 
 
 QUALITY_PRESETS = {
-    "fast": SamplerSettings(n_ensembles=2, n_burn=120, n_steps=150, max_rounds=3, ess_target=200,
-                            tau_factor=20, max_draws=4000),
+    "fast": SamplerSettings(n_ensembles=2, n_burn=100, n_steps=150, max_rounds=3, ess_target=200,
+                            tau_factor=10, max_draws=4000),
     "standard": SamplerSettings(),
     "accurate": SamplerSettings(n_ensembles=8, n_burn=400, n_steps=800, max_rounds=8,
                                 rhat_target=1.005, ess_target=2000, tau_factor=50, max_draws=20000),
@@ -87,8 +87,7 @@ def find_map(model: PTCModel, x0=None, *, n_restarts: int = 2):
             continue
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")
-            res = optimize.minimize(fun, s, jac=True, method="L-BFGS-B",
-                                    options=dict(maxiter=2000, ftol=1e-13, gtol=1e-8))
+            res = optimize.minimize(fun, s, jac=True, method="BFGS", options=dict(maxiter=2000, gtol=1e-6))
         if best is None or res.fun < best.fun:
             best = res
     if best is None:

@@ -195,20 +195,34 @@ class FitResult:
         ess_min = min(min(v["ess_bulk"], v["ess_tail"]) for v in per.values())
         st = c.settings
         tau_max = float(np.max(c.tau))
-        converged = bool(rhat_max < st.rhat_target and ess_min >= st.ess_target
-                         and S >= st.tau_factor * tau_max and np.all((c.acceptance > 0.05)))
+        failed = []
+        if not rhat_max < st.rhat_target:
+            worst = max(per, key=lambda n: per[n]["rhat"])
+            failed.append(f"R-hat max {rhat_max:.4f} ({worst}) ≥ {st.rhat_target}")
+        if not ess_min >= st.ess_target:
+            worst = min(per, key=lambda n: min(per[n]["ess_bulk"], per[n]["ess_tail"]))
+            failed.append(f"ESS min {ess_min:.0f} ({worst}) < {st.ess_target:.0f}")
+        if not S >= st.tau_factor * tau_max:
+            failed.append(f"chain of {S} steps shorter than {st.tau_factor:g} autocorrelation times "
+                          f"({tau_max:.1f} steps)")
+        if not np.all(c.acceptance > 0.05):
+            failed.append(f"acceptance fraction {c.acceptance.min():.3f} < 0.05 in an ensemble")
+        converged = not failed
         self.diag = {
             "method": "emcee ensembles (DEMove + StretchMove), Gamma likelihood with discrepancy",
             "quality": self.quality,
             "converged": converged,
+            "failed_checks": failed,
             "rhat_max": rhat_max,
             "ess_min": ess_min,
             "rhat_target": st.rhat_target,
             "ess_target": st.ess_target,
+            "tau_factor": st.tau_factor,
             "n_ensembles": E,
             "n_walkers": W,
             "n_steps": S,
             "n_burn": st.n_burn,
+            "n_rounds": c.n_rounds,
             "tau_max_steps": tau_max,
             "acceptance": [float(a) for a in c.acceptance],
             "wall_s": c.wall_s,
@@ -216,10 +230,8 @@ class FitResult:
             "per_quantity": per,
         }
         if not converged:
-            worst = max(per, key=lambda n: per[n]["rhat"])
-            self.notes.insert(0, f"NOT CONVERGED: R-hat max {rhat_max:.4f} ({worst}), ESS min "
-                                 f"{ess_min:.0f} (targets < {st.rhat_target}, ≥ {st.ess_target:.0f}); "
-                                 "rerun with --quality accurate")
+            self.notes.insert(0, "NOT CONVERGED: " + "; ".join(failed) + ". Do not use these intervals; "
+                              "rerun with --quality accurate")
             warnings.warn(self.notes[0], ConvergenceWarning, stacklevel=3)
         f = np.median(self.draws["variance_discrepancy"])
         if f > 0.05:

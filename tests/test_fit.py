@@ -1,0 +1,98 @@
+"""Whole fits: the real EMVA 1288 reference set, reproducibility, the CLI outputs."""
+import json
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+
+import bayescap
+from bayescap.report import format_text
+
+EMVA_K_E_PER_DN = 3.571     # emva1288 1.0.2 on the full set: 1/K = 1/0.2801
+EMVA_READ_NOISE_E = 10.92   # sigma_d = sigma_y.dark / K
+
+
+@pytest.fixture(scope="module")
+def basler_fit(basler_csv):
+    return bayescap.fit(basler_csv, seed=11)
+
+
+def test_basler_matches_emva1288(basler_fit):
+    d = basler_fit.to_dict()
+    p = d["parameters"]
+    k = p["conversion_gain_e_per_dn"]["median"]
+    rn = p["read_noise_e"]["median"]
+    assert abs(k / EMVA_K_E_PER_DN - 1) < 0.02
+    assert abs(rn / EMVA_READ_NOISE_E - 1) < 0.05
+    assert d["diagnostics"]["converged"]
+    assert p["quantum_efficiency"]["median"] == pytest.approx(0.4525, rel=0.02)
+    # the clip is the ADC's: reported as such, and full well is the charge at the clip
+    assert p["full_well_e"]["clip_source"] == "adc"
+    assert p["full_well_e"]["median"] == pytest.approx((4095 - 14.72) * k, rel=2e-3)
+    # a 14 ms dark series cannot detect dark current: an upper limit, not a number
+    assert p["dark_current_e_per_s"]["constrained"] is False
+    assert "upper_limit_95" in p["dark_current_e_per_s"]
+    cap = d["derived"]["capacity_bits"]
+    assert cap["ci95"][0] < cap["median"] < cap["ci95"][1]
+    assert d["model_terms"][:2] == ["photon_shot", "read"]
+
+
+def test_contract_json_shape(basler_fit):
+    d = json.loads(json.dumps(basler_fit.to_dict()))
+    for key in ("bayescap_version", "input", "sensor", "parameters", "derived", "model_terms", "diagnostics"):
+        assert key in d
+    for name, s in d["parameters"].items():
+        assert {"median", "ci68", "ci95", "unit", "constrained"} <= set(s), name
+        if s["median"] is not None:
+            assert s["ci95"][0] <= s["ci68"][0] <= s["median"] <= s["ci68"][1] <= s["ci95"][1], name
+    for name in ("tonal_range_bits", "dynamic_range_db", "snr_max_db", "mtf_loss_bits", "effective_pixels",
+                 "capacity_bits"):
+        assert {"median", "ci68", "ci95", "unit"} <= set(d["derived"][name]), name
+    dg = d["diagnostics"]
+    assert {"method", "converged", "rhat_max", "ess_min"} <= set(dg)
+    assert dg["rhat_max"] < 1.01 and dg["ess_min"] >= 400
+
+
+def test_text_report_says_what_it_did(basler_fit):
+    txt = format_text(basler_fit)
+    assert "converged" in txt and "capacity C =" in txt and "95 % interval" in txt
+    assert "upper limit" in txt  # dark current
+    assert "pixel_pitch_um unknown" in txt  # the lens term left out, and why
+
+
+def test_same_seed_same_numbers(tmp_path):
+    truth = bayescap.simulate.SensorTruth(conversion_gain_e_per_dn=1.5, read_noise_e=2.0, full_well_e=5000.0)
+    data = bayescap.simulate.simulate_ptc(truth, seed=1, shape=(50, 50), n_levels=25)
+    a = bayescap.fit(data, seed=5, quality="fast").to_dict()
+    b = bayescap.fit(data, seed=5, quality="fast").to_dict()
+    for d in (a, b):
+        d["diagnostics"].pop("wall_s")
+    assert json.dumps(a, sort_keys=True) == json.dumps(b, sort_keys=True)
+    c = bayescap.fit(data, seed=6, quality="fast").to_dict()
+    assert c["parameters"]["conversion_gain_e_per_dn"]["median"] != a["parameters"]["conversion_gain_e_per_dn"]["median"]
+
+
+def test_cli_json_and_out_dir(tmp_path):
+    csv = tmp_path / "s.csv"
+    truth = bayescap.simulate.SensorTruth(conversion_gain_e_per_dn=2.0, read_noise_e=3.0, full_well_e=8000.0,
+                                         prnu_frac=0.01, dsnu_e=1.0)
+    bayescap.simulate.simulate_ptc(truth, seed=2, shape=(50, 50), n_levels=25, spatial_frames=8,
+                                   spatial_every=6, path=csv, metadata={"pixel_pitch_um": 2.2})
+    before = csv.read_bytes()
+    out = tmp_path / "out"
+    r = subprocess.run([sys.executable, "-m", "bayescap.cli", "fit", str(csv), "--json", "--seed", "3",
+                        "--quality", "fast", "--out", str(out)], capture_output=True, text=True)
+    assert r.returncode == 0, r.stderr
+    d = json.loads(r.stdout)
+    assert d["input"] == str(csv)
+    assert d["parameters"]["prnu_percent"]["constrained"]
+    assert d["sensor"]["pixel_pitch_um"] == 2.2
+    assert {p.name for p in out.iterdir()} == {"result.json", "report.txt", "posterior.nc", "ptc.png", "corner.png"}
+    assert json.loads((out / "result.json").read_text())["parameters"] == d["parameters"]
+    import arviz as az
+
+    idata = az.from_netcdf(out / "posterior.nc")
+    assert "conversion_gain_e_per_dn" in idata.posterior and "capacity_bits" in idata.posterior
+    assert csv.read_bytes() == before
+    assert not [p for p in out.iterdir() if p.name.startswith(".")]  # no temp files left

@@ -1,0 +1,111 @@
+"""The likelihood pieces and the data-driven term selection."""
+import numpy as np
+import pytest
+from scipy import stats
+
+from bayescap.model import PTCModel, gamma_logpdf, select_terms
+from bayescap.simulate import SensorTruth, simulate_ptc
+
+
+@pytest.mark.parametrize("k", [0.7, 5.0, 50.0, 5e3, 5e6])
+def test_gamma_logpdf_matches_scipy(k):
+    sigma2 = 37.0
+    v = sigma2 * np.array([0.5, 0.9, 1.0, 1.001, 1.3])
+    ref = stats.gamma.logpdf(v, a=k, scale=sigma2 / k)
+    np.testing.assert_allclose(gamma_logpdf(v, sigma2, k), ref, rtol=1e-9, atol=1e-7)
+
+
+def test_gamma_logpdf_has_the_chi2_spread():
+    # a pair variance over n pixels: relative sd sqrt(2/(n-1)) around the model value
+    rng = np.random.default_rng(1)
+    n, sigma2 = 1000, 12.0
+    v = sigma2 * rng.chisquare(n - 1, 20000) / (n - 1)
+    grid = np.linspace(v.min(), v.max(), 2001)
+    pdf = np.exp(gamma_logpdf(grid, sigma2, (n - 1) / 2))
+    mean = np.trapezoid(grid * pdf, grid)
+    sd = np.sqrt(np.trapezoid((grid - mean) ** 2 * pdf, grid))
+    assert mean == pytest.approx(sigma2, rel=1e-3)
+    assert sd / sigma2 == pytest.approx(np.sqrt(2 / (n - 1)), rel=2e-3)
+
+
+def test_clipped_moments_match_monte_carlo():
+    rng = np.random.default_rng(2)
+    mu, s, tau, c = 4000.0, 30.0, 20.0, 4095.0
+    n_pix, n_frames = 4000, 400
+    x = mu + tau * rng.standard_normal(n_pix)[:, None] + s * rng.standard_normal((n_pix, n_frames))
+    y = np.minimum(x, c)
+    mc_mean = y.mean()
+    per_pixel_var = y.var(axis=1, ddof=1)  # temporal variance per pixel
+    mc_var = per_pixel_var.mean()
+    # standard errors: pixels are the independent units (their offsets are shared by all frames)
+    se_mean = y.mean(axis=1).std(ddof=1) / np.sqrt(n_pix)
+    se_var = per_pixel_var.std(ddof=1) / np.sqrt(n_pix)
+    mean, var, unclipped = PTCModel._clip_moments(None, np.array(mu), np.array(s), np.array(tau), np.array(c))
+    assert abs(mean - mc_mean) < 4 * se_mean
+    assert abs(var - mc_var) < 4 * se_var
+    assert unclipped == pytest.approx(np.mean(x < c), abs=0.01)
+
+
+def _sim(**kw):
+    truth = SensorTruth(conversion_gain_e_per_dn=2.0, read_noise_e=4.0, full_well_e=6000.0,
+                        dark_current_e_per_s=100.0, quantum_efficiency=0.6, adc_bits=12)
+    args = dict(seed=5, shape=(64, 64), n_levels=20)
+    args.update(kw)
+    return truth, simulate_ptc(truth, **args)
+
+
+def test_terms_follow_the_data():
+    truth, d = _sim()
+    t = select_terms(d)
+    assert t.dark_current and t.clip == "well" and t.quantum_efficiency and not t.prnu and not t.dsnu
+    assert "prnu" in t.reasons and "dsnu" in t.reasons
+    # one exposure time: only read² + D·t
+    ph = np.linspace(100, 8000, 12)
+    _, d1 = _sim(photons_per_pixel=ph, exposure_time_s=0.01)
+    t1 = select_terms(d1)
+    assert not t1.dark_current and "read² + D·t" in t1.reasons["dark_current"]
+    assert "log_dark_noise" in PTCModel(d1).names and "log_dc" not in PTCModel(d1).names
+    # never saturated: no clip term, full well a lower bound
+    _, d2 = _sim(max_fraction=0.6)
+    t2 = select_terms(d2)
+    assert t2.clip == "none" and "lower bound" in t2.reasons["saturation"]
+    # spatial stacks: PRNU and DSNU enter
+    _, d3 = _sim(spatial_frames=8, spatial_every=5)
+    t3 = select_terms(d3)
+    assert t3.prnu and t3.dsnu
+
+
+def test_adc_clip_detected():
+    truth = SensorTruth(conversion_gain_e_per_dn=1.0, read_noise_e=3.0, full_well_e=20000.0, adc_bits=12)
+    d = simulate_ptc(truth, seed=3, shape=(64, 64), n_levels=20)
+    assert select_terms(d).clip == "adc"
+
+
+def test_latent_signal_inverts_the_clipped_mean():
+    truth, d = _sim()
+    m = PTCModel(d)
+    x = m.initial_guess()
+    p = m.physical(x[None])
+    k = p["conversion_gain_e_per_dn"]
+    rows = m.clip_rows
+    pre = np.zeros((1, rows.size)) + 1e-3
+    mu, var, slope = m._latent_clip_rows(k, pre, p["clip_spread_dn"], p["clip_dn"], rows)
+    s = np.sqrt(np.maximum(mu - m.dm[rows], 0) / k[:, None] + pre)
+    mean, _ = m._clip_mean(mu, s, np.broadcast_to(p["clip_spread_dn"][:, None], mu.shape),
+                           np.broadcast_to(p["clip_dn"][:, None], mu.shape))
+    np.testing.assert_allclose(mean, m.m[rows][None, :], atol=1e-5 * s.max())
+    assert np.all(mu >= m.m[rows] - 1e-9)
+
+
+def test_log_prob_vectorised_and_finite_at_start():
+    _, d = _sim(spatial_frames=8, spatial_every=5)
+    m = PTCModel(d)
+    x = m.initial_guess()
+    X = x + 1e-3 * np.random.default_rng(0).standard_normal((7, m.ndim))
+    lp = m.log_prob(X)
+    assert lp.shape == (7,) and np.all(np.isfinite(lp))
+    np.testing.assert_allclose(lp[3], m.log_prob(X[3:4])[0], rtol=1e-12)
+    # outside the prior support: -inf, no warning storm
+    bad = x.copy()
+    bad[m.idx["log_k"]] = 50.0
+    assert m.log_prob(bad[None])[0] == -np.inf

@@ -1,0 +1,104 @@
+"""Reading photon-transfer CSVs: the contract, and clear refusals (file, row, column; exit 2)."""
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+
+from bayescap.ptc import PTCInputError, read_ptc_csv, write_ptc_csv
+
+HEADER = "exposure_time_s,mean_dn,temporal_var_dn2,dark_mean_dn,dark_temporal_var_dn2,n_pixels"
+GOOD_ROWS = ["0.001,100,30,10,5,10000", "0.002,200,55,10,5,10000", "0.003,300,80,10,5,10000"]
+
+
+def _write(tmp_path, text, name="s.csv"):
+    p = tmp_path / name
+    p.write_text(text)
+    return p
+
+
+def test_reads_metadata_rows_and_sorts(tmp_path):
+    p = _write(tmp_path, "# sensor: demo\n# adc_bits: 12\n# pixel_pitch_um: 1.75\n# custom: kept\n"
+               + HEADER + "\n" + "\n".join(reversed(GOOD_ROWS)) + "\n")
+    d = read_ptc_csv(p)
+    assert d.metadata == {"sensor": "demo", "adc_bits": 12, "pixel_pitch_um": 1.75, "custom": "kept"}
+    assert list(d.mean_dn) == [100, 200, 300]
+    assert list(d.row_numbers) == [3, 2, 1]  # row labels follow the file, not the sorted order
+    with pytest.raises(ValueError):
+        d.mean_dn[0] = 5  # immutable
+    assert d.adc_max_dn == 4095
+
+
+def test_overrides_replace_metadata(tmp_path):
+    p = _write(tmp_path, "# f_number: 2.8\n" + HEADER + "\n" + "\n".join(GOOD_ROWS))
+    d = read_ptc_csv(p, overrides={"f_number": 4.0, "width_px": 100})
+    assert d.metadata["f_number"] == 4.0 and d.metadata["width_px"] == 100
+
+
+def test_round_trip_with_sparse_spatial_columns(tmp_path):
+    cols = {"exposure_time_s": [0.1, 0.2], "mean_dn": [100.0, 200.0], "temporal_var_dn2": [30.0, 55.0],
+            "dark_mean_dn": [10.0, 10.0], "dark_temporal_var_dn2": [5.0, 5.0], "n_pixels": [100, 100],
+            "spatial_var_dn2": [np.nan, 12.5], "n_frames": [np.nan, 16]}
+    write_ptc_csv({k: np.asarray(v, float) for k, v in cols.items()}, tmp_path / "x.csv", metadata={"sensor": "a"})
+    d = read_ptc_csv(tmp_path / "x.csv")
+    assert np.isnan(d.spatial_var_dn2[0]) and d.spatial_var_dn2[1] == 12.5 and d.n_frames[1] == 16
+
+
+BAD = {
+    "missing column": (HEADER.replace(",n_pixels", "") + "\n0.001,100,30,10,5\n0.002,200,55,10,5\n",
+                       ["missing required column", "n_pixels"]),
+    "text in a number": (HEADER + "\n0.001,100,abc,10,5,10000\n" + GOOD_ROWS[1] + "\n",
+                         ["row 1", "temporal_var_dn2", "expected a number", "'abc'"]),
+    "NaN": (HEADER + "\n" + GOOD_ROWS[0] + "\n0.002,nan,55,10,5,10000\n", ["row 2", "mean_dn", "finite"]),
+    "negative variance": (HEADER + "\n" + GOOD_ROWS[0] + "\n0.002,200,-55,10,5,10000\n",
+                          ["row 2", "temporal_var_dn2", "negative variance"]),
+    "one row": (HEADER + "\n" + GOOD_ROWS[0] + "\n", ["at least 2 data rows"]),
+    "empty file": ("", ["empty file"]),
+    "negative exposure": (HEADER + "\n-0.001,100,30,10,5,10000\n" + GOOD_ROWS[1] + "\n",
+                          ["row 1", "exposure_time_s", "negative"]),
+    "n_pixels < 2": (HEADER + "\n0.001,100,30,10,5,1\n" + GOOD_ROWS[1] + "\n", ["row 1", "n_pixels"]),
+    "short row": (HEADER + "\n0.001,100,30\n" + GOOD_ROWS[1] + "\n", ["row 1", "fields"]),
+    "bad metadata": ("# adc_bits: twelve\n" + HEADER + "\n" + "\n".join(GOOD_ROWS), ["adc_bits", "metadata line 1"]),
+    "mean above ADC max": ("# adc_bits: 8\n" + HEADER + "\n" + GOOD_ROWS[0] + "\n0.002,300,55,10,5,10000\n",
+                           ["row 2", "mean_dn", "ADC maximum"]),
+}
+
+
+@pytest.mark.parametrize("case", sorted(BAD))
+def test_malformed_csv_refused_with_location(tmp_path, case):
+    text, fragments = BAD[case]
+    p = _write(tmp_path, text)
+    with pytest.raises(PTCInputError) as e:
+        read_ptc_csv(p)
+    msg = str(e.value)
+    assert str(p) in msg
+    for frag in fragments:
+        assert frag in msg, (frag, msg)
+
+
+@pytest.mark.parametrize("case", ["missing column", "text in a number", "NaN", "negative variance",
+                                  "one row", "empty file"])
+def test_cli_refuses_bad_csv_exit_2_one_line_no_traceback(tmp_path, case):
+    text, fragments = BAD[case]
+    p = _write(tmp_path, text)
+    out = tmp_path / "out"
+    r = subprocess.run([sys.executable, "-m", "bayescap.cli", "fit", str(p), "--out", str(out)],
+                       capture_output=True, text=True)
+    assert r.returncode == 2
+    assert r.stdout == ""
+    lines = r.stderr.strip().splitlines()
+    assert len(lines) == 1 and lines[0].startswith("bayescap: error:"), r.stderr
+    assert "Traceback" not in r.stderr
+    assert not out.exists()  # nothing half-written
+
+
+def test_cli_missing_file(tmp_path):
+    r = subprocess.run([sys.executable, "-m", "bayescap.cli", "fit", str(tmp_path / "nope.csv")],
+                       capture_output=True, text=True)
+    assert r.returncode == 2 and "file not found" in r.stderr and "Traceback" not in r.stderr
+
+
+def test_input_never_modified(tmp_path, basler_csv):
+    before = basler_csv.read_bytes()
+    read_ptc_csv(basler_csv)
+    assert basler_csv.read_bytes() == before
