@@ -15,7 +15,7 @@ from .optics import default_mtf
 from .posterior import FitResult, Scene
 from .ptc import PTCData, read_ptc_csv
 
-__all__ = ["load", "fit", "default_scene", "mtf_from_metadata"]
+__all__ = ["load", "fit", "default_scene", "mtf_from_metadata", "measured_mtf"]
 
 #: metadata defaults applied when a key is absent (the report lists which were used)
 METADATA_DEFAULTS = {"f_number": 2.8, "wavelength_nm": 555.0, "fill_factor": 1.0}
@@ -43,6 +43,27 @@ def mtf_from_metadata(metadata: dict, notes: list | None = None):
                      "give '# pixel_pitch_um:' or --pixel-pitch-um")
     return default_mtf(fill_factor=md["fill_factor"], f_number=md["f_number"],
                        wavelength_nm=md["wavelength_nm"], pixel_pitch_um=pitch)
+
+
+def measured_mtf(path, *, seed: int = 0, n_boot: int = 200):
+    """A measured system MTF as an MTF component with draws (for Δs with uncertainty).
+
+    ``path`` is an MTF table (CSV: ``freq_cy_per_px,mtf``; no draws, so Δs carries no
+    sharpness uncertainty) or a slanted-edge image, measured by ISO 12233:2023
+    (:func:`bayescap.mtf.measure_sfr`, with the ¼-pixel bin-width correction so that the
+    bootstrap intervals are centred on the true MTF) with ``n_boot`` bootstrap draws."""
+    from pathlib import Path
+
+    from .mtf import measure_sfr, read_image, read_mtf_table
+    from .optics import TabulatedMTF
+
+    p = Path(path)
+    if p.suffix.lower() == ".csv":
+        r = read_mtf_table(p)
+    else:
+        r = measure_sfr(read_image(p), n_boot=n_boot, seed=seed, correct_bin_width=True)
+    samples = r.mtf_samples if r.mtf_samples.shape[0] > 0 else None
+    return TabulatedMTF(freq_cy_per_px=r.freq_cy_per_px, mtf=r.mtf, samples=samples, name=f"measured:{p.name}")
 
 
 def fit(data: PTCData | str, *, seed: int | None = None, quality: str | SamplerSettings = "standard",

@@ -971,3 +971,37 @@ def write_mtf_table(result: SFRResult, path: str | Path) -> None:
             if has_ci:
                 row += [f"{lo[i]:.6f}", f"{hi[i]:.6f}"]
             w.writerow(row)
+
+
+def read_image(path: str | Path) -> np.ndarray:
+    """Read an edge image (TIFF, PNG, JPEG, ``.npy``) as a float array, (H, W) or (H, W, 3).
+
+    Pillow reads every common container (LZW-compressed TIFF included); 16-bit images keep
+    their values. The data must be linear (no gamma); a camera RAW file should be demosaiced
+    linearly first or measured per CFA plane. Raises :class:`MTFInputError` naming the file.
+    """
+    from PIL import Image, UnidentifiedImageError
+
+    p = Path(path)
+    if p.suffix.lower() == ".npy":
+        try:
+            arr = np.load(p, allow_pickle=False)
+        except (OSError, ValueError) as e:
+            raise MTFInputError(f"{p}: cannot read the array ({e})") from None
+    else:
+        try:
+            with Image.open(p) as im:
+                im.load()
+                if im.mode in ("P", "PA", "LA", "RGBA"):
+                    im = im.convert("RGB")
+                arr = np.asarray(im)
+        except FileNotFoundError:
+            raise MTFInputError(f"{p}: file not found") from None
+        except (UnidentifiedImageError, OSError, ValueError) as e:
+            raise MTFInputError(f"{p}: cannot read the image ({e})") from None
+    arr = np.asarray(arr, dtype=float)
+    if arr.ndim == 3 and arr.shape[2] == 1:
+        arr = arr[..., 0]
+    if arr.ndim not in (2, 3) or (arr.ndim == 3 and arr.shape[2] != 3):
+        raise MTFInputError(f"{p}: expected a grey or RGB image, got an array of shape {arr.shape}")
+    return arr
