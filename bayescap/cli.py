@@ -57,9 +57,15 @@ def build_parser() -> argparse.ArgumentParser:
                                                "(ArviZ InferenceData), ptc.png and corner.png into DIR")
     p.add_argument("--quality", choices=("fast", "standard", "accurate"), default="standard",
                    help="speed/accuracy preset (README, 'Quality presets'); default standard")
+    p.add_argument("--scene", default=None, metavar="KEY=VALUE,...",
+                   help="evaluate TR and capacity for a scene: exposure_s=<s>, temperature_c=<°C> "
+                        "(dark current doubles every 6 °C from the CSV's temperature_c); e.g. "
+                        "--scene exposure_s=0.1,temperature_c=45")
     p.add_argument("--scene-exposure-s", type=float, default=None,
                    help="exposure time (s) at which TR and capacity are evaluated "
                         "(default: median exposure time of the unclipped rows)")
+    p.add_argument("--temperature-c", type=float, default=None,
+                   help="sensor temperature of the scene (°C); needs the measurement's temperature_c")
     p.add_argument("--mtf", metavar="FILE", default=None,
                    help="measured system MTF for Δs: a CSV table (freq_cy_per_px,mtf) or a slanted-edge "
                         "image (ISO 12233, with bootstrap draws so capacity carries sharpness uncertainty); "
@@ -153,11 +159,7 @@ def _cmd_fit(args) -> int:
         data = load(args.csv, **overrides)
     except PTCInputError as e:
         raise InputError(str(e)) from None
-    scene = None
-    if args.scene_exposure_s is not None:
-        if not args.scene_exposure_s >= 0:
-            raise InputError(f"--scene-exposure-s must be >= 0, got {args.scene_exposure_s}")
-        scene = Scene(exposure_time_s=args.scene_exposure_s, source="--scene-exposure-s")
+    scene = _scene_from_args(args, data)
     mtf = None
     if args.mtf:
         from .api import measured_mtf
@@ -173,6 +175,43 @@ def _cmd_fit(args) -> int:
         write_outputs(result, args.out)
     sys.stdout.write(to_json(result) if args.json else format_text(result))
     return 0
+
+
+def _scene_from_args(args, data):
+    """A Scene from --scene / --scene-exposure-s / --temperature-c, or None for the default."""
+    from .api import default_scene
+    from .posterior import Scene
+
+    spec = {}
+    if args.scene:
+        for item in args.scene.split(","):
+            if "=" not in item:
+                raise InputError(f"--scene expects KEY=VALUE pairs separated by commas, got '{item}'")
+            key, val = (x.strip() for x in item.split("=", 1))
+            if key not in ("exposure_s", "temperature_c"):
+                raise InputError(f"--scene: unknown key '{key}' (known: exposure_s, temperature_c)")
+            try:
+                spec[key] = float(val)
+            except ValueError:
+                raise InputError(f"--scene: {key} must be a number, got '{val}'") from None
+    if args.scene_exposure_s is not None:
+        spec["exposure_s"] = args.scene_exposure_s
+    if args.temperature_c is not None:
+        spec["temperature_c"] = args.temperature_c
+    if not spec:
+        return None
+    base = default_scene(data)
+    t = spec.get("exposure_s", base.exposure_time_s)
+    if not (t >= 0 and t < float("inf")):
+        raise InputError(f"scene exposure time must be a finite number >= 0, got {t}")
+    temp = spec.get("temperature_c")
+    ref = data.metadata.get("temperature_c")
+    if temp is not None and ref is None:
+        raise InputError(f"{data.source}: a scene temperature needs the measurement's temperature: add "
+                         "'# temperature_c: <°C>' to the CSV")
+    src = "--scene" if args.scene else ("--scene-exposure-s" if "exposure_s" in spec else base.source)
+    return Scene(exposure_time_s=t, source=src, temperature_c=temp,
+                 reference_temperature_c=ref if temp is not None else None)
 
 
 def main(argv=None) -> int:

@@ -44,6 +44,10 @@ from .ptc import PTCData
 __all__ = ["PTCModel", "ModelTerms", "select_terms", "saturation_flags", "gamma_logpdf", "PARAMETER_INFO"]
 
 _LOG_2PI = np.log(2.0 * np.pi)
+#: prior probability that a row is a bad measurement, and the relative scatter of bad rows
+OUTLIER_RATE = 0.02
+OUTLIER_REL_SD = 0.3
+ROBUST_BLOCKS = ("bright_var", "dark_var", "mean")
 _GH_X, _GH_W = np.polynomial.hermite_e.hermegauss(9)
 _GH_W = _GH_W / _GH_W.sum()
 
@@ -102,6 +106,7 @@ class ModelTerms:
     quantum_efficiency: bool
     prnu: bool
     dsnu: bool
+    robust: bool = True
     reasons: dict = field(default_factory=dict)  # term -> why it is left out
     how: dict = field(default_factory=dict)      # term -> how an included term enters (caveats)
 
@@ -116,6 +121,8 @@ class ModelTerms:
         if self.clip != "none":
             out.append("saturation")
         out.append("variance_discrepancy")
+        if self.robust:
+            out.append("outlier_mixture")
         if self.quantum_efficiency:
             out += ["quantum_efficiency", "mean_discrepancy"]
         return out
@@ -481,15 +488,44 @@ class PTCModel:
                                        1.0 / (2.0 / self.nu_d[r][None, :] + f2), "gamma")
         return out
 
+    def _block_loglik(self, name, obs, model, spread, kind, with_outlier_prob=False):
+        obs = obs if np.ndim(obs) == 2 else obs[None, :]
+        if kind == "gamma":
+            good = gamma_logpdf(obs, model, spread)
+        else:
+            good = _norm_logpdf(obs, model, spread)
+        if not (self.terms.robust and name in ROBUST_BLOCKS):
+            return (good, None) if with_outlier_prob else good
+        # a broad outlier component (Hogg, Bovy & Lang 2010): a row is a bad measurement with
+        # prior probability OUTLIER_RATE, then scattered by OUTLIER_REL_SD around the model
+        if kind == "gamma":
+            lv = np.log(obs)
+            bad = _norm_logpdf(lv, np.log(model), OUTLIER_REL_SD) - lv
+        else:
+            bad = _norm_logpdf(obs, model, np.hypot(spread, OUTLIER_REL_SD * np.abs(model)))
+        a = np.log1p(-OUTLIER_RATE) + good
+        b = np.log(OUTLIER_RATE) + bad
+        ll = np.logaddexp(a, b)
+        if with_outlier_prob:
+            return ll, np.exp(b - ll)
+        return ll
+
     def loglik_terms(self, th):
         """Pointwise log-likelihood blocks (each (n_draws, n_obs))."""
+        return {name: self._block_loglik(name, *blk) for name, blk in self.predict(th).items()}
+
+    def outlier_probabilities(self, th) -> dict:
+        """Posterior probability that each observation is an outlier, per block: {block: (rows,
+        probabilities)} averaged over the draws ``th``."""
         out = {}
-        for name, (obs, model, spread, kind) in self.predict(th).items():
-            obs = obs if np.ndim(obs) == 2 else obs[None, :]
-            if kind == "gamma":
-                out[name] = gamma_logpdf(obs, model, spread)
-            else:
-                out[name] = _norm_logpdf(obs, model, spread)
+        if not self.terms.robust:
+            return out
+        with np.errstate(over="ignore", invalid="ignore", divide="ignore"):
+            for name, blk in self.predict(th).items():
+                if name not in ROBUST_BLOCKS:
+                    continue
+                _, prob = self._block_loglik(name, *blk, with_outlier_prob=True)
+                out[name] = (self.observation_rows(name), np.nanmean(prob, axis=0))
         return out
 
     def observation_rows(self, block):

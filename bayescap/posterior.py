@@ -57,6 +57,10 @@ class Scene:
         return d
 
 
+_DERIVED_NOTE_PREFIXES = ("width_px/height_px unknown", "no row reaches saturation", "the MTF reaches zero",
+                          "noise stays below one")
+
+
 def _q(x, qs):
     return [float(v) for v in np.quantile(x, qs)]
 
@@ -106,6 +110,7 @@ class FitResult:
         self.draws = model.physical(flat)
         self._derive()
         self._diagnose()
+        self._check_rows()
         return self
 
     @property
@@ -239,6 +244,73 @@ class FitResult:
                               "the model or the measurements are inadequate (check linearity, lamp "
                               "stability, outlier rows)")
 
+    # ----------------------------------------------------------------- data checks
+    def _check_rows(self, n_draws=400):
+        """Outlier probabilities per row, and systematic residuals the model has no term for."""
+        m = self.model
+        E, S, W, D = self.chains.chain.shape
+        th = self.chains.chain.reshape(-1, D)[self.thin_index(n_draws)]
+        self.outliers = []
+        for block, (rows, prob) in m.outlier_probabilities(th).items():
+            for r, pr in zip(rows, prob):
+                if pr > 0.5:
+                    self.outliers.append({"row": int(r), "block": block, "probability": float(pr)})
+        if self.outliers:
+            desc = ", ".join(f"row {o['row']} ({o['block']}, P = {o['probability']:.2f})" for o in self.outliers)
+            self.notes.append(f"outlier rows (down-weighted by the mixture, not removed): {desc}")
+        # variance turning over below the clip: the top unclipped rows sit well below the model
+        with np.errstate(over="ignore", invalid="ignore", divide="ignore"):
+            obs, model, k, _ = m.predict(th)["bright_var"]
+        med = np.median(model, axis=0)
+        kk = np.median(np.broadcast_to(k, model.shape), axis=0)
+        z = (obs - med) / (med / np.sqrt(kk))
+        order = np.argsort(m.s_obs)
+        top = order[-4:]
+        out_rows = {o["row"] for o in self.outliers}
+        rows = m.observation_rows("bright_var")
+        low = [i for i in top if z[i] < -4 and int(rows[i]) not in out_rows]
+        if len(low) >= 2 and m.terms.clip in ("none", "adc"):
+            self.flags["variance_turnover_unexplained"] = [int(rows[i]) for i in low]
+            self.notes.append("the variance turns over below the clip level on rows "
+                              + ", ".join(str(int(rows[i])) for i in low)
+                              + ": the model has no term for that (non-linearity or a soft clip before "
+                                "full well?); treat full well and the top of the range with caution")
+
+    def at_scene(self, scene: "Scene") -> "FitResult":
+        """The same posterior evaluated at another scene (exposure time, temperature): derived
+        quantities, notes and noise budget are recomputed, the draws are shared."""
+        new = FitResult(model=self.model, chains=self.chains, metadata=self.metadata, scene=scene,
+                        mtf=self.mtf, seed=self.seed, quality=self.quality, draws=self.draws)
+        new.notes = [n for n in self.notes if not n.startswith(_DERIVED_NOTE_PREFIXES)]
+        new.flags = {k: v for k, v in self.flags.items() if k not in ("capacity_lower_bound", "mtf_band_cut")}
+        new.diag = dict(self.diag)
+        new.outliers = list(getattr(self, "outliers", []))
+        new._derive()
+        return new
+
+    def noise_budget(self, fraction_of_range=0.5):
+        """Share of each Eq. 1 term in the noise variance at a signal level of the scene
+        (default mid-grey, half the largest non-saturating signal): {term: median %}."""
+        p = self.draws
+        s_max, _ = self.signal_max_e(p)
+        S = fraction_of_range * s_max
+        t = self.scene.exposure_time_s
+        k = p["conversion_gain_e_per_dn"]
+        terms = {"photon_shot": S}
+        if self.model.terms.dark_current:
+            terms["read"] = p["read_noise_e"] ** 2
+            terms["dark_current_shot"] = self.scene.dark_current_factor * p["dark_current_e_per_s"] * t
+        else:
+            terms["read_plus_dark"] = p["dark_noise_e"] ** 2
+        if "dsnu_e" in p:
+            terms["dsnu"] = p["dsnu_e"] ** 2
+        if "prnu_percent" in p:
+            terms["prnu"] = (p["prnu_percent"] / 100.0 * S) ** 2
+        terms["quantization"] = k * k / 12.0
+        total = sum(terms.values())
+        return {"signal_e": float(np.median(S)), "fraction_of_range": fraction_of_range,
+                "shares_percent": {n: float(np.median(100.0 * v / total)) for n, v in terms.items()}}
+
     # ----------------------------------------------------------------- API
     def push(self, fn, n_max=None):
         """Push a function of the physical-parameter dict through the posterior draws.
@@ -345,6 +417,8 @@ class FitResult:
             "terms_left_out": dict(self.model.terms.reasons),
             "term_notes": dict(self.model.terms.how),
             "mtf": self.mtf_info,
+            "noise_budget_mid_grey": self.noise_budget(),
+            "outliers": list(getattr(self, "outliers", [])),
             "notes": list(self.notes),
             "flags": dict(self.flags),
             "diagnostics": diag,

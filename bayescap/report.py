@@ -88,6 +88,14 @@ def format_text(result: FitResult | dict) -> str:
         lines.append(f"  capacity C = {_fmt(cap['median'])} {unit}, 95 % interval "
                      f"[{_fmt(cap['ci95'][0])}, {_fmt(cap['ci95'][1])}]"
                      + (" (lower bound)" if cap.get("lower_bound") else ""))
+    nb = d.get("noise_budget_mid_grey")
+    if nb:
+        shares = sorted(nb["shares_percent"].items(), key=lambda kv: -kv[1])
+        big = [f"{n} {v:.3g} %" for n, v in shares if v >= 0.1]
+        small = [n for n, v in shares if v < 0.1]
+        lines.append("")
+        lines.append(f"  noise at mid-grey (S = {_fmt(nb['signal_e'])} e-): " + ", ".join(big)
+                     + (f"; negligible (< 0.1 %): {', '.join(small)}" if small else ""))
     lines.append("")
     lines.append("  model terms: " + ", ".join(d["model_terms"]))
     for t, why in d.get("terms_left_out", {}).items():

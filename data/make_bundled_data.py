@@ -83,7 +83,7 @@ SIMULATED = {
         truth=SensorTruth(conversion_gain_e_per_dn=4.0, read_noise_e=3.5, full_well_e=8000.0,
                           dark_current_e_per_s=25.0, quantum_efficiency=0.5, prnu_frac=0.010,
                           dsnu_e=2.0, adc_bits=10, black_level_dn=64.0),
-        md={"sensor": "simulated phone sensor 1.75 um (10 bit)", "manufacturer": "simulated",
+        md={"sensor": "simulated phone sensor 1.75 um (10 bit)", "manufacturer": "simulated", "temperature_c": 25.0,
             "pixel_pitch_um": 1.75, "width_px": 3264, "height_px": 2448},
         kw=dict(spatial_frames=16, spatial_every=10), seed=101),
     # the well clips before the read-out
@@ -91,7 +91,7 @@ SIMULATED = {
         truth=SensorTruth(conversion_gain_e_per_dn=3.0, read_noise_e=2.3, full_well_e=10500.0,
                           dark_current_e_per_s=5.0, quantum_efficiency=0.7, prnu_frac=0.005,
                           dsnu_e=1.5, full_well_spread_frac=0.003, adc_bits=12, black_level_dn=64.0),
-        md={"sensor": "simulated industrial sensor 3.45 um (12 bit)", "manufacturer": "simulated",
+        md={"sensor": "simulated industrial sensor 3.45 um (12 bit)", "manufacturer": "simulated", "temperature_c": 25.0,
             "pixel_pitch_um": 3.45, "width_px": 2448, "height_px": 2048},
         kw=dict(spatial_frames=16, spatial_every=10), seed=202),
     # never reaches saturation: the full well can only be bounded from below
@@ -100,7 +100,7 @@ SIMULATED = {
                           dark_current_e_per_s=0.5, quantum_efficiency=0.8, adc_bits=16,
                           black_level_dn=100.0),
         md={"sensor": "simulated scientific sensor 6.5 um (16 bit), unsaturated series",
-            "manufacturer": "simulated", "pixel_pitch_um": 6.5, "width_px": 2048, "height_px": 2048},
+            "manufacturer": "simulated", "temperature_c": 25.0, "pixel_pitch_um": 6.5, "width_px": 2048, "height_px": 2048},
         kw=dict(max_fraction=0.7), seed=303),
 }
 
