@@ -70,6 +70,9 @@ def build_parser() -> argparse.ArgumentParser:
                    help="measured system MTF for Δs: a CSV table (freq_cy_per_px,mtf) or a slanted-edge "
                         "image (ISO 12233, with bootstrap draws so capacity carries sharpness uncertainty); "
                         "default: ideal pixel aperture x diffraction-limited lens from the metadata")
+    p.add_argument("--select-model", action="store_true",
+                   help="fit the nested likelihood variants (plain χ², + discrepancy, + outlier mixture) "
+                        "and keep the one PSIS-LOO prefers (README, 'Model selection')")
     p.add_argument("--progress", dest="progress", action="store_true", default=None,
                    help="show a progress bar (default: when stderr is a terminal)")
     p.add_argument("--no-progress", dest="progress", action="store_false")
@@ -170,7 +173,13 @@ def _cmd_fit(args) -> int:
         except MTFInputError as e:
             raise InputError(str(e)) from None
     progress = sys.stderr.isatty() if args.progress is None else args.progress
-    result = fit(data, seed=args.seed, quality=args.quality, scene=scene, progress=progress, mtf=mtf)
+    if args.select_model:
+        from .selection import select_model
+
+        result, _ = select_model(data, seed=args.seed, quality=args.quality, progress=progress, scene=scene,
+                                 mtf=mtf)
+    else:
+        result = fit(data, seed=args.seed, quality=args.quality, scene=scene, progress=progress, mtf=mtf)
     if args.out:
         write_outputs(result, args.out)
     sys.stdout.write(to_json(result) if args.json else format_text(result))

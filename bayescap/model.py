@@ -107,6 +107,7 @@ class ModelTerms:
     prnu: bool
     dsnu: bool
     robust: bool = True
+    discrepancy: bool = True
     reasons: dict = field(default_factory=dict)  # term -> why it is left out
     how: dict = field(default_factory=dict)      # term -> how an included term enters (caveats)
 
@@ -120,7 +121,8 @@ class ModelTerms:
             out.append("dsnu")
         if self.clip != "none":
             out.append("saturation")
-        out.append("variance_discrepancy")
+        if self.discrepancy:
+            out.append("variance_discrepancy")
         if self.robust:
             out.append("outlier_mixture")
         if self.quantum_efficiency:
@@ -274,7 +276,8 @@ class PTCModel:
             names.append("log_prnu")
         if tm.dsnu:
             names.append("log_dsnu")
-        names.append("log_f")
+        if tm.discrepancy:
+            names.append("log_f")
         self.names = names
         self.ndim = len(names)
         self.idx = {n: i for i, n in enumerate(names)}
@@ -348,7 +351,7 @@ class PTCModel:
             out["prnu_percent"] = 100.0 * np.exp(g("log_prnu"))
         if self.terms.dsnu:
             out["dsnu_e"] = np.exp(g("log_dsnu"))
-        out["variance_discrepancy"] = np.exp(g("log_f"))
+        out["variance_discrepancy"] = np.exp(g("log_f")) if self.terms.discrepancy else np.zeros(th.shape[0])
         return out
 
     def dark_var_e2(self, p, t):
@@ -389,7 +392,8 @@ class PTCModel:
             lp = lp + _halfnormal_log_prior(g("log_prnu"), P["prnu_scale"])
         if self.terms.dsnu:
             lp = lp + _halfnormal_log_prior(g("log_dsnu"), P["dsnu_scale_e"])
-        lp = lp + _norm_logpdf(g("log_f"), np.log(P["f_center"]), P["f_log_sd"])
+        if self.terms.discrepancy:
+            lp = lp + _norm_logpdf(g("log_f"), np.log(P["f_center"]), P["f_log_sd"])
         return lp
 
     # ------------------------------------------------------------------ likelihood
@@ -420,7 +424,10 @@ class PTCModel:
         p = self.physical(th)
         k = p["conversion_gain_e_per_dn"]
         K = k[:, None]
-        f2 = np.exp(2.0 * th[:, self.idx["log_f"]])[:, None]
+        if self.terms.discrepancy:
+            f2 = np.exp(2.0 * th[:, self.idx["log_f"]])[:, None]
+        else:
+            f2 = np.zeros((th.shape[0], 1))
         rd2_ok = self.dark_var_e2(p, self.tt)  # (n, rows)
         rd2_all = self.dark_var_e2(p, self.t)
         out = {}
@@ -513,6 +520,19 @@ class PTCModel:
     def loglik_terms(self, th):
         """Pointwise log-likelihood blocks (each (n_draws, n_obs))."""
         return {name: self._block_loglik(name, *blk) for name, blk in self.predict(th).items()}
+
+    def pointwise_loglik(self, th):
+        """Log-likelihood of every observation for draws ``th``: (n_draws, n_obs), and the
+        matching labels ``[(block, row), ...]`` (for PSIS-LOO)."""
+        with np.errstate(over="ignore", invalid="ignore", divide="ignore"):
+            terms = self.loglik_terms(th)
+        labels, cols = [], []
+        for name, ll in terms.items():
+            rows = self.observation_rows(name)
+            ll = np.broadcast_to(ll, (th.shape[0], rows.size))
+            cols.append(ll)
+            labels += [(name, int(r)) for r in rows]
+        return np.concatenate(cols, axis=1), labels
 
     def outlier_probabilities(self, th) -> dict:
         """Posterior probability that each observation is an outlier, per block: {block: (rows,
@@ -651,5 +671,6 @@ class PTCModel:
                     est = (self.sp[r] - v[r] / self.L_ok[r] - dsnu_dn2) / np.maximum(s[r], 1e-9) ** 2
                     pr2 = max(np.median(est), 1e-8)
                 th["log_prnu"] = 0.5 * np.log(pr2)
-        th["log_f"] = np.log(0.01)
+        if tm.discrepancy:
+            th["log_f"] = np.log(0.01)
         return np.array([th[n] for n in self.names], float)

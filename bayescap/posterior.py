@@ -383,8 +383,9 @@ class FitResult:
             nonneg("prnu_percent", p["prnu_percent"], "%")
         if "dsnu_e" in p:
             nonneg("dsnu_e", p["dsnu_e"], "e-")
-        out["variance_discrepancy"] = summarize(p["variance_discrepancy"], "",
-                                                note="fractional scatter of the variances beyond statistics")
+        if m.terms.discrepancy:
+            out["variance_discrepancy"] = summarize(p["variance_discrepancy"], "",
+                                                    note="fractional scatter of the variances beyond statistics")
         if "clip_spread_dn" in p:
             out["clip_spread_dn"] = summarize(p["clip_spread_dn"], "DN", note="spread of pixel means at the clip")
         if "mean_discrepancy" in p:
@@ -419,6 +420,7 @@ class FitResult:
             "mtf": self.mtf_info,
             "noise_budget_mid_grey": self.noise_budget(),
             "outliers": list(getattr(self, "outliers", [])),
+            **({"model_selection": self.model_selection} if getattr(self, "model_selection", None) else {}),
             "notes": list(self.notes),
             "flags": dict(self.flags),
             "diagnostics": diag,

@@ -84,3 +84,21 @@ def test_cli_scene_requires_reference_temperature(tmp_path):
     r = subprocess.run([sys.executable, "-m", "bayescap.cli", "fit", str(p), "--scene", "temperature_c=40"],
                        capture_output=True, text=True)
     assert r.returncode == 2 and "temperature_c" in r.stderr and "Traceback" not in r.stderr
+
+
+def test_model_selection_by_loo_keeps_the_mixture_for_corrupted_rows(tmp_path):
+    """PSIS-LOO prefers the outlier mixture when two rows are corrupted and the plain χ²
+    likelihood (the simplest variant) when the data are clean simulations."""
+    from bayescap.selection import select_model
+
+    d = simulate_ptc(TRUTH, seed=7, shape=(100, 100))
+    cols = {c: np.array(getattr(d, c)) for c in ("exposure_time_s", "mean_dn", "temporal_var_dn2", "dark_mean_dn",
+                                                 "dark_temporal_var_dn2", "n_pixels", "photons_per_pixel",
+                                                 "frac_saturated")}
+    cols["temporal_var_dn2"][[10, 25]] *= [1.4, 0.6]
+    write_ptc_csv(cols, tmp_path / "bad.csv", metadata=d.metadata)
+    _, s_bad = select_model(bayescap.load(tmp_path / "bad.csv"), seed=1, quality="fast")
+    _, s_clean = select_model(d, seed=1, quality="fast")
+    assert s_bad["chosen"] == "discrepancy+outliers"
+    assert s_bad["variants"]["gamma_only"]["n_khat_above_0.7"] > 0
+    assert s_clean["chosen"] == "gamma_only"
