@@ -67,7 +67,8 @@ def measured_mtf(path, *, seed: int = 0, n_boot: int = 200):
 
 
 def fit(data: PTCData | str, *, seed: int | None = None, quality: str | SamplerSettings = "standard",
-        mtf=None, scene: Scene | None = None, progress: bool = False, terms=None) -> FitResult:
+        mtf=None, scene: Scene | None = None, progress: bool = False, terms=None,
+        n_jobs: int | None = None) -> FitResult:
     """Fit the Eq. 1 noise model to photon-transfer data and propagate to capacity.
 
     Parameters
@@ -78,13 +79,15 @@ def fit(data: PTCData | str, *, seed: int | None = None, quality: str | SamplerS
     mtf : an MTF component (see :mod:`bayescap.optics`); default from the metadata.
     scene : where TR/capacity are evaluated; default :func:`default_scene`.
     terms : a :class:`bayescap.model.ModelTerms` to override the data-driven term selection.
+    n_jobs : processes for the independent ensembles (default: one per core; the numbers do not
+        depend on it).
     """
     if not isinstance(data, PTCData):
         data = load(data)
     settings = QUALITY_PRESETS[quality] if isinstance(quality, str) else quality
     qname = quality if isinstance(quality, str) else "custom"
     model = PTCModel(data, terms=terms or select_terms(data))
-    chains = run_ensembles(model, settings=settings, seed=seed, progress=progress)
+    chains = run_ensembles(model, settings=settings, seed=seed, progress=progress, n_jobs=n_jobs)
     notes: list = []
     md = {**METADATA_DEFAULTS, **data.metadata}
     defaults_used = sorted(k for k in METADATA_DEFAULTS if k not in data.metadata)

@@ -9,6 +9,8 @@ on every parameter and on the capacity (see :mod:`bayescap.posterior`).
 """
 from __future__ import annotations
 
+import multiprocessing as mp
+import os
 import time
 import warnings
 from dataclasses import dataclass, field
@@ -160,15 +162,68 @@ class ChainResult:
     extra: dict = field(default_factory=dict)
 
 
+_WORKER_MODEL = None  # the model, inherited by forked workers (copy-on-write)
+
+
+def _run_segment(task):
+    """Run one ensemble for (optional burn-in +) ``n_steps`` from a given state.
+
+    Self-contained so it can run in a forked worker; the ensemble's random stream travels in
+    the state, so results do not depend on which process runs which ensemble."""
+    idx, coords, log_prob, rstate, n_burn, n_steps, settings = task
+    model = _WORKER_MODEL
+    nw = coords.shape[0]
+    s = emcee.EnsembleSampler(nw, model.ndim, model.log_prob, vectorize=True, moves=_moves(settings))
+    state = emcee.State(coords, log_prob=log_prob, random_state=rstate)
+    if n_burn:
+        state = s.run_mcmc(state, n_burn, progress=False)
+        s.reset()
+    state = s.run_mcmc(state, n_steps, progress=False)
+    accepted = s.acceptance_fraction * n_steps
+    return idx, s.get_chain(), s.get_log_prob(), state.coords, state.log_prob, state.random_state, accepted
+
+
+def _default_jobs(n_ensembles):
+    env = os.environ.get("BAYESCAP_JOBS")
+    if env:
+        try:
+            return max(1, int(env))
+        except ValueError:
+            pass
+    return max(1, min(n_ensembles, os.cpu_count() or 1))
+
+
+def _map_segments(tasks, n_jobs, pbar=None):
+    global _WORKER_MODEL
+    if n_jobs > 1 and len(tasks) > 1 and "fork" in mp.get_all_start_methods():
+        ctx = mp.get_context("fork")
+        out = []
+        with ctx.Pool(min(n_jobs, len(tasks))) as pool:
+            for r in pool.imap_unordered(_run_segment, tasks):
+                out.append(r)
+                if pbar is not None:
+                    pbar.update(tasks[0][4] + tasks[0][5])
+        return sorted(out, key=lambda r: r[0])
+    out = []
+    for t in tasks:
+        out.append(_run_segment(t))
+        if pbar is not None:
+            pbar.update(t[4] + t[5])
+    return out
+
+
 def run_ensembles(model: PTCModel, *, settings: SamplerSettings = SamplerSettings(), seed=None,
-                  progress: bool = False, converged_fn=None) -> ChainResult:
+                  progress: bool = False, converged_fn=None, n_jobs: int | None = None) -> ChainResult:
     """Run ``settings.n_ensembles`` independently seeded emcee ensembles.
 
     Each ensemble: walkers drawn from the Laplace approximation at the MAP, a burn-in, then
     production rounds of ``n_steps``; after each round the ensembles are checked together by
     ``converged_fn(chain)`` (default: R-hat/ESS of the parameters, and length ≥ tau_factor·τ)
-    and extended while it fails, up to ``max_rounds``.
+    and extended while it fails, up to ``max_rounds``. The ensembles run in ``n_jobs`` forked
+    processes (default: one per core, at most one per ensemble; ``BAYESCAP_JOBS`` overrides);
+    the numbers do not depend on ``n_jobs``.
     """
+    global _WORKER_MODEL
     t0 = time.perf_counter()
     x_map, lp_map = find_map(model)
     cov = laplace_covariance(model, x_map)
@@ -176,44 +231,52 @@ def run_ensembles(model: PTCModel, *, settings: SamplerSettings = SamplerSetting
     children = ss.spawn(settings.n_ensembles)
     nw = max(settings.min_walkers, settings.walkers_per_dim * model.ndim)
     nw += nw % 2
-    samplers, states = [], []
+    n_jobs = _default_jobs(settings.n_ensembles) if n_jobs is None else max(1, int(n_jobs))
     pbar = None
     if progress:
         from tqdm.auto import tqdm
         pbar = tqdm(total=settings.n_ensembles * (settings.n_burn + settings.n_steps),
                     desc="sampling", unit="step", leave=False)
-    for child in children:
+    tasks = []
+    for i, child in enumerate(children):
         rng = np.random.default_rng(child)
         p0 = _initial_ball(model, x_map, cov, nw, rng)
-        s = emcee.EnsembleSampler(nw, model.ndim, model.log_prob, vectorize=True, moves=_moves(settings))
-        s.random_state = np.random.RandomState(child.generate_state(1)[0]).get_state()
-        state = s.run_mcmc(p0, settings.n_burn, progress=False)
-        if pbar is not None:
-            pbar.update(settings.n_burn)
-        s.reset()
-        samplers.append(s)
-        states.append(state)
-    rounds = 0
-    while True:
-        rounds += 1
-        for i, s in enumerate(samplers):
-            states[i] = s.run_mcmc(states[i], settings.n_steps, progress=False)
+        rstate = np.random.RandomState(child.generate_state(1)[0]).get_state()
+        tasks.append((i, p0, None, rstate, settings.n_burn, settings.n_steps, settings))
+    _WORKER_MODEL = model
+    try:
+        chunks = [[] for _ in children]
+        lps = [[] for _ in children]
+        accepted = np.zeros(len(children))
+        n_prod = 0
+        rounds = 0
+        while True:
+            rounds += 1
+            results = _map_segments(tasks, n_jobs, pbar)
+            n_prod += settings.n_steps
+            tasks = []
+            for idx, ch, lp, coords, lpf, rstate, acc in results:
+                chunks[idx].append(ch)
+                lps[idx].append(lp)
+                accepted[idx] += acc.mean()
+                tasks.append((idx, coords, lpf, rstate, 0, settings.n_steps, settings))
+            chain = np.stack([np.concatenate(c, axis=0) for c in chunks])  # (E, S, W, D)
+            ok = (converged_fn or _default_converged)(chain, settings)
+            if ok or rounds >= settings.max_rounds:
+                break
             if pbar is not None:
-                pbar.update(settings.n_steps)
-        chain = np.stack([s.get_chain() for s in samplers])  # (E, S, W, D)
-        ok = (converged_fn or _default_converged)(chain, settings)
-        if ok or rounds >= settings.max_rounds:
-            break
+                pbar.total += settings.n_ensembles * settings.n_steps
+                pbar.refresh()
+    finally:
+        _WORKER_MODEL = None
         if pbar is not None:
-            pbar.total += settings.n_ensembles * settings.n_steps
-            pbar.refresh()
-    if pbar is not None:
-        pbar.close()
-    lp = np.stack([s.get_log_prob() for s in samplers])
-    acc = np.array([s.acceptance_fraction.mean() for s in samplers])
+            pbar.close()
+    lp = np.stack([np.concatenate(c, axis=0) for c in lps])
+    acc = accepted / n_prod
     tau = integrated_time(chain)
     return ChainResult(chain=chain, log_prob=lp, acceptance=acc, tau=tau, x_map=x_map, lp_map=lp_map,
-                       settings=settings, wall_s=time.perf_counter() - t0, n_rounds=rounds)
+                       settings=settings, wall_s=time.perf_counter() - t0, n_rounds=rounds,
+                       extra={"n_jobs": n_jobs})
 
 
 def integrated_time(chain):
