@@ -1,0 +1,398 @@
+"""Fast path: Laplace approximation + Pareto-smoothed importance sampling (Laplace–IS).
+
+Steps (all vectorised; one ``log_prob`` call for the importance draws):
+
+1. MAP by :func:`bayescap.fit.find_map` (single start by default: the restarts cost 3× and,
+   measured in ``benchmarks/speed_accuracy.py``, did not change the optimum on its sensor set);
+2. Laplace covariance Σ at the MAP by :func:`bayescap.fit.laplace_covariance`;
+3. ``n_proposals`` draws from a multivariate Student-t proposal ``t_ν(x_MAP, Σ)`` (heavier
+   tails than the posterior in every direction the Laplace approximation gets roughly right);
+4. importance weights ``log p(x) − log q(x)`` smoothed by PSIS (Vehtari, Simpson, Gelman, Yao &
+   Gabry 2024, JMLR 25(72)), via :func:`arviz.psislw`, which also returns the Pareto shape k̂;
+5. systematic resampling to ``n_draws`` equally weighted draws, shuffled.
+
+**Its own diagnostic.** k̂ below ``khat_max`` (0.7 by default, the PSIS paper's threshold for
+a few thousand draws, ``min(1 − 1/log10 S, 0.7)``) and an importance-sampling ESS
+``1/Σw²`` of at least ``min_ess_is``. When either fails the draws must not be used: the caller
+falls back to MCMC (:func:`fast_fit` does so, with a note).
+
+The draws come back as a :class:`bayescap.fit.ChainResult` with ``chain`` shaped
+``(1, n_draws, 1, ndim)`` (one "ensemble", one "walker") and
+``extra = {"method": "laplace-is", "khat": ..., "ess_is": ..., ...}``, so that
+:class:`bayescap.posterior.FitResult` can consume them. R-hat and MCMC ESS do not apply to
+resampled independent draws: :class:`FastFitResult` replaces the MCMC diagnostics by k̂ and the
+IS ESS.
+"""
+from __future__ import annotations
+
+import time
+import warnings
+from dataclasses import asdict, dataclass, replace
+
+import numpy as np
+from scipy.special import gammaln
+
+from .fit import QUALITY_PRESETS, ChainResult, find_map, laplace_covariance, run_ensembles
+from .api import METADATA_DEFAULTS, default_scene, load, mtf_from_metadata
+from .model import PTCModel, select_terms
+from .posterior import FitResult
+from .ptc import PTCData
+
+__all__ = ["FastSettings", "fast_posterior", "fast_fit", "FastFitResult", "student_t_draws",
+           "student_t_logpdf", "psis_weights", "refine_covariance", "METHOD"]
+
+METHOD = "laplace-is"
+
+
+@dataclass(frozen=True)
+class FastSettings:
+    """Knobs of the Laplace–IS fast path (see ``docs/performance.md``)."""
+
+    nu: float = 6.0               # Student-t degrees of freedom of the proposals
+    n_proposals: int = 3000       # importance draws in all (two vectorised log_prob calls)
+    adapt_fraction: float = 2 / 3  # share drawn from the moment-matched second proposal
+    adapt_inflation: float = 1.2  # sd multiplier on the weighted covariance of round 1
+    refine_iter: int = 6          # at most this many whitened re-evaluations of the Hessian
+    n_draws: int = 4000           # equally weighted draws returned after resampling
+    khat_max: float = 0.7         # accept when Pareto k̂ < khat_max ...
+    min_ess_is: float = 200.0     # ... and the importance-sampling ESS ≥ this
+    n_restarts: int = 0           # extra optimiser starts in find_map
+    retry_restarts: int = 2       # on rejection, retry once with this many restarts
+    scale: float = 1.0            # proposal scale factor on the Laplace covariance (sd multiplier)
+
+
+def student_t_draws(mean, cov, nu, n, rng):
+    """``n`` draws of a multivariate Student-t ``t_ν(mean, cov)`` and their log densities.
+
+    ``x = mean + L z / sqrt(u)``, ``z ~ N(0, I)``, ``u ~ χ²_ν/ν``; the Mahalanobis distance is
+    ``|z|²/u``, so no triangular solve is needed. Returns (x (n, d), log q (n,)).
+    """
+    mean = np.asarray(mean, float)
+    d = mean.size
+    L = np.linalg.cholesky(cov)
+    z = rng.standard_normal((n, d))
+    u = rng.chisquare(nu, size=n) / nu
+    x = mean + (z @ L.T) / np.sqrt(u)[:, None]
+    maha = np.einsum("ij,ij->i", z, z) / u
+    logdet = 2.0 * np.sum(np.log(np.diag(L)))
+    logq = (gammaln(0.5 * (nu + d)) - gammaln(0.5 * nu) - 0.5 * d * np.log(nu * np.pi)
+            - 0.5 * logdet - 0.5 * (nu + d) * np.log1p(maha / nu))
+    return x, logq
+
+
+def student_t_logpdf(x, mean, cov, nu):
+    """log density of ``t_ν(mean, cov)`` at rows of ``x`` (n, d)."""
+    L = np.linalg.cholesky(cov)
+    d = mean.size
+    z = np.linalg.solve(L, (np.atleast_2d(x) - mean).T)
+    maha = np.einsum("ij,ij->j", z, z)
+    logdet = 2.0 * np.sum(np.log(np.diag(L)))
+    return (gammaln(0.5 * (nu + d)) - gammaln(0.5 * nu) - 0.5 * d * np.log(nu * np.pi)
+            - 0.5 * logdet - 0.5 * (nu + d) * np.log1p(maha / nu))
+
+
+class _Whitened:
+    """``log_prob`` in coordinates ``y`` with ``x = x0 + L y`` (for a well-conditioned Hessian)."""
+
+    def __init__(self, model, x0, L):
+        self.model, self.x0, self.L, self.ndim = model, x0, L, model.ndim
+
+    def log_prob(self, y):
+        with np.errstate(all="ignore"):
+            return self.model.log_prob(self.x0 + np.atleast_2d(y) @ self.L.T)
+
+
+def refine_covariance(model, x_map, cov, *, max_iter=6, alpha=4.0, h=0.05):
+    """Re-evaluate the Laplace covariance in whitened coordinates until it is self-consistent.
+
+    :func:`bayescap.fit.laplace_covariance` differentiates with steps of 1e-4 (relative) in the
+    raw coordinates, floors the Hessian's eigenvalues at 1e-8 of the largest and caps every sd
+    at 1. With a condition number ~1e11 (the saturation plateau ties gain and clip level) the
+    floor narrows the weakly identified directions (log f, log g, log D: sd stuck near 0.26),
+    the small steps pick up the ~1e-5 jitter of ``log_prob`` (the latent-mean Newton iteration
+    stops at a tolerance), which inflated the gain's sd up to 20× on clipped sensors, and a MAP
+    within one step of a bound (the clip level at its lower bound) makes the Hessian non-finite,
+    whereupon it returns ``diag(1e-4)`` (measured: ``benchmarks/speed_accuracy.py``).
+
+    Here the Hessian is taken again in ``y = (x − x_map)/(α L)``, ``L`` the Cholesky factor of
+    the current estimate, with steps ``h`` (0.05·α = 0.2 sd; ten and a hundred times smaller
+    when the stencil leaves the support). There it is well conditioned and far above the
+    jitter, and ``laplace_covariance``'s cap becomes α times the current sd. Iterates until the
+    whitened Hessian is the identity to ±25 % (every direction consistent with the estimate)
+    or ``max_iter``.
+    """
+    n = x_map.size
+    c = _proposal_cov(cov, 1.0) if np.all(np.isfinite(cov)) else np.eye(n) * 1e-4
+    failed = np.diag(np.full(n, 1e-4))
+    for _ in range(max_iter):
+        L = alpha * np.linalg.cholesky(c)
+        w = _Whitened(model, x_map, L)
+        for hh in (h, 0.1 * h, 0.01 * h):
+            with np.errstate(all="ignore"):
+                cy = laplace_covariance(w, np.zeros(n), h=hh)
+            if not np.array_equal(cy, failed):
+                break
+        else:
+            break
+        c_new = _proposal_cov(L @ cy @ L.T, 1.0)
+        if not np.all(np.isfinite(c_new)):
+            break
+        c = c_new
+        ev = np.linalg.eigvalsh(0.5 * (cy + cy.T)) * alpha * alpha
+        if ev.min() > 0.8 and ev.max() < 1.25:
+            break
+    return c
+
+
+def psis_weights(log_w):
+    """Pareto-smoothed normalised weights, k̂ and the IS effective sample size.
+
+    ``log_w`` (..., n): raw log importance weights; −inf (outside the prior support) allowed.
+    Returns (w (..., n) summing to 1, k̂ (...), ESS (...)). Uses :func:`arviz.psislw`.
+    """
+    import arviz as az
+
+    lw = np.asarray(log_w, float)
+    finite = np.isfinite(lw)
+    top = np.max(np.where(finite, lw, -np.inf), axis=-1, keepdims=True)
+    top = np.where(np.isfinite(top), top, 0.0)
+    # zero weight stays (numerically) zero after normalisation; psislw wants finite input
+    lw = np.where(finite, lw - top, -800.0)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        lws, khat = az.psislw(lw)
+    w = np.exp(lws - np.max(lws, axis=-1, keepdims=True))
+    w = w / np.sum(w, axis=-1, keepdims=True)
+    ess = 1.0 / np.sum(w * w, axis=-1)
+    return w, np.asarray(khat, float), ess
+
+
+def _systematic_resample(w, n, rng):
+    """Indices of ``n`` equally weighted draws from weights ``w`` (systematic resampling)."""
+    c = np.cumsum(w)
+    c[-1] = 1.0
+    pos = (rng.random() + np.arange(n)) / n
+    return np.searchsorted(c, pos, side="left")
+
+
+def _proposal_cov(cov, scale):
+    cov = 0.5 * (cov + cov.T)
+    w, V = np.linalg.eigh(cov)
+    w = np.maximum(w, 1e-14 * max(w.max(), 1e-300))
+    return (V * (w * scale * scale)) @ V.T
+
+
+def _fast_once(model, seed, n_draws, settings, x_map, cov):
+    t0 = time.perf_counter()
+    if x_map is None:
+        x_map, lp_map = find_map(model, n_restarts=settings.n_restarts)
+    else:
+        x_map = np.asarray(x_map, float)
+        lp_map = float(model.log_prob(x_map[None])[0])
+    t_map = time.perf_counter()
+    if cov is None:
+        with np.errstate(all="ignore"):   # the Hessian stencil may leave the prior support
+            cov = laplace_covariance(model, x_map)
+        cov = refine_covariance(model, x_map, cov, max_iter=settings.refine_iter)
+    t_lap = time.perf_counter()
+    rng = np.random.default_rng(np.random.SeedSequence(seed).spawn(1)[0])
+    nu = settings.nu
+    n2 = int(round(settings.adapt_fraction * settings.n_proposals))
+    n1 = settings.n_proposals - n2
+    c1 = _proposal_cov(cov, settings.scale)
+    x1, _ = student_t_draws(x_map, c1, nu, n1, rng)
+    with np.errstate(all="ignore"):
+        lp1 = model.log_prob(x1)
+    x, logp, logq = x1, lp1, student_t_logpdf(x1, x_map, c1, nu)
+    if n2 > 0:
+        # one moment-matching round: t proposal at the PSIS-weighted mean and covariance of
+        # round 1; all draws weighted by the deterministic mixture (balance heuristic)
+        w1, _, ess1 = psis_weights(lp1 - logq)
+        mu2, c2 = x_map, c1
+        if ess1 >= 5:
+            m2 = w1 @ x1
+            c_w = np.cov(x1.T, aweights=w1)
+            if np.all(np.isfinite(m2)) and np.all(np.isfinite(c_w)) and np.linalg.matrix_rank(c_w) == x_map.size:
+                mu2, c2 = m2, _proposal_cov(c_w, settings.adapt_inflation)
+        x2, _ = student_t_draws(mu2, c2, nu, n2, rng)
+        with np.errstate(all="ignore"):
+            lp2 = model.log_prob(x2)
+        x = np.vstack([x1, x2])
+        logp = np.concatenate([lp1, lp2])
+        f1 = n1 / (n1 + n2)
+        logq = np.logaddexp(np.log(f1) + student_t_logpdf(x, x_map, c1, nu),
+                            np.log1p(-f1) + student_t_logpdf(x, mu2, c2, nu)) if n1 else \
+            student_t_logpdf(x, mu2, c2, nu)
+    n_outside = int(np.sum(~np.isfinite(logp)))
+    w, khat, ess = psis_weights(logp - logq)
+    khat, ess = float(khat), float(ess)
+    t_is = time.perf_counter()
+    idx = _systematic_resample(w, n_draws, rng)
+    idx = idx[rng.permutation(n_draws)]
+    draws = x[idx]
+    lp = logp[idx]
+    reasons = []
+    if not khat < settings.khat_max:
+        reasons.append(f"Pareto k̂ {khat:.2f} ≥ {settings.khat_max:g}")
+    if not ess >= settings.min_ess_is:
+        reasons.append(f"importance-sampling ESS {ess:.0f} < {settings.min_ess_is:g}")
+    if not np.isfinite(lp_map):
+        reasons.append("no finite MAP")
+    wall = time.perf_counter() - t0
+    diag = {
+        "method": METHOD,
+        "accepted": not reasons,
+        "reason": "; ".join(reasons),
+        "khat": khat,
+        "ess_is": ess,
+        "n_proposals": int(settings.n_proposals),
+        "n_draws": n_draws,
+        "n_outside_support": n_outside,
+        "khat_max": settings.khat_max,
+        "min_ess_is": settings.min_ess_is,
+        "nu": settings.nu,
+        "wall_s": wall,
+        "wall_map_s": t_map - t0,
+        "wall_laplace_s": t_lap - t_map,
+        "wall_is_s": t_is - t_lap,
+        "settings": asdict(settings),
+    }
+    D = x_map.size
+    chains = ChainResult(
+        chain=draws.reshape(1, n_draws, 1, D),
+        log_prob=lp.reshape(1, n_draws, 1),
+        acceptance=np.array([1.0]),       # no Markov chain: every resampled draw is kept
+        tau=np.ones(D),                   # independent draws: τ = 1 step
+        x_map=x_map, lp_map=float(lp_map),
+        settings=QUALITY_PRESETS["fast"],
+        wall_s=wall, n_rounds=0,
+        extra={k: diag[k] for k in ("method", "khat", "ess_is", "n_proposals", "accepted", "reason",
+                                    "khat_max", "min_ess_is", "nu")},
+    )
+    return chains, diag
+
+
+
+
+def fast_posterior(model: PTCModel, *, seed, n_draws: int | None = None,
+                   settings: FastSettings = FastSettings(), x_map=None, cov=None):
+    """Laplace–IS posterior draws for ``model`` (module docstring).
+
+    Parameters
+    ----------
+    model : the posterior (:class:`bayescap.model.PTCModel` or anything with ``log_prob``,
+        ``ndim``, ``initial_guess``).
+    seed : seeds the proposal and the resampling (same seed, same draws).
+    n_draws : equally weighted draws returned (default ``settings.n_draws``).
+    settings : :class:`FastSettings`.
+    x_map, cov : a MAP and Laplace covariance already computed (e.g. by :mod:`bayescap.batch`);
+        computed here when not given.
+
+    Returns
+    -------
+    (ChainResult, dict) : the draws as a ChainResult of shape ``(1, n_draws, 1, ndim)`` and the
+    diagnostics ``{"accepted", "khat", "ess_is", "n_proposals", "khat_max", "min_ess_is",
+    "reason", "wall_s", ...}``. ``accepted`` is False when the caller must fall back to MCMC.
+    """
+    n_draws = int(settings.n_draws if n_draws is None else n_draws)
+    chains, diag = _fast_once(model, seed, n_draws, settings, x_map, cov)
+    diag["retried_with_restarts"] = False
+    if not diag["accepted"] and x_map is None and settings.retry_restarts > settings.n_restarts:
+        # a single optimiser start can stop at the initial guess (measured on small-frame
+        # sensors): retry with restarts before declaring failure
+        retry = replace(settings, n_restarts=settings.retry_restarts)
+        c2, d2 = _fast_once(model, seed, n_draws, retry, None, None)
+        d2["wall_s"] += diag["wall_s"]
+        c2.wall_s = d2["wall_s"]
+        d2["retried_with_restarts"] = True
+        d2["first_attempt"] = {k: diag[k] for k in ("khat", "ess_is", "reason")}
+        chains, diag = c2, d2
+    chains.extra["retried_with_restarts"] = diag["retried_with_restarts"]
+    return chains, diag
+
+
+# --------------------------------------------------------------------------------------------
+# a FitResult from the fast path, without editing posterior.py / api.py
+# --------------------------------------------------------------------------------------------
+
+class FastFitResult(FitResult):
+    """A :class:`~bayescap.posterior.FitResult` whose draws come from Laplace–IS: the
+    MCMC diagnostics (R-hat, ESS over walkers, τ) are replaced by k̂ and the IS ESS."""
+
+    def _diagnose(self):
+        x = self.chains.extra
+        E, S, W, D = self.chains.chain.shape
+        failed = [] if x["accepted"] else [x["reason"]]
+        self.diag = {
+            "method": "Laplace approximation + Pareto-smoothed importance sampling "
+                      f"(Student-t ν={x['nu']:g} proposal), Gamma likelihood with discrepancy",
+            "quality": self.quality,
+            "converged": bool(x["accepted"]),
+            "failed_checks": failed,
+            # R-hat does not apply to resampled independent draws; 1.0 keeps the report
+            # format (report.format_text prints it as a number); see rhat_applicable
+            "rhat_max": 1.0,
+            "rhat_applicable": False,
+            "ess_min": float(x["ess_is"]),
+            "rhat_target": self.chains.settings.rhat_target,
+            "ess_target": float(x["min_ess_is"]),
+            "khat": float(x["khat"]),
+            "khat_max": float(x["khat_max"]),
+            "ess_is": float(x["ess_is"]),
+            "n_proposals": int(x["n_proposals"]),
+            "n_ensembles": E, "n_walkers": W, "n_steps": S, "n_burn": 0, "n_rounds": 0,
+            "tau_max_steps": 1.0, "acceptance": [1.0],
+            "wall_s": self.chains.wall_s,
+            "seed": self.seed,
+            "fast_path": (f"fast path (Laplace–IS): Pareto k̂ {x['khat']:.2f} (accept < "
+                          f"{x['khat_max']:g}), importance-sampling ESS {x['ess_is']:.0f} of "
+                          f"{x['n_proposals']} proposals; R-hat does not apply"),
+            "per_quantity": {},
+        }
+        if not x["accepted"]:
+            self.notes.insert(0, "NOT CONVERGED: the Laplace–IS fast path failed its own check ("
+                              + x["reason"] + "); do not use these intervals")
+        f = np.median(self.draws["variance_discrepancy"])
+        if f > 0.05:
+            self.notes.append(f"the variances scatter {100 * f:.1f} % beyond their statistical error: "
+                              "the model or the measurements are inadequate (check linearity, lamp "
+                              "stability, outlier rows)")
+
+
+def fast_fit(data_or_model, *, seed, settings: FastSettings = FastSettings(), mtf=None, scene=None,
+             fallback: bool = True, fallback_quality: str = "fast", terms=None):
+    """Fit with the Laplace–IS fast path, falling back to MCMC when its check fails.
+
+    ``data_or_model``: a PTCData, a contract CSV path or a :class:`~bayescap.model.PTCModel`.
+    Returns a :class:`~bayescap.posterior.FitResult` (a ``FastFitResult`` when the fast path
+    was accepted; a plain MCMC ``FitResult`` with a note when it fell back). ``fallback=False``
+    returns the rejected fast result (flagged NOT CONVERGED) instead of running MCMC.
+    """
+    if isinstance(data_or_model, PTCModel):
+        model = data_or_model
+        data = model.data
+    else:
+        data = data_or_model if isinstance(data_or_model, PTCData) else load(data_or_model)
+        model = PTCModel(data, terms=terms or select_terms(data))
+    notes: list = []
+    md = {**METADATA_DEFAULTS, **data.metadata}
+    defaults_used = sorted(k for k in METADATA_DEFAULTS if k not in data.metadata)
+    if mtf is None:
+        mtf = mtf_from_metadata(data.metadata, notes)
+    scene = scene or default_scene(data)
+    chains, diag = fast_posterior(model, seed=seed, settings=settings)
+    if diag["accepted"] or not fallback:
+        res = FastFitResult.from_chains(model, chains, metadata=md, scene=scene, mtf=mtf, seed=seed, quality="fast")
+    else:
+        mc = run_ensembles(model, settings=QUALITY_PRESETS[fallback_quality], seed=seed)
+        res = FitResult.from_chains(model, mc, metadata=md, scene=scene, mtf=mtf, seed=seed,
+                                    quality=fallback_quality)
+        res.diag["fast_path"] = (f"fast path (Laplace–IS) rejected ({diag['reason']}): fell back to "
+                                 f"MCMC, quality '{fallback_quality}'")
+        res.diag["fast_path_khat"] = diag["khat"]
+        res.notes.append("the Laplace–IS fast path was rejected (" + diag["reason"] + "): "
+                         "the result comes from MCMC")
+    res.notes.extend(notes)
+    if defaults_used:
+        res.flags["metadata_defaults"] = defaults_used
+    return res

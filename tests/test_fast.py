@@ -1,0 +1,171 @@
+"""Laplace–IS fast path, PSIS weights, emcee move calibration, batch fitting (issue 7)."""
+import json
+import sys
+from pathlib import Path
+
+import emcee
+import numpy as np
+import pytest
+from scipy import stats
+
+import bayescap
+from bayescap.fast import (FastFitResult, FastSettings, fast_fit, fast_posterior, psis_weights,
+                           student_t_draws, student_t_logpdf)
+from bayescap.fit import ConvergenceWarning
+from bayescap.posterior import FitResult
+from bayescap.report import format_text
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "benchmarks"))
+import check_moves  # noqa: E402
+
+
+class GaussianModel:
+    """A stand-in posterior with the PTCModel interface: N(mu, cov)."""
+
+    def __init__(self, mu, cov):
+        self.mu, self.cov = np.asarray(mu, float), np.asarray(cov, float)
+        self.prec = np.linalg.inv(self.cov)
+        self.ndim = self.mu.size
+
+    def log_prob(self, th):
+        d = np.atleast_2d(th) - self.mu
+        return -0.5 * np.einsum("ij,jk,ik->i", d, self.prec, d)
+
+    def initial_guess(self):
+        return self.mu + 0.3
+
+
+def test_student_t_logpdf_matches_scipy():
+    rng = np.random.default_rng(0)
+    cov = check_moves.target_cov()
+    mu = np.arange(6.0)
+    x, logq = student_t_draws(mu, cov, 6.0, 50, rng)
+    ref = stats.multivariate_t(loc=mu, shape=cov, df=6.0).logpdf(x)
+    np.testing.assert_allclose(logq, ref, rtol=1e-9, atol=1e-9)
+    np.testing.assert_allclose(student_t_logpdf(x, mu, cov, 6.0), ref, rtol=1e-9, atol=1e-9)
+
+
+def test_psis_khat_separates_good_and_bad_proposals():
+    rng = np.random.default_rng(1)
+    n = 4000
+    # target N(0, 1); heavier-tailed proposal t_6 (good) vs a proposal with 0.3 of the sd (bad:
+    # weights with infinite variance)
+    x = stats.t(df=6).rvs(n, random_state=rng)
+    lw = stats.norm.logpdf(x) - stats.t(df=6).logpdf(x)
+    w, k_good, ess_good = psis_weights(lw)
+    assert abs(w.sum() - 1) < 1e-12
+    # k̂ of one run is itself noisy (tail of 4000 draws): the median over 9 seeds
+    ys = np.stack([np.random.default_rng(s).normal(0, 0.3, n) for s in range(9)])
+    _, k_bads, ess_bads = psis_weights(stats.norm.logpdf(ys) - stats.norm(0, 0.3).logpdf(ys))
+    k_bad, ess_bad = np.median(k_bads), np.median(ess_bads)
+    assert k_good < 0.5 and ess_good > 0.5 * n
+    assert k_bad > 0.7 and ess_bad < 0.2 * n
+    # weights of draws outside the support (-inf) are zero, not NaN
+    lw2 = lw.copy()
+    lw2[:10] = -np.inf
+    w2, k2, _ = psis_weights(lw2)
+    assert np.all(np.isfinite(w2)) and np.all(w2[:10] < 1e-300) and np.isfinite(k2)
+
+
+def test_fast_posterior_recovers_a_known_gaussian():
+    cov = check_moves.target_cov()
+    mu = np.linspace(-1, 1, 6)
+    model = GaussianModel(mu, cov)
+    ch, dg = fast_posterior(model, seed=3, n_draws=4000)
+    assert ch.chain.shape == (1, 4000, 1, 6)
+    assert dg["accepted"] and dg["khat"] < 0.5, dg
+    x = ch.chain.reshape(-1, 6)
+    sd = np.sqrt(np.diag(cov))
+    # Monte Carlo error of means and sds from the importance-sampling ESS: 4-sigma tolerances
+    ess = dg["ess_is"]
+    assert np.all(np.abs(x.mean(0) - mu) < 4 * sd / np.sqrt(ess))
+    assert np.all(np.abs(x.std(0) / sd - 1) < 4 / np.sqrt(2 * ess))
+    # same seed, same draws
+    ch2, _ = fast_posterior(model, seed=3, n_draws=4000)
+    np.testing.assert_array_equal(ch.chain, ch2.chain)
+
+
+@pytest.fixture(scope="module")
+def basler_fast(basler_csv):
+    return fast_fit(basler_csv, seed=2, fallback=False)
+
+
+def test_fast_fit_basler(basler_fast):
+    r = basler_fast
+    assert isinstance(r, FitResult)
+    d = json.loads(json.dumps(r.to_dict()))
+    k = d["parameters"]["conversion_gain_e_per_dn"]["median"]
+    assert abs(k / 3.571 - 1) < 0.02                 # emva1288 1.0.2 reference value
+    dg = d["diagnostics"]
+    assert {"khat", "ess_is", "fast_path", "converged"} <= set(dg)
+    assert dg["converged"] == (dg["khat"] < dg["khat_max"] and dg["ess_is"] >= dg["ess_target"])
+    txt = format_text(r)
+    assert "fast path (Laplace–IS)" in txt and "capacity C =" in txt
+
+
+def test_default_diagnose_on_fast_chains_reports_nan_rhat(basler_csv, basler_fast):
+    """What posterior.FitResult._diagnose does with a (1, S, 1, D) chain: one chain, so ArviZ
+    returns NaN R-hat and the fit is flagged NOT CONVERGED (the reason posterior.py needs a
+    branch for method 'laplace-is')."""
+    r = basler_fast
+    with pytest.warns(ConvergenceWarning):
+        plain = FitResult.from_chains(r.model, r.chains, metadata=r.metadata, scene=r.scene, mtf=r.mtf,
+                                      seed=2, quality="fast")
+    assert not plain.diag["converged"]
+    assert np.isnan(plain.diag["rhat_max"])
+
+
+def test_fast_fit_rejection_is_flagged_without_fallback(basler_csv):
+    r = fast_fit(basler_csv, seed=2, fallback=False, settings=FastSettings(khat_max=-1.0))
+    assert isinstance(r, FastFitResult)
+    assert not r.diag["converged"] and r.notes[0].startswith("NOT CONVERGED")
+
+
+@pytest.mark.slow
+def test_fast_fit_falls_back_to_mcmc(basler_csv):
+    r = fast_fit(basler_csv, seed=2, settings=FastSettings(khat_max=-1.0, retry_restarts=0))
+    assert not isinstance(r, FastFitResult)
+    assert "fell back to MCMC" in r.diag["fast_path"]
+    assert any("Laplace–IS fast path was rejected" in n for n in r.notes)
+    assert r.diag["n_ensembles"] >= 2
+
+
+# ------------------------------------------------------------------------- moves
+def _sd_ratio_and_tol(moves, *, seed, n_steps):
+    cov = check_moves.target_cov()
+    x, acc, tau = check_moves.run_move(moves, cov, seed=seed, n_steps=n_steps)
+    ratio = x.std(0) / np.sqrt(np.diag(cov))
+    n = x.shape[0]
+    # sd of a sample sd with n/τ effective draws: sqrt(τ/(2n)); mean over 6 dims, 4 sigma
+    tol = 4 * np.sqrt(tau / (2 * n)) / np.sqrt(6)
+    return float(np.mean(ratio)), tol
+
+
+@pytest.mark.parametrize("name", ["StretchMove", "DEMove", "DE 0.8 + Stretch 0.2 (fit.py)"])
+def test_move_calibrated_on_known_gaussian(name):
+    mean_ratio, tol = _sd_ratio_and_tol(check_moves.moves_registry()[name], seed=5, n_steps=3000)
+    assert abs(mean_ratio - 1) < tol, (mean_ratio, tol)
+
+
+@pytest.mark.xfail(strict=True, reason="emcee 3.1.6 DESnookerMove returns sds 12-17 % too small on a "
+                   "correlated 6-D Gaussian (acceptance ~0.03; benchmarks/check_moves.py), as NOTES.md reported")
+def test_desnooker_calibrated_on_known_gaussian():
+    mean_ratio, tol = _sd_ratio_and_tol(check_moves.moves_registry()["DESnookerMove"], seed=5, n_steps=2000)
+    assert abs(mean_ratio - 1) < tol, (mean_ratio, tol)
+
+
+# ------------------------------------------------------------------------- batch
+def test_fit_many_gpixel_and_a_bad_sensor():
+    from bayescap.batch import fit_many, gpixel_sensors, gpixel_truths
+
+    tr = gpixel_truths()
+    assert len(tr) == 1024 and {g for (_, g), _ in tr} == {0, 1, 2, 3}
+    datas, truths = gpixel_sensors(n_max=3, seed=4)
+    res = fit_many(datas + ["no_such_file.csv"], seed=4, summary_only=True, fallback=False)
+    assert len(res) == 4 and "PTCInputError" in res[3]["error"] and "file not found" in res[3]["error"]
+    for r, t in zip(res[:3], truths):
+        lo, med, hi = r["conversion_gain_e_per_dn"]
+        assert lo < med < hi and abs(med / t.conversion_gain_e_per_dn - 1) < 0.1
+    # reproducible
+    res2 = fit_many(datas, seed=4, summary_only=True, fallback=False)
+    assert res2[0]["conversion_gain_e_per_dn"] == res[0]["conversion_gain_e_per_dn"]
