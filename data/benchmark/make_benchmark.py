@@ -52,13 +52,13 @@ TABLE2 = {
 MANUFACTURER = {
     "M2_2.80um": dict(sens=1.00, fw=1.00, prnu_of_max=0.8, read_noise_e=4.0, dsnu_e=2.0, crosstalk_px=0.20),
     "M2_2.20um": dict(sens=1.00, fw=0.90, prnu_of_max=0.8, read_noise_e=4.5, dsnu_e=2.0, crosstalk_px=0.25),
-    "M1_2.20um": dict(sens=0.80, fw=0.80, prnu_of_max=1.0, read_noise_e=6.0, dsnu_e=3.0, crosstalk_px=0.30),
-    "M2_1.75um": dict(sens=0.70, fw=0.85, prnu_of_max=1.0, read_noise_e=5.0, dsnu_e=3.0, crosstalk_px=0.45),
+    "M1_2.20um": dict(sens=0.80, fw=0.80, prnu_of_max=1.0, read_noise_e=6.0, dsnu_e=3.0, crosstalk_px=0.25),
+    "M2_1.75um": dict(sens=0.70, fw=0.85, prnu_of_max=1.0, read_noise_e=5.0, dsnu_e=3.0, crosstalk_px=0.36),
     "M1_1.75um": dict(sens=1.00, fw=1.00, prnu_of_max=0.7, read_noise_e=3.5, dsnu_e=2.0, crosstalk_px=0.30),
 }
 SEEDS = {"M2_2.80um": 2801, "M2_2.20um": 2202, "M1_2.20um": 2201, "M2_1.75um": 1752, "M1_1.75um": 1751}
 
-ADC_BITS = 10          # camera-phone RAW
+ADC_BITS = 12          # RAW bit depth (not given by the paper; see README)
 BLACK_DN = 64.0
 ADC_HEADROOM = 1.03    # the ADC clips 3 % above the mean full well: the well clips first
 SIM = dict(n_levels=40, shape=(100, 100), spatial_frames=16, spatial_every=8)

@@ -1,0 +1,427 @@
+"""One self-contained HTML page comparing sensors (Tisse et al. 2008, Section 4, Figs. 5-8).
+
+    bayescap report A.csv B.csv ... -o report.html [--area 1/4in] [--h0 0.4]
+
+Across sensors: capacity with 95 % intervals at full resolution and at the fixed area
+(Fig. 8(b)), TR against the average exposure H₀ with credible bands (Fig. 8(a)), SNR against
+exposure (Figs. 5-6) and the matrix of pairwise probabilities. Per sensor: the photon-transfer
+curve with its posterior predictive band and residuals, the SNR curve, the corner plot, the
+parameter and derived tables and the sampler diagnostics. Images are PNGs embedded as base64:
+no external assets. The file is written atomically.
+"""
+from __future__ import annotations
+
+import argparse
+import base64
+import html
+import io
+import sys
+import warnings
+from pathlib import Path
+
+import numpy as np
+
+from .compare import _coefficients
+from .compare import (DEFAULT_AREA, DEFAULT_H0_LUX_S, DEFAULT_MID_GREY, DEFAULT_QUALITY, Comparison,
+                      CompareInputError, compare, snr_at_exposure, tonal_range_at_exposure)
+
+__all__ = ["render_html", "write_report", "plot_capacity", "plot_tr_h0", "plot_snr_exposure",
+           "plot_probability_matrix", "plot_snr_sensor", "add_report_arguments", "run_report",
+           "H0_GRID_LUX_S", "SECTION_IDS"]
+
+#: exposures of the TR(H0) and SNR(H) curves (lux·s)
+H0_GRID_LUX_S = np.geomspace(1e-3, 10.0, 61)
+#: the cross-sensor sections every report has (per-sensor sections are ``sensor-<i>``)
+SECTION_IDS = ("summary", "capacity", "tonal-range", "snr", "probabilities", "conventions")
+_N_CURVE_DRAWS = 1000
+
+
+def _quiet(fn, *args, **kwargs):
+    """Run a plotting function with corner.py's contour warnings (root logger) silenced."""
+    import logging
+
+    root = logging.getLogger()
+    level = root.level
+    root.setLevel(logging.ERROR)
+    try:
+        return fn(*args, **kwargs)
+    finally:
+        root.setLevel(level)
+
+
+def _plt():
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    return plt
+
+
+def _png(fig) -> str:
+    buf = io.BytesIO()
+    fig.savefig(buf, format="png", dpi=90)
+    _plt().close(fig)
+    return base64.b64encode(buf.getvalue()).decode("ascii")
+
+
+def _band(ax, x, draws, color, label):
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", RuntimeWarning)  # all-NaN columns above the clip
+        lo, med, hi = np.nanquantile(draws, [0.025, 0.5, 0.975], axis=0)
+    ax.fill_between(x, lo, hi, color=color, alpha=0.25, lw=0)
+    ax.plot(x, med, color=color, lw=1.5, label=label)
+
+
+def plot_capacity(cmp: Comparison):
+    """Fig. 8(b): capacity (Mbit) per sensor, medians with 95 % intervals, at full resolution and
+    at the fixed area."""
+    plt = _plt()
+    d = cmp.to_dict()
+    names = [s["name"] for s in d["sensors"]]
+    x = np.arange(len(names))
+    fig, ax = plt.subplots(figsize=(8, 4.2))
+    area = d["conventions"]["area"]
+    for off, key, lab, col in ((-0.18, "capacity_full_bits", "full resolution", "C0"),
+                               (0.18, "capacity_area_bits", f"at {area['name']}" if area else None, "C1")):
+        if lab is None:
+            continue
+        med = np.array([s[key]["median"] if s.get(key) else np.nan for s in d["sensors"]]) / 1e6
+        lo = np.array([s[key]["ci95"][0] if s.get(key) else np.nan for s in d["sensors"]]) / 1e6
+        hi = np.array([s[key]["ci95"][1] if s.get(key) else np.nan for s in d["sensors"]]) / 1e6
+        ax.bar(x + off, med, width=0.36, color=col, alpha=0.8, label=lab)
+        ax.errorbar(x + off, med, yerr=[med - lo, hi - med], fmt="none", ecolor="k", capsize=3, lw=1)
+    ax.set_xticks(x)
+    ax.set_xticklabels(names, rotation=20, ha="right", fontsize=8)
+    ax.set_ylabel("information capacity C (Mbit)")
+    ax.set_title(f"capacity, TR at H0 = {d['conventions']['h0_lux_s']:g} lux·s (95 % intervals)", fontsize=10)
+    ax.legend(fontsize=8)
+    ax.grid(axis="y", alpha=0.3)
+    fig.tight_layout()
+    return fig
+
+
+def plot_tr_h0(cmp: Comparison, h_grid=H0_GRID_LUX_S):
+    """Fig. 8(a): TR (bits, 8-bit-equivalent) against average exposure H₀ with 95 % bands."""
+    plt = _plt()
+    fig, ax = plt.subplots(figsize=(8, 4.2))
+    c = cmp.conventions
+    drawn = 0
+    for i, s in enumerate(cmp.sensors):
+        if s.calibration is None:
+            continue
+        idx = s.result.thin_index(_N_CURVE_DRAWS)
+        tr, _ = tonal_range_at_exposure(s.result, h_grid, calibration=s.calibration, mid_grey=c["mid_grey_fraction"],
+                                        idx=idx)
+        _band(ax, h_grid, np.log2(np.maximum(tr, 1.0)), f"C{i % 10}", s.name)
+        drawn += 1
+    ax.axvline(c["h0_lux_s"], color="k", ls=":", lw=1, label=f"H0 = {c['h0_lux_s']:g} lux·s")
+    ax.set_xscale("log")
+    ax.set_xlabel("average photometric exposure H0 (lux·s)")
+    ax.set_ylabel("tonal range b' = log2 TR (bits)")
+    ax.set_title(f"TR vs H0 (mean scene at {100 * c['mid_grey_fraction']:g} % of the range; 95 % bands)",
+                 fontsize=10)
+    if not drawn:
+        ax.text(0.5, 0.5, "no sensor has an exposure calibration", transform=ax.transAxes, ha="center")
+    ax.legend(fontsize=8, loc="lower right")
+    ax.grid(alpha=0.3, which="both")
+    fig.tight_layout()
+    return fig
+
+
+def plot_snr_exposure(cmp: Comparison, h_grid=H0_GRID_LUX_S):
+    """Figs. 5-6: SNR (dB) against photometric exposure H (lux·s), 95 % bands, up to the clip."""
+    plt = _plt()
+    fig, ax = plt.subplots(figsize=(8, 4.2))
+    drawn = 0
+    for i, s in enumerate(cmp.sensors):
+        if s.calibration is None:
+            continue
+        idx = s.result.thin_index(_N_CURVE_DRAWS)
+        _band(ax, h_grid, snr_at_exposure(s.result, h_grid, calibration=s.calibration, idx=idx), f"C{i % 10}", s.name)
+        drawn += 1
+    ax.set_xscale("log")
+    ax.set_xlabel("photometric exposure H (lux·s)")
+    ax.set_ylabel("SNR (dB)")
+    ax.set_title("SNR vs exposure (Eq. 1, 95 % bands; curves end at the clip)", fontsize=10)
+    if not drawn:
+        ax.text(0.5, 0.5, "no sensor has an exposure calibration", transform=ax.transAxes, ha="center")
+    else:
+        ax.legend(fontsize=8, loc="lower right")
+    ax.grid(alpha=0.3, which="both")
+    fig.tight_layout()
+    return fig
+
+
+def plot_probability_matrix(cmp: Comparison, quantity: str = "area"):
+    """Heat map of ``P(C_row > C_column)``."""
+    plt = _plt()
+    m = cmp.probability_matrix(quantity)
+    names = [s.name for s in cmp.sensors]
+    n = len(names)
+    fig, ax = plt.subplots(figsize=(1.2 * n + 3, 0.9 * n + 2))
+    im = ax.imshow(m, vmin=0, vmax=1, cmap="RdBu_r")
+    for i in range(n):
+        for j in range(n):
+            if np.isfinite(m[i, j]):
+                ax.text(j, i, f"{m[i, j]:.2f}", ha="center", va="center", fontsize=8,
+                        color="w" if abs(m[i, j] - 0.5) > 0.35 else "k")
+    ax.set_xticks(range(n))
+    ax.set_yticks(range(n))
+    ax.set_xticklabels(names, rotation=30, ha="right", fontsize=8)
+    ax.set_yticklabels(names, fontsize=8)
+    where = "at full resolution" if quantity == "full" else f"at {cmp.conventions['area']['name']}" \
+        if cmp.conventions["area"] else ""
+    ax.set_title(f"P(C_row > C_column) {where}", fontsize=10)
+    fig.colorbar(im, ax=ax, fraction=0.046)
+    fig.tight_layout()
+    return fig
+
+
+def plot_snr_sensor(s):
+    """One sensor's SNR curve with its 95 % band: against exposure when calibrated, else against
+    the signal in electrons."""
+    plt = _plt()
+    from .capacity import NoiseCoefficients, snr_db
+
+    fig, ax = plt.subplots(figsize=(6, 3.4))
+    r = s.result
+    idx = r.thin_index(_N_CURVE_DRAWS)
+    if s.calibration is not None:
+        _band(ax, H0_GRID_LUX_S, snr_at_exposure(r, H0_GRID_LUX_S, calibration=s.calibration, idx=idx), "C0",
+              "posterior median")
+        ax.set_xlabel("photometric exposure H (lux·s)")
+    else:
+        p = {k: v[idx] for k, v in r.draws.items()}
+        clip, _ = r.signal_max_e(p)
+        sig = np.geomspace(1.0, float(np.max(clip)), 80)
+        a, b, c = (x[:, None] for x in _coefficients(r, p))
+        co = NoiseCoefficients(a=a, b=b, c=c)
+        snr = np.where(sig[None, :] <= clip[:, None], snr_db(co, sig[None, :]), np.nan)
+        _band(ax, sig, snr, "C0", "posterior median")
+        ax.set_xlabel("signal (e⁻)  [no exposure calibration]")
+    ax.set_xscale("log")
+    ax.set_ylabel("SNR (dB)")
+    ax.grid(alpha=0.3, which="both")
+    ax.legend(fontsize=8, loc="lower right")
+    ax.set_title(f"SNR (Eq. 1), 95 % band: {s.name}", fontsize=10)
+    fig.tight_layout()
+    return fig
+
+
+# --------------------------------------------------------------------------------------------
+# HTML
+# --------------------------------------------------------------------------------------------
+
+_CSS = """
+body{font-family:system-ui,-apple-system,Segoe UI,Helvetica,Arial,sans-serif;margin:0 auto;max-width:1200px;
+padding:1em 2em;color:#222;line-height:1.4}
+h1{font-size:1.6em;margin-bottom:.2em} h2{border-bottom:2px solid #ddd;padding-bottom:.2em;margin-top:1.6em}
+h3{margin-top:1.2em}
+table{border-collapse:collapse;font-size:.85em;margin:.5em 0} th,td{border:1px solid #ccc;padding:3px 7px;
+text-align:right} th{background:#f3f3f3} td.l,th.l{text-align:left}
+img{max-width:100%;height:auto;display:block;margin:.4em 0;border:1px solid #eee}
+.sim{background:#fff4d6;border:1px solid #e0b84c;padding:.5em .8em;margin:.5em 0}
+.warn{color:#a30000} .small{font-size:.85em;color:#555} nav a{margin-right:1em}
+.grid{display:grid;grid-template-columns:1fr 1fr;gap:1em} code{background:#f5f5f5;padding:0 3px}
+"""
+
+
+def _e(x) -> str:
+    return html.escape(str(x))
+
+
+def _f(x, fmt="{:.4g}"):
+    if x is None:
+        return "—"
+    if isinstance(x, (int, float)) and abs(x) >= 1e5:
+        return f"{x:.4g}"
+    return fmt.format(x)
+
+
+def _iv(s, scale=1.0, fmt="{:.4g}"):
+    if not s or s.get("median") is None:
+        return "—"
+    lo, hi = s["ci95"]
+    return (f"{_f(s['median'] / scale, fmt)} <span class=small>[{_f(lo / scale, fmt)}, "
+            f"{_f(hi / scale, fmt) if hi is not None else '—'}]</span>")
+
+
+def _img(b64, alt) -> str:
+    return f'<figure><img alt="{_e(alt)}" src="data:image/png;base64,{b64}"><figcaption class=small>{_e(alt)}' \
+           f'</figcaption></figure>'
+
+
+def _table(header, rows, left=1) -> str:
+    h = "".join(f"<th{' class=l' if i < left else ''}>{_e(c)}</th>" for i, c in enumerate(header))
+    body = "".join("<tr>" + "".join(f"<td{' class=l' if i < left else ''}>{c}</td>" for i, c in enumerate(r))
+                   + "</tr>" for r in rows)
+    return f"<table><thead><tr>{h}</tr></thead><tbody>{body}</tbody></table>"
+
+
+def _is_simulated(s) -> bool:
+    md = s.result.metadata
+    txt = " ".join(str(md.get(k, "")) for k in ("simulated", "sensor", "note", "manufacturer")).lower()
+    return bool(md.get("simulated")) or "simulated" in txt
+
+
+def render_html(cmp: Comparison, *, title: str = "bayescap sensor comparison") -> str:
+    """The report page as a string (figures rendered now, embedded as base64 PNG)."""
+    from .report import plot_corner, plot_ptc
+
+    d = cmp.to_dict()
+    c = d["conventions"]
+    area = c["area"]
+    an = area["name"] if area else "area"
+    parts = [f"<!DOCTYPE html><html lang=en><head><meta charset=utf-8><title>{_e(title)}</title>"
+             f"<style>{_CSS}</style></head><body>", f"<h1>{_e(title)}</h1>",
+             f"<p class=small>bayescap {_e(d['bayescap_version'])} · seed {_e(c['seed'])} · quality "
+             f"{_e(c['quality'])} · medians with 95 % equal-tailed credible intervals</p>"]
+    sims = [s.name for s in cmp.sensors if _is_simulated(s)]
+    if sims:
+        parts.append(f"<div class=sim><b>Simulated data.</b> These inputs are simulations or PTCs built from "
+                     f"datasheet values, not measurements: {_e(', '.join(sims))}.</div>")
+    nav = " ".join(f'<a href="#{i}">{i.replace("-", " ")}</a>' for i in SECTION_IDS)
+    nav += " " + " ".join(f'<a href="#sensor-{i}">{_e(s.name)}</a>' for i, s in enumerate(cmp.sensors))
+    parts.append(f"<nav>{nav}</nav>")
+
+    # summary table
+    rows = []
+    for s in d["sensors"]:
+        a = s.get("area")
+        rows.append([_e(s["name"]) + (" <span class=warn>(not converged)</span>" if not s["converged"] else ""),
+                     _f(s["pixel_pitch_um"]),
+                     f"{s['pixels_full'] / 1e6:.3f} M" if s.get("pixels_full") else "—",
+                     (f"{a['width_px']}×{a['height_px']}" + (" (smaller)" if a["smaller_than_area"] else ""))
+                     if a else "—",
+                     _iv(s.get("exposure_calibration", {}) and s["exposure_calibration"]["sensitivity_e_per_lux_s"]),
+                     _iv(s.get("tonal_range_bits_h0"), fmt="{:.3f}"),
+                     _iv(s.get("capacity_full_bits"), 1e6), _iv(s.get("capacity_area_bits"), 1e6),
+                     "TR at H0" if s["capacity_basis"] == "tr_at_h0" else "TR full range"])
+    parts.append('<section id="summary"><h2>Summary</h2>' + _table(
+        ["sensor", "pitch (µm)", "pixels", f"pixels @{an}", "sensitivity (e⁻/lux·s)", f"TR(H0={c['h0_lux_s']:g}) bits",
+         "C full (Mbit)", f"C @{an} (Mbit)", "capacity basis"], rows) + "</section>")
+
+    parts.append('<section id="capacity"><h2>Information capacity (Fig. 8(b))</h2>'
+                 + _img(_png(plot_capacity(cmp)), "capacity at full resolution and at the fixed area, 95 % intervals")
+                 + "</section>")
+    parts.append('<section id="tonal-range"><h2>Tonal range against average exposure H0 (Fig. 8(a))</h2>'
+                 + _img(_png(plot_tr_h0(cmp)), "TR against H0 with 95 % credible bands") + "</section>")
+    parts.append('<section id="snr"><h2>SNR against exposure (Figs. 5-6)</h2>'
+                 + _img(_png(plot_snr_exposure(cmp)), "SNR against photometric exposure with 95 % bands")
+                 + "</section>")
+
+    # pairwise
+    prow = []
+    for p in d["pairs"]:
+        prow.append([_e(f"{p['a']} vs {p['b']}"), _f(p["p_a_greater_full"], "{:.3f}"),
+                     _iv(p["ratio_full"], fmt="{:.4f}"), _f(p["p_a_greater_area"], "{:.3f}"),
+                     _iv(p["ratio_area"], fmt="{:.4f}"), "TR at H0" if p["basis"] == "tr_at_h0" else "TR full range"])
+    psec = ['<section id="probabilities"><h2>Pairwise probabilities</h2>',
+            "<p>P(A captures more information than B) from the independent posteriors (all pairs of draws), "
+            "and the capacity ratio C_A/C_B with its 95 % interval.</p>"]
+    if len(cmp.sensors) > 1:
+        psec.append('<div class=grid>' + _img(_png(plot_probability_matrix(cmp, "full")),
+                                               "P(C_row > C_column) at full resolution"))
+        if area:
+            psec.append(_img(_png(plot_probability_matrix(cmp, "area")), f"P(C_row > C_column) at {an}"))
+        psec.append("</div>")
+        psec.append(_table(["pair", "P(A>B) full", "C_A/C_B full", f"P(A>B) @{an}", f"C_A/C_B @{an}", "basis"], prow))
+    else:
+        psec.append("<p>Only one sensor: no pairs.</p>")
+    parts.append("".join(psec) + "</section>")
+
+    # per sensor
+    for i, (s, sd) in enumerate(zip(cmp.sensors, d["sensors"])):
+        r = s.result
+        rd = r.to_dict()
+        sec = [f'<section id="sensor-{i}"><h2>{_e(s.name)}</h2>',
+               f"<p class=small>{_e(sd['sensor'])} · input <code>{_e(sd['input'])}</code> · fit seed {sd['seed']}</p>"]
+        if _is_simulated(s):
+            sec.append("<div class=sim>Simulated (or built from datasheet values): not a measurement.</div>")
+        for n in sd.get("notes", []) + rd.get("notes", []):
+            sec.append(f"<p class=warn>! {_e(n)}</p>")
+        prm = [[_e(k), _iv(v), _e(v.get("unit", "")), "yes" if v.get("constrained", True) else "no"]
+               for k, v in rd["parameters"].items()]
+        der = [[_e(k), _iv(v), _e(v.get("unit", ""))] for k, v in rd["derived"].items()]
+        for k in ("tonal_range_bits_h0", "s_max_h0_e", "analog_gain_h0", "capacity_full_bits", "capacity_area_bits"):
+            if sd.get(k):
+                der.append([_e(k + " (compare)"), _iv(sd[k]), _e(sd[k].get("unit", ""))])
+        dg = rd["diagnostics"]
+        diag = [["converged", "yes" if dg["converged"] else "<span class=warn>no</span>"],
+                ["R-hat max (target)", f"{dg['rhat_max']:.4f} (&lt; {dg['rhat_target']})"],
+                ["ESS min (target)", f"{dg['ess_min']:.0f} (≥ {dg['ess_target']:.0f})"],
+                ["sampler", _e(f"{dg['n_ensembles']} ensembles × {dg['n_walkers']} walkers × {dg['n_steps']} steps, "
+                               f"{dg['n_rounds']} round(s), {dg['wall_s']:.1f} s, quality {dg['quality']}")],
+                ["model terms", _e(", ".join(rd["model_terms"]))],
+                ["MTF", _e(", ".join(cc.get("name", "") for cc in rd.get("mtf", {}).get("model", {}).get("components", [])))]]
+        if dg.get("failed_checks"):
+            diag.append(["failed checks", _e("; ".join(dg["failed_checks"]))])
+        sec.append('<div class=grid><div><h3>Parameters</h3>' + _table(["parameter", "median [95 %]", "unit", "constrained"], prm)
+                   + '</div><div><h3>Derived</h3>' + _table(["quantity", "median [95 %]", "unit"], der)
+                   + '<h3>Diagnostics</h3>' + _table(["check", "value"], diag) + "</div></div>")
+        sec.append('<div class=grid>' + _img(_png(plot_ptc(r)), f"{s.name}: photon-transfer curve, posterior "
+                                                               "predictive 95 % band and residuals")
+                   + _img(_png(plot_snr_sensor(s)), f"{s.name}: SNR with 95 % band") + "</div>")
+        sec.append(_img(_png(_quiet(plot_corner, r, n_max=4000)), f"{s.name}: corner plot of the parameters"))
+        parts.append("".join(sec) + "</section>")
+
+    conv = [[_e(k), _e(v if not isinstance(v, dict) else ", ".join(f"{a}: {b}" for a, b in v.items()))]
+            for k, v in c.items()]
+    parts.append('<section id="conventions"><h2>Conventions</h2>' + _table(["", ""], conv)
+                 + "<p class=small>See docs/compare.md: optical formats, H0 placement at mid-grey, exposure "
+                   "calibration, the probability of superiority.</p></section>")
+    parts.append("</body></html>\n")
+    return "\n".join(parts)
+
+
+def write_report(cmp: Comparison, path, *, title: str = "bayescap sensor comparison") -> Path:
+    """Render and write the page atomically (temp file in the same folder, then rename)."""
+    from .ptc import atomic_write_text
+
+    path = Path(path)
+    atomic_write_text(path, render_html(cmp, title=title))
+    return path
+
+
+def add_report_arguments(p: argparse.ArgumentParser) -> None:
+    p.add_argument("csv", nargs="+", help="photon-transfer CSVs, one per sensor")
+    p.add_argument("-o", "--output", default="report.html", help="HTML file to write (default report.html)")
+    p.add_argument("--area", default=DEFAULT_AREA, help="fixed imaging area (as for compare; default 1/4in)")
+    p.add_argument("--h0", type=float, default=DEFAULT_H0_LUX_S, metavar="LUX_S",
+                   help="average exposure H0 (lux·s) for TR and capacity (default 0.4)")
+    p.add_argument("--mid-grey", type=float, default=DEFAULT_MID_GREY, dest="mid_grey",
+                   help="fraction of the top of the range where the scene's mean is placed (default 0.18)")
+    p.add_argument("--seed", type=int, default=0, help="random seed of the run")
+    p.add_argument("--quality", choices=("fast", "standard", "accurate"), default=DEFAULT_QUALITY,
+                   help="sampler preset (default fast)")
+    p.add_argument("--title", default="bayescap sensor comparison")
+
+
+def run_report(args) -> int:
+    """``bayescap report``: returns the exit status (2 with one line on bad input)."""
+    from .fit import ConvergenceWarning
+    from .ptc import PTCInputError
+
+    try:
+        with warnings.catch_warnings():
+            warnings.filterwarnings("ignore", category=ConvergenceWarning)
+            warnings.filterwarnings("ignore", category=FutureWarning)
+            cmp = compare(args.csv, area=args.area, h0_lux_s=args.h0, mid_grey=args.mid_grey, seed=args.seed,
+                          quality=args.quality)
+            out = write_report(cmp, args.output, title=args.title)
+    except (PTCInputError, CompareInputError, OSError) as e:
+        print(f"bayescap: error: {e}", file=sys.stderr)
+        return 2
+    print(f"wrote {out}")
+    return 0
+
+
+def _main(argv=None) -> int:  # pragma: no cover - until cli.py registers the subcommand
+    p = argparse.ArgumentParser(prog="bayescap report")
+    add_report_arguments(p)
+    return run_report(p.parse_args(argv))
+
+
+if __name__ == "__main__":  # pragma: no cover
+    sys.exit(_main())
