@@ -117,11 +117,16 @@ def png_pairs(crops, tmp_path_factory) -> Path:
 
 
 @pytest.fixture(scope="module")
-def png_result(png_pairs, tmp_path_factory):
+def png_csv(png_pairs, tmp_path_factory):
     out = tmp_path_factory.mktemp("png_out") / "ptc.csv"
     paths = raw.ingest(png_pairs / "manifest.csv", out=out, roi="0,0,128,128")
     assert paths == [out]
-    return read_ptc_csv(out)
+    return out
+
+
+@pytest.fixture(scope="module")
+def png_result(png_csv):
+    return read_ptc_csv(png_csv)
 
 
 # --------------------------------------------------------------------------- CFA and DNG I/O
@@ -585,3 +590,25 @@ def test_truncated_dng_and_tiff_are_refused(tmp_path):
     (tmp_path / "half.tif").write_bytes(data[: len(data) // 2])
     with pytest.raises(IngestError, match="half.tif.*truncated"):
         raw.read_frame(tmp_path / "half.tif")
+
+
+def test_ingested_crops_fit_to_the_full_frame_gain(png_csv):
+    """Frames -> CSV -> fit gives the conversion gain of the full-frame table's fit.
+
+    The crop's statistical error: each pair variance over 128x128 pixels has a relative sd of
+    sqrt(2/16383) = 1.1 %, against 0.26 % for the full 640x480 frame; the posterior sd of K from
+    each fit (which also carries the fitted systematic scatter) is that error propagated through
+    the ~37 unsaturated rows. The two K must agree within 3 combined sd (99.7 %).
+    """
+    import bayescap
+
+    crop = bayescap.fit(png_csv, seed=2)
+    full = bayescap.fit(Path(__file__).resolve().parents[1] / "data" / "emva1288_basler_ccd12.csv", seed=2)
+    kc, kf = crop.draws["conversion_gain_e_per_dn"], full.draws["conversion_gain_e_per_dn"]
+    sd = np.hypot(kc.std(), kf.std())
+    diff = np.median(kc) - np.median(kf)
+    assert crop.diag["converged"] and full.diag["converged"]
+    assert abs(diff) < 3 * sd, (f"K crop {np.median(kc):.4f} ± {kc.std():.4f}, full {np.median(kf):.4f} ± "
+                                f"{kf.std():.4f} e-/DN: difference {diff:.4f} vs 3 sd {3 * sd:.4f}")
+    # the crop's error is the larger one, as its pixel count says
+    assert kc.std() > kf.std()

@@ -1,0 +1,63 @@
+"""The other subcommands: mtf, fit --mtf, sweep, ingest registration."""
+import json
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+
+EDGE = Path(__file__).parent / "data" / "slanted_edge" / "sfrmat3_v_edge_mono.tif"
+
+
+def _run(*args):
+    return subprocess.run([sys.executable, "-m", "bayescap.cli", *map(str, args)], capture_output=True, text=True)
+
+
+def test_mtf_command_json_and_table(tmp_path):
+    out = tmp_path / "mtf.csv"
+    r = _run("mtf", EDGE, "--npol", "1", "--json", "--out", out, "--n-boot", "50")
+    assert r.returncode == 0, r.stderr
+    d = json.loads(r.stdout)
+    assert abs(d["mtf50_cy_per_px"] - 0.1980) < 0.02 * 0.1980  # sfrmat5 reference SFR50 (npol 1)
+    lo, hi = d["mtf50_ci95_cy_per_px"]
+    assert lo < d["mtf50_cy_per_px"] < hi
+    assert out.read_text().splitlines()[0].startswith("freq_cy_per_px,mtf")
+
+
+def test_mtf_command_bad_input_exit_2(tmp_path):
+    flat = tmp_path / "flat.npy"
+    np.save(flat, np.full((60, 60), 0.5))
+    for args in (("mtf", tmp_path / "missing.tif"), ("mtf", flat), ("mtf", EDGE, "--roi", "1,2,3")):
+        r = _run(*args)
+        assert r.returncode == 2, (args, r.stderr)
+        assert len(r.stderr.strip().splitlines()) == 1 and "Traceback" not in r.stderr
+
+
+def test_fit_with_measured_edge_carries_sharpness_uncertainty(tmp_path):
+    from bayescap.simulate import SensorTruth, simulate_ptc
+
+    csv = tmp_path / "s.csv"
+    simulate_ptc(SensorTruth(conversion_gain_e_per_dn=2.0, read_noise_e=3.0, full_well_e=8000.0), seed=3,
+                 shape=(50, 50), n_levels=20, path=csv, metadata={"pixel_pitch_um": 2.2})
+    r = _run("fit", csv, "--json", "--seed", "1", "--quality", "fast", "--mtf", EDGE)
+    assert r.returncode == 0, r.stderr
+    d = json.loads(r.stdout)
+    ds = d["derived"]["mtf_loss_bits"]
+    assert ds["ci95"][0] < ds["median"] < ds["ci95"][1]  # a measured MTF has draws: Δs has an interval
+    assert d["mtf"]["model"]["name"].startswith("measured:")
+    r2 = _run("fit", csv, "--mtf", tmp_path / "none.csv")
+    assert r2.returncode == 2 and "Traceback" not in r2.stderr
+
+
+def test_sweep_command_gives_optimal_pitch_with_interval():
+    r = _run("sweep", "pixel-size", "--format", "1/4in", "--f-number", "2.8", "--json", "--draws", "300")
+    assert r.returncode == 0, r.stderr
+    d = json.loads(r.stdout)
+    text = json.dumps(d)
+    assert "optimal" in text and "ci95" in text
+
+
+def test_help_lists_every_command():
+    r = _run("--help")
+    for cmd in ("fit", "ingest", "mtf", "sweep"):
+        assert cmd in r.stdout
