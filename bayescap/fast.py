@@ -1,27 +1,33 @@
 """Fast path: Laplace approximation + Pareto-smoothed importance sampling (Laplace–IS).
 
-Steps (all vectorised; one ``log_prob`` call for the importance draws):
+Steps (all vectorised; two ``log_prob`` calls for the importance draws):
 
-1. MAP by :func:`bayescap.fit.find_map` (single start by default: the restarts cost 3× and,
-   measured in ``benchmarks/speed_accuracy.py``, did not change the optimum on its sensor set);
-2. Laplace covariance Σ at the MAP by :func:`bayescap.fit.laplace_covariance`;
-3. ``n_proposals`` draws from a multivariate Student-t proposal ``t_ν(x_MAP, Σ)`` (heavier
-   tails than the posterior in every direction the Laplace approximation gets roughly right);
-4. importance weights ``log p(x) − log q(x)`` smoothed by PSIS (Vehtari, Simpson, Gelman, Yao &
-   Gabry 2024, JMLR 25(72)), via :func:`arviz.psislw`, which also returns the Pareto shape k̂;
+1. MAP by :func:`bayescap.fit.find_map` with a single start (the restarts cost 3×); if the
+   draws are rejected (below), the whole path is retried once with ``retry_restarts`` starts —
+   a single start can stop at the initial guess (seen on small-frame simulated sensors);
+2. Laplace covariance Σ at the MAP by :func:`bayescap.fit.laplace_covariance`, then
+   :func:`refine_covariance`: the Hessian again in whitened coordinates (the raw one is
+   distorted by the ~1e11 condition number, an eigenvalue floor and ``log_prob`` jitter);
+3. ``n_proposals/3`` draws from a multivariate Student-t ``t_ν(x_MAP, Σ)``; their PSIS weights
+   give a weighted mean and covariance, and the other ``2/3`` are drawn from a t at those
+   moments (one round of adaptive importance sampling);
+4. importance weights ``log p(x) − log q_mix(x)`` over all draws (the mixture of the two
+   proposals, the balance heuristic), smoothed by PSIS (Vehtari, Simpson, Gelman, Yao & Gabry
+   2024, JMLR 25(72)) via :func:`arviz.psislw`, which also returns the Pareto shape k̂;
 5. systematic resampling to ``n_draws`` equally weighted draws, shuffled.
 
-**Its own diagnostic.** k̂ below ``khat_max`` (0.7 by default, the PSIS paper's threshold for
-a few thousand draws, ``min(1 − 1/log10 S, 0.7)``) and an importance-sampling ESS
-``1/Σw²`` of at least ``min_ess_is``. When either fails the draws must not be used: the caller
-falls back to MCMC (:func:`fast_fit` does so, with a note).
+**Its own diagnostic.** k̂ below ``khat_max`` (0.7, the PSIS paper's threshold for a few
+thousand draws, ``min(1 − 1/log10 S, 0.7)``) and an importance-sampling ESS ``1/Σw²`` of at
+least ``min_ess_is`` (200). When either fails the draws must not be used: the caller falls back
+to MCMC (:func:`fast_fit` does so, with a note). ``benchmarks/speed_accuracy.py`` measures
+the interval errors against long MCMC runs as a function of k̂.
 
 The draws come back as a :class:`bayescap.fit.ChainResult` with ``chain`` shaped
 ``(1, n_draws, 1, ndim)`` (one "ensemble", one "walker") and
-``extra = {"method": "laplace-is", "khat": ..., "ess_is": ..., ...}``, so that
-:class:`bayescap.posterior.FitResult` can consume them. R-hat and MCMC ESS do not apply to
-resampled independent draws: :class:`FastFitResult` replaces the MCMC diagnostics by k̂ and the
-IS ESS.
+``extra = {"method": "laplace-is", "khat": ..., "ess_is": ..., ...}``. R-hat and MCMC ESS do
+not apply to resampled independent draws (ArviZ returns NaN R-hat for one chain, so the default
+:meth:`FitResult._diagnose` would flag every such fit NOT CONVERGED): :class:`FastFitResult`
+replaces them by k̂ and the IS ESS.
 """
 from __future__ import annotations
 
