@@ -223,6 +223,7 @@ text-align:right} th{background:#f3f3f3} td.l,th.l{text-align:left}
 img{max-width:100%;height:auto;display:block;margin:.4em 0;border:1px solid #eee}
 .sim{background:#fff4d6;border:1px solid #e0b84c;padding:.5em .8em;margin:.5em 0}
 .warn{color:#a30000} .small{font-size:.85em;color:#555} nav a{margin-right:1em}
+img.corner{max-width:760px}
 .grid{display:grid;grid-template-columns:1fr 1fr;gap:1em} code{background:#f5f5f5;padding:0 3px}
 """
 
@@ -247,8 +248,8 @@ def _iv(s, scale=1.0, fmt="{:.4g}"):
             f"{_f(hi / scale, fmt) if hi is not None else '—'}]</span>")
 
 
-def _img(b64, alt) -> str:
-    return f'<figure><img alt="{_e(alt)}" src="data:image/png;base64,{b64}"><figcaption class=small>{_e(alt)}' \
+def _img(b64, alt, cls="") -> str:
+    return f'<figure><img{" class=" + cls if cls else ""} alt="{_e(alt)}" src="data:image/png;base64,{b64}"><figcaption class=small>{_e(alt)}' \
            f'</figcaption></figure>'
 
 
@@ -339,7 +340,9 @@ def render_html(cmp: Comparison, *, title: str = "bayescap sensor comparison") -
                f"<p class=small>{_e(sd['sensor'])} · input <code>{_e(sd['input'])}</code> · fit seed {sd['seed']}</p>"]
         if _is_simulated(s):
             sec.append("<div class=sim>Simulated (or built from datasheet values): not a measurement.</div>")
-        for n in sd.get("notes", []) + rd.get("notes", []):
+        own = sd.get("notes", [])
+        fit_notes = [n for n in rd.get("notes", []) if not (n.startswith("NOT CONVERGED") and not sd["converged"])]
+        for n in own + fit_notes:
             sec.append(f"<p class=warn>! {_e(n)}</p>")
         prm = [[_e(k), _iv(v), _e(v.get("unit", "")), "yes" if v.get("constrained", True) else "no"]
                for k, v in rd["parameters"].items()]
@@ -363,7 +366,7 @@ def render_html(cmp: Comparison, *, title: str = "bayescap sensor comparison") -
         sec.append('<div class=grid>' + _img(_png(plot_ptc(r)), f"{s.name}: photon-transfer curve, posterior "
                                                                "predictive 95 % band and residuals")
                    + _img(_png(plot_snr_sensor(s)), f"{s.name}: SNR with 95 % band") + "</div>")
-        sec.append(_img(_png(_quiet(plot_corner, r, n_max=4000)), f"{s.name}: corner plot of the parameters"))
+        sec.append(_img(_png(_quiet(plot_corner, r, n_max=4000)), f"{s.name}: corner plot of the parameters", "corner"))
         parts.append("".join(sec) + "</section>")
 
     conv = [[_e(k), _e(v if not isinstance(v, dict) else ", ".join(f"{a}: {b}" for a, b in v.items()))]
