@@ -278,8 +278,6 @@ def _fast_once(model, seed, n_draws, settings, x_map, cov):
     return chains, diag
 
 
-
-
 def fast_posterior(model: PTCModel, *, seed, n_draws: int | None = None,
                    settings: FastSettings = FastSettings(), x_map=None, cov=None):
     """Laplace–IS posterior draws for ``model`` (module docstring).
@@ -291,7 +289,7 @@ def fast_posterior(model: PTCModel, *, seed, n_draws: int | None = None,
     seed : seeds the proposal and the resampling (same seed, same draws).
     n_draws : equally weighted draws returned (default ``settings.n_draws``).
     settings : :class:`FastSettings`.
-    x_map, cov : a MAP and Laplace covariance already computed (e.g. by :mod:`bayescap.batch`);
+    x_map, cov : a MAP and covariance already computed (used as given: no retry with restarts);
         computed here when not given.
 
     Returns
@@ -308,11 +306,13 @@ def fast_posterior(model: PTCModel, *, seed, n_draws: int | None = None,
         # sensors): retry with restarts before declaring failure
         retry = replace(settings, n_restarts=settings.retry_restarts)
         c2, d2 = _fast_once(model, seed, n_draws, retry, None, None)
-        d2["wall_s"] += diag["wall_s"]
-        c2.wall_s = d2["wall_s"]
-        d2["retried_with_restarts"] = True
-        d2["first_attempt"] = {k: diag[k] for k in ("khat", "ess_is", "reason")}
-        chains, diag = c2, d2
+        first = {k: diag[k] for k in ("khat", "ess_is", "reason")}
+        wall = d2["wall_s"] + diag["wall_s"]
+        if d2["accepted"] or d2["khat"] < diag["khat"]:   # keep the better of the two attempts
+            chains, diag = c2, d2
+        diag["wall_s"] = chains.wall_s = wall
+        diag["retried_with_restarts"] = True
+        diag["first_attempt"] = first
     chains.extra["retried_with_restarts"] = diag["retried_with_restarts"]
     return chains, diag
 
