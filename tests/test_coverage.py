@@ -1,0 +1,159 @@
+"""Frequentist coverage of the 95 % intervals on simulated sensors with known truth (issue 2).
+
+30 sensors are drawn from the realistic range of ``benchmarks/sbc.py::draw_sensor`` (K
+log-uniform 0.5–8 e⁻/DN, read noise log-uniform 1–20 e⁻, full well log-uniform 3 000–60 000 e⁻,
+ADC bits chosen so that sometimes the ADC and sometimes the well clips first, dark current
+1–200 e⁻/s, QE 0.3–0.8, 40 % with PRNU/DSNU and spatial stacks; 50 levels, 100×100-pixel ROI),
+simulated frame by frame, and fitted with the default (``standard``) quality. For conversion
+gain, read noise and full well (truth ``SensorTruth.clip_charge_e``) the number of 95 %
+intervals that contain the truth must be consistent with Binomial(n, 0.95), counting only the
+sensors where the fit reports the quantity as constrained.
+
+Tolerance: a two-sided binomial acceptance band with at most α/2 = 0.5 % in each tail, so a
+calibrated posterior fails each test with probability ≤ 1 % (≤ 4 % for the four tests
+together, by the union bound). With n ≈ 30 the upper tail is empty (P(all covered) ≈ 21 %):
+the test detects intervals that are too narrow or biased, not too wide.
+
+The fits run once per session (several processes when possible) and are cached on disk under
+pytest's base temp directory with a file lock, so with pytest-xdist the workers share them
+instead of each refitting (the pattern of the pytest-xdist docs for once-only session fixtures). Set ``BAYESCAP_FIT_CACHE`` to a directory to
+keep them across sessions (only while the code and seeds are unchanged).
+"""
+from __future__ import annotations
+
+import fcntl
+import importlib.util
+import json
+import os
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+from scipy import stats
+
+ROOT = Path(__file__).resolve().parents[1]
+SEED = 20240602
+N_SENSORS = 30
+ALPHA = 0.01
+QUALITY = "standard"
+COVERAGE_PARAMS = ["conversion_gain_e_per_dn", "read_noise_e", "full_well_e"]
+
+pytestmark = pytest.mark.slow
+
+
+def _bench():
+    name = "bayescap_benchmarks_sbc"
+    if name not in sys.modules:
+        spec = importlib.util.spec_from_file_location(name, ROOT / "benchmarks" / "sbc.py")
+        mod = importlib.util.module_from_spec(spec)
+        sys.modules[name] = mod  # registered before any fork: workers unpickle run_one by name
+        spec.loader.exec_module(mod)
+    return sys.modules[name]
+
+
+def fit_records(seed, n, quality, tmp_path_factory, tag):
+    """Simulate and fit ``n`` sensors once per session (shared across xdist workers)."""
+    sbc = _bench()
+    base = tmp_path_factory.getbasetemp()
+    if os.environ.get("PYTEST_XDIST_WORKER"):
+        base = base.parent
+    if os.environ.get("BAYESCAP_FIT_CACHE"):  # reuse fits across sessions (same seeds, same code)
+        base = Path(os.environ["BAYESCAP_FIT_CACHE"])
+        base.mkdir(parents=True, exist_ok=True)
+    cache = base / f"{tag}_{seed}_{n}_{quality}.json"
+    with open(str(cache) + ".lock", "w") as lock:
+        fcntl.flock(lock, fcntl.LOCK_EX)
+        if cache.exists():
+            return json.loads(cache.read_text())
+        tasks = [(i, a, b, c, quality, 99) for i, (a, b, c) in enumerate(sbc.sensor_seeds(seed, n))]
+        jobs = min(2, os.cpu_count() or 1)
+        if jobs > 1:
+            import multiprocessing as mp
+            with mp.get_context("fork").Pool(jobs) as pool:
+                recs = list(pool.imap(sbc.run_one, tasks))
+        else:
+            recs = [sbc.run_one(t) for t in tasks]
+        cache.write_text(json.dumps(recs))
+        return recs
+
+
+@pytest.fixture(scope="session")
+def coverage_records(tmp_path_factory):
+    return fit_records(SEED, N_SENSORS, QUALITY, tmp_path_factory, "realistic")
+
+
+def acceptance_band(n, p=0.95, alpha=ALPHA):
+    """[lo, hi] such that P(Binomial(n, p) < lo) ≤ α/2 and P(Binomial(n, p) > hi) ≤ α/2."""
+    return int(stats.binom.ppf(alpha / 2, n, p)), int(stats.binom.isf(alpha / 2, n, p))
+
+
+def _coverage(records, name):
+    used = [r for r in records if name in r["q"] and r["q"][name]["constrained"]]
+    k = sum(r["q"][name]["in95"] for r in used)
+    u = np.array([r["q"][name]["u"] for r in used])
+    misses = [(r["i"], round(r["q"][name]["u"], 4), r["clip"]) for r in used if not r["q"][name]["in95"]]
+    return k, len(used), u, misses
+
+
+def test_band_is_what_the_docstring_says():
+    for n in (24, 30, 90):
+        lo, hi = acceptance_band(n)
+        assert stats.binom.cdf(lo - 1, n, 0.95) <= ALPHA / 2 < stats.binom.cdf(lo, n, 0.95)
+        assert stats.binom.sf(hi, n, 0.95) <= ALPHA / 2
+
+
+def test_sensors_span_both_clip_mechanisms(coverage_records):
+    assert len(coverage_records) == N_SENSORS >= 24
+    adc_first = sum(r["adc_clips_first"] for r in coverage_records)
+    assert 0 < adc_first < N_SENSORS
+    assert any(r["sim"]["spatial_frames"] for r in coverage_records)
+
+
+@pytest.mark.parametrize("name", COVERAGE_PARAMS)
+def test_95_interval_coverage(coverage_records, name):
+    """Coverage of the 95 % interval of one parameter, among the sensors where the fit reports
+    it constrained; false-alarm probability ≤ 1 % for a calibrated posterior."""
+    k, n, u, misses = _coverage(coverage_records, name)
+    assert n >= 20, f"only {n} sensors report {name} constrained"
+    lo, hi = acceptance_band(n)
+    assert lo <= k <= hi, (f"{name}: {k}/{n} 95 % intervals contain the truth (accept {lo}..{hi}); "
+                           f"misses (sensor, posterior CDF at truth, clip): {misses}")
+
+
+def test_95_interval_coverage_pooled(coverage_records):
+    """All three parameters together. The indicators of one sensor are positively correlated
+    (exactly equal for K and full well when the ADC clips: full well = (ADC − black)·K), so the
+    pooled count is not Binomial(3n). The test treats each sensor as one trial carrying the mean
+    of its indicators and uses the Binomial(n_sensors, 0.95) band: exact under perfect
+    correlation, conservative under less; false-alarm probability ≤ 1 %."""
+    per_sensor = []
+    for r in coverage_records:
+        ind = [r["q"][p]["in95"] for p in COVERAGE_PARAMS if p in r["q"] and r["q"][p]["constrained"]]
+        if ind:
+            per_sensor.append(np.mean(ind))
+    n = len(per_sensor)
+    lo, hi = acceptance_band(n)
+    cov = float(np.sum(per_sensor))
+    detail = {p: _coverage(coverage_records, p)[:2] for p in COVERAGE_PARAMS}
+    assert lo <= cov <= hi, f"pooled coverage {cov:.2f}/{n} sensor-equivalents (accept {lo}..{hi}); {detail}"
+
+
+@pytest.mark.xfail(strict=True, reason=(
+    "read noise below the quantization floor (< 0.4 DN, reported as an upper limit): in all 6 such "
+    "sensors of this sample the truth lies ABOVE every posterior draw (posterior CDF at truth ≥ 0.999), "
+    "so the reported upper_limit_95 is below the true read noise. Diagnosis: the dark frames' mean "
+    "sits on an integer DN (integer black level, little dark charge), where rounding N(μ, σ²) with "
+    "σ < 0.5 DN gives a variance well below σ² + 1/12, but the dark-variance model uses σ²/K² + 1/12 "
+    "(Sheppard): the fit pulls σ down. Proposed fix in docs/calibration.md"))
+def test_read_noise_upper_limit_holds(coverage_records):
+    """Where the fit reports read noise as an upper limit only, the 95 % upper limit (the 95th
+    percentile of the draws) must lie above the truth in a share consistent with ≥ 95 %
+    (one-sided binomial, false-alarm probability ≤ 1 %)."""
+    used = [r for r in coverage_records if not r["q"]["read_noise_e"]["constrained"]]
+    if len(used) < 3:
+        pytest.skip("fewer than 3 sensors with read noise below the quantization floor")
+    ok = sum(r["q"]["read_noise_e"]["u"] <= 0.95 for r in used)
+    lo = int(stats.binom.ppf(ALPHA, len(used), 0.95))
+    assert ok >= lo, (f"upper limit above the truth in {ok}/{len(used)} sensors (accept ≥ {lo}); "
+                      f"posterior CDF at truth: {[round(r['q']['read_noise_e']['u'], 4) for r in used]}")
