@@ -8,6 +8,8 @@ Steps (all vectorised; two ``log_prob`` calls for the importance draws):
 2. Laplace covariance Σ at the MAP by :func:`bayescap.fit.laplace_covariance`, then
    :func:`refine_covariance`: the Hessian again in whitened coordinates (the raw one is
    distorted by the ~1e11 condition number, an eigenvalue floor and ``log_prob`` jitter);
+   :func:`polish_map` then climbs on from the MAP in those coordinates (``find_map`` can stop
+   at its starting point because of the same jitter) and Σ is refined at the new point;
 3. ``n_proposals/3`` draws from a multivariate Student-t ``t_ν(x_MAP, Σ)``; their PSIS weights
    give a weighted mean and covariance, and the other ``2/3`` are drawn from a t at those
    moments (one round of adaptive importance sampling);
@@ -45,7 +47,7 @@ from .posterior import FitResult
 from .ptc import PTCData
 
 __all__ = ["FastSettings", "fast_posterior", "fast_fit", "FastFitResult", "student_t_draws",
-           "student_t_logpdf", "psis_weights", "refine_covariance", "METHOD"]
+           "student_t_logpdf", "psis_weights", "refine_covariance", "polish_map", "METHOD"]
 
 METHOD = "laplace-is"
 
@@ -59,6 +61,7 @@ class FastSettings:
     adapt_fraction: float = 2 / 3  # share drawn from the moment-matched second proposal
     adapt_inflation: float = 1.2  # sd multiplier on the weighted covariance of round 1
     refine_iter: int = 6          # at most this many whitened re-evaluations of the Hessian
+    polish: bool = True           # whitened gradient ascent after find_map (polish_map)
     n_draws: int = 4000           # equally weighted draws returned after resampling
     khat_max: float = 0.7         # accept when Pareto k̂ < khat_max ...
     min_ess_is: float = 200.0     # ... and the importance-sampling ESS ≥ this
@@ -150,6 +153,41 @@ def refine_covariance(model, x_map, cov, *, max_iter=6, alpha=4.0, h=0.05):
     return c
 
 
+def polish_map(model, x, cov, *, max_iter=30, h=0.02):
+    """Gradient ascent in whitened coordinates from ``x`` (a MAP estimate) with covariance ``cov``.
+
+    :func:`bayescap.fit.find_map` (BFGS on central differences with 1e-5 relative steps) can
+    stop at its starting point when ``log_prob`` jitters at the 1e-5–1e-4 level (the
+    latent-mean Newton iteration stops at a tolerance): measured on a simulated 12-bit sensor,
+    it returned the initial guess 115 below the maximum in log posterior. Here the gradient is
+    taken with steps of ``h`` posterior sd along the Cholesky axes of ``cov`` (far above the
+    jitter), and a line search over 15 step lengths runs in one vectorised call; the covariance
+    is refreshed by one :func:`refine_covariance` iteration per step. When ``x`` is already the
+    maximum this costs two ``log_prob`` calls. Returns (x, log_prob(x), cov).
+    """
+    n = x.size
+    with np.errstate(all="ignore"):
+        lp = float(model.log_prob(x[None])[0])
+    ts = np.concatenate([2.0 ** -np.arange(0, 12), [1.5, 2.0, 3.0]])
+    for _ in range(max_iter):
+        L = np.linalg.cholesky(cov)
+        E = h * L.T
+        with np.errstate(all="ignore"):
+            v = model.log_prob(np.vstack([x + E, x - E]))
+            g = (v[:n] - v[n:]) / (2 * h)
+        g = np.where(np.isfinite(g), g, 0.0)
+        cand = x + (ts[:, None] * g[None, :]) @ L.T
+        with np.errstate(all="ignore"):
+            lc = model.log_prob(cand)
+        lc = np.where(np.isfinite(lc), lc, -np.inf)
+        j = int(np.argmax(lc))
+        if not lc[j] > lp + 1e-6:
+            break
+        x, lp = cand[j], float(lc[j])
+        cov = refine_covariance(model, x, cov, max_iter=1)
+    return x, lp, cov
+
+
 def psis_weights(log_w):
     """Pareto-smoothed normalised weights, k̂ and the IS effective sample size.
 
@@ -200,6 +238,11 @@ def _fast_once(model, seed, n_draws, settings, x_map, cov):
         with np.errstate(all="ignore"):   # the Hessian stencil may leave the prior support
             cov = laplace_covariance(model, x_map)
         cov = refine_covariance(model, x_map, cov, max_iter=settings.refine_iter)
+        if settings.polish:
+            x_pol, lp_pol, cov_pol = polish_map(model, x_map, cov)
+            if lp_pol > lp_map + 1e-6:
+                x_map, lp_map = x_pol, lp_pol
+                cov = refine_covariance(model, x_map, cov_pol, max_iter=settings.refine_iter)
     t_lap = time.perf_counter()
     rng = np.random.default_rng(np.random.SeedSequence(seed).spawn(1)[0])
     nu = settings.nu
