@@ -166,6 +166,9 @@ def thinned_index(result, L, rng):
     picked at random without replacement over (ensemble, step, walker)."""
     E, S, W = result.shape_esw
     tau = float(result.diag["tau_max_steps"])
+    if not math.isfinite(tau):  # emcee's estimate failed (seen once at standard quality): be
+        tau = np.nanmax(np.where(np.isfinite(result.chains.tau), result.chains.tau, np.nan)) \
+            if np.any(np.isfinite(result.chains.tau)) else S / 10.0  # cautious: 10 spaced steps
     step = max(1, int(math.ceil(tau)))
     s0 = int(rng.integers(0, step))
     steps = np.arange(s0, S, step)
