@@ -105,6 +105,22 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--out", metavar="FILE.csv", help="write freq_cy_per_px,mtf,mtf_ci95_low,mtf_ci95_high")
     p.set_defaults(func=_cmd_mtf)
 
+    from .compare import add_compare_arguments, run_compare
+
+    p = sub.add_parser("compare", help="compare sensors: capacity at full resolution and fixed area, "
+                                       "TR at H0, pairwise P(C_A > C_B)",
+                       description="Fit each sensor and compare capacities with credible intervals and "
+                                   "pairwise probabilities (docs/compare.md).")
+    add_compare_arguments(p)
+    p.set_defaults(func=run_compare)
+
+    from .html_report import add_report_arguments, run_report
+
+    p = sub.add_parser("report", help="self-contained HTML report of one or more sensors",
+                       description="Fit the sensors and write one self-contained HTML page (docs/compare.md).")
+    add_report_arguments(p)
+    p.set_defaults(func=run_report)
+
     from .sweep import add_sweep_arguments, run_sweep
 
     p = sub.add_parser("sweep", help="what-if studies from the paper (capacity vs pixel size, Fig. 4)",

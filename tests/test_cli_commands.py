@@ -59,5 +59,5 @@ def test_sweep_command_gives_optimal_pitch_with_interval():
 
 def test_help_lists_every_command():
     r = _run("--help")
-    for cmd in ("fit", "ingest", "mtf", "sweep"):
+    for cmd in ("fit", "ingest", "mtf", "sweep", "compare", "report"):
         assert cmd in r.stdout
