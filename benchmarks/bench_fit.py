@@ -10,7 +10,6 @@ from __future__ import annotations
 
 import argparse
 import os
-import platform
 import subprocess
 import sys
 import time
@@ -18,23 +17,13 @@ import warnings
 from pathlib import Path
 
 import numpy as np
+from _machine import describe_machine
 
 ROOT = Path(__file__).resolve().parents[1]
 
 
 def _machine():
-    cpu = platform.processor() or ""
-    try:
-        for line in open("/proc/cpuinfo"):
-            if line.startswith("model name"):
-                cpu = line.split(":", 1)[1].strip()
-                break
-    except OSError:
-        pass
-    import emcee
-
-    return (f"{cpu}, {os.cpu_count()} cores, Python {platform.python_version()}, numpy {np.__version__}, "
-            f"emcee {emcee.__version__}; load average before the run {os.getloadavg()[0]:.2f}")
+    return f"{describe_machine()}; load average before the run {os.getloadavg()[0]:.2f}"
 
 
 def main(argv=None):

@@ -18,12 +18,12 @@ from __future__ import annotations
 import argparse
 import datetime
 import os
-import platform
 import time
 import warnings
 from pathlib import Path
 
 import numpy as np
+from _machine import describe_machine
 
 ROOT = Path(__file__).resolve().parents[1]
 OUT = ROOT / "benchmarks" / "results" / "speed_accuracy.md"
@@ -225,18 +225,7 @@ def batch_throughput(n, *, seed, n_jobs):
 
 # ------------------------------------------------------------------------------ report
 def machine():
-    cpu = platform.processor() or ""
-    try:
-        for line in open("/proc/cpuinfo"):
-            if line.startswith("model name"):
-                cpu = line.split(":", 1)[1].strip()
-                break
-    except OSError:
-        pass
-    import emcee
-    import scipy
-    return (f"{cpu}, {os.cpu_count()} cores; Python {platform.python_version()}, numpy {np.__version__}, "
-            f"scipy {scipy.__version__}, emcee {emcee.__version__}")
+    return describe_machine()
 
 
 def write_md(path, rows, timing, batch, *, args, load_before, load_after, wall_total):

@@ -1,14 +1,9 @@
 """Execute notebooks/manufacturer_comparison.ipynb (committed without outputs) with nbclient.
 
-The notebook names the stock "python3" kernel. So that the test works in a fresh venv after
-``pip install -e .[test]`` (venv not activated), a "python3" kernelspec pointing at this
-interpreter (``sys.executable``) is written to a temporary JUPYTER_PATH, which Jupyter searches
-first.
+The kernel is this interpreter (the ``python3_kernel`` fixture in conftest.py).
 """
 from __future__ import annotations
 
-import json
-import sys
 import time
 from pathlib import Path
 
@@ -19,18 +14,6 @@ nbclient = pytest.importorskip("nbclient")
 pytest.importorskip("ipykernel")
 
 NOTEBOOK = Path(__file__).resolve().parent.parent / "notebooks" / "manufacturer_comparison.ipynb"
-
-
-@pytest.fixture
-def python3_kernel(tmp_path, monkeypatch):
-    spec_dir = tmp_path / "kernels" / "python3"
-    spec_dir.mkdir(parents=True)
-    (spec_dir / "kernel.json").write_text(json.dumps({
-        "argv": [sys.executable, "-m", "ipykernel_launcher", "-f", "{connection_file}"],
-        "display_name": "Python 3 (bayescap test)", "language": "python"}))
-    monkeypatch.setenv("JUPYTER_PATH", str(tmp_path))
-    monkeypatch.setenv("MPLBACKEND", "Agg")
-    return "python3"
 
 
 def test_notebook_committed_without_outputs():
