@@ -35,14 +35,25 @@ def default_scene(data: PTCData) -> Scene:
 
 
 def mtf_from_metadata(metadata: dict, notes: list | None = None):
-    """The default MTF (pixel aperture x diffraction-limited lens) from sensor metadata."""
+    """The default MTF from sensor metadata: pixel aperture (``fill_factor``) x diffraction-limited
+    lens (``f_number``, ``wavelength_nm``; needs ``pixel_pitch_um``) x, when the metadata give
+    ``crosstalk_sigma_px``, a Gaussian crosstalk kernel (Eq. 3's ``G_σ``, σ in pixels).
+
+    ``bayescap fit``, ``compare`` and ``report`` all build the MTF here, so one CSV gives one
+    capacity whichever command reads it."""
+    from .optics import GaussianCrosstalk, MTFProduct
+
     md = {**METADATA_DEFAULTS, **metadata}
     pitch = metadata.get("pixel_pitch_um")
     if pitch is None and notes is not None:
         notes.append("pixel_pitch_um unknown: the lens (diffraction) MTF is left out of Δs; "
                      "give '# pixel_pitch_um:' or --pixel-pitch-um")
-    return default_mtf(fill_factor=md["fill_factor"], f_number=md["f_number"],
-                       wavelength_nm=md["wavelength_nm"], pixel_pitch_um=pitch)
+    mtf = default_mtf(fill_factor=md["fill_factor"], f_number=md["f_number"],
+                      wavelength_nm=md["wavelength_nm"], pixel_pitch_um=pitch)
+    sigma = metadata.get("crosstalk_sigma_px")
+    if sigma is not None:   # typed and checked (finite, >= 0) by the CSV reader
+        mtf = MTFProduct(components=tuple(mtf.components) + (GaussianCrosstalk(sigma_px=float(sigma)),))
+    return mtf
 
 
 def measured_mtf(path, *, seed: int = 0, n_boot: int = 200):

@@ -59,7 +59,6 @@ __all__ = [
     "parse_area",
     "area_crop",
     "sensor_seed",
-    "mtf_for",
     "exposure_calibration",
     "tonal_range_at_exposure",
     "snr_at_exposure",
@@ -198,25 +197,6 @@ def sensor_seed(seed: int, path) -> int:
     the same MTF reproduces them)."""
     return int(np.random.SeedSequence([int(seed), zlib.crc32(Path(str(path)).name.encode())]).generate_state(1)[0]
                % (2**31 - 1))
-
-
-def mtf_for(metadata: dict):
-    """The MTF of a sensor: the fit's default (pixel aperture × f/# diffraction lens) times a
-    Gaussian crosstalk kernel when the metadata give ``crosstalk_sigma_px`` (Eq. 3's ``G_σ``)."""
-    from .api import mtf_from_metadata
-    from .optics import GaussianCrosstalk, MTFProduct
-
-    base = mtf_from_metadata(metadata, [])
-    sig = metadata.get("crosstalk_sigma_px")
-    if sig in (None, ""):
-        return base
-    try:
-        sig = float(sig)
-    except (TypeError, ValueError):
-        raise CompareInputError(f"metadata crosstalk_sigma_px must be a number, got {sig!r}") from None
-    if not (sig >= 0 and math.isfinite(sig)):
-        raise CompareInputError(f"metadata crosstalk_sigma_px must be finite and >= 0, got {sig}")
-    return MTFProduct(components=tuple(base.components) + (GaussianCrosstalk(sigma_px=sig),))
 
 
 # --------------------------------------------------------------------------------------------
@@ -432,8 +412,9 @@ def _sensor(name, path, result: FitResult, seed, *, area, h0_lux_s, mid_grey, n_
         info["simulated"] = str(md["simulated"])
     if not result.diag.get("converged"):
         failed = "; ".join(result.diag.get("failed_checks", []))
-        notes.append(f"the sampler did not converge ({failed}): rerun with --quality standard or accurate "
-                     "before trusting the intervals")
+        better = {"fast": "--quality standard or accurate", "standard": "--quality accurate"}.get(
+            result.quality, "a longer run (more steps or ensembles)")
+        notes.append(f"the sampler did not converge ({failed}): rerun with {better} before trusting the intervals")
     if result.flags.get("capacity_lower_bound"):
         notes.append("no row reaches saturation: TR and capacity are lower bounds")
     basis = "full_range"
@@ -569,7 +550,7 @@ def compare(paths, *, area=DEFAULT_AREA, h0_lux_s: float = DEFAULT_H0_LUX_S, mid
     results, seeds = [], []
     for p, d in zip(paths, datas):
         s = sensor_seed(seed, p)
-        results.append(fit(d, seed=s, quality=quality, mtf=mtf_for(d.metadata), progress=progress,
+        results.append(fit(d, seed=s, quality=quality, progress=progress,
                            **(fit_kwargs or {})))
         seeds.append(s)
     return compare_results(results, inputs=[str(p) for p in paths], seeds=seeds, area=ar, h0_lux_s=h0_lux_s,

@@ -33,7 +33,7 @@ METADATA_TYPES = {
     "sensor": str, "manufacturer": str, "pixel_pitch_um": float, "width_px": int,
     "height_px": int, "adc_bits": int, "black_level_dn": float, "f_number": float,
     "wavelength_nm": float, "fill_factor": float, "analog_gain": float, "channel": str,
-    "temperature_c": float,
+    "temperature_c": float, "crosstalk_sigma_px": float,
 }
 
 
@@ -158,6 +158,9 @@ def _check_metadata(md, path):
             raise PTCInputError(f"metadata '{k}' must be positive, got {md[k]}", path=path)
     if "adc_bits" in md and not 1 <= md["adc_bits"] <= 32:
         raise PTCInputError(f"metadata 'adc_bits' must be between 1 and 32, got {md['adc_bits']}", path=path)
+    if "crosstalk_sigma_px" in md and not md["crosstalk_sigma_px"] >= 0:
+        raise PTCInputError(f"metadata 'crosstalk_sigma_px' must be >= 0, got {md['crosstalk_sigma_px']}",
+                            path=path)
     if "fill_factor" in md and not 0 < md["fill_factor"] <= 1:
         raise PTCInputError(f"metadata 'fill_factor' must be in (0, 1], got {md['fill_factor']}", path=path)
 

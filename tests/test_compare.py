@@ -123,6 +123,27 @@ def test_clearly_better_sensor_and_ratio(cmp12):
     assert s0["area"]["pixels"] == s0["pixels_full"] == 2048 * 1536
 
 
+def test_fit_and_compare_use_the_same_mtf(cmp12):
+    """``bayescap fit`` and ``compare`` build the MTF from the same metadata, crosstalk included.
+
+    A Gaussian kernel exp(−2π²σ²f²) multiplies the MTF, so Eq. 9 adds its closed form
+    Δs_G = π f_N⁻² ∫₀^{f_N} f·log2(exp(−2π²σ²f²)) df = −π³σ²f_N²/(2 ln 2) to the aperture × lens Δs
+    (no band cut at 1.75 µm, f/2.8)."""
+    from bayescap.api import load, mtf_from_metadata
+    from bayescap.capacity import mtf_loss_bits
+
+    md = load(M1).metadata
+    sigma = md["crosstalk_sigma_px"]
+    assert sigma == 0.3
+    with_xt = float(mtf_loss_bits(mtf_from_metadata(md)).delta_s_bits)
+    without = float(mtf_loss_bits(mtf_from_metadata({k: v for k, v in md.items()
+                                                       if k != "crosstalk_sigma_px"})).delta_s_bits)
+    assert with_xt - without == pytest.approx(-math.pi**3 * sigma**2 * 0.25 / (2 * math.log(2)), rel=1e-9)
+    # the compare result carries exactly that Δs (same function, same metadata)
+    dsm = cmp12.sensors[0].result.derived["mtf_loss_bits"]
+    assert np.allclose(dsm, with_xt, rtol=1e-12)
+
+
 def test_sensor_against_itself_is_even(cmp12):
     """The same file fitted with two seeds: independent posteriors of one quantity, P ≈ 0.5.
 
@@ -135,7 +156,7 @@ def test_sensor_against_itself_is_even(cmp12):
     r1 = cmp12.sensors[0].result
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
-        r2 = bayescap.fit(str(M1), seed=12345, quality="fast", mtf=C.mtf_for(r1.metadata))
+        r2 = bayescap.fit(str(M1), seed=12345, quality="fast")
     same = C.compare_results([r1, r1], names=["a", "b"])
     assert same.pairs[0]["p_a_greater_area"] == 0.5
     two = C.compare_results([r1, r2], names=["seed_a", "seed_b"])

@@ -59,6 +59,8 @@ BAD = {
     "n_pixels < 2": (HEADER + "\n0.001,100,30,10,5,1\n" + GOOD_ROWS[1] + "\n", ["row 1", "n_pixels"]),
     "short row": (HEADER + "\n0.001,100,30\n" + GOOD_ROWS[1] + "\n", ["row 1", "fields"]),
     "bad metadata": ("# adc_bits: twelve\n" + HEADER + "\n" + "\n".join(GOOD_ROWS), ["adc_bits", "metadata line 1"]),
+    "negative crosstalk": ("# crosstalk_sigma_px: -0.3\n" + HEADER + "\n" + "\n".join(GOOD_ROWS),
+                           ["crosstalk_sigma_px", ">= 0"]),
     "mean above ADC max": ("# adc_bits: 8\n" + HEADER + "\n" + GOOD_ROWS[0] + "\n0.002,300,55,10,5,10000\n",
                            ["row 2", "mean_dn", "ADC maximum"]),
 }
