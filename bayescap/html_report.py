@@ -159,20 +159,21 @@ def plot_probability_matrix(cmp: Comparison, quantity: str = "area"):
     m = cmp.probability_matrix(quantity)
     names = [s.name for s in cmp.sensors]
     n = len(names)
-    fig, ax = plt.subplots(figsize=(1.2 * n + 3, 0.9 * n + 2))
+    # shown half-width on the page: a compact figure with large type stays readable
+    fig, ax = plt.subplots(figsize=(0.7 * n + 2.6, 0.6 * n + 2.0))
     im = ax.imshow(m, vmin=0, vmax=1, cmap="RdBu_r")
     for i in range(n):
         for j in range(n):
             if np.isfinite(m[i, j]):
-                ax.text(j, i, f"{m[i, j]:.2f}", ha="center", va="center", fontsize=8,
+                ax.text(j, i, f"{m[i, j]:.2f}", ha="center", va="center", fontsize=11,
                         color="w" if abs(m[i, j] - 0.5) > 0.35 else "k")
     ax.set_xticks(range(n))
     ax.set_yticks(range(n))
-    ax.set_xticklabels(names, rotation=30, ha="right", fontsize=8)
-    ax.set_yticklabels(names, fontsize=8)
+    ax.set_xticklabels(names, rotation=30, ha="right", fontsize=10)
+    ax.set_yticklabels(names, fontsize=10)
     where = "at full resolution" if quantity == "full" else f"at {cmp.conventions['area']['name']}" \
         if cmp.conventions["area"] else ""
-    ax.set_title(f"P(C_row > C_column) {where}", fontsize=10)
+    ax.set_title(f"P(C_row > C_column) {where}", fontsize=11)
     fig.colorbar(im, ax=ax, fraction=0.046)
     fig.tight_layout()
     return fig
