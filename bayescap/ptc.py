@@ -38,7 +38,9 @@ METADATA_TYPES = {
 
 
 class PTCInputError(ValueError):
-    """A photon-transfer input that cannot be used; the message names file, row and column."""
+    """An input that cannot be used. The message is one line, ``file, row R, column 'C': what``,
+    so the command line prints it as it is and exits with status 2; ``path``, ``row`` and
+    ``column`` carry the same information for programs."""
 
     def __init__(self, message, *, path=None, row=None, column=None):
         where = []
@@ -48,7 +50,8 @@ class PTCInputError(ValueError):
             where.append(f"row {row}")
         if column is not None:
             where.append(f"column '{column}'")
-        super().__init__((": ".join([", ".join(where), message])) if where else message)
+        text = (", ".join(where) + ": " if where else "") + message
+        super().__init__(" ".join(text.split()))  # one line, whatever the pieces contain
         self.path, self.row, self.column = path, row, column
 
 

@@ -49,6 +49,8 @@ from typing import Iterable, Sequence
 
 import numpy as np
 
+from .ptc import PTCInputError
+
 __all__ = [
     "IngestError",
     "IngestWarning",
@@ -88,28 +90,17 @@ _NPY_SUFFIXES = (".npy",)
 _PNG_END = b"IEND\xaeB`\x82"
 
 
-class IngestError(ValueError):
+class IngestError(PTCInputError):
     """The frames or their description cannot be turned into a photon-transfer table.
 
-    The message is one line and names the offending file (and, for a manifest, the row and
-    column), so that the command line can print it as it is and exit with status 2.
-    ``path``, ``row`` and ``column`` carry the same information for programs.
+    One line naming the offending file (and, for a manifest, the row and column), as every
+    :class:`~bayescap.ptc.PTCInputError`; ``path`` is a :class:`pathlib.Path` here.
     """
 
     def __init__(self, message: str, *, path: os.PathLike | str | None = None,
                  row: int | None = None, column: str | None = None):
-        where = []
-        if path is not None:
-            where.append(str(path))
-        if row is not None:
-            where.append(f"row {row}")
-        if column is not None:
-            where.append(f"column '{column}'")
-        text = (", ".join(where) + ": " if where else "") + message
-        super().__init__(" ".join(text.split()))  # one line, whatever the pieces contain
+        super().__init__(message, path=path, row=row, column=column)
         self.path = None if path is None else Path(path)
-        self.row = row
-        self.column = column
 
 
 class IngestWarning(UserWarning):
