@@ -23,6 +23,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 __all__ = [
+    "OPTICAL_FORMATS",
     "MTFComponent",
     "PixelAperture",
     "DiffractionLens",
@@ -33,6 +34,24 @@ __all__ = [
     "GaussianCrosstalk",
     "mtf50_cy_per_px",
 ]
+
+#: nominal active area (width, height in mm) of common optical formats, 4:3 (the diagonal is the
+#: "inch" size × 16 mm for formats ≥ 1/2", × 18 mm below; values as used for phone/compact sensors)
+OPTICAL_FORMATS = {
+    "1/4": (3.6, 2.7),
+    "1/3.6": (4.0, 3.0),
+    "1/3.2": (4.54, 3.42),
+    "1/3": (4.8, 3.6),
+    "1/2.7": (5.37, 4.04),
+    "1/2.5": (5.76, 4.29),
+    "1/2.3": (6.17, 4.55),
+    "1/2": (6.4, 4.8),
+    "1/1.8": (7.18, 5.32),
+    "2/3": (8.8, 6.6),
+    "1": (12.8, 9.6),
+    "4/3": (17.3, 13.0),
+    "full-frame": (36.0, 24.0),
+}
 
 
 class MTFComponent:

@@ -33,7 +33,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from .capacity import mtf_loss_bits, mtf_loss_bits_eq8, tonal_range
-from .optics import DiffractionLens, PixelAperture, default_mtf, mtf50_cy_per_px
+from .optics import OPTICAL_FORMATS, DiffractionLens, PixelAperture, default_mtf, mtf50_cy_per_px
 from .paper import PixelSpec, load_table1
 from .photometry import mpe30_lux_s, pixel_noise_coefficients, snr_vs_exposure_db
 
@@ -53,13 +53,8 @@ __all__ = [
     "run_sweep",
 ]
 
-#: imaging area (width, height) in mm of common optical formats (4:3)
-FORMATS_MM = {
-    "1/4in": (3.6, 2.7),
-    "1/3.2in": (4.54, 3.42),
-    "1/3in": (4.8, 3.6),
-    "1/2.5in": (5.76, 4.29),
-}
+#: imaging area (width, height) in mm of the optical formats (4:3), keyed "1/4in" etc.
+FORMATS_MM = {f"{k}in": v for k, v in OPTICAL_FORMATS.items() if k[0].isdigit()}
 #: Section 3: below 1.45 µm "TR continues to decrease ... at approximately 0.35 bit/µm"
 PAPER_TR_TREND_BITS_PER_UM = 0.35
 
