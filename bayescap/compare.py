@@ -583,7 +583,7 @@ def format_compare_text(d: dict) -> str:
                  f"{_iv(s.get('capacity_full_bits'), _mbit):<26} {_iv(s.get('capacity_area_bits'), _mbit):<26} "
                  f"{'TR at H0' if s['capacity_basis'] == 'tr_at_h0' else 'TR full range'}")
     if any(s.get("area") and s["area"]["smaller_than_area"] for s in d["sensors"]):
-        L.append(f"  * smaller than the area: keeps its own size")
+        L.append("  * smaller than the area: keeps its own size")
     if d["pairs"]:
         L.append("")
         L.append(f"  {'pair (A vs B)':<44} {'P(A>B) full':>11} {'C_A/C_B full':<24} {'P(A>B) @' + an:>12} "
@@ -647,13 +647,3 @@ def run_compare(args) -> int:
         atomic_write_text(out / "compare.txt", text)
     sys.stdout.write(js if args.json else text)
     return 0
-
-
-def _main(argv=None) -> int:  # pragma: no cover - until cli.py registers the subcommand
-    p = argparse.ArgumentParser(prog="bayescap compare")
-    add_compare_arguments(p)
-    return run_compare(p.parse_args(argv))
-
-
-if __name__ == "__main__":  # pragma: no cover
-    sys.exit(_main())

@@ -419,13 +419,3 @@ def run_report(args) -> int:
         return 2
     print(f"wrote {out}")
     return 0
-
-
-def _main(argv=None) -> int:  # pragma: no cover - until cli.py registers the subcommand
-    p = argparse.ArgumentParser(prog="bayescap report")
-    add_report_arguments(p)
-    return run_report(p.parse_args(argv))
-
-
-if __name__ == "__main__":  # pragma: no cover
-    sys.exit(_main())

@@ -33,7 +33,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from .capacity import mtf_loss_bits, mtf_loss_bits_eq8, tonal_range
-from .optics import OPTICAL_FORMATS, DiffractionLens, PixelAperture, default_mtf, mtf50_cy_per_px
+from .optics import OPTICAL_FORMATS, PixelAperture, default_mtf, mtf50_cy_per_px
 from .paper import PixelSpec, load_table1
 from .photometry import mpe30_lux_s, pixel_noise_coefficients, snr_vs_exposure_db
 

@@ -179,7 +179,7 @@ def test_cli_benchmark_runtime_and_json_equals_text(tmp_path):
     assert len(files) == 5
     before = resource.getrusage(resource.RUSAGE_CHILDREN)
     t0 = time.perf_counter()
-    proc = subprocess.run([sys.executable, "-m", "bayescap.compare", *files, "--json", "--out", str(tmp_path)],
+    proc = subprocess.run([sys.executable, "-m", "bayescap.cli", "compare", *files, "--json", "--out", str(tmp_path)],
                           capture_output=True, text=True, cwd=ROOT)
     wall = time.perf_counter() - t0
     after = resource.getrusage(resource.RUSAGE_CHILDREN)
