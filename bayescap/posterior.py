@@ -188,6 +188,57 @@ class FitResult:
 
     # ----------------------------------------------------------------- diagnostics
     def _diagnose(self):
+        if self.chains.extra.get("method") == "laplace-is":
+            self._diagnose_importance()
+        else:
+            self._diagnose_mcmc()
+        f = np.median(self.draws["variance_discrepancy"])
+        if f > 0.05:
+            self.notes.append(f"the variances scatter {100 * f:.1f} % beyond their statistical error: "
+                              "the model or the measurements are inadequate (check linearity, lamp "
+                              "stability, outlier rows)")
+
+    def _diagnose_importance(self):
+        """Draws resampled from Laplace–IS (:mod:`bayescap.fast`): independent draws, so R-hat,
+        walker ESS and τ do not apply; the checks are PSIS's Pareto k̂ and the IS ESS."""
+        c = self.chains
+        x = c.extra
+        E, S, W, D = c.chain.shape
+        failed = [] if x["accepted"] else [x["reason"]]
+        self.diag = {
+            "method": "laplace-is",
+            "method_description": "Laplace approximation + Pareto-smoothed importance sampling "
+                                  f"(Student-t ν={x['nu']:g} proposal), Gamma likelihood with discrepancy",
+            "quality": self.quality,
+            "converged": bool(x["accepted"]),
+            "failed_checks": failed,
+            "rhat_max": None,              # R-hat does not apply to resampled independent draws
+            "rhat_applicable": False,
+            "ess_min": float(x["ess_is"]),
+            "rhat_target": c.settings.rhat_target,
+            "ess_target": float(x["min_ess_is"]),
+            "khat": float(x["khat"]),
+            "khat_max": float(x["khat_max"]),
+            "ess_is": float(x["ess_is"]),
+            "n_proposals": int(x["n_proposals"]),
+            "n_draws": int(S),
+            "retried_with_restarts": bool(x.get("retried_with_restarts", False)),
+            "fast_path_accepted": bool(x["accepted"]),
+            "n_ensembles": E, "n_walkers": W, "n_steps": S, "n_burn": 0, "n_rounds": 0,
+            "tau_max_steps": 1.0, "acceptance": [1.0],
+            "wall_s": c.wall_s,
+            "seed": self.seed,
+            "fast_path": (f"fast path (Laplace–IS): Pareto k̂ {x['khat']:.2f} (accept < "
+                          f"{x['khat_max']:g}), importance-sampling ESS {x['ess_is']:.0f} of "
+                          f"{x['n_proposals']} proposals (accept ≥ {x['min_ess_is']:g}); R-hat does not apply"),
+            "per_quantity": {},
+        }
+        if not x["accepted"]:
+            self.notes.insert(0, "NOT CONVERGED: the Laplace–IS fast path failed its own check ("
+                              + x["reason"] + "); do not use these intervals")
+            warnings.warn(self.notes[0], ConvergenceWarning, stacklevel=4)
+
+    def _diagnose_mcmc(self):
         c = self.chains
         E, S, W, D = c.chain.shape
         per = {}
@@ -214,7 +265,8 @@ class FitResult:
             failed.append(f"acceptance fraction {c.acceptance.min():.3f} < 0.05 in an ensemble")
         converged = not failed
         self.diag = {
-            "method": "emcee ensembles (DEMove + StretchMove), Gamma likelihood with discrepancy",
+            "method": "emcee",
+            "method_description": "emcee ensembles (DEMove + StretchMove), Gamma likelihood with discrepancy",
             "quality": self.quality,
             "converged": converged,
             "failed_checks": failed,
@@ -237,12 +289,7 @@ class FitResult:
         if not converged:
             self.notes.insert(0, "NOT CONVERGED: " + "; ".join(failed) + ". Do not use these intervals; "
                               "rerun with --quality accurate")
-            warnings.warn(self.notes[0], ConvergenceWarning, stacklevel=3)
-        f = np.median(self.draws["variance_discrepancy"])
-        if f > 0.05:
-            self.notes.append(f"the variances scatter {100 * f:.1f} % beyond their statistical error: "
-                              "the model or the measurements are inadequate (check linearity, lamp "
-                              "stability, outlier rows)")
+            warnings.warn(self.notes[0], ConvergenceWarning, stacklevel=4)
 
     # ----------------------------------------------------------------- data checks
     def _check_rows(self, n_draws=400):
