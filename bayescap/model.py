@@ -39,7 +39,7 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy.special import gammaln, ndtr
 
-from .ptc import PTCData
+from .ptc import PTCData, PTCInputError, check_not_all_saturated
 
 __all__ = ["PTCModel", "ModelTerms", "select_terms", "saturation_flags", "gamma_logpdf", "PARAMETER_INFO"]
 
@@ -136,6 +136,7 @@ def saturation_flags(d: PTCData):
     A row is fully clipped when ``frac_saturated`` ≥ 0.999, or when its mean sits at the top of
     the series and its temporal variance has collapsed below a tenth of the peak variance (a
     well that clips before the read-out keeps only read noise there)."""
+    check_not_all_saturated(d)   # every row on the plateau: an input error, not a fit
     v, m = d.temporal_var_dn2, d.mean_dn
     vmax = float(v.max())
     top = m >= m.max() - max(1.0, 1e-4 * m.max())
@@ -149,7 +150,9 @@ def saturation_flags(d: PTCData):
         full = full | (d.frac_saturated >= 0.999)
         partial = (d.frac_saturated > 0) & ~full
     if np.all(full):
-        full = np.zeros_like(full)  # nothing but plateau: leave it to the input checks
+        raise PTCInputError("every row is saturated (at the plateau's mean and variance): no row lies on "
+                            "the photon-transfer curve; add exposures below saturation",
+                            path=d.source, column="mean_dn")
     i_peak = int(np.argmax(np.where(full, -np.inf, v)))
     above = (~full) & (np.arange(v.size) > i_peak)
     turnover = bool(np.any(above & (v < 0.8 * v[i_peak])))
