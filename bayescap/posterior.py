@@ -14,7 +14,7 @@ import numpy as np
 from . import __version__
 from .capacity import (NoiseCoefficients, dynamic_range_db, mtf_loss_bits, snr_db, tonal_range,
                        N_GREY_LEVELS)
-from .fit import ChainResult, ConvergenceWarning, diagnostics
+from .fit import ChainResult, ConvergenceWarning, fast_diagnostics
 from .model import PARAMETER_INFO, PTCModel
 from .optics import default_mtf
 
@@ -242,11 +242,12 @@ class FitResult:
         c = self.chains
         E, S, W, D = c.chain.shape
         per = {}
+        cached = c.extra.get("param_diagnostics") or {}
         for j, n in enumerate(self.model.names):
-            per[n] = diagnostics(c.chain[..., j])
+            per[n] = cached[j] if j in cached else fast_diagnostics(c.chain[..., j])
         for n in ("capacity_bits", "capacity_bits_per_pixel", "tonal_range_bits"):
             if n in self.derived:
-                per[n] = diagnostics(self.derived[n].reshape(E, S, W))
+                per[n] = fast_diagnostics(self.derived[n].reshape(E, S, W))
         rhat_max = max(v["rhat"] for v in per.values())
         ess_min = min(min(v["ess_bulk"], v["ess_tail"]) for v in per.values())
         st = c.settings

@@ -191,3 +191,23 @@ def test_fit_many_gpixel_and_a_bad_sensor():
     # reproducible
     res2 = fit_many(datas, seed=4, summary_only=True, fallback=False)
     assert res2[0]["conversion_gain_e_per_dn"] == res[0]["conversion_gain_e_per_dn"]
+
+
+# ------------------------------------------------------------------------- diagnostics
+@pytest.mark.parametrize("ties", [False, True])
+def test_fast_diagnostics_equal_arviz(ties):
+    """fit.fast_diagnostics (shared rank sort) gives ArviZ's R-hat and bulk/tail ESS exactly,
+    also with the repeated values of rejected moves (ties)."""
+    from bayescap.fit import diagnostics, fast_diagnostics
+
+    rng = np.random.default_rng(7)
+    x = np.cumsum(rng.standard_normal((4, 200, 24)), axis=1) * 0.1 + rng.standard_normal((4, 200, 24))
+    x[1] += 0.05                                            # a little between-ensemble difference
+    if ties:
+        rep = rng.random(x.shape) < 0.6
+        for s in range(1, x.shape[1]):
+            x[:, s][rep[:, s]] = x[:, s - 1][rep[:, s]]
+    a, b = diagnostics(x), fast_diagnostics(x)
+    for k in ("rhat", "ess_bulk", "ess_tail"):
+        assert b[k] == pytest.approx(a[k], rel=1e-12, abs=0), (k, a, b)
+    assert a["rhat"] > 1.0 and 100 < a["ess_bulk"] < x.size
