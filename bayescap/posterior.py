@@ -113,6 +113,21 @@ class FitResult:
         self._check_rows()
         return self
 
+    @classmethod
+    def derived_draws_fn(cls, model: PTCModel, *, metadata, scene, mtf, seed):
+        """``fn(chain) -> {name: (E, S, W) draws}`` of the derived quantities whose convergence
+        :meth:`_diagnose` checks (capacity, tonal range), for :func:`bayescap.fit.run_ensembles`
+        to check them after every round."""
+        def fn(chain):
+            E, S, W, D = chain.shape
+            tmp = cls(model=model, chains=None, metadata=metadata, scene=scene, mtf=mtf, seed=seed,
+                      quality="")
+            tmp.draws = model.physical(chain.reshape(E * S * W, D))
+            tmp._derive()
+            return {n: tmp.derived[n].reshape(E, S, W)
+                    for n in ("capacity_bits", "capacity_bits_per_pixel", "tonal_range_bits") if n in tmp.derived}
+        return fn
+
     @property
     def shape_esw(self):
         E, S, W, _ = self.chains.chain.shape
@@ -247,7 +262,7 @@ class FitResult:
             per[n] = cached[j] if j in cached else fast_diagnostics(c.chain[..., j])
         for n in ("capacity_bits", "capacity_bits_per_pixel", "tonal_range_bits"):
             if n in self.derived:
-                per[n] = fast_diagnostics(self.derived[n].reshape(E, S, W))
+                per[n] = cached[n] if n in cached else fast_diagnostics(self.derived[n].reshape(E, S, W))
         rhat_max = max(v["rhat"] for v in per.values())
         ess_min = min(min(v["ess_bulk"], v["ess_tail"]) for v in per.values())
         st = c.settings
