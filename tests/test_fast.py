@@ -211,3 +211,26 @@ def test_fast_diagnostics_equal_arviz(ties):
     for k in ("rhat", "ess_bulk", "ess_tail"):
         assert b[k] == pytest.approx(a[k], rel=1e-12, abs=0), (k, a, b)
     assert a["rhat"] > 1.0 and 100 < a["ess_bulk"] < x.size
+
+
+def test_psis_weights_equal_arviz_psislw():
+    """psis_weights re-implements arviz.psislw (so the fast path does not import ArviZ): same
+    smoothed weights and k̂, for a good, a bad and a mostly-zero-weight proposal."""
+    import arviz as az
+
+    rng = np.random.default_rng(3)
+    x = stats.t(df=6).rvs(3000, random_state=rng)
+    good = stats.norm.logpdf(x) - stats.t(df=6).logpdf(x)
+    y = rng.normal(0, 0.3, 3000)
+    bad = stats.norm.logpdf(y) - stats.norm(0, 0.3).logpdf(y)
+    sparse = np.full(3000, -np.inf)
+    sparse[:100] = rng.normal(size=100)
+    for lw in (good, bad, sparse):
+        w, k, ess = psis_weights(lw)
+        top = np.max(lw[np.isfinite(lw)])
+        ref_lw, ref_k = az.psislw(np.where(np.isfinite(lw), lw - top, -800.0))
+        ref_w = np.exp(ref_lw - ref_lw.max())
+        ref_w /= ref_w.sum()
+        assert k == pytest.approx(float(ref_k), rel=1e-12, abs=1e-12)
+        np.testing.assert_allclose(w, ref_w, rtol=1e-10, atol=1e-300)
+        assert ess == pytest.approx(1.0 / np.sum(ref_w**2), rel=1e-10)
