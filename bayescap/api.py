@@ -77,35 +77,79 @@ def measured_mtf(path, *, seed: int = 0, n_boot: int = 200):
     return TabulatedMTF(freq_cy_per_px=r.freq_cy_per_px, mtf=r.mtf, samples=samples, name=f"measured:{p.name}")
 
 
-def fit(data: PTCData | str, *, seed: int | None = None, quality: str | SamplerSettings = "standard",
-        mtf=None, scene: Scene | None = None, progress: bool = False, terms=None,
-        n_jobs: int | None = None) -> FitResult:
+def fit(data: PTCData | PTCModel | str, *, seed: int | None = None,
+        quality: str | SamplerSettings = "standard", mtf=None, scene: Scene | None = None,
+        progress: bool = False, terms=None, n_jobs: int | None = None, fast_settings=None,
+        fallback: bool = True, fallback_quality: str = "fast") -> FitResult:
     """Fit the Eq. 1 noise model to photon-transfer data and propagate to capacity.
 
     Parameters
     ----------
-    data : PTCData or path to a contract CSV.
+    data : PTCData, path to a contract CSV, or a :class:`~bayescap.model.PTCModel`.
     seed : makes the run reproducible (same seed, same numbers).
-    quality : "fast", "standard", "accurate" or a :class:`SamplerSettings`.
+    quality : "fast", "standard", "accurate" or a :class:`SamplerSettings` (MCMC).
+        ``"fast"`` is the Laplace–IS path (:mod:`bayescap.fast`): MAP, refined Laplace
+        covariance, Pareto-smoothed importance sampling; when its own check fails (Pareto k̂ ≥
+        ``khat_max`` or IS ESS < ``min_ess_is``) the fit falls back to the MCMC preset
+        ``fallback_quality`` (default the short MCMC ``"fast"`` preset of
+        :data:`bayescap.fit.QUALITY_PRESETS`), and the result says so (a note,
+        ``diagnostics.fast_path``, ``diagnostics.fallback_reason``).
     mtf : an MTF component (see :mod:`bayescap.optics`); default from the metadata.
     scene : where TR/capacity are evaluated; default :func:`default_scene`.
     terms : a :class:`bayescap.model.ModelTerms` to override the data-driven term selection.
     n_jobs : processes for the independent ensembles (default: one per core; the numbers do not
         depend on it).
+    fast_settings : :class:`bayescap.fast.FastSettings` for ``quality="fast"``.
+    fallback : with ``quality="fast"``, False returns a rejected Laplace–IS result (flagged NOT
+        CONVERGED) instead of running MCMC.
     """
-    if not isinstance(data, PTCData):
-        data = load(data)
-    settings = QUALITY_PRESETS[quality] if isinstance(quality, str) else quality
-    qname = quality if isinstance(quality, str) else "custom"
-    model = PTCModel(data, terms=terms or select_terms(data))
-    chains = run_ensembles(model, settings=settings, seed=seed, progress=progress, n_jobs=n_jobs)
+    if isinstance(data, PTCModel):
+        model, data = data, data.data
+    else:
+        if not isinstance(data, PTCData):
+            data = load(data)
+        model = PTCModel(data, terms=terms or select_terms(data))
     notes: list = []
     md = {**METADATA_DEFAULTS, **data.metadata}
     defaults_used = sorted(k for k in METADATA_DEFAULTS if k not in data.metadata)
     if mtf is None:
         mtf = mtf_from_metadata(data.metadata, notes)
     scene = scene or default_scene(data)
-    res = FitResult.from_chains(model, chains, metadata=md, scene=scene, mtf=mtf, seed=seed, quality=qname)
+    kw = dict(metadata=md, scene=scene, mtf=mtf, seed=seed)
+    if isinstance(quality, str) and quality not in QUALITY_PRESETS:
+        raise ValueError(f"unknown quality {quality!r}: use one of {', '.join(QUALITY_PRESETS)}")
+    if quality == "fast":
+        from .fast import FastSettings, fast_posterior
+
+        fs = fast_settings or FastSettings()
+        chains, fd = fast_posterior(model, seed=seed, settings=fs)
+        if fd["accepted"] or not fallback:
+            res = FitResult.from_chains(model, chains, quality="fast", **kw)
+        else:
+            settings = QUALITY_PRESETS[fallback_quality]
+            mc = run_ensembles(model, settings=settings, seed=seed, progress=progress, n_jobs=n_jobs,
+                               derived_fn=FitResult.derived_draws_fn(model, **kw))
+            mc.wall_s += fd["wall_s"]          # the rejected attempt is part of the cost
+            res = FitResult.from_chains(model, mc, quality="fast", **kw)
+            res.diag.update({
+                "fast_path": (f"fast path (Laplace–IS) rejected ({fd['reason']}): fell back to MCMC, "
+                              f"preset '{fallback_quality}' ({settings.n_ensembles} ensembles, "
+                              f"ESS target {settings.ess_target:g})"),
+                "fast_path_accepted": False,
+                "fallback_reason": fd["reason"],
+                "fallback_quality": fallback_quality,
+                "fast_path_khat": fd["khat"],
+                "fast_path_ess_is": fd["ess_is"],
+                "fast_path_wall_s": fd["wall_s"],
+            })
+            res.notes.append(f"the Laplace–IS fast path was rejected ({fd['reason']}): the result comes "
+                             f"from the MCMC '{fallback_quality}' preset")
+    else:
+        settings = QUALITY_PRESETS[quality] if isinstance(quality, str) else quality
+        qname = quality if isinstance(quality, str) else "custom"
+        chains = run_ensembles(model, settings=settings, seed=seed, progress=progress, n_jobs=n_jobs,
+                               derived_fn=FitResult.derived_draws_fn(model, **kw))
+        res = FitResult.from_chains(model, chains, quality=qname, **kw)
     res.notes.extend(notes)
     if defaults_used:
         res.flags["metadata_defaults"] = defaults_used

@@ -13,7 +13,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .fast import FastSettings, fast_fit
+from .fast import FastSettings
 
 __all__ = ["fit_many", "gpixel_truths", "gpixel_sensors", "GPIXEL_CSV"]
 
@@ -21,8 +21,10 @@ GPIXEL_CSV = Path(__file__).resolve().parents[1] / "data" / "gpixel_gsprint4521"
 
 
 def _summary(res):
-    out = {"accepted": bool(res.diag.get("converged")), "khat": res.diag.get("khat"),
-           "method": res.diag.get("method", "")}
+    dg = res.diag
+    out = {"accepted": bool(dg.get("fast_path_accepted", dg.get("converged"))),   # the fast path's own check
+           "converged": bool(dg.get("converged")),                                 # of the result returned
+           "khat": dg.get("khat", dg.get("fast_path_khat")), "method": dg.get("method", "")}
     for n, x in res.draws.items():
         out[n] = tuple(float(v) for v in np.quantile(x, [0.025, 0.5, 0.975]))
     for n in ("capacity_bits", "capacity_bits_per_pixel"):
@@ -37,7 +39,7 @@ def _mtf_key(md):
 
 def _fit_chunk(args):
     datas, seeds, settings, fallback, summary_only = args
-    from .api import load, mtf_from_metadata
+    from .api import fit, load, mtf_from_metadata
     from .ptc import PTCData
 
     mtfs, out = {}, []
@@ -47,7 +49,7 @@ def _fit_chunk(args):
             key = _mtf_key(d.metadata)
             if key not in mtfs:
                 mtfs[key] = mtf_from_metadata(d.metadata)
-            r = fast_fit(d, seed=s, settings=settings, mtf=mtfs[key], fallback=fallback)
+            r = fit(d, seed=s, quality="fast", fast_settings=settings, mtf=mtfs[key], fallback=fallback)
         except Exception as e:  # one bad sensor must not stop a batch: report it
             out.append({"error": f"{type(e).__name__}: {e}"} if summary_only else e)
             continue
@@ -65,7 +67,9 @@ def fit_many(datas, *, quality: str = "fast", seed, n_jobs: int = 1, fallback: b
     quality : only ``"fast"`` is batched; other presets call :func:`bayescap.fit` per sensor.
     seed : base seed; sensor ``i`` uses an independent child of ``SeedSequence(seed)``.
     n_jobs : worker processes (1 = in this process).
-    summary_only : return per-sensor dicts ``{name: (q2.5, q50, q97.5), "accepted", "khat"}``
+    summary_only : return per-sensor dicts ``{name: (q2.5, q50, q97.5), "accepted", "converged",
+        "khat", "method"}`` (``accepted``: the Laplace–IS check passed; ``converged``: the
+        returned result, MCMC after a fallback, passed its checks)
         instead of :class:`~bayescap.posterior.FitResult` objects (smaller to pass between
         processes). A sensor whose input is refused gives ``{"error": message}`` (or the
         exception object when not ``summary_only``) instead of stopping the batch.

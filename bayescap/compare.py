@@ -79,7 +79,8 @@ DEFAULT_H0_LUX_S = 0.4
 DEFAULT_AREA = "1/4in"
 #: posterior draws kept per sensor for the comparison (thinned evenly)
 DEFAULT_N_DRAWS = 4000
-#: compare fits several sensors: the fast preset (ESS >= 200 per quantity) by default
+#: compare fits several sensors: the fast preset by default (Laplace–IS; MCMC with ESS >= 200 per
+#: quantity when its k̂ check rejects the draws)
 DEFAULT_QUALITY = "fast"
 
 

@@ -15,21 +15,22 @@ Steps (all vectorised; two ``log_prob`` calls for the importance draws):
    moments (one round of adaptive importance sampling);
 4. importance weights ``log p(x) − log q_mix(x)`` over all draws (the mixture of the two
    proposals, the balance heuristic), smoothed by PSIS (Vehtari, Simpson, Gelman, Yao & Gabry
-   2024, JMLR 25(72)) via :func:`arviz.psislw`, which also returns the Pareto shape k̂;
+   2024, JMLR 25(72)) with the algorithm of :func:`arviz.psislw` (re-implemented in
+   :func:`psis_weights`, so that the fast path does not import ArviZ), which also returns k̂;
 5. systematic resampling to ``n_draws`` equally weighted draws, shuffled.
 
 **Its own diagnostic.** k̂ below ``khat_max`` (0.7, the PSIS paper's threshold for a few
 thousand draws, ``min(1 − 1/log10 S, 0.7)``) and an importance-sampling ESS ``1/Σw²`` of at
 least ``min_ess_is`` (200). When either fails the draws must not be used: the caller falls back
-to MCMC (:func:`fast_fit` does so, with a note). ``benchmarks/speed_accuracy.py`` measures
+to MCMC (:func:`bayescap.fit` with ``quality="fast"`` does so, with a note). ``benchmarks/speed_accuracy.py`` measures
 the interval errors against long MCMC runs as a function of k̂.
 
 The draws come back as a :class:`bayescap.fit.ChainResult` with ``chain`` shaped
 ``(1, n_draws, 1, ndim)`` (one "ensemble", one "walker") and
 ``extra = {"method": "laplace-is", "khat": ..., "ess_is": ..., ...}``. R-hat and MCMC ESS do
-not apply to resampled independent draws (ArviZ returns NaN R-hat for one chain, so the default
-:meth:`FitResult._diagnose` would flag every such fit NOT CONVERGED): :class:`FastFitResult`
-replaces them by k̂ and the IS ESS.
+not apply to resampled independent draws; :meth:`bayescap.posterior.FitResult._diagnose`
+reports k̂ and the IS ESS for such chains instead. ``bayescap.fit(quality="fast")`` runs this
+path and falls back to MCMC when it is rejected.
 """
 from __future__ import annotations
 
@@ -40,13 +41,9 @@ from dataclasses import asdict, dataclass, replace
 import numpy as np
 from scipy.special import gammaln
 
-from .fit import QUALITY_PRESETS, ChainResult, find_map, laplace_covariance, run_ensembles
-from .api import METADATA_DEFAULTS, default_scene, load, mtf_from_metadata
-from .model import PTCModel, select_terms
-from .posterior import FitResult
-from .ptc import PTCData
+from .fit import QUALITY_PRESETS, ChainResult, find_map, laplace_covariance
 
-__all__ = ["FastSettings", "fast_posterior", "fast_fit", "FastFitResult", "student_t_draws",
+__all__ = ["FastSettings", "fast_posterior", "fast_fit", "student_t_draws",
            "student_t_logpdf", "psis_weights", "refine_covariance", "polish_map", "METHOD"]
 
 METHOD = "laplace-is"
@@ -188,23 +185,83 @@ def polish_map(model, x, cov, *, max_iter=30, h=0.02):
     return x, lp, cov
 
 
+def _gpdfit(x):
+    """Generalized Pareto fit of the sorted tail ``x`` (Zhang & Stephens 2009 with the weak
+    prior on k of Vehtari et al.): ArviZ 0.x's ``_gpdfit``. Returns (k, sigma)."""
+    prior_bs, prior_k = 3, 10
+    n = len(x)
+    m_est = 30 + int(n**0.5)
+    b = 1 - np.sqrt(m_est / (np.arange(1, m_est + 1, dtype=float) - 0.5))
+    b /= prior_bs * x[int(n / 4 + 0.5) - 1]
+    b += 1 / x[-1]
+    k = np.log1p(-b[:, None] * x).mean(axis=1)
+    len_scale = n * (np.log(-(b / k)) - k - 1)
+    w = 1 / np.exp(len_scale - len_scale[:, None]).sum(axis=1)
+    real = w >= 10 * np.finfo(float).eps
+    if not np.all(real):
+        w, b = w[real], b[real]
+    w /= w.sum()
+    b_post = np.sum(b * w)
+    k_post = np.log1p(-b_post * x).mean()
+    sigma = -k_post / b_post
+    k_post = (n * k_post + prior_k * 0.5) / (n + prior_k)
+    return k_post, sigma
+
+
+def _gpinv(probs, kappa, sigma):
+    """Inverse generalized Pareto CDF for probs strictly inside (0, 1) (ArviZ 0.x's ``_gpinv``)."""
+    if sigma <= 0:
+        return np.full_like(probs, np.nan)
+    if np.abs(kappa) < np.finfo(float).eps:
+        return sigma * -np.log1p(-probs)
+    return sigma * np.expm1(-kappa * np.log1p(-probs)) / kappa
+
+
+def _psislw(lw):
+    """Pareto-smoothed log weights (normalised) and k̂ of one 1-D vector: ArviZ 0.x's ``psislw``
+    (reff 1), re-implemented so that the fast path does not import ArviZ (~1 s per process)."""
+    x = np.array(lw, dtype=float)
+    n = x.size
+    cutoff_ind = -int(np.ceil(min(n / 5.0, 3 * n**0.5))) - 1
+    x -= np.max(x)
+    order = np.argsort(x)
+    xcutoff = max(x[order[cutoff_ind]], np.log(np.finfo(float).tiny))
+    expxcutoff = np.exp(xcutoff)
+    (tail,) = np.where(x > xcutoff)
+    x_tail = x[tail]
+    k = np.inf
+    if len(x_tail) > 4:
+        si = np.argsort(x_tail)
+        x_tail = np.exp(x_tail) - expxcutoff
+        k, sigma = _gpdfit(x_tail[si])
+        if np.isfinite(k):
+            sti = np.arange(0.5, len(x_tail)) / len(x_tail)
+            x[tail[si]] = np.log(_gpinv(sti, k, sigma) + expxcutoff)
+            x[x > 0] = 0
+    top = np.max(x)
+    x -= top + np.log(np.sum(np.exp(x - top)))
+    return x, k
+
+
 def psis_weights(log_w):
     """Pareto-smoothed normalised weights, k̂ and the IS effective sample size.
 
     ``log_w`` (..., n): raw log importance weights; −inf (outside the prior support) allowed.
-    Returns (w (..., n) summing to 1, k̂ (...), ESS (...)). Uses :func:`arviz.psislw`.
+    Returns (w (..., n) summing to 1, k̂ (...), ESS (...)). The same numbers as
+    :func:`arviz.psislw` (tested), without importing ArviZ.
     """
-    import arviz as az
-
     lw = np.asarray(log_w, float)
     finite = np.isfinite(lw)
     top = np.max(np.where(finite, lw, -np.inf), axis=-1, keepdims=True)
     top = np.where(np.isfinite(top), top, 0.0)
     # zero weight stays (numerically) zero after normalisation; psislw wants finite input
     lw = np.where(finite, lw - top, -800.0)
-    with warnings.catch_warnings():
+    flat = lw.reshape(-1, lw.shape[-1])
+    with warnings.catch_warnings(), np.errstate(all="ignore"):
         warnings.simplefilter("ignore")
-        lws, khat = az.psislw(lw)
+        out = [_psislw(row) for row in flat]
+    lws = np.stack([o[0] for o in out]).reshape(lw.shape)
+    khat = np.array([o[1] for o in out]).reshape(lw.shape[:-1])
     w = np.exp(lws - np.max(lws, axis=-1, keepdims=True))
     w = w / np.sum(w, axis=-1, keepdims=True)
     ess = 1.0 / np.sum(w * w, axis=-1)
@@ -321,7 +378,7 @@ def _fast_once(model, seed, n_draws, settings, x_map, cov):
     return chains, diag
 
 
-def fast_posterior(model: PTCModel, *, seed, n_draws: int | None = None,
+def fast_posterior(model, *, seed, n_draws: int | None = None,
                    settings: FastSettings = FastSettings(), x_map=None, cov=None):
     """Laplace–IS posterior draws for ``model`` (module docstring).
 
@@ -360,88 +417,15 @@ def fast_posterior(model: PTCModel, *, seed, n_draws: int | None = None,
     return chains, diag
 
 
-# --------------------------------------------------------------------------------------------
-# a FitResult from the fast path, without editing posterior.py / api.py
-# --------------------------------------------------------------------------------------------
-
-class FastFitResult(FitResult):
-    """A :class:`~bayescap.posterior.FitResult` whose draws come from Laplace–IS: the
-    MCMC diagnostics (R-hat, ESS over walkers, τ) are replaced by k̂ and the IS ESS."""
-
-    def _diagnose(self):
-        x = self.chains.extra
-        E, S, W, D = self.chains.chain.shape
-        failed = [] if x["accepted"] else [x["reason"]]
-        self.diag = {
-            "method": "Laplace approximation + Pareto-smoothed importance sampling "
-                      f"(Student-t ν={x['nu']:g} proposal), Gamma likelihood with discrepancy",
-            "quality": self.quality,
-            "converged": bool(x["accepted"]),
-            "failed_checks": failed,
-            # R-hat does not apply to resampled independent draws; 1.0 keeps the report
-            # format (report.format_text prints it as a number); see rhat_applicable
-            "rhat_max": 1.0,
-            "rhat_applicable": False,
-            "ess_min": float(x["ess_is"]),
-            "rhat_target": self.chains.settings.rhat_target,
-            "ess_target": float(x["min_ess_is"]),
-            "khat": float(x["khat"]),
-            "khat_max": float(x["khat_max"]),
-            "ess_is": float(x["ess_is"]),
-            "n_proposals": int(x["n_proposals"]),
-            "n_ensembles": E, "n_walkers": W, "n_steps": S, "n_burn": 0, "n_rounds": 0,
-            "tau_max_steps": 1.0, "acceptance": [1.0],
-            "wall_s": self.chains.wall_s,
-            "seed": self.seed,
-            "fast_path": (f"fast path (Laplace–IS): Pareto k̂ {x['khat']:.2f} (accept < "
-                          f"{x['khat_max']:g}), importance-sampling ESS {x['ess_is']:.0f} of "
-                          f"{x['n_proposals']} proposals; R-hat does not apply"),
-            "per_quantity": {},
-        }
-        if not x["accepted"]:
-            self.notes.insert(0, "NOT CONVERGED: the Laplace–IS fast path failed its own check ("
-                              + x["reason"] + "); do not use these intervals")
-        f = np.median(self.draws["variance_discrepancy"])
-        if f > 0.05:
-            self.notes.append(f"the variances scatter {100 * f:.1f} % beyond their statistical error: "
-                              "the model or the measurements are inadequate (check linearity, lamp "
-                              "stability, outlier rows)")
-
-
 def fast_fit(data_or_model, *, seed, settings: FastSettings = FastSettings(), mtf=None, scene=None,
              fallback: bool = True, fallback_quality: str = "fast", terms=None):
-    """Fit with the Laplace–IS fast path, falling back to MCMC when its check fails.
+    """``bayescap.fit(..., quality="fast")`` with explicit fast-path knobs (a thin wrapper).
 
     ``data_or_model``: a PTCData, a contract CSV path or a :class:`~bayescap.model.PTCModel`.
-    Returns a :class:`~bayescap.posterior.FitResult` (a ``FastFitResult`` when the fast path
-    was accepted; a plain MCMC ``FitResult`` with a note when it fell back). ``fallback=False``
-    returns the rejected fast result (flagged NOT CONVERGED) instead of running MCMC.
+    ``fallback=False`` returns a rejected fast result (flagged NOT CONVERGED) instead of running
+    the MCMC ``fallback_quality`` preset. See :func:`bayescap.api.fit`.
     """
-    if isinstance(data_or_model, PTCModel):
-        model = data_or_model
-        data = model.data
-    else:
-        data = data_or_model if isinstance(data_or_model, PTCData) else load(data_or_model)
-        model = PTCModel(data, terms=terms or select_terms(data))
-    notes: list = []
-    md = {**METADATA_DEFAULTS, **data.metadata}
-    defaults_used = sorted(k for k in METADATA_DEFAULTS if k not in data.metadata)
-    if mtf is None:
-        mtf = mtf_from_metadata(data.metadata, notes)
-    scene = scene or default_scene(data)
-    chains, diag = fast_posterior(model, seed=seed, settings=settings)
-    if diag["accepted"] or not fallback:
-        res = FastFitResult.from_chains(model, chains, metadata=md, scene=scene, mtf=mtf, seed=seed, quality="fast")
-    else:
-        mc = run_ensembles(model, settings=QUALITY_PRESETS[fallback_quality], seed=seed)
-        res = FitResult.from_chains(model, mc, metadata=md, scene=scene, mtf=mtf, seed=seed,
-                                    quality=fallback_quality)
-        res.diag["fast_path"] = (f"fast path (Laplace–IS) rejected ({diag['reason']}): fell back to "
-                                 f"MCMC, quality '{fallback_quality}'")
-        res.diag["fast_path_khat"] = diag["khat"]
-        res.notes.append("the Laplace–IS fast path was rejected (" + diag["reason"] + "): "
-                         "the result comes from MCMC")
-    res.notes.extend(notes)
-    if defaults_used:
-        res.flags["metadata_defaults"] = defaults_used
-    return res
+    from .api import fit
+
+    return fit(data_or_model, seed=seed, quality="fast", fast_settings=settings, mtf=mtf, scene=scene,
+               fallback=fallback, fallback_quality=fallback_quality, terms=terms)

@@ -353,9 +353,13 @@ def render_html(cmp: Comparison, *, title: str = "bayescap sensor comparison") -
                 der.append([_e(k + " (compare)"), _iv(sd[k]), _e(sd[k].get("unit", ""))])
         dg = rd["diagnostics"]
         diag = [["converged", "yes" if dg["converged"] else "<span class=warn>no</span>"],
-                ["R-hat max (target)", f"{dg['rhat_max']:.4f} (&lt; {dg['rhat_target']})"],
+                (["Pareto k̂ (target)", f"{dg['khat']:.2f} (&lt; {dg['khat_max']:g})"] if dg.get("method") == "laplace-is"
+                 else ["R-hat max (target)", f"{dg['rhat_max']:.4f} (&lt; {dg['rhat_target']})"]),
                 ["ESS min (target)", f"{dg['ess_min']:.0f} (≥ {dg['ess_target']:.0f})"],
-                ["sampler", _e(f"{dg['n_ensembles']} ensembles × {dg['n_walkers']} walkers × {dg['n_steps']} steps, "
+                ["sampler", _e(f"Laplace–IS, IS ESS {dg['ess_is']:.0f} of {dg['n_proposals']} proposals, "
+                               f"{dg['n_draws']} resampled draws, {dg['wall_s']:.1f} s, quality {dg['quality']}"
+                               if dg.get("method") == "laplace-is" else
+                               f"{dg['n_ensembles']} ensembles × {dg['n_walkers']} walkers × {dg['n_steps']} steps, "
                                f"{dg['n_rounds']} round(s), {dg['wall_s']:.1f} s, quality {dg['quality']}")],
                 ["model terms", _e(", ".join(rd["model_terms"]))],
                 ["MTF", _e(", ".join(cc.get("name", "") for cc in rd.get("mtf", {}).get("model", {}).get("components", [])))]]

@@ -39,7 +39,7 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy.special import gammaln, ndtr
 
-from .ptc import PTCData
+from .ptc import PTCData, PTCInputError, check_not_all_saturated
 
 __all__ = ["PTCModel", "ModelTerms", "select_terms", "saturation_flags", "gamma_logpdf", "PARAMETER_INFO"]
 
@@ -80,8 +80,12 @@ def gamma_logpdf(v, sigma2, k):
     kk = np.asarray(k, float)
     with np.errstate(divide="ignore"):
         stirling = 0.5 * np.log(kk) - 0.5 * _LOG_2PI - 1.0 / (12.0 * kk) + 1.0 / (360.0 * kk**3)
-    small = kk * np.log(kk) - kk - gammaln(kk)
-    bracket = np.where(kk > 10.0, stirling, small)
+    big = kk > 10.0
+    if np.all(big):      # the usual case (ν = n_pixels − 1): no lgamma needed
+        bracket = stirling
+    else:
+        small = kk * np.log(kk) - kk - gammaln(kk)
+        bracket = np.where(big, stirling, small)
     return kk * core + bracket - np.log(v)
 
 
@@ -136,6 +140,7 @@ def saturation_flags(d: PTCData):
     A row is fully clipped when ``frac_saturated`` ≥ 0.999, or when its mean sits at the top of
     the series and its temporal variance has collapsed below a tenth of the peak variance (a
     well that clips before the read-out keeps only read noise there)."""
+    check_not_all_saturated(d)   # every row on the plateau: an input error, not a fit
     v, m = d.temporal_var_dn2, d.mean_dn
     vmax = float(v.max())
     top = m >= m.max() - max(1.0, 1e-4 * m.max())
@@ -149,7 +154,9 @@ def saturation_flags(d: PTCData):
         full = full | (d.frac_saturated >= 0.999)
         partial = (d.frac_saturated > 0) & ~full
     if np.all(full):
-        full = np.zeros_like(full)  # nothing but plateau: leave it to the input checks
+        raise PTCInputError("every row is saturated (at the plateau's mean and variance): no row lies on "
+                            "the photon-transfer curve; add exposures below saturation",
+                            path=d.source, column="mean_dn")
     i_peak = int(np.argmax(np.where(full, -np.inf, v)))
     above = (~full) & (np.arange(v.size) > i_peak)
     turnover = bool(np.any(above & (v < 0.8 * v[i_peak])))
@@ -411,7 +418,9 @@ class PTCModel:
         m1 = x * Phi - ss * phi + cc * (1.0 - Phi)
         m2 = (x * x + ss * ss) * Phi - ss * phi * (x + cc) + cc * cc * (1.0 - Phi)
         var_t = np.maximum(m2 - m1 * m1, 0.0)
-        return (m1 @ _GH_W, var_t @ _GH_W, Phi @ _GH_W)
+        # node sums by reduction, not BLAS: the result of a row must not depend on how many rows
+        # are evaluated together (matmul's SIMD kernels differ in the last bit between shapes)
+        return ((m1 * _GH_W).sum(-1), (var_t * _GH_W).sum(-1), (Phi * _GH_W).sum(-1))
 
     def predict(self, th):
         """Model predictions per observation block, for draws ``th`` (n, ndim).
@@ -567,7 +576,7 @@ class PTCModel:
         Phi = ndtr(alpha)
         phi = np.exp(-0.5 * alpha * alpha) * 0.3989422804014327
         m1 = c[..., None] - (c[..., None] - x) * Phi - ss * phi
-        return m1 @ _GH_W, Phi @ _GH_W
+        return (m1 * _GH_W).sum(-1), (Phi * _GH_W).sum(-1)   # not BLAS: see _clip_moments
 
     def _latent_clip_rows(self, k, pre_var_dn2, tau, c, rows):
         """Latent unclipped row means (DN) of the clip rows: solve E[clip(μ)] = measured mean.
@@ -579,16 +588,42 @@ class PTCModel:
         m_obs = self.m[rows][None, :]
         dm = self.dm[rows][None, :]
         K = k[:, None]
-        cc = np.broadcast_to(c[:, None], pre_var_dn2.shape)
-        tt_ = np.broadcast_to(tau[:, None], pre_var_dn2.shape)
-        mu = np.broadcast_to(m_obs, pre_var_dn2.shape).copy()
-        for _ in range(30):
-            s = np.sqrt(np.maximum(mu - dm, 0.0) / K + pre_var_dn2)
-            mean, slope = self._clip_mean(mu, s, tt_, cc)
-            gap = m_obs - mean
-            if np.all(gap < 1e-6 * s):  # μ to 1e-6 of the noise: far below any measurable effect
+        shape = pre_var_dn2.shape
+        cc = np.broadcast_to(c[:, None], shape)
+        tt_ = np.broadcast_to(tau[:, None], shape)
+        mu = np.broadcast_to(m_obs, shape).copy()
+        # Newton on the elements (draw, row) not yet converged only: each stops once the clipped
+        # mean is within 1e-9 of the noise. Most elements converge in 0-2 steps (μ = measured
+        # mean, unclipped), so this costs ~1/4 of iterating the full array until every element
+        # has converged (the former rule, 1e-6 of the noise, on all elements at once), and
+        # log_prob is closer to the exact root: |Δ log p| ≤ 2e-7 vs 4e-4 before (measured
+        # against a 1e-13 solution on the bundled simulated 10-bit sensor).
+        mu_f = mu.reshape(-1)          # a view: updates land in mu
+        idx = np.arange(mu_f.size)
+        mo_a, dm_a, k_a, pre_a, tau_a, c_a = (np.broadcast_to(a, shape).ravel()
+                                              for a in (m_obs, dm, K, pre_var_dn2, tt_, cc))
+        mu_a = mu_f.copy()
+        for it in range(30):
+            s = np.sqrt(np.maximum(mu_a - dm_a, 0.0) / k_a + pre_a)
+            mean, slope = self._clip_mean(mu_a, s, tau_a, c_a)
+            gap = mo_a - mean
+            todo = ~(gap < 1e-9 * s)
+            if it == 0:
+                if not todo.any():
+                    break
+                # elements already converged at the measured mean (unclipped rows) stay there
+                idx, mu_a, mo_a, dm_a, k_a, pre_a, tau_a, c_a, gap, slope, s, todo = (
+                    a[todo] for a in (idx, mu_a, mo_a, dm_a, k_a, pre_a, tau_a, c_a, gap, slope, s, todo))
+            # the others take this step also when they have just converged: a Newton step from
+            # within the tolerance lands on the root to rounding, so the result does not depend
+            # on the iteration at which an element crossed the tolerance (nor on the batch)
+            mu_a = mu_a + np.clip(gap / np.maximum(slope, 1e-12), 0.0, 50.0 * (s + tau_a))
+            mu_f[idx] = mu_a
+            if not todo.any():
                 break
-            mu = mu + np.clip(gap / np.maximum(slope, 1e-12), 0.0, 50.0 * (s + tt_))
+            if not todo.all():   # drop the converged elements
+                idx, mu_a, mo_a, dm_a, k_a, pre_a, tau_a, c_a = (
+                    a[todo] for a in (idx, mu_a, mo_a, dm_a, k_a, pre_a, tau_a, c_a))
         s = np.sqrt(np.maximum(mu - dm, 0.0) / K + pre_var_dn2)
         mean, var, slope = self._clip_moments(mu, s, tt_, cc)
         return mu, var, slope

@@ -14,7 +14,7 @@ import numpy as np
 from . import __version__
 from .capacity import (NoiseCoefficients, dynamic_range_db, mtf_loss_bits, snr_db, tonal_range,
                        N_GREY_LEVELS)
-from .fit import ChainResult, ConvergenceWarning, diagnostics, stuck_threshold, stuck_walkers
+from .fit import ChainResult, ConvergenceWarning, fast_diagnostics, stuck_threshold, stuck_walkers
 from .model import PARAMETER_INFO, PTCModel
 from .optics import default_mtf
 
@@ -113,6 +113,21 @@ class FitResult:
         self._check_rows()
         return self
 
+    @classmethod
+    def derived_draws_fn(cls, model: PTCModel, *, metadata, scene, mtf, seed):
+        """``fn(chain) -> {name: (E, S, W) draws}`` of the derived quantities whose convergence
+        :meth:`_diagnose` checks (capacity, tonal range), for :func:`bayescap.fit.run_ensembles`
+        to check them after every round."""
+        def fn(chain):
+            E, S, W, D = chain.shape
+            tmp = cls(model=model, chains=None, metadata=metadata, scene=scene, mtf=mtf, seed=seed,
+                      quality="")
+            tmp.draws = model.physical(chain.reshape(E * S * W, D))
+            tmp._derive()
+            return {n: tmp.derived[n].reshape(E, S, W)
+                    for n in ("capacity_bits", "capacity_bits_per_pixel", "tonal_range_bits") if n in tmp.derived}
+        return fn
+
     @property
     def shape_esw(self):
         E, S, W, _ = self.chains.chain.shape
@@ -188,14 +203,66 @@ class FitResult:
 
     # ----------------------------------------------------------------- diagnostics
     def _diagnose(self):
+        if self.chains.extra.get("method") == "laplace-is":
+            self._diagnose_importance()
+        else:
+            self._diagnose_mcmc()
+        f = np.median(self.draws["variance_discrepancy"])
+        if f > 0.05:
+            self.notes.append(f"the variances scatter {100 * f:.1f} % beyond their statistical error: "
+                              "the model or the measurements are inadequate (check linearity, lamp "
+                              "stability, outlier rows)")
+
+    def _diagnose_importance(self):
+        """Draws resampled from Laplace–IS (:mod:`bayescap.fast`): independent draws, so R-hat,
+        walker ESS and τ do not apply; the checks are PSIS's Pareto k̂ and the IS ESS."""
+        c = self.chains
+        x = c.extra
+        E, S, W, D = c.chain.shape
+        failed = [] if x["accepted"] else [x["reason"]]
+        self.diag = {
+            "method": "laplace-is",
+            "method_description": "Laplace approximation + Pareto-smoothed importance sampling "
+                                  f"(Student-t ν={x['nu']:g} proposal), Gamma likelihood with discrepancy",
+            "quality": self.quality,
+            "converged": bool(x["accepted"]),
+            "failed_checks": failed,
+            "rhat_max": None,              # R-hat does not apply to resampled independent draws
+            "rhat_applicable": False,
+            "ess_min": float(x["ess_is"]),
+            "rhat_target": c.settings.rhat_target,
+            "ess_target": float(x["min_ess_is"]),
+            "khat": float(x["khat"]),
+            "khat_max": float(x["khat_max"]),
+            "ess_is": float(x["ess_is"]),
+            "n_proposals": int(x["n_proposals"]),
+            "n_draws": int(S),
+            "retried_with_restarts": bool(x.get("retried_with_restarts", False)),
+            "fast_path_accepted": bool(x["accepted"]),
+            "n_ensembles": E, "n_walkers": W, "n_steps": S, "n_burn": 0, "n_rounds": 0,
+            "tau_max_steps": 1.0, "acceptance": [1.0],
+            "wall_s": c.wall_s,
+            "seed": self.seed,
+            "fast_path": (f"fast path (Laplace–IS): Pareto k̂ {x['khat']:.2f} (accept < "
+                          f"{x['khat_max']:g}), importance-sampling ESS {x['ess_is']:.0f} of "
+                          f"{x['n_proposals']} proposals (accept ≥ {x['min_ess_is']:g}); R-hat does not apply"),
+            "per_quantity": {},
+        }
+        if not x["accepted"]:
+            self.notes.insert(0, "NOT CONVERGED: the Laplace–IS fast path failed its own check ("
+                              + x["reason"] + "); do not use these intervals")
+            warnings.warn(self.notes[0], ConvergenceWarning, stacklevel=4)
+
+    def _diagnose_mcmc(self):
         c = self.chains
         E, S, W, D = c.chain.shape
         per = {}
+        cached = c.extra.get("param_diagnostics") or {}
         for j, n in enumerate(self.model.names):
-            per[n] = diagnostics(c.chain[..., j])
+            per[n] = cached[j] if j in cached else fast_diagnostics(c.chain[..., j])
         for n in ("capacity_bits", "capacity_bits_per_pixel", "tonal_range_bits"):
             if n in self.derived:
-                per[n] = diagnostics(self.derived[n].reshape(E, S, W))
+                per[n] = cached[n] if n in cached else fast_diagnostics(self.derived[n].reshape(E, S, W))
         rhat_max = max(v["rhat"] for v in per.values())
         ess_min = min(min(v["ess_bulk"], v["ess_tail"]) for v in per.values())
         st = c.settings
@@ -220,7 +287,8 @@ class FitResult:
                           "the mode")
         converged = not failed
         self.diag = {
-            "method": "emcee ensembles (DEMove + StretchMove), Gamma likelihood with discrepancy",
+            "method": "emcee",
+            "method_description": "emcee ensembles (DEMove + StretchMove), Gamma likelihood with discrepancy",
             "quality": self.quality,
             "converged": converged,
             "failed_checks": failed,
@@ -245,12 +313,7 @@ class FitResult:
         if not converged:
             self.notes.insert(0, "NOT CONVERGED: " + "; ".join(failed) + ". Do not use these intervals; "
                               "rerun with --quality accurate")
-            warnings.warn(self.notes[0], ConvergenceWarning, stacklevel=3)
-        f = np.median(self.draws["variance_discrepancy"])
-        if f > 0.05:
-            self.notes.append(f"the variances scatter {100 * f:.1f} % beyond their statistical error: "
-                              "the model or the measurements are inadequate (check linearity, lamp "
-                              "stability, outlier rows)")
+            warnings.warn(self.notes[0], ConvergenceWarning, stacklevel=4)
 
     # ----------------------------------------------------------------- data checks
     def _check_rows(self, n_draws=400):

@@ -101,7 +101,8 @@ def ds_reference(mtf):
 
 def propagation_timing(n_draws=10_000, repeat=7):
     import bayescap
-    from bayescap.fast import FastFitResult, fast_posterior
+    from bayescap.fast import fast_posterior
+    from bayescap.posterior import FitResult
     from bayescap.model import PTCModel
 
     d = bayescap.load(Path(__file__).resolve().parents[1] / "data" / "emva1288_basler_ccd12.csv")
@@ -109,9 +110,9 @@ def propagation_timing(n_draws=10_000, repeat=7):
     ch, _ = fast_posterior(m, seed=1, n_draws=n_draws)
     from bayescap.api import METADATA_DEFAULTS, mtf_from_metadata
 
-    res = FastFitResult.from_chains(m, ch, metadata={**METADATA_DEFAULTS, **d.metadata},
-                                    scene=bayescap.default_scene(d), mtf=mtf_from_metadata(d.metadata),
-                                    seed=1, quality="fast")
+    res = FitResult.from_chains(m, ch, metadata={**METADATA_DEFAULTS, **d.metadata},
+                                scene=bayescap.default_scene(d), mtf=mtf_from_metadata(d.metadata),
+                                seed=1, quality="fast")
     flat = ch.chain.reshape(-1, m.ndim)
     best_phys = np.inf
     for _ in range(repeat):

@@ -9,7 +9,7 @@ can inform them) or a clear error — never NaN, inf, a warning storm or a crash
 The Laplace–IS fast path runs without its MCMC fallback so that the file stays fast; where its
 own check rejects the draws, the test checks that the result says so (``converged`` False, a
 NOT CONVERGED note) and that the numbers are still finite and near the truth. Two cases also run
-``bayescap.fit(quality="fast")`` (MCMC), marked slow.
+the short MCMC preset (``QUALITY_PRESETS["fast"]``, the fast path's fallback), marked slow.
 """
 import warnings
 
@@ -18,6 +18,7 @@ import pytest
 
 import bayescap
 from bayescap.fast import fast_fit
+from bayescap.fit import QUALITY_PRESETS
 from bayescap.optics import DiffractionLens, MTFProduct, PixelAperture
 from bayescap.ptc import PTCInputError
 from bayescap.report import format_text
@@ -129,32 +130,52 @@ def test_mtf_zero_inside_the_band():
         fast_fit(d, seed=1, mtf=lambda f: np.zeros_like(np.asarray(f, float)), fallback=False)
 
 
-@pytest.mark.xfail(strict=True, reason=(
-    "every row at the ADC maximum (frac_saturated = 1, variance 0): model.saturation_flags sets all "
-    "rows fully clipped, then resets them to none ('leave it to the input checks'), but "
-    "ptc._check_consistency has no such check; PTCModel floors the zero variances at 1e-6 DN² and "
-    "fits them: K = 105 e-/DN for a true 1.0 (the fast path's k̂ 1.7 rejects it, but nothing "
-    "tells the user the input is unusable)"))
-def test_all_rows_saturated_adc_is_a_clear_input_error():
-    """The ADC clips first: every row sits at the ADC maximum with no variance."""
-    truth = T(1.0, 5.0, 1e5, adc_bits=12)
+def _all_saturated(truth):
     ph = np.linspace(2, 3, 10) * truth.clip_charge_e / truth.quantum_efficiency
-    d = simulate_ptc(truth, photons_per_pixel=ph, exposure_time_s=0.01, shape=(32, 32), seed=1)
-    with pytest.raises(PTCInputError, match="satur"):
-        fast_fit(d, seed=1, fallback=False)
+    return simulate_ptc(truth, photons_per_pixel=ph, exposure_time_s=0.01, shape=(32, 32), seed=1)
 
 
-@pytest.mark.xfail(strict=True, reason=(
-    "model.saturation_flags resets `full` to all-False when every row is on the plateau "
-    "('leave it to the input checks'), but ptc._check_consistency has no such check: the plateau "
-    "of a well that clips before the ADC (mean ≈ const, variance = read noise only) is fitted as "
-    "photon-transfer data and K comes out 3.7x too high with a 95 % interval excluding the truth"))
-def test_all_rows_saturated_well_is_a_clear_input_error():
-    truth = T(2.0, 5.0, 8000, adc_bits=12)   # the well (8000 e-) clips before the ADC (8062 e-)
-    ph = np.linspace(2, 3, 10) * truth.clip_charge_e / truth.quantum_efficiency
-    d = simulate_ptc(truth, photons_per_pixel=ph, exposure_time_s=0.01, shape=(32, 32), seed=1)
-    with pytest.raises(PTCInputError, match="satur"):
+# the ADC clips first: every row sits at the ADC maximum with no variance; or the well (8000 e-)
+# clips before the ADC (8062 e-): the plateau keeps the read noise, means do not move
+ALL_SATURATED = {"adc": T(1.0, 5.0, 1e5, adc_bits=12), "well": T(2.0, 5.0, 8000, adc_bits=12)}
+
+
+@pytest.mark.parametrize("mechanism", list(ALL_SATURATED))
+def test_all_rows_saturated_is_a_clear_input_error(mechanism, tmp_path, capsys):
+    """Before: K came out 105x (ADC) or 3.7x (well) off with no input error. Now refused from
+    the API (in-memory data and PTCModel), and by the CLI with exit status 2, one line, nothing written."""
+    from bayescap.cli import main
+    from bayescap.model import PTCModel
+    from bayescap.ptc import write_ptc_csv
+
+    d = _all_saturated(ALL_SATURATED[mechanism])
+    with pytest.raises(PTCInputError, match="every row is saturated") as e:
         fast_fit(d, seed=1, fallback=False)
+    assert isinstance(e.value, ValueError) and e.value.column in ("mean_dn", "frac_saturated")
+    with pytest.raises(PTCInputError, match="every row is saturated"):
+        PTCModel(d)
+    with pytest.raises(PTCInputError, match="every row is saturated"):
+        bayescap.fit(d, seed=1, quality="standard")
+    csv = tmp_path / "sat.csv"
+    write_ptc_csv(d, csv)
+    out = tmp_path / "out"
+    with pytest.raises(PTCInputError, match="every row is saturated"):
+        bayescap.load(csv)
+    assert main(["fit", str(csv), "--quality", "fast", "--out", str(out)]) == 2
+    err = capsys.readouterr().err.strip()
+    assert err.count("\n") == 0 and "sat.csv" in err and "column" in err and "every row is saturated" in err
+    assert not out.exists()
+
+
+def test_one_unsaturated_row_is_not_refused():
+    """The check is for *every* row: a series with rows below saturation is fitted as before."""
+    truth = ALL_SATURATED["well"]
+    ph = np.concatenate([[0.3, 0.6], np.linspace(2, 3, 8)]) * truth.clip_charge_e / truth.quantum_efficiency
+    d = simulate_ptc(truth, photons_per_pixel=ph, exposure_time_s=0.01, shape=(32, 32), seed=1)
+    from bayescap.model import PTCModel
+
+    m = PTCModel(d)
+    assert m.terms.clip != "none" and m.full_sat.sum() >= 1
 
 
 @pytest.mark.slow
@@ -164,7 +185,7 @@ def test_mcmc_fast_preset_at_the_extremes(case):
     d = simulate(truth, opt)
     with warnings.catch_warnings(record=True) as w:
         warnings.simplefilter("always")
-        r = bayescap.fit(d, seed=1, quality="fast")
+        r = bayescap.fit(d, seed=1, quality=QUALITY_PRESETS["fast"])   # the MCMC preset itself
     assert _all_finite(r) == []
     assert len(w) <= 3, [str(x.message)[:120] for x in w]
     k = r.to_dict()["parameters"]["conversion_gain_e_per_dn"]

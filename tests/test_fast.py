@@ -9,8 +9,8 @@ import pytest
 from scipy import stats
 
 import bayescap
-from bayescap.fast import (FastFitResult, FastSettings, fast_fit, fast_posterior, psis_weights,
-                           student_t_draws, student_t_logpdf)
+from bayescap.fast import (FastSettings, fast_fit, fast_posterior, psis_weights, student_t_draws,
+                           student_t_logpdf)
 from bayescap.fit import ConvergenceWarning
 from bayescap.posterior import FitResult
 from bayescap.report import format_text
@@ -87,7 +87,7 @@ def test_fast_posterior_recovers_a_known_gaussian():
 
 @pytest.fixture(scope="module")
 def basler_fast(basler_csv):
-    return fast_fit(basler_csv, seed=2, fallback=False)
+    return bayescap.fit(basler_csv, seed=2, quality="fast", fallback=False)
 
 
 def test_fast_fit_basler(basler_fast):
@@ -97,37 +97,59 @@ def test_fast_fit_basler(basler_fast):
     k = d["parameters"]["conversion_gain_e_per_dn"]["median"]
     assert abs(k / 3.571 - 1) < 0.02                 # emva1288 1.0.2 reference value
     dg = d["diagnostics"]
+    assert dg["method"] == "laplace-is" and dg["quality"] == "fast"
     assert {"khat", "ess_is", "fast_path", "converged"} <= set(dg)
+    assert dg["rhat_max"] is None and dg["rhat_applicable"] is False
     assert dg["converged"] == (dg["khat"] < dg["khat_max"] and dg["ess_is"] >= dg["ess_target"])
+    assert dg["converged"], dg                      # the Basler set is accepted by its own check
     txt = format_text(r)
-    assert "fast path (Laplace–IS)" in txt and "capacity C =" in txt
+    assert f"Pareto k̂ {dg['khat']:.2f}" in txt and "capacity C =" in txt
 
 
-def test_default_diagnose_on_fast_chains_reports_nan_rhat(basler_csv, basler_fast):
-    """What posterior.FitResult._diagnose does with a (1, S, 1, D) chain: one chain, so ArviZ
-    returns NaN R-hat and the fit is flagged NOT CONVERGED (the reason posterior.py needs a
-    branch for method 'laplace-is')."""
+def test_fast_fit_wrapper_and_api_give_the_same_numbers(basler_csv, basler_fast):
+    """fast.fast_fit is a thin wrapper over bayescap.fit(quality="fast"): same seed, same draws."""
+    r = fast_fit(basler_csv, seed=2, fallback=False)
+    np.testing.assert_array_equal(r.chains.chain, basler_fast.chains.chain)
+    assert r.to_dict()["derived"]["capacity_bits"] == basler_fast.to_dict()["derived"]["capacity_bits"]
+    r3 = bayescap.fit(basler_csv, seed=3, quality="fast", fallback=False)
+    assert not np.array_equal(r3.chains.chain, basler_fast.chains.chain)
+
+
+def test_plain_fitresult_diagnoses_fast_chains(basler_fast):
+    """posterior.FitResult itself (no subclass) reports k̂ and IS ESS for Laplace–IS chains."""
     r = basler_fast
-    with pytest.warns(ConvergenceWarning):
-        plain = FitResult.from_chains(r.model, r.chains, metadata=r.metadata, scene=r.scene, mtf=r.mtf,
-                                      seed=2, quality="fast")
-    assert not plain.diag["converged"]
-    assert np.isnan(plain.diag["rhat_max"])
+    again = FitResult.from_chains(r.model, r.chains, metadata=r.metadata, scene=r.scene, mtf=r.mtf,
+                                  seed=2, quality="fast")
+    assert again.diag["method"] == "laplace-is"
+    assert again.diag["khat"] == r.chains.extra["khat"] and again.diag["converged"]
 
 
 def test_fast_fit_rejection_is_flagged_without_fallback(basler_csv):
-    r = fast_fit(basler_csv, seed=2, fallback=False, settings=FastSettings(khat_max=-1.0))
-    assert isinstance(r, FastFitResult)
+    with pytest.warns(ConvergenceWarning):
+        r = fast_fit(basler_csv, seed=2, fallback=False, settings=FastSettings(khat_max=-1.0))
+    assert r.diag["method"] == "laplace-is" and r.diag["fast_path_accepted"] is False
     assert not r.diag["converged"] and r.notes[0].startswith("NOT CONVERGED")
+    assert "NOT CONVERGED" in format_text(r)
 
 
 @pytest.mark.slow
 def test_fast_fit_falls_back_to_mcmc(basler_csv):
-    r = fast_fit(basler_csv, seed=2, settings=FastSettings(khat_max=-1.0, retry_restarts=0))
-    assert not isinstance(r, FastFitResult)
-    assert "fell back to MCMC" in r.diag["fast_path"]
+    r = bayescap.fit(basler_csv, seed=2, quality="fast",
+                     fast_settings=FastSettings(khat_max=-1.0, retry_restarts=0))
+    assert r.diag["method"] == "emcee" and r.diag["quality"] == "fast"
+    assert "fell back to MCMC" in r.diag["fast_path"] and "preset 'fast'" in r.diag["fast_path"]
+    assert r.diag["fast_path_accepted"] is False and "k̂" in r.diag["fallback_reason"]
     assert any("Laplace–IS fast path was rejected" in n for n in r.notes)
     assert r.diag["n_ensembles"] >= 2
+
+
+def test_cli_quality_fast_runs_the_fast_path(basler_csv, capsys):
+    from bayescap.cli import main
+
+    assert main(["fit", str(basler_csv), "--quality", "fast", "--seed", "2", "--json"]) == 0
+    d = json.loads(capsys.readouterr().out)
+    assert d["diagnostics"]["method"] == "laplace-is" and d["diagnostics"]["quality"] == "fast"
+    assert d["diagnostics"]["khat"] < 0.7
 
 
 # ------------------------------------------------------------------------- moves
@@ -169,3 +191,46 @@ def test_fit_many_gpixel_and_a_bad_sensor():
     # reproducible
     res2 = fit_many(datas, seed=4, summary_only=True, fallback=False)
     assert res2[0]["conversion_gain_e_per_dn"] == res[0]["conversion_gain_e_per_dn"]
+
+
+# ------------------------------------------------------------------------- diagnostics
+@pytest.mark.parametrize("ties", [False, True])
+def test_fast_diagnostics_equal_arviz(ties):
+    """fit.fast_diagnostics (shared rank sort) gives ArviZ's R-hat and bulk/tail ESS exactly,
+    also with the repeated values of rejected moves (ties)."""
+    from bayescap.fit import diagnostics, fast_diagnostics
+
+    rng = np.random.default_rng(7)
+    x = np.cumsum(rng.standard_normal((4, 200, 24)), axis=1) * 0.1 + rng.standard_normal((4, 200, 24))
+    x[1] += 0.05                                            # a little between-ensemble difference
+    if ties:
+        rep = rng.random(x.shape) < 0.6
+        for s in range(1, x.shape[1]):
+            x[:, s][rep[:, s]] = x[:, s - 1][rep[:, s]]
+    a, b = diagnostics(x), fast_diagnostics(x)
+    for k in ("rhat", "ess_bulk", "ess_tail"):
+        assert b[k] == pytest.approx(a[k], rel=1e-12, abs=0), (k, a, b)
+    assert a["rhat"] > 1.0 and 100 < a["ess_bulk"] < x.size
+
+
+def test_psis_weights_equal_arviz_psislw():
+    """psis_weights re-implements arviz.psislw (so the fast path does not import ArviZ): same
+    smoothed weights and k̂, for a good, a bad and a mostly-zero-weight proposal."""
+    import arviz as az
+
+    rng = np.random.default_rng(3)
+    x = stats.t(df=6).rvs(3000, random_state=rng)
+    good = stats.norm.logpdf(x) - stats.t(df=6).logpdf(x)
+    y = rng.normal(0, 0.3, 3000)
+    bad = stats.norm.logpdf(y) - stats.norm(0, 0.3).logpdf(y)
+    sparse = np.full(3000, -np.inf)
+    sparse[:100] = rng.normal(size=100)
+    for lw in (good, bad, sparse):
+        w, k, ess = psis_weights(lw)
+        top = np.max(lw[np.isfinite(lw)])
+        ref_lw, ref_k = az.psislw(np.where(np.isfinite(lw), lw - top, -800.0))
+        ref_w = np.exp(ref_lw - ref_lw.max())
+        ref_w /= ref_w.sum()
+        assert k == pytest.approx(float(ref_k), rel=1e-12, abs=1e-12)
+        np.testing.assert_allclose(w, ref_w, rtol=1e-10, atol=1e-300)
+        assert ess == pytest.approx(1.0 / np.sum(ref_w**2), rel=1e-10)

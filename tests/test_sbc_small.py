@@ -57,20 +57,15 @@ QUANTITIES = ["conversion_gain_e_per_dn", "read_noise_e", "dark_current_e_per_s"
               "quantum_efficiency", "prnu_percent", "dsnu_e", "capacity_bits"]
 
 
-FULL_WELL_XFAIL = pytest.mark.xfail(strict=True, reason=(
-    "posterior too WIDE, not biased: full-well ranks over the 30 sensors avoid the extremes "
-    "(none below 14 or above 94 of 0..99; bins [4, 16, 4, 6], exact p = 0.005; 95 % coverage "
-    "30/30, 68 % 24/30, 50 % 17/30). Full well = (clip − black)·K, so it inherits K's ranks "
-    "(K: [4, 15, 5, 6], p = 0.017; QE p = 0.043, same pattern). Cause not fully established: the "
-    "simulated variances carry no systematics (f = 0) while the variance-discrepancy prior is "
-    "log-normal around f = 1 %; refitting with that prior moved to 0.01 % narrowed K's interval by "
-    "5 % on test sensor 5 and by 52 % on test sensor 3 (posterior f median only 0.2 % in both), so "
-    "the f prior drives part of it, perhaps through the sampler. Conservative; details in "
-    "docs/calibration.md"))
+# Full well (and K, QE) were recorded as a strict xfail: posterior too WIDE, not biased — ranks
+# over the 30 sensors avoided the extremes (bins [4, 16, 4, 6], exact p = 0.005; 95 % coverage
+# 30/30). With the standard preset of 2026-11-22 (ESS >= 1000, burn-in 50; different draws of the
+# same posterior) the same sample gives bins [5, 14, 6, 5], p = 0.059, lowest rank 15 of 0..99
+# (K and QE give the same bins): the same pattern, no longer significant at ALPHA = 1 %. Not a fix of the
+# cause (docs/calibration.md); the marker was removed because the strict xfail XPASSed.
 
 
-@pytest.mark.parametrize("name", [pytest.param(q, marks=FULL_WELL_XFAIL) if q == "full_well_e" else q
-                                  for q in QUANTITIES])
+@pytest.mark.parametrize("name", QUANTITIES)
 def test_rank_uniformity(sbc_records, name):
     sbc = _bench()
     recs = [r for r in sbc_records if name in r["q"]]
