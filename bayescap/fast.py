@@ -41,7 +41,8 @@ from dataclasses import asdict, dataclass, replace
 import numpy as np
 from scipy.special import gammaln
 
-from .fit import QUALITY_PRESETS, ChainResult, find_map, laplace_covariance
+from .fit import (QUALITY_PRESETS, ChainResult, _proposal_cov, find_map, laplace_covariance, laplace_start,
+                  polish_map, refine_covariance)
 
 __all__ = ["FastSettings", "fast_posterior", "fast_fit", "student_t_draws",
            "student_t_logpdf", "psis_weights", "refine_covariance", "polish_map", "METHOD"]
@@ -95,94 +96,6 @@ def student_t_logpdf(x, mean, cov, nu):
     logdet = 2.0 * np.sum(np.log(np.diag(L)))
     return (gammaln(0.5 * (nu + d)) - gammaln(0.5 * nu) - 0.5 * d * np.log(nu * np.pi)
             - 0.5 * logdet - 0.5 * (nu + d) * np.log1p(maha / nu))
-
-
-class _Whitened:
-    """``log_prob`` in coordinates ``y`` with ``x = x0 + L y`` (for a well-conditioned Hessian)."""
-
-    def __init__(self, model, x0, L):
-        self.model, self.x0, self.L, self.ndim = model, x0, L, model.ndim
-
-    def log_prob(self, y):
-        with np.errstate(all="ignore"):
-            return self.model.log_prob(self.x0 + np.atleast_2d(y) @ self.L.T)
-
-
-def refine_covariance(model, x_map, cov, *, max_iter=6, alpha=4.0, h=0.05):
-    """Re-evaluate the Laplace covariance in whitened coordinates until it is self-consistent.
-
-    :func:`bayescap.fit.laplace_covariance` differentiates with steps of 1e-4 (relative) in the
-    raw coordinates, floors the Hessian's eigenvalues at 1e-8 of the largest and caps every sd
-    at 1. With a condition number ~1e11 (the saturation plateau ties gain and clip level) the
-    floor narrows the weakly identified directions (log f, log g, log D: sd stuck near 0.26),
-    the small steps pick up the ~1e-5 jitter of ``log_prob`` (the latent-mean Newton iteration
-    stops at a tolerance), which inflated the gain's sd up to 20× on clipped sensors, and a MAP
-    within one step of a bound (the clip level at its lower bound) makes the Hessian non-finite,
-    whereupon it returns ``diag(1e-4)`` (measured: ``benchmarks/speed_accuracy.py``).
-
-    Here the Hessian is taken again in ``y = (x − x_map)/(α L)``, ``L`` the Cholesky factor of
-    the current estimate, with steps ``h`` (0.05·α = 0.2 sd; ten and a hundred times smaller
-    when the stencil leaves the support). There it is well conditioned and far above the
-    jitter, and ``laplace_covariance``'s cap becomes α times the current sd. Iterates until the
-    whitened Hessian is the identity to ±25 % (every direction consistent with the estimate)
-    or ``max_iter``.
-    """
-    n = x_map.size
-    c = _proposal_cov(cov, 1.0) if np.all(np.isfinite(cov)) else np.eye(n) * 1e-4
-    failed = np.diag(np.full(n, 1e-4))
-    for _ in range(max_iter):
-        L = alpha * np.linalg.cholesky(c)
-        w = _Whitened(model, x_map, L)
-        for hh in (h, 0.1 * h, 0.01 * h):
-            with np.errstate(all="ignore"):
-                cy = laplace_covariance(w, np.zeros(n), h=hh)
-            if not np.array_equal(cy, failed):
-                break
-        else:
-            break
-        c_new = _proposal_cov(L @ cy @ L.T, 1.0)
-        if not np.all(np.isfinite(c_new)):
-            break
-        c = c_new
-        ev = np.linalg.eigvalsh(0.5 * (cy + cy.T)) * alpha * alpha
-        if ev.min() > 0.8 and ev.max() < 1.25:
-            break
-    return c
-
-
-def polish_map(model, x, cov, *, max_iter=30, h=0.02):
-    """Gradient ascent in whitened coordinates from ``x`` (a MAP estimate) with covariance ``cov``.
-
-    :func:`bayescap.fit.find_map` (BFGS on central differences with 1e-5 relative steps) can
-    stop at its starting point when ``log_prob`` jitters at the 1e-5–1e-4 level (the
-    latent-mean Newton iteration stops at a tolerance): measured on a simulated 12-bit sensor,
-    it returned the initial guess 115 below the maximum in log posterior. Here the gradient is
-    taken with steps of ``h`` posterior sd along the Cholesky axes of ``cov`` (far above the
-    jitter), and a line search over 15 step lengths runs in one vectorised call; the covariance
-    is refreshed by one :func:`refine_covariance` iteration per step. When ``x`` is already the
-    maximum this costs two ``log_prob`` calls. Returns (x, log_prob(x), cov).
-    """
-    n = x.size
-    with np.errstate(all="ignore"):
-        lp = float(model.log_prob(x[None])[0])
-    ts = np.concatenate([2.0 ** -np.arange(0, 12), [1.5, 2.0, 3.0]])
-    for _ in range(max_iter):
-        L = np.linalg.cholesky(cov)
-        E = h * L.T
-        with np.errstate(all="ignore"):
-            v = model.log_prob(np.vstack([x + E, x - E]))
-            g = (v[:n] - v[n:]) / (2 * h)
-        g = np.where(np.isfinite(g), g, 0.0)
-        cand = x + (ts[:, None] * g[None, :]) @ L.T
-        with np.errstate(all="ignore"):
-            lc = model.log_prob(cand)
-        lc = np.where(np.isfinite(lc), lc, -np.inf)
-        j = int(np.argmax(lc))
-        if not lc[j] > lp + 1e-6:
-            break
-        x, lp = cand[j], float(lc[j])
-        cov = refine_covariance(model, x, cov, max_iter=1)
-    return x, lp, cov
 
 
 def _gpdfit(x):
@@ -276,30 +189,22 @@ def _systematic_resample(w, n, rng):
     return np.searchsorted(c, pos, side="left")
 
 
-def _proposal_cov(cov, scale):
-    cov = 0.5 * (cov + cov.T)
-    w, V = np.linalg.eigh(cov)
-    w = np.maximum(w, 1e-14 * max(w.max(), 1e-300))
-    return (V * (w * scale * scale)) @ V.T
-
-
 def _fast_once(model, seed, n_draws, settings, x_map, cov):
     t0 = time.perf_counter()
-    if x_map is None:
-        x_map, lp_map = find_map(model, n_restarts=settings.n_restarts)
+    if x_map is None and cov is None:
+        x_map, lp_map, cov, t_map = laplace_start(model, n_restarts=settings.n_restarts,
+                                                  refine_iter=settings.refine_iter, polish=settings.polish)
+        t_map += t0
     else:
-        x_map = np.asarray(x_map, float)
-        lp_map = float(model.log_prob(x_map[None])[0])
-    t_map = time.perf_counter()
-    if cov is None:
-        with np.errstate(all="ignore"):   # the Hessian stencil may leave the prior support
+        if x_map is None:
+            x_map, lp_map = find_map(model, n_restarts=settings.n_restarts)
+        else:
+            x_map = np.asarray(x_map, float)
+            lp_map = float(model.log_prob(x_map[None])[0])
+        t_map = time.perf_counter()
+        if cov is None:
             cov = laplace_covariance(model, x_map)
-        cov = refine_covariance(model, x_map, cov, max_iter=settings.refine_iter)
-        if settings.polish:
-            x_pol, lp_pol, cov_pol = polish_map(model, x_map, cov)
-            if lp_pol > lp_map + 1e-6:
-                x_map, lp_map = x_pol, lp_pol
-                cov = refine_covariance(model, x_map, cov_pol, max_iter=settings.refine_iter)
+            cov = refine_covariance(model, x_map, cov, max_iter=settings.refine_iter)
     t_lap = time.perf_counter()
     rng = np.random.default_rng(np.random.SeedSequence(seed).spawn(1)[0])
     nu = settings.nu
