@@ -14,7 +14,7 @@ import numpy as np
 from . import __version__
 from .capacity import (NoiseCoefficients, dynamic_range_db, mtf_loss_bits, snr_db, tonal_range,
                        N_GREY_LEVELS)
-from .fit import ChainResult, ConvergenceWarning, diagnostics
+from .fit import ChainResult, ConvergenceWarning, diagnostics, stuck_threshold, stuck_walkers
 from .model import PARAMETER_INFO, PTCModel
 from .optics import default_mtf
 
@@ -212,6 +212,12 @@ class FitResult:
                           f"({tau_max:.1f} steps)")
         if not np.all(c.acceptance > 0.05):
             failed.append(f"acceptance fraction {c.acceptance.min():.3f} < 0.05 in an ensemble")
+        # walkers stranded far below the mode (fit.stuck_walkers): their draws are not posterior draws
+        lp_w = np.transpose(c.log_prob, (1, 0, 2)).reshape(S, E * W)
+        n_stuck = int(np.sum(stuck_walkers(lp_w, D)))
+        if n_stuck:
+            failed.append(f"{n_stuck} of {E * W} walkers stuck more than {stuck_threshold(D):.0f} nats below "
+                          "the mode")
         converged = not failed
         self.diag = {
             "method": "emcee ensembles (DEMove + StretchMove), Gamma likelihood with discrepancy",
@@ -230,6 +236,8 @@ class FitResult:
             "n_rounds": c.n_rounds,
             "tau_max_steps": tau_max,
             "acceptance": [float(a) for a in c.acceptance],
+            "walkers_stuck": n_stuck,
+            "walkers_reset_in_burn_in": c.extra.get("walkers_reset"),
             "wall_s": c.wall_s,
             "seed": self.seed,
             "per_quantity": per,
