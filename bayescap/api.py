@@ -68,7 +68,7 @@ def measured_mtf(path, *, seed: int = 0, n_boot: int = 200):
 
 def fit(data: PTCData | str, *, seed: int | None = None, quality: str | SamplerSettings = "standard",
         mtf=None, scene: Scene | None = None, progress: bool = False, terms=None,
-        n_jobs: int | None = None) -> FitResult:
+        n_jobs: int | None = None, prior: dict | None = None) -> FitResult:
     """Fit the Eq. 1 noise model to photon-transfer data and propagate to capacity.
 
     Parameters
@@ -81,12 +81,14 @@ def fit(data: PTCData | str, *, seed: int | None = None, quality: str | SamplerS
     terms : a :class:`bayescap.model.ModelTerms` to override the data-driven term selection.
     n_jobs : processes for the independent ensembles (default: one per core; the numbers do not
         depend on it).
+    prior : overrides of :attr:`bayescap.model.PTCModel.PRIOR` (e.g. ``{"read_log_bounds": (1, 20)}``
+        for a log-uniform read-noise prior on 1–20 e⁻); default: the documented production priors.
     """
     if not isinstance(data, PTCData):
         data = load(data)
     settings = QUALITY_PRESETS[quality] if isinstance(quality, str) else quality
     qname = quality if isinstance(quality, str) else "custom"
-    model = PTCModel(data, terms=terms or select_terms(data))
+    model = PTCModel(data, terms=terms or select_terms(data), prior=prior)
     chains = run_ensembles(model, settings=settings, seed=seed, progress=progress, n_jobs=n_jobs)
     notes: list = []
     md = {**METADATA_DEFAULTS, **data.metadata}
