@@ -177,9 +177,14 @@ def _run_segment(task):
     state = emcee.State(coords, log_prob=log_prob, random_state=rstate)
     n_reset = 0
     if n_burn:
-        state = s.run_mcmc(state, n_burn, progress=False)
-        state, n_reset = _reset_stuck_walkers(s, state, model.ndim)
-        s.reset()
+        # two halves, each ending with the stranded-walker check: walkers moved at the middle get
+        # half a burn-in to settle, and stragglers are caught at the end
+        for steps in (n_burn // 2, n_burn - n_burn // 2):
+            if steps:
+                state = s.run_mcmc(state, steps, progress=False)
+                state, n = _reset_stuck_walkers(s, state, model.ndim)
+                n_reset += n
+                s.reset()
     state = s.run_mcmc(state, n_steps, progress=False)
     accepted = s.acceptance_fraction * n_steps
     return (idx, s.get_chain(), s.get_log_prob(), state.coords, state.log_prob, state.random_state, accepted,
@@ -190,11 +195,12 @@ def stuck_threshold(ndim: int) -> float:
     """Log-probability drop below the best walker beyond which a walker is not sampling the posterior.
 
     Near the mode ``lp_max − lp`` of a posterior draw is about ``χ²_D/2``; a walker whose best
-    log-probability over a stretch of steps stays below ``lp_max − (½·χ²_D(1 − 10⁻⁶) + 10)`` is lost
-    in a region the posterior does not visit (probability < 10⁻⁶ per walker). 34 nats for D = 10."""
+    log-probability over a stretch of steps stays below ``lp_max − (½·χ²_D(1 − 10⁻⁶) + 5)`` is lost
+    in a region the posterior does not visit (probability < 10⁻⁶ per walker for a Gaussian
+    posterior; the 5 nats allow for heavier tails). 29 nats for D = 10."""
     from scipy.stats import chi2
 
-    return 0.5 * float(chi2.ppf(1.0 - 1e-6, ndim)) + 10.0
+    return 0.5 * float(chi2.ppf(1.0 - 1e-6, ndim)) + 5.0
 
 
 def stuck_walkers(log_prob, ndim: int) -> np.ndarray:
