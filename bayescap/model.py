@@ -641,11 +641,24 @@ class PTCModel:
             if self.terms.dark_current:
                 post_full = post_full - p["dark_current_e_per_s"][:, None] * self.t[self.full_sat][None, :]
             vfull = post_full / (K * K) + 1.0 / 12.0
-            out["plateau_var"] = (np.maximum(self.full_v, 1e-9), vfull,
+            cmean = np.broadcast_to(p["clip_dn"][:, None], vfull.shape)
+            if self.adc is not None:
+                # the ADC clips the plateau's read noise too (wells just below the ADC maximum):
+                # moments of clip(N(c + τξ, σ²_post), ADC) over the well spread ξ
+                cm, cv, unclipped = self._clip_moments(
+                    np.array(cmean), np.sqrt(post_full) / K,
+                    np.broadcast_to(p["clip_spread_dn"][:, None], vfull.shape),
+                    np.full(vfull.shape, float(self.adc)))
+                vfull = cv + unclipped / 12.0
+                cmean = cm
+            out["plateau_var"] = (np.maximum(self.full_v, 1e-9), np.maximum(vfull, 1e-12),
                                   1.0 / (2.0 / self.full_nu[None, :] + f2), "gamma")
+        else:
+            cmean = None
         if self.terms.clip in ("adc_sampled", "well") and self.full_means.size:
-            out["clip_mean"] = (self.full_means, np.broadcast_to(p["clip_dn"][:, None], (k.size, self.full_means.size)),
-                                self.full_sd[None, :], "normal")
+            if cmean is None:
+                cmean = np.broadcast_to(p["clip_dn"][:, None], (k.size, self.full_means.size))
+            out["clip_mean"] = (self.full_means, cmean, self.full_sd[None, :], "normal")
         # spatial variances of L-frame averages: the ROI's realised pattern P (the same in every
         # row, see _pattern_moments) plus the averaged temporal noise T. Given the pattern, only
         # T's sample variance and its sample covariance with the pattern scatter:
