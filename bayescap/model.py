@@ -207,8 +207,12 @@ def saturation_flags(d: PTCData):
     full = top & (v < 0.1 * vmax)
     if np.any(full):
         # only rows at the plateau's own variance level (not partly clipped rows beside it)
+        # (within 10 % of the plateau minimum: a row whose variance is higher still has unclipped
+        # pixels — classified as fully clipped it was modelled with the read noise alone, 15–40
+        # standard errors off on simulated well-clipped sensors, and inflated f; the clip-row
+        # model describes it)
         v_pl = float(np.min(v[full]))
-        full = full & (v <= 1.5 * v_pl + 0.1)
+        full = full & (v <= 1.1 * v_pl + 0.01)
     partial = np.zeros_like(full)
     if d.frac_saturated is not None:
         full = full | (d.frac_saturated >= 0.999)
