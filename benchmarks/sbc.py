@@ -1,4 +1,4 @@
-"""Simulation-based calibration of bayescap's posterior (issue 6), realistic-range variant.
+"""Simulation-based calibration of bayescap's posterior (issue 6).
 
 Method (Talts, Betancourt, Simpson, Vehtari & Gelman 2018, "Validating Bayesian inference
 algorithms with simulation-based calibration", arXiv:1804.06788): draw a true sensor, simulate
@@ -6,32 +6,30 @@ frame-level photon-transfer data from it with :func:`bayescap.simulate.simulate_
 :func:`bayescap.fit`, and rank the truth among ``L`` posterior draws thinned by the integrated
 autocorrelation time. If the posterior is calibrated the ranks are uniform on ``0..L``.
 
-**Which distribution the truths come from.** Classic SBC needs truths drawn from the prior the
-model itself uses. That is not possible here, and this script says so rather than pretend:
+**Classic SBC (``--truths prior``, the default).** Classic SBC needs truths drawn from the prior
+the fit uses. The production prior (``PTCModel.PRIOR``) is deliberately wide (log K uniform on
+1e-3..1e3 e⁻/DN, read noise of scale 1000 e⁻, ...): most of its draws are not sensors. So the SBC
+uses a proper, realistic prior ``SBC_PRIOR`` for every model parameter, draws the truths from it
+(:func:`draw_sensor_prior`) and fits with exactly it (``bayescap.fit(prior=SBC_PRIOR)``). The
+simulator has no systematics, so the variance and mean discrepancies f and g are drawn from their
+priors and injected into the simulated data as the likelihood describes them
+(:func:`inject_discrepancies`). What is *not* from the fit's prior, because it is not a model
+parameter: the full well and ADC range (the clip level's prior is uniform between data-derived
+bounds), black level, and the per-pixel well spread (drawn from the clip-spread prior expressed
+as a fraction of the full well); those parts are likelihood-dominated. ``docs/calibration.md``
+lists the details.
 
-* ``PTCModel.PRIOR`` puts log K uniform on [1e-3, 1e3] e⁻/DN, half-normal read noise of scale
-  1000 e⁻, dark current of scale 10⁴ e⁻/s, DSNU of scale 100 e⁻: most prior draws are not
-  sensors (a 12-bit ADC spanning 4 e⁻, or 10⁵ e⁻ of read noise);
-* the prior of the clip level is uniform between bounds computed *from the data*, and the terms
-  that enter are selected from the data (:func:`bayescap.model.select_terms`): the prior is not
-  a fixed generative distribution;
-* the variance discrepancy ``f``, the mean discrepancy ``g`` and the clip spread ``τ`` have no
-  counterpart in the simulator (its data carry no systematics: true f = g = 0).
+**Realistic-range variant (``--truths realistic``).** Truths from :func:`draw_sensor`, fitted with
+the production priors: uniform ranks then hold only where the likelihood dominates the prior.
 
-So the truths are drawn from a **realistic range** (:func:`draw_sensor`, stated in the report).
-Rank uniformity then holds only to the extent that the likelihood dominates the prior over that
-range: for well-identified parameters (gain, full well/clip, QE, read noise above the
-quantization floor, PRNU/DSNU from spatial stacks) non-uniform ranks mean a miscalibrated
-posterior; for weakly identified ones (dark current over a ≤ 20 ms sweep, read noise below
-0.4 DN) they can also be prior mismatch, and the report shows them separately by identification.
 The coverage of the equal-tailed 50/68/95 % intervals (from all kept draws, as a user sees them)
-over the same realistic range is the frequentist check that goes with it.
+is reported with the ranks.
 
 Capacity truth: ``C`` computed from the true parameters exactly as :meth:`FitResult._derive`
 computes it from each draw, with the fit's own scene (exposure time) and MTF, and with the noise
 terms the fit includes (a PRNU/DSNU the fit cannot see is not in its capacity estimand).
 
-    python benchmarks/sbc.py --n 200 --seed 1 [--quality standard] [--jobs 2]
+    python benchmarks/sbc.py --n 200 --seed 1 --quality standard --jobs 1 --truths prior --levels 50
 
 writes ``benchmarks/results/sbc.md`` and ``benchmarks/results/sbc_ranks.png`` (and the raw
 per-sensor records as JSON lines to ``--raw``, default in the system temp directory).
