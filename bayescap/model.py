@@ -417,6 +417,7 @@ class PTCModel:
         # fractional offsets of the measured means from the nearest integer DN (quantization)
         self.dark_frac_dn = d.dark_mean_dn - np.round(d.dark_mean_dn)
         self.bright_frac_dn = self.m - np.round(self.m)
+        self.full_frac_dn = self.full_means - np.round(self.full_means)
 
     # ------------------------------------------------------------------ parameters
     def physical(self, theta) -> dict:
@@ -558,7 +559,9 @@ class PTCModel:
         else:
             _, V, m4 = _rounded_normal_moments(delta, s)
             E4 = m4 + V * V
-        V = np.maximum(V, 1e-9)
+        # the measured variances are floored at 1e-6 DN² (a sample with no differing pixel): so is
+        # the model, which otherwise penalises a ratio 1e-6/1e-12 for identical "zero" data
+        V = np.maximum(V, 1e-6)
         var[need] = V
         phi[need] = E4 / (2.0 * V * V)
         return var, phi
@@ -644,19 +647,23 @@ class PTCModel:
             post_full = self.dark_var_e2(p, self.t[self.full_sat])
             if self.terms.dark_current:
                 post_full = post_full - p["dark_current_e_per_s"][:, None] * self.t[self.full_sat][None, :]
-            vfull = post_full / (K * K) + 1.0 / 12.0
+            tau_full = np.broadcast_to(p["clip_spread_dn"][:, None], post_full.shape)
+            # rounding of the plateau values: exact below the quantization floor (offsets spread by
+            # the well spread τ), Sheppard above
+            vfull, phi_pl = self._quantized_var(post_full / (K * K), self.full_frac_dn, tau_full**2)
             cmean = np.broadcast_to(p["clip_dn"][:, None], vfull.shape)
             if self.adc is not None:
                 # the ADC clips the plateau's read noise too (wells just below the ADC maximum):
                 # moments of clip(N(c + τξ, σ²_post), ADC) over the well spread ξ
                 cm, cv, unclipped = self._clip_moments(
-                    np.array(cmean), np.sqrt(post_full) / K,
-                    np.broadcast_to(p["clip_spread_dn"][:, None], vfull.shape),
+                    np.array(cmean), np.sqrt(post_full) / K, tau_full,
                     np.full(vfull.shape, float(self.adc)))
-                vfull = cv + unclipped / 12.0
+                # only where the ADC clips a measurable part (keeps the exact rounding otherwise)
+                clipped = unclipped < 1.0 - 1e-9
+                vfull = np.where(clipped, cv + unclipped / 12.0, vfull)
                 cmean = cm
-            out["plateau_var"] = (np.maximum(self.full_v, 1e-9), np.maximum(vfull, 1e-12),
-                                  1.0 / (2.0 / self.full_nu[None, :] + f2), "gamma")
+            out["plateau_var"] = (np.maximum(self.full_v, 1e-6), np.maximum(vfull, 1e-6),
+                                  1.0 / (phi_pl / self.full_nu[None, :] + f2), "gamma")
         else:
             cmean = None
         if self.terms.clip in ("adc_sampled", "well") and self.full_means.size:
