@@ -445,7 +445,7 @@ CLASSIC_TEXT = (
     "describes them (`inject_discrepancies`). Not model parameters, hence not from the model's prior: "
     "full well log-U(3 000, 60 000) e⁻ and the ADC range (the clip level's prior is uniform between "
     "data-derived bounds far wider than its likelihood), and the per-pixel well spread (from the "
-    "clip-spread prior as a fraction of the full well). 25 levels, 100×100 px; black level and ADC "
+    "clip-spread prior as a fraction of the full well). {levels} levels, 100×100 px; black level and ADC "
     "bits depend on the drawn sensor as in `draw_sensor`.")
 
 
@@ -463,10 +463,11 @@ def write_report(records, summary, path_md, *, cmd, wall_s, args, n_bins, strata
         + f" for {n} sensors (simulation + fit per sensor: median "
         f"{np.median([r['wall_s'] for r in records]):.1f} s, max {max(r['wall_s'] for r in records):.1f} s, "
         f"total {sum(r['wall_s'] for r in records) / 60:.0f} process-min on a machine shared with other jobs)  ",
-        f"Quality preset: `{args.quality}`" + (f" (SamplerSettings({', '.join(f'{k}={v}' for k, v in SBC_SETTINGS.items())}), the rest as `standard`)" if args.quality == "sbc" else "") + "; rank among L = {L} draws thinned by the integrated "
+        f"Quality preset: `{args.quality}`" + (f" (SamplerSettings({', '.join(f'{k}={v}' for k, v in SBC_SETTINGS.items())}), the rest as `standard`)" if args.quality == "sbc" else "") + f"; rank among L = {L} draws thinned by the integrated "
         f"autocorrelation time; {n_bins} rank bins.",
         "",
-        (CLASSIC_TEXT if records[0].get("truths") == "prior" else REALISTIC_TEXT),
+        (CLASSIC_TEXT.format(levels=records[0]["sim"]["n_levels"]) if records[0].get("truths") == "prior"
+         else REALISTIC_TEXT),
         "",
         f"ADC clips first: {sum(r['adc_clips_first'] for r in records)}/{n}; fitted clip mechanism: "
         + ", ".join(f"{c} {sum(r['clip'] == c for r in records)}" for c in sorted({r['clip'] for r in records}))
