@@ -80,7 +80,7 @@ def measured_mtf(path, *, seed: int = 0, n_boot: int = 200):
 def fit(data: PTCData | PTCModel | str, *, seed: int | None = None,
         quality: str | SamplerSettings = "standard", mtf=None, scene: Scene | None = None,
         progress: bool = False, terms=None, n_jobs: int | None = None, fast_settings=None,
-        fallback: bool = True, fallback_quality: str = "fast") -> FitResult:
+        fallback: bool = True, fallback_quality: str = "fast", prior: dict | None = None) -> FitResult:
     """Fit the Eq. 1 noise model to photon-transfer data and propagate to capacity.
 
     Parameters
@@ -102,13 +102,16 @@ def fit(data: PTCData | PTCModel | str, *, seed: int | None = None,
     fast_settings : :class:`bayescap.fast.FastSettings` for ``quality="fast"``.
     fallback : with ``quality="fast"``, False returns a rejected Laplace–IS result (flagged NOT
         CONVERGED) instead of running MCMC.
+    prior : overrides of :attr:`bayescap.model.PTCModel.PRIOR` (e.g. ``{"read_log_bounds": (1, 20)}``
+        for a log-uniform read-noise prior on 1–20 e⁻); default: the documented production priors.
+        Ignored when ``data`` is already a PTCModel (it carries its own prior).
     """
     if isinstance(data, PTCModel):
         model, data = data, data.data
     else:
         if not isinstance(data, PTCData):
             data = load(data)
-        model = PTCModel(data, terms=terms or select_terms(data))
+        model = PTCModel(data, terms=terms or select_terms(data), prior=prior)
     notes: list = []
     md = {**METADATA_DEFAULTS, **data.metadata}
     defaults_used = sorted(k for k in METADATA_DEFAULTS if k not in data.metadata)

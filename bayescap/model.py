@@ -100,6 +100,71 @@ def _halfnormal_log_prior(u, scale):
     return u - 0.5 * (x / scale) ** 2
 
 
+def _scale_log_prior(u, scale, log_bounds=None):
+    """log prior of u = log x: half-normal of ``scale`` in x, or, with ``log_bounds = (lo, hi)``
+    (natural values), log-uniform on [lo, hi] (uniform in u, normalised)."""
+    if log_bounds is None:
+        return _halfnormal_log_prior(u, scale)
+    a, b = np.log(log_bounds[0]), np.log(log_bounds[1])
+    return np.where((u >= a) & (u <= b), -np.log(b - a), -np.inf)
+
+
+def _chi2_over_nu(z, nu):
+    """χ²_ν/ν as a function of a standard normal z (Wilson–Hilferty; relative error of the
+    quantiles < 1e-4 for ν ≥ 10, far below the ~√(2/ν) spread it describes)."""
+    a = 2.0 / (9.0 * nu)
+    return np.maximum(1.0 - a + z * np.sqrt(a), 1e-3) ** 3
+
+
+#: below this s² + σ_o² (DN²) the rounded-normal moments replace Sheppard's σ² + 1/12
+_QUANT_EXACT_S2 = 0.5
+
+
+def _rounded_normal_moments(delta, s, J=6):
+    """Mean, variance and central 4th moment of round(N(δ, s²)) (δ relative to an integer DN).
+
+    Direct sums over the integers j = −J..J (the tails beyond are < 1e-12 for s < 0.75 DN, |δ| ≤ ½).
+    """
+    j = np.arange(-J, J + 1, dtype=float)
+    b = (j[:-1] + 0.5)  # boundaries between j and j+1
+    cdf = ndtr((b - delta[..., None]) / s[..., None])
+    p = np.diff(np.concatenate([np.zeros(cdf.shape[:-1] + (1,)), cdf, np.ones(cdf.shape[:-1] + (1,))], axis=-1), axis=-1)
+    m = p @ j
+    c = j - m[..., None]
+    c2 = c * c
+    v = np.sum(p * c2, axis=-1)
+    m4 = np.sum(p * c2 * c2, axis=-1)
+    return m, v, m4
+
+
+def _rounded_offset(frac_obs, s_tot, n_iter=12):
+    """The offset δ ∈ [−½, ½] whose rounded normal N(δ, s_tot²) has mean ``frac_obs`` (the
+    measured mean's distance from the nearest integer DN). E[round] is increasing in δ and
+    maps [−½, ½] onto itself: safeguarded Newton (bisection when a step leaves the bracket),
+    stopped when every mean matches to 1e-9 DN."""
+    b = np.arange(6, dtype=float) + 0.5  # positive boundaries; E[round X] is odd in δ
+    shape = np.broadcast(frac_obs, s_tot).shape
+    lo = np.full(shape, -0.5)
+    hi = -lo
+    fo = np.broadcast_to(frac_obs, shape)
+    s = np.broadcast_to(s_tot, shape)[..., None]
+    d = np.clip(fo.astype(float), -0.5, 0.5)
+    for _ in range(n_iter):
+        zp = (d[..., None] - b) / s
+        zm = (-b - d[..., None]) / s
+        # E[round X] = Σ_{b>0} [Φ((δ−b)/s) − Φ((−b−δ)/s)]
+        m = np.sum(ndtr(zp) - ndtr(zm), axis=-1)
+        dm = np.sum(np.exp(-0.5 * zp * zp) + np.exp(-0.5 * zm * zm), axis=-1) * (0.3989422804014327 / s[..., 0])
+        gap = m - fo
+        if np.all(np.abs(gap) < 1e-9):
+            break
+        lo = np.where(gap < 0, d, lo)
+        hi = np.where(gap >= 0, d, hi)
+        nd = d - gap / np.maximum(dm, 1e-300)
+        d = np.where((nd > lo) & (nd < hi), nd, 0.5 * (lo + hi))
+    return d
+
+
 @dataclass(frozen=True)
 class ModelTerms:
     """Which terms the data can inform, and why the others are left out."""
@@ -147,8 +212,12 @@ def saturation_flags(d: PTCData):
     full = top & (v < 0.1 * vmax)
     if np.any(full):
         # only rows at the plateau's own variance level (not partly clipped rows beside it)
+        # (within 10 % of the plateau minimum: a row whose variance is higher still has unclipped
+        # pixels — classified as fully clipped it was modelled with the read noise alone, 15–40
+        # standard errors off on simulated well-clipped sensors, and inflated f; the clip-row
+        # model describes it)
         v_pl = float(np.min(v[full]))
-        full = full & (v <= 1.5 * v_pl + 0.1)
+        full = full & (v <= 1.1 * v_pl + 0.01)
     partial = np.zeros_like(full)
     if d.frac_saturated is not None:
         full = full | (d.frac_saturated >= 0.999)
@@ -237,15 +306,27 @@ class PTCModel:
     :meth:`physical` maps draws to named physical parameters.
     """
 
-    #: prior scales (see README, "Priors")
+    #: prior scales (see README, "Priors"). The ``*_log_bounds`` / ``qe_bounds`` entries are
+    #: ``None`` in production (half-normal scale priors, QE uniform on (0, 1]); a pair
+    #: ``(lo, hi)`` of *natural* values replaces the half-normal by a log-uniform prior on
+    #: [lo, hi] (QE: uniform on [lo, hi]). Override per model with ``PTCModel(data, prior={...})``
+    #: or ``bayescap.fit(..., prior={...})``; ``benchmarks/sbc.py`` does so to fit with exactly
+    #: the prior it draws its true sensors from (classic SBC).
     PRIOR = dict(log_k_bounds=(np.log(1e-3), np.log(1e3)), read_scale_e=1000.0,
                  dark_current_scale_e_per_s=1e4, prnu_scale=0.05, dsnu_scale_e=100.0,
                  f_center=0.01, f_log_sd=1.5, g_center=0.005, g_log_sd=1.5,
-                 tau_log_sd=1.5, tau_max_frac=0.02)
+                 tau_log_sd=1.5, tau_max_frac=0.02,
+                 read_log_bounds=None, dark_current_log_bounds=None, prnu_log_bounds=None,
+                 dsnu_log_bounds=None, qe_bounds=None)
 
-    def __init__(self, data: PTCData, terms: ModelTerms | None = None):
+    def __init__(self, data: PTCData, terms: ModelTerms | None = None, prior: dict | None = None):
         self.data = data
         self.terms = terms or select_terms(data)
+        if prior:
+            unknown = set(prior) - set(PTCModel.PRIOR)
+            if unknown:
+                raise ValueError(f"unknown prior keys {sorted(unknown)}; known: {sorted(PTCModel.PRIOR)}")
+            self.PRIOR = {**PTCModel.PRIOR, **prior}  # instance attribute: the class default stays
         d, tm = data, self.terms
         self.full_sat, self.saturation_reached = saturation_flags(d)
         ok = ~self.full_sat
@@ -283,6 +364,13 @@ class PTCModel:
             names.append("log_prnu")
         if tm.dsnu:
             names.append("log_dsnu")
+        # the ROI's realised fixed patterns (see _pattern_moments): standard-normal latents
+        self.pattern_latents = []
+        if tm.dsnu:
+            self.pattern_latents.append("z_roi_dsnu")
+        if tm.prnu:
+            self.pattern_latents += ["z_roi_prnu", "z_roi_cross"]
+        names += self.pattern_latents
         if tm.discrepancy:
             names.append("log_f")
         self.names = names
@@ -327,6 +415,16 @@ class PTCModel:
         nfr = np.where(np.isfinite(nfr), nfr, 2.0)
         self.L_ok = nfr[ok]
         self.L_all = nfr
+        # degrees of freedom of the ROI's pattern sample variance (one ROI for every spatial row)
+        sp_any = np.zeros(d.n_levels, bool)
+        for col in (d.spatial_var_dn2, d.dark_spatial_var_dn2):
+            if col is not None:
+                sp_any |= np.isfinite(col)
+        self.nu_pattern = float(np.median(d.n_pixels[sp_any]) - 1.0) if np.any(sp_any) else float(np.median(d.n_pixels) - 1.0)
+        # fractional offsets of the measured means from the nearest integer DN (quantization)
+        self.dark_frac_dn = d.dark_mean_dn - np.round(d.dark_mean_dn)
+        self.bright_frac_dn = self.m - np.round(self.m)
+        self.full_frac_dn = self.full_means - np.round(self.full_means)
 
     # ------------------------------------------------------------------ parameters
     def physical(self, theta) -> dict:
@@ -375,8 +473,8 @@ class PTCModel:
         lk = g("log_k")
         lp = np.where((lk > P["log_k_bounds"][0]) & (lk < P["log_k_bounds"][1]), 0.0, -np.inf)
         if self.terms.dark_current:
-            lp = lp + _halfnormal_log_prior(g("log_read"), P["read_scale_e"])
-            lp = lp + _halfnormal_log_prior(g("log_dc"), P["dark_current_scale_e_per_s"])
+            lp = lp + _scale_log_prior(g("log_read"), P["read_scale_e"], P["read_log_bounds"])
+            lp = lp + _scale_log_prior(g("log_dc"), P["dark_current_scale_e_per_s"], P["dark_current_log_bounds"])
         else:
             lp = lp + _halfnormal_log_prior(g("log_dark_noise"), P["read_scale_e"])
         if self.terms.clip in ("adc_sampled", "well"):
@@ -393,15 +491,87 @@ class PTCModel:
             lp = lp + np.where(np.exp(lt) < P["tau_max_frac"] * cref, 0.0, -np.inf)
         if self.terms.quantum_efficiency:
             qe = g("qe")
-            lp = lp + np.where((qe > 0) & (qe <= 1), 0.0, -np.inf)
+            qlo, qhi = P["qe_bounds"] if P["qe_bounds"] is not None else (0.0, 1.0)
+            lp = lp + np.where((qe > qlo) & (qe <= qhi), 0.0, -np.inf)
             lp = lp + _norm_logpdf(g("log_g"), np.log(P["g_center"]), P["g_log_sd"])
         if self.terms.prnu:
-            lp = lp + _halfnormal_log_prior(g("log_prnu"), P["prnu_scale"])
+            lp = lp + _scale_log_prior(g("log_prnu"), P["prnu_scale"], P["prnu_log_bounds"])
         if self.terms.dsnu:
-            lp = lp + _halfnormal_log_prior(g("log_dsnu"), P["dsnu_scale_e"])
+            lp = lp + _scale_log_prior(g("log_dsnu"), P["dsnu_scale_e"], P["dsnu_log_bounds"])
+        for n in self.pattern_latents:
+            lp = lp - 0.5 * g(n) ** 2  # standard normal (constant dropped)
         if self.terms.discrepancy:
             lp = lp + _norm_logpdf(g("log_f"), np.log(P["f_center"]), P["f_log_sd"])
         return lp
+
+    # ------------------------------------------------------------------ fixed patterns
+    def _pattern_moments(self, th, p):
+        """Sample (co)variances of the ROI's *realised* fixed patterns, for draws ``th``.
+
+        The PRNU map p_i (fraction) and the DSNU map d_i (e⁻) are one realisation, shared by
+        every spatial row. Over n pixels (ν = n − 1) their sample covariance matrix is
+        Wishart(ν, diag(PRNU², DSNU²))/ν; by Bartlett's decomposition with standard-normal
+        latents z₁ (``z_roi_prnu``), z₂ (``z_roi_dsnu``), z₃ (``z_roi_cross``):
+
+            var_s(p)   = PRNU² · χ²_ν/ν (z₁)
+            var_s(d)   = DSNU² · [(ν−1)·χ²_{ν−1}/(ν−1) (z₂) + z₃²]/ν
+            cov_s(p,d) = PRNU·DSNU · √(χ²_ν/ν (z₁)) · z₃/√ν
+
+        Returns (var_s(p), var_s(d) [e⁻²], cov_s(p, d) [e⁻]), each (n_draws, 1)."""
+        nu = self.nu_pattern
+        n = th.shape[0]
+        zero = np.zeros((n, 1))
+        a = b = c = zero
+        if self.terms.dsnu:
+            dsnu2 = (p["dsnu_e"] ** 2)[:, None]
+            z2 = th[:, self.idx["z_roi_dsnu"]][:, None]
+            if self.terms.prnu:
+                prnu = (p["prnu_percent"] / 100.0)[:, None]
+                z1 = th[:, self.idx["z_roi_prnu"]][:, None]
+                z3 = th[:, self.idx["z_roi_cross"]][:, None]
+                q1 = _chi2_over_nu(z1, nu)
+                a = prnu**2 * q1
+                b = dsnu2 * ((nu - 1.0) * _chi2_over_nu(z2, nu - 1.0) + z3 * z3) / nu
+                c = prnu * np.sqrt(dsnu2) * np.sqrt(q1) * z3 / np.sqrt(nu)
+            else:
+                b = dsnu2 * _chi2_over_nu(z2, nu)
+        return a, b, c
+
+    def _quantized_var(self, s2, frac, spread2):
+        """Temporal variance of rounded values and the factor φ of its sampling variance
+        (relative variance of a pair estimate over n pixels = φ/ν; φ = 2 for a normal).
+
+        ``s2`` (n_draws, rows): variance before rounding (DN²); ``frac`` (rows,): measured
+        mean's offset from the nearest integer DN; ``spread2`` (n_draws, 1 or rows): variance of
+        the per-pixel mean offsets (fixed patterns). Where s² + σ_o² ≥ ½ DN², Sheppard's σ² + 1/12
+        (relative error < 3e-4, against a sampling error of ≥ 0.4 % for n ≤ 10⁵ pixels) and φ = 2. Below, the
+        exact moments of round(N(δ + σ_o·ξ, s²)) averaged over the pixel offsets ξ ~ N(0, 1)
+        (Gauss–Hermite), with δ from the measured mean (E[round] = measured offset)."""
+        var = s2 + 1.0 / 12.0
+        phi = np.full_like(var, 2.0)
+        sp2 = np.maximum(np.broadcast_to(spread2, s2.shape), 0.0)
+        need = s2 + sp2 < _QUANT_EXACT_S2
+        if not np.any(need):
+            return var, phi
+        s = np.sqrt(np.maximum(s2[need], 1e-8))
+        spn = sp2[need]
+        fr = np.broadcast_to(frac[None, :], s2.shape)[need]
+        delta = _rounded_offset(fr, np.sqrt(s * s + spn))
+        if np.any(spn > 0):
+            x = delta[:, None] + np.sqrt(spn)[:, None] * _GH_X
+            x = x - np.round(x)  # rounding is periodic in the offset: central moments are too
+            _, v, m4 = _rounded_normal_moments(x, np.broadcast_to(s[:, None], x.shape))
+            V = v @ _GH_W
+            E4 = (m4 + v * v) @ _GH_W
+        else:
+            _, V, m4 = _rounded_normal_moments(delta, s)
+            E4 = m4 + V * V
+        # the measured variances are floored at 1e-6 DN² (a sample with no differing pixel): so is
+        # the model, which otherwise penalises a ratio 1e-6/1e-12 for identical "zero" data
+        V = np.maximum(V, 1e-6)
+        var[need] = V
+        phi[need] = E4 / (2.0 * V * V)
+        return var, phi
 
     # ------------------------------------------------------------------ likelihood
     def _clip_moments(self, mu, s, tau, c):
@@ -440,12 +610,14 @@ class PTCModel:
         rd2_ok = self.dark_var_e2(p, self.tt)  # (n, rows)
         rd2_all = self.dark_var_e2(p, self.t)
         out = {}
-        # dark temporal variances (all rows)
-        vdm = rd2_all / (K * K) + 1.0 / 12.0
-        out["dark_var"] = (self.vd, vdm, 1.0 / (2.0 / self.nu_d[None, :] + f2), "gamma")
+        pa, pb, pc = self._pattern_moments(th, p)  # realised ROI patterns (zeros without the terms)
+        # dark temporal variances (all rows); rounding at the measured offset below 1 DN
+        vdm, phi_d = self._quantized_var(rd2_all / (K * K), self.dark_frac_dn, pb / (K * K))
+        out["dark_var"] = (self.vd, vdm, 1.0 / (phi_d / self.nu_d[None, :] + f2), "gamma")
         # bright temporal variances, unclipped rows: S from the measured mean
         S = np.broadcast_to(self.s_obs[None, :], rd2_ok.shape).copy()
-        vm = S / K + rd2_ok / (K * K) + 1.0 / 12.0
+        vm, phi_b = self._quantized_var(S / K + rd2_ok / (K * K), self.bright_frac_dn,
+                                        pa * S * S + pb / (K * K) + 2.0 * pc * S / K)
         slope = np.ones_like(vm)
         if self.clip_rows.size:
             c = p["clip_dn"]
@@ -470,7 +642,7 @@ class PTCModel:
                 vm[:, rows] = var_c + sl / 12.0
             S[:, rows] = mu - self.dm[rows][None, :]
             slope[:, rows] = sl
-        out["bright_var"] = (self.v, np.maximum(vm, 1e-12), 1.0 / (2.0 / self.nu[None, :] + f2), "gamma")
+        out["bright_var"] = (self.v, np.maximum(vm, 1e-12), 1.0 / (phi_b / self.nu[None, :] + f2), "gamma")
         self._last_latent_signal_dn = S
         if self.terms.quantum_efficiency:
             qe = p["quantum_efficiency"][:, None]
@@ -484,25 +656,54 @@ class PTCModel:
             post_full = self.dark_var_e2(p, self.t[self.full_sat])
             if self.terms.dark_current:
                 post_full = post_full - p["dark_current_e_per_s"][:, None] * self.t[self.full_sat][None, :]
-            vfull = post_full / (K * K) + 1.0 / 12.0
-            out["plateau_var"] = (np.maximum(self.full_v, 1e-9), vfull,
-                                  1.0 / (2.0 / self.full_nu[None, :] + f2), "gamma")
+            tau_full = np.broadcast_to(p["clip_spread_dn"][:, None], post_full.shape)
+            # rounding of the plateau values: exact below the quantization floor (offsets spread by
+            # the well spread τ), Sheppard above
+            vfull, phi_pl = self._quantized_var(post_full / (K * K), self.full_frac_dn, tau_full**2)
+            cmean = np.broadcast_to(p["clip_dn"][:, None], vfull.shape)
+            if self.adc is not None:
+                # the ADC clips the plateau's read noise too (wells just below the ADC maximum):
+                # moments of clip(N(c + τξ, σ²_post), ADC) over the well spread ξ
+                cm, cv, unclipped = self._clip_moments(
+                    np.array(cmean), np.sqrt(post_full) / K, tau_full,
+                    np.full(vfull.shape, float(self.adc)))
+                # only where the ADC clips a measurable part (keeps the exact rounding otherwise)
+                clipped = unclipped < 1.0 - 1e-9
+                vfull = np.where(clipped, cv + unclipped / 12.0, vfull)
+                cmean = cm
+            out["plateau_var"] = (np.maximum(self.full_v, 1e-6), np.maximum(vfull, 1e-6),
+                                  1.0 / (phi_pl / self.full_nu[None, :] + f2), "gamma")
+        else:
+            cmean = None
         if self.terms.clip in ("adc_sampled", "well") and self.full_means.size:
-            out["clip_mean"] = (self.full_means, np.broadcast_to(p["clip_dn"][:, None], (k.size, self.full_means.size)),
-                                self.full_sd[None, :], "normal")
+            if cmean is None:
+                cmean = np.broadcast_to(p["clip_dn"][:, None], (k.size, self.full_means.size))
+            out["clip_mean"] = (self.full_means, cmean, self.full_sd[None, :], "normal")
+        # spatial variances of L-frame averages: the ROI's realised pattern P (the same in every
+        # row, see _pattern_moments) plus the averaged temporal noise T. Given the pattern, only
+        # T's sample variance and its sample covariance with the pattern scatter:
+        # var = (2T² + 4PT)/ν (+ f² relative)
         if self.sp_rows.size:
             r = self.sp_rows
-            prnu = p["prnu_percent"][:, None] / 100.0
-            dsnu_dn = p["dsnu_e"][:, None] / K
-            model = (prnu * S[:, r]) ** 2 + dsnu_dn**2 + vm[:, r] / self.L_ok[r][None, :]
-            out["spatial_var"] = (self.sp[r], model, 1.0 / (2.0 / self.nu[r][None, :] + f2), "gamma")
+            Sr = S[:, r]
+            P = pa * Sr * Sr + pb / (K * K) + 2.0 * pc * Sr / K
+            T = vm[:, r] / self.L_ok[r][None, :]
+            out["spatial_var"] = (self.sp[r], np.maximum(P + T, 1e-12),
+                                  self._pattern_shape(P, T, self.nu[r][None, :], f2), "gamma")
         if self.spd_rows.size:
             r = self.spd_rows
-            dsnu_dn = p["dsnu_e"][:, None] / K
-            model = dsnu_dn**2 + vdm[:, r] / self.L_all[r][None, :]
-            out["dark_spatial_var"] = (np.maximum(self.spd[r], 1e-9), model,
-                                       1.0 / (2.0 / self.nu_d[r][None, :] + f2), "gamma")
+            P = np.broadcast_to(pb / (K * K), (k.size, r.size))
+            T = vdm[:, r] / self.L_all[r][None, :]
+            out["dark_spatial_var"] = (np.maximum(self.spd[r], 1e-9), np.maximum(P + T, 1e-12),
+                                       self._pattern_shape(P, T, self.nu_d[r][None, :], f2), "gamma")
         return out
+
+    @staticmethod
+    def _pattern_shape(P, T, nu, f2):
+        """Gamma shape of a spatial variance given the realised pattern P and temporal part T."""
+        P = np.maximum(P, 0.0)
+        rel = (2.0 * T * T + 4.0 * P * T) / (nu * (P + T) ** 2)
+        return 1.0 / (rel + f2)
 
     def _block_loglik(self, name, obs, model, spread, kind, with_outlier_prob=False):
         obs = obs if np.ndim(obs) == 2 else obs[None, :]
@@ -663,6 +864,16 @@ class PTCModel:
         k0 = float(np.clip(1.0 / slope, 2e-3, 5e2))
         vd0 = float(np.median(self.vd))
         sig0_e2 = max((vd0 - 1.0 / 12.0) * k0 * k0, (0.05 * k0) ** 2)
+        if vd0 < 1.0 / 12.0 + 0.25:
+            # near or below the quantization floor: invert the exact rounded-normal variance at the
+            # median dark row's measured offset (Sheppard's σ² + 1/12 would put σ near 0, where the
+            # likelihood is flat and a local optimiser strays)
+            i = int(np.argsort(self.vd)[self.vd.size // 2])
+            s_grid = np.geomspace(0.03, 1.0, 200)
+            frac = np.full(s_grid.size, self.dark_frac_dn[i])
+            _, vg, _ = _rounded_normal_moments(_rounded_offset(frac, s_grid), s_grid)
+            s0 = float(s_grid[np.argmin(np.abs(vg - vd0))])
+            sig0_e2 = max((s0 * k0) ** 2, (0.05 * k0) ** 2)
         th = {"log_k": np.log(k0)}
         if tm.dark_current:
             t = self.t
@@ -706,6 +917,20 @@ class PTCModel:
                     est = (self.sp[r] - v[r] / self.L_ok[r] - dsnu_dn2) / np.maximum(s[r], 1e-9) ** 2
                     pr2 = max(np.median(est), 1e-8)
                 th["log_prnu"] = 0.5 * np.log(pr2)
+        for n in self.pattern_latents:
+            th[n] = 0.0
         if tm.discrepancy:
             th["log_f"] = np.log(0.01)
+        # keep the start inside an overridden (bounded) prior
+        P = self.PRIOR
+        for name, key in (("log_read", "read_log_bounds"), ("log_dc", "dark_current_log_bounds"),
+                          ("log_prnu", "prnu_log_bounds"), ("log_dsnu", "dsnu_log_bounds")):
+            if name in th and P[key] is not None:
+                a, b = np.log(P[key][0]), np.log(P[key][1])
+                th[name] = float(np.clip(th[name], a + 1e-3 * (b - a), b - 1e-3 * (b - a)))
+        lk0, lk1 = P["log_k_bounds"]
+        th["log_k"] = float(np.clip(th["log_k"], lk0 + 1e-3 * (lk1 - lk0), lk1 - 1e-3 * (lk1 - lk0)))
+        if "qe" in th and P["qe_bounds"] is not None:
+            q0, q1 = P["qe_bounds"]
+            th["qe"] = float(np.clip(th["qe"], q0 + 1e-3 * (q1 - q0), q1 - 1e-3 * (q1 - q0)))
         return np.array([th[n] for n in self.names], float)

@@ -1,18 +1,20 @@
 """Frequentist coverage of the 95 % intervals on simulated sensors with known truth (issue 2).
 
-30 sensors are drawn from the realistic range of ``benchmarks/sbc.py::draw_sensor`` (K
-log-uniform 0.5–8 e⁻/DN, read noise log-uniform 1–20 e⁻, full well log-uniform 3 000–60 000 e⁻,
-ADC bits chosen so that sometimes the ADC and sometimes the well clips first, dark current
-1–200 e⁻/s, QE 0.3–0.8, 40 % with PRNU/DSNU and spatial stacks; 50 levels, 100×100-pixel ROI),
-simulated frame by frame, and fitted with the default (``standard``) quality. For conversion
-gain, read noise and full well (truth ``SensorTruth.clip_charge_e``) the number of 95 %
-intervals that contain the truth must be consistent with Binomial(n, 0.95), counting only the
-sensors where the fit reports the quantity as constrained.
+30 sensors are drawn from the proper prior of the classic SBC (``benchmarks/sbc.py::SBC_PRIOR``,
+``draw_sensor_prior``: K log-uniform 0.5–8 e⁻/DN, read noise log-uniform 1–20 e⁻, dark current
+log-uniform 1–200 e⁻/s, QE uniform 0.3–0.8, 40 % with PRNU/DSNU and spatial stacks, variance and
+mean discrepancies f, g injected; full well log-uniform 3 000–60 000 e⁻ with ADC bits chosen so
+that sometimes the ADC and sometimes the well clips first; 50 levels, 100×100-pixel ROI),
+simulated frame by frame, and fitted with the default (``standard``) sampler and exactly that
+prior. For every ranked quantity the number of 95 % intervals that contain the truth must be
+consistent with Binomial(n, 0.95), counting only the sensors where the fit reports the quantity
+as constrained. With truths from the fit's prior, Bayesian intervals have exactly their nominal
+coverage on average over the prior, so this is a test of the model and the sampler, not of luck.
 
 Tolerance: a two-sided binomial acceptance band with at most α/2 = 0.5 % in each tail, so a
-calibrated posterior fails each test with probability ≤ 1 % (≤ 4 % for the four tests
-together, by the union bound). With n ≈ 30 the upper tail is empty (P(all covered) ≈ 21 %):
-the test detects intervals that are too narrow or biased, not too wide.
+calibrated posterior fails each test with probability ≤ 1 %. With n ≈ 30 the upper tail is empty
+(P(all covered) ≈ 21 %): the test detects intervals that are too narrow or biased, not too wide
+(the rank test of ``tests/test_sbc_small.py`` sees both).
 
 The fits run once per session (several processes when possible) and are cached on disk under
 pytest's base temp directory with a file lock, so with pytest-xdist the workers share them
@@ -37,7 +39,10 @@ SEED = 20240602
 N_SENSORS = 30
 ALPHA = 0.01
 QUALITY = "standard"
-COVERAGE_PARAMS = ["conversion_gain_e_per_dn", "read_noise_e", "full_well_e"]
+COVERAGE_PARAMS = ["conversion_gain_e_per_dn", "read_noise_e", "full_well_e", "quantum_efficiency",
+                   "dark_current_e_per_s", "prnu_percent", "dsnu_e", "capacity_bits"]
+TRUTHS = "prior"  # classic SBC truths (benchmarks/sbc.py --truths prior)
+N_LEVELS = 50
 
 pytestmark = pytest.mark.slow
 
@@ -66,7 +71,7 @@ def fit_records(seed, n, quality, tmp_path_factory, tag):
         fcntl.flock(lock, fcntl.LOCK_EX)
         if cache.exists():
             return json.loads(cache.read_text())
-        tasks = [(i, a, b, c, quality, 99) for i, (a, b, c) in enumerate(sbc.sensor_seeds(seed, n))]
+        tasks = [(i, a, b, c, quality, 99, TRUTHS, N_LEVELS) for i, (a, b, c) in enumerate(sbc.sensor_seeds(seed, n))]
         jobs = min(2, os.cpu_count() or 1)
         if jobs > 1:
             import multiprocessing as mp
@@ -74,13 +79,15 @@ def fit_records(seed, n, quality, tmp_path_factory, tag):
                 recs = list(pool.imap(sbc.run_one, tasks))
         else:
             recs = [sbc.run_one(t) for t in tasks]
+        failed = [r["i"] for r in recs if "failed" in r]
+        assert not failed, f"fits that raised three times: {failed}"
         cache.write_text(json.dumps(recs))
         return recs
 
 
 @pytest.fixture(scope="session")
 def coverage_records(tmp_path_factory):
-    return fit_records(SEED, N_SENSORS, QUALITY, tmp_path_factory, "realistic")
+    return fit_records(SEED, N_SENSORS, QUALITY, tmp_path_factory, TRUTHS)
 
 
 def acceptance_band(n, p=0.95, alpha=ALPHA):
@@ -115,45 +122,49 @@ def test_95_interval_coverage(coverage_records, name):
     """Coverage of the 95 % interval of one parameter, among the sensors where the fit reports
     it constrained; false-alarm probability ≤ 1 % for a calibrated posterior."""
     k, n, u, misses = _coverage(coverage_records, name)
-    assert n >= 20, f"only {n} sensors report {name} constrained"
+    # PRNU/DSNU exist only on the sensors with a spatial stack (6 of the 30 with this seed): with
+    # n = 6 the band accepts ≥ 4 covered, so it still fails the old ~65 % coverage with
+    # probability 0.35 and a 50 % coverage with probability 0.66; the 200-sensor benchmark
+    # (benchmarks/results/sbc.md) is the real check for them
+    assert n >= (5 if name in ("prnu_percent", "dsnu_e") else 20), f"only {n} sensors report {name} constrained"
     lo, hi = acceptance_band(n)
     assert lo <= k <= hi, (f"{name}: {k}/{n} 95 % intervals contain the truth (accept {lo}..{hi}); "
                            f"misses (sensor, posterior CDF at truth, clip): {misses}")
 
 
+POOLED = ["conversion_gain_e_per_dn", "read_noise_e", "full_well_e"]
+
+
 def test_95_interval_coverage_pooled(coverage_records):
-    """All three parameters together. The indicators of one sensor are positively correlated
+    """K, read noise and full well together. The indicators of one sensor are positively correlated
     (exactly equal for K and full well when the ADC clips: full well = (ADC − black)·K), so the
     pooled count is not Binomial(3n). The test treats each sensor as one trial carrying the mean
     of its indicators and uses the Binomial(n_sensors, 0.95) band: exact under perfect
     correlation, conservative under less; false-alarm probability ≤ 1 %."""
     per_sensor = []
     for r in coverage_records:
-        ind = [r["q"][p]["in95"] for p in COVERAGE_PARAMS if p in r["q"] and r["q"][p]["constrained"]]
+        ind = [r["q"][p]["in95"] for p in POOLED if p in r["q"] and r["q"][p]["constrained"]]
         if ind:
             per_sensor.append(np.mean(ind))
     n = len(per_sensor)
     lo, hi = acceptance_band(n)
     cov = float(np.sum(per_sensor))
-    detail = {p: _coverage(coverage_records, p)[:2] for p in COVERAGE_PARAMS}
+    detail = {p: _coverage(coverage_records, p)[:2] for p in POOLED}
     assert lo <= cov <= hi, f"pooled coverage {cov:.2f}/{n} sensor-equivalents (accept {lo}..{hi}); {detail}"
 
 
-@pytest.mark.xfail(strict=True, reason=(
-    "read noise below the quantization floor (< 0.4 DN, reported as an upper limit): in all 6 such "
-    "sensors of this sample the truth lies ABOVE every posterior draw (posterior CDF at truth ≥ 0.999), "
-    "so the reported upper_limit_95 is below the true read noise. Diagnosis: the dark frames' mean "
-    "sits on an integer DN (integer black level, little dark charge), where rounding N(μ, σ²) with "
-    "σ < 0.5 DN gives a variance well below σ² + 1/12, but the dark-variance model uses σ²/K² + 1/12 "
-    "(Sheppard): the fit pulls σ down. Proposed fix in docs/calibration.md"))
-def test_read_noise_upper_limit_holds(coverage_records):
-    """Where the fit reports read noise as an upper limit only, the 95 % upper limit (the 95th
-    percentile of the draws) must lie above the truth in a share consistent with ≥ 95 %
-    (one-sided binomial, false-alarm probability ≤ 1 %)."""
-    used = [r for r in coverage_records if not r["q"]["read_noise_e"]["constrained"]]
-    if len(used) < 3:
-        pytest.skip("fewer than 3 sensors with read noise below the quantization floor")
+def test_read_noise_below_the_quantization_floor(coverage_records):
+    """Sensors whose true read noise is below 0.4 DN (σ_read/K; the regime where rounding at a
+    fixed dark offset gives far less than σ² + 1/12 and the old model put every draw below the
+    truth): their 95 % intervals must contain the truth as often as Binomial(n, 0.95) allows
+    (two-sided band, false-alarm probability ≤ 1 %), and so must the 95 % upper limits
+    (one-sided)."""
+    used = [r for r in coverage_records
+            if r["truth"]["read_noise_e"] / r["truth"]["conversion_gain_e_per_dn"] < 0.4]
+    assert len(used) >= 3, f"only {len(used)} sensors below 0.4 DN of read noise in this sample"
+    k = sum(r["q"]["read_noise_e"]["in95"] for r in used)
+    lo, hi = acceptance_band(len(used))
+    u = [round(r["q"]["read_noise_e"]["u"], 4) for r in used]
+    assert lo <= k <= hi, f"{k}/{len(used)} 95 % intervals hold the truth (accept {lo}..{hi}); CDF at truth {u}"
     ok = sum(r["q"]["read_noise_e"]["u"] <= 0.95 for r in used)
-    lo = int(stats.binom.ppf(ALPHA, len(used), 0.95))
-    assert ok >= lo, (f"upper limit above the truth in {ok}/{len(used)} sensors (accept ≥ {lo}); "
-                      f"posterior CDF at truth: {[round(r['q']['read_noise_e']['u'], 4) for r in used]}")
+    assert ok >= int(stats.binom.ppf(ALPHA, len(used), 0.95)), f"upper limit above truth in {ok}/{len(used)}; {u}"

@@ -1,10 +1,11 @@
 """Small seeded simulation-based calibration (issue 6); the full run is ``benchmarks/sbc.py``.
 
-The 30 seeded sensors of ``tests/test_coverage.py``, drawn from the realistic range of
-``benchmarks/sbc.py::draw_sensor`` (not from the model's prior: that module's docstring says
-why classic SBC is not possible here) and fitted once per session with the ``standard``
-quality. The truth is ranked among L = 99 posterior draws thinned by the integrated
-autocorrelation time (Talts et al. 2018), for every parameter and for capacity.
+The 30 seeded sensors of ``tests/test_coverage.py``: classic SBC, the truths drawn from the proper
+prior ``benchmarks/sbc.py::SBC_PRIOR`` that every fit uses (``draw_sensor_prior``; variance and
+mean discrepancies injected into the simulated data), fitted once per session with the
+``standard`` sampler. The truth is ranked among L = 99 posterior draws thinned by the integrated
+autocorrelation time (Talts et al. 2018), for every parameter and for capacity; with truths from
+the fit's own prior the ranks are exactly uniform for a correct model and sampler.
 
 Tolerance for the small sample: the ranks (0..99) go into 4 coarse bins of 25 ranks, and the
 χ² statistic's null distribution is computed exactly for the actual number of sensors by
@@ -17,7 +18,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from test_coverage import N_SENSORS, SEED, _bench, fit_records
+from test_coverage import N_SENSORS, SEED, TRUTHS, _bench, fit_records
 
 N_BINS = 4
 ALPHA = 0.01
@@ -30,7 +31,7 @@ pytestmark = pytest.mark.slow
 def sbc_records(tmp_path_factory):
     # the same 30 seeded fits as tests/test_coverage.py (one cached set per session: the two
     # files check different statistics of one sample, and the slow part runs once)
-    return fit_records(SEED, N_SENSORS, QUALITY, tmp_path_factory, "realistic")
+    return fit_records(SEED, N_SENSORS, QUALITY, tmp_path_factory, TRUTHS)
 
 
 def chi2_stat(counts):
@@ -54,15 +55,8 @@ def test_exact_p_value_matches_chi2_for_large_n():
 
 
 QUANTITIES = ["conversion_gain_e_per_dn", "read_noise_e", "dark_current_e_per_s", "full_well_e",
-              "quantum_efficiency", "prnu_percent", "dsnu_e", "capacity_bits"]
-
-
-# Full well (and K, QE) were recorded as a strict xfail: posterior too WIDE, not biased — ranks
-# over the 30 sensors avoided the extremes (bins [4, 16, 4, 6], exact p = 0.005; 95 % coverage
-# 30/30). With the standard preset of 2026-11-22 (ESS >= 1000, burn-in 50; different draws of the
-# same posterior) the same sample gives bins [5, 14, 6, 5], p = 0.059, lowest rank 15 of 0..99
-# (K and QE give the same bins): the same pattern, no longer significant at ALPHA = 1 %. Not a fix of the
-# cause (docs/calibration.md); the marker was removed because the strict xfail XPASSed.
+              "quantum_efficiency", "prnu_percent", "dsnu_e", "variance_discrepancy",
+              "mean_discrepancy", "capacity_bits"]
 
 
 @pytest.mark.parametrize("name", QUANTITIES)

@@ -1,0 +1,150 @@
+"""The model pieces that make the intervals honest (docs/calibration.md): exact quantization
+below the floor, the ROI's realised fixed patterns, and prior overrides for classic SBC.
+
+Monte Carlo comparisons use fixed seeds; each tolerance is a multiple of the standard error of the
+Monte Carlo estimate computed from the same sample (z ≤ 5: a correct formula fails with
+probability < 1e-6 per comparison), never a fixed widening.
+"""
+import numpy as np
+import pytest
+from scipy import stats
+
+import bayescap
+from bayescap.model import (PTCModel, _chi2_over_nu, _rounded_normal_moments, _rounded_offset,
+                            _QUANT_EXACT_S2)
+from bayescap.simulate import SensorTruth, simulate_ptc
+
+CASES = [(0.0, 0.12), (0.1, 0.2), (0.4, 0.3), (-0.3, 0.45), (0.5, 0.25), (0.2, 0.68)]
+
+
+@pytest.mark.parametrize("delta,s", CASES)
+def test_rounded_normal_moments_match_monte_carlo(delta, s):
+    n = 2_000_000
+    x = np.round(np.random.default_rng(7).normal(delta, s, n))
+    m, v, m4 = _rounded_normal_moments(np.array(delta), np.array(s))
+    c = x - x.mean()
+    mc_v, mc_m4 = np.mean(c**2), np.mean(c**4)
+    se_m = np.sqrt(mc_v / n)
+    se_v = np.sqrt(max(mc_m4 - mc_v**2, 1e-30) / n)
+    se_m4 = np.sqrt(max(np.mean(c**8) - mc_m4**2, 1e-30) / n)
+    assert abs(m - x.mean()) < 5 * se_m + 1e-12
+    assert abs(v - mc_v) < 5 * se_v + 1e-12
+    assert abs(m4 - mc_m4) < 5 * se_m4 + 1e-12
+
+
+@pytest.mark.parametrize("delta,s", CASES)
+def test_rounded_offset_inverts_the_rounded_mean(delta, s):
+    m, _, _ = _rounded_normal_moments(np.array(delta), np.array(s))
+    d = _rounded_offset(np.array(m), np.array(s))
+    m2, _, _ = _rounded_normal_moments(d, np.array(s))
+    assert m2 == pytest.approx(m, abs=1e-8)
+    if s >= 0.2:  # below that the mean is flat in δ near 0 and δ is not identified (nor needed)
+        assert d == pytest.approx(delta, abs=1e-6)
+
+
+def test_sheppard_is_kept_where_it_is_exact():
+    """Above s² = ½ DN² the exact variance differs from s² + 1/12 by < 3e-4 relative (below the
+    ≥ 0.4 % sampling error of any pair variance over ≤ 10⁵ pixels), so the model keeps Sheppard."""
+    s = np.sqrt(_QUANT_EXACT_S2)
+    for delta in np.linspace(-0.5, 0.5, 11):
+        _, v, _ = _rounded_normal_moments(np.array(delta), np.array(s))
+        assert abs(v / (s * s + 1 / 12) - 1) < 3e-4
+
+
+def _lowread_sensor(seed=3):
+    tr = SensorTruth(conversion_gain_e_per_dn=6.0, read_noise_e=1.5, full_well_e=20000,
+                     dark_current_e_per_s=5.0, quantum_efficiency=0.5, adc_bits=14, black_level_dn=64)
+    return tr, simulate_ptc(tr, seed=seed, n_levels=40)
+
+
+def test_dark_variance_at_the_truth_matches_the_simulator_below_the_floor():
+    """σ_read/K = 0.25 DN on an integer black level: the measured dark variances scatter about the
+    model at the true parameters with the model's own spread (mean z-score within 4/√n), while
+    Sheppard's σ² + 1/12 misses them by many standard errors."""
+    tr, d = _lowread_sensor()
+    m = PTCModel(d)
+    th = m.initial_guess()
+    th[m.idx["log_k"]] = np.log(tr.conversion_gain_e_per_dn)
+    th[m.idx["log_read"]] = np.log(tr.read_noise_e)
+    th[m.idx["log_dc"]] = np.log(tr.dark_current_e_per_s)
+    th[m.idx["log_f"]] = np.log(1e-6)
+    obs, model, shape, _ = m.predict(th[None])["dark_var"]
+    model, shape = model[0], shape[0]
+    z = (obs / model - 1.0) * np.sqrt(shape)
+    assert abs(z.mean()) < 4.0 / np.sqrt(z.size), z
+    assert 0.3 < np.mean(z**2) < 2.5  # χ²_n/n for n = 40 lies in 0.5–1.6 with probability > 0.998
+    sheppard = (tr.read_noise_e**2 + tr.dark_current_e_per_s * m.t) / tr.conversion_gain_e_per_dn**2 + 1 / 12
+    z_sh = (obs / sheppard - 1.0) * np.sqrt(m.nu_d / 2)
+    assert z_sh.mean() < -20  # the old model: the data sit far below it
+
+
+@pytest.mark.slow
+def test_read_noise_below_the_floor_is_recovered():
+    """The fit at σ_read/K = 0.25 DN: the 95 % interval of the read noise holds the truth (it used
+    to put every draw below it)."""
+    import warnings
+
+    tr, d = _lowread_sensor()
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        r = bayescap.fit(d, seed=5, quality="standard", n_jobs=1)
+    x = r.draws["read_noise_e"]
+    lo, hi = np.quantile(x, [0.025, 0.975])
+    assert lo < tr.read_noise_e < hi, (lo, hi)
+
+
+def test_pattern_latents_reproduce_the_realised_pattern_statistics():
+    """Bartlett's decomposition with standard-normal latents gives the sampling distribution of the
+    sample (co)variances of two independent pixel maps (n = 400 pixels, 4 000 maps): KS tests
+    against the realised statistics (p > 1e-4 each)."""
+    rng = np.random.default_rng(11)
+    n, reps, prnu, dsnu = 400, 4000, 0.01, 5.0
+    p = prnu * rng.standard_normal((reps, n))
+    dd = dsnu * rng.standard_normal((reps, n))
+    a_mc = p.var(axis=1, ddof=1)
+    b_mc = dd.var(axis=1, ddof=1)
+    c_mc = np.array([np.cov(p[i], dd[i])[0, 1] for i in range(reps)])
+    nu = n - 1.0
+    z = np.random.default_rng(12).standard_normal((3, reps))
+    q1 = _chi2_over_nu(z[0], nu)
+    a = prnu**2 * q1
+    b = dsnu**2 * ((nu - 1) * _chi2_over_nu(z[1], nu - 1) + z[2] ** 2) / nu
+    c = prnu * dsnu * np.sqrt(q1) * z[2] / np.sqrt(nu)
+    for x, y in ((a, a_mc), (b, b_mc), (c, c_mc)):
+        assert stats.ks_2samp(x, y).pvalue > 1e-4
+
+
+def test_spatial_rows_share_one_pattern_draw():
+    """A spatial stack gives one PRNU/DSNU pattern per ROI: the model carries its realised
+    variances as latents (three with PRNU, one with DSNU alone), with standard-normal priors."""
+    tr = SensorTruth(conversion_gain_e_per_dn=2.0, read_noise_e=5.0, full_well_e=20000,
+                     dark_current_e_per_s=5.0, quantum_efficiency=0.5, prnu_frac=0.01, dsnu_e=5.0,
+                     adc_bits=14)
+    d = simulate_ptc(tr, seed=1, n_levels=20, spatial_frames=8, spatial_every=5)
+    m = PTCModel(d)
+    assert m.pattern_latents == ["z_roi_dsnu", "z_roi_prnu", "z_roi_cross"]
+    assert m.nu_pattern == 100 * 100 - 1
+    th = m.initial_guess()[None]
+    lp0 = m.log_prior(th)
+    th2 = th.copy()
+    th2[0, m.idx["z_roi_prnu"]] = 2.0
+    assert m.log_prior(th2) == pytest.approx(lp0 - 2.0)
+
+
+def test_prior_overrides():
+    tr, d = _lowread_sensor()
+    m = PTCModel(d, prior={"read_log_bounds": (1.0, 20.0), "qe_bounds": (0.3, 0.8)})
+    assert PTCModel.PRIOR["read_log_bounds"] is None  # the class default is untouched
+    th = m.initial_guess()[None]
+    assert np.isfinite(m.log_prior(th))
+    for name, val in (("log_read", np.log(0.5)), ("log_read", np.log(25.0)), ("qe", 0.9)):
+        t2 = th.copy()
+        t2[0, m.idx[name]] = val
+        assert m.log_prior(t2)[0] == -np.inf
+    t2 = th.copy()
+    t2[0, m.idx["log_read"]] = np.log(3.0)
+    t3 = th.copy()
+    t3[0, m.idx["log_read"]] = np.log(15.0)
+    assert m.log_prior(t2)[0] == pytest.approx(m.log_prior(t3)[0])  # log-uniform
+    with pytest.raises(ValueError, match="unknown prior keys"):
+        PTCModel(d, prior={"read_bounds": (1, 2)})
