@@ -933,4 +933,18 @@ class PTCModel:
         if "qe" in th and P["qe_bounds"] is not None:
             q0, q1 = P["qe_bounds"]
             th["qe"] = float(np.clip(th["qe"], q0 + 1e-3 * (q1 - q0), q1 - 1e-3 * (q1 - q0)))
-        return np.array([th[n] for n in self.names], float)
+        x = np.array([th[n] for n in self.names], float)
+        if tm.clip_spread:
+            # the clip spread: a deterministic scan of log_prob over τ from 10⁻³ DN to the prior's cap.
+            # Below the quantization floor the plateau variance depends on τ only for τ ≲ 0.7 DN
+            # (exact rounding), flat above (Sheppard): a start in the flat part leaves the
+            # optimiser there, thousands of nats below the mode
+            cref = th.get("clip_dn", self.adc if self.adc is not None else self.max_mean_ok)
+            hi = np.log(0.999 * self.PRIOR["tau_max_frac"] * cref)
+            grid = np.linspace(np.log(1e-3), hi, 16) if hi > np.log(1e-3) else np.array([th["log_tau"]])
+            cand = np.repeat(x[None, :], grid.size + 1, axis=0)
+            cand[1:, self.idx["log_tau"]] = grid
+            lp = self.log_prob(cand)
+            if np.any(np.isfinite(lp)):
+                x = cand[int(np.nanargmax(np.where(np.isfinite(lp), lp, -np.inf)))]
+        return x
