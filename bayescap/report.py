@@ -62,13 +62,18 @@ def format_text(result: FitResult | dict) -> str:
     name = d["sensor"].get("sensor", "")
     lines.append(f"bayescap {d['bayescap_version']}: {d['input']}" + (f"  ({name})" if name else ""))
     conv = "converged" if dg["converged"] else "NOT CONVERGED"
+
+    def num(key, spec):   # a diagnostic that could not be computed is null in the JSON: print n/a
+        v = dg.get(key)
+        return "n/a" if v is None else format(v, spec)
+
     if dg.get("method") == "laplace-is":
-        lines.append(f"sampler: {conv}: Laplace–IS, Pareto k̂ {dg['khat']:.2f} (target < {dg['khat_max']:g}), "
-                     f"IS ESS {dg['ess_is']:.0f} (target ≥ {dg['ess_target']:.0f}); {dg['n_draws']} resampled "
+        lines.append(f"sampler: {conv}: Laplace–IS, Pareto k̂ {num('khat', '.2f')} (target < {dg['khat_max']:g}), "
+                     f"IS ESS {num('ess_is', '.0f')} (target ≥ {dg['ess_target']:.0f}); {dg['n_draws']} resampled "
                      f"draws, {dg['wall_s']:.2f} s, quality {dg['quality']}, seed {dg['seed']}")
     else:
-        lines.append(f"sampler: {conv}: R-hat max {dg['rhat_max']:.4f} (target < {dg['rhat_target']}), "
-                     f"ESS min {dg['ess_min']:.0f} (target ≥ {dg['ess_target']:.0f}); {dg['n_ensembles']} "
+        lines.append(f"sampler: {conv}: R-hat max {num('rhat_max', '.4f')} (target < {dg['rhat_target']}), "
+                     f"ESS min {num('ess_min', '.0f')} (target ≥ {dg['ess_target']:.0f}); {dg['n_ensembles']} "
                      f"ensembles × {dg['n_walkers']} walkers × {dg['n_steps']} steps, {dg['wall_s']:.1f} s, "
                      f"quality {dg['quality']}, seed {dg['seed']}")
     if "fast_path" in dg:
