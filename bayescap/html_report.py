@@ -22,6 +22,7 @@ from pathlib import Path
 import numpy as np
 
 from .compare import _coefficients
+from .report import format_or_na
 from .compare import (DEFAULT_AREA, DEFAULT_H0_LUX_S, DEFAULT_MID_GREY, DEFAULT_QUALITY, Comparison,
                       CompareInputError, compare, snr_at_exposure, tonal_range_at_exposure)
 
@@ -352,11 +353,13 @@ def render_html(cmp: Comparison, *, title: str = "bayescap sensor comparison") -
             if sd.get(k):
                 der.append([_e(k + " (compare)"), _iv(sd[k]), _e(sd[k].get("unit", ""))])
         dg = rd["diagnostics"]
+        num = lambda key, spec: format_or_na(dg.get(key), spec)  # noqa: E731
+
         diag = [["converged", "yes" if dg["converged"] else "<span class=warn>no</span>"],
-                (["Pareto k̂ (target)", f"{dg['khat']:.2f} (&lt; {dg['khat_max']:g})"] if dg.get("method") == "laplace-is"
-                 else ["R-hat max (target)", f"{dg['rhat_max']:.4f} (&lt; {dg['rhat_target']})"]),
-                ["ESS min (target)", f"{dg['ess_min']:.0f} (≥ {dg['ess_target']:.0f})"],
-                ["sampler", _e(f"Laplace–IS, IS ESS {dg['ess_is']:.0f} of {dg['n_proposals']} proposals, "
+                (["Pareto k̂ (target)", f"{num('khat', '.2f')} (&lt; {dg['khat_max']:g})"] if dg.get("method") == "laplace-is"
+                 else ["R-hat max (target)", f"{num('rhat_max', '.4f')} (&lt; {dg['rhat_target']})"]),
+                ["ESS min (target)", f"{num('ess_min', '.0f')} (≥ {dg['ess_target']:.0f})"],
+                ["sampler", _e(f"Laplace–IS, IS ESS {num('ess_is', '.0f')} of {dg['n_proposals']} proposals, "
                                f"{dg['n_draws']} resampled draws, {dg['wall_s']:.1f} s, quality {dg['quality']}"
                                if dg.get("method") == "laplace-is" else
                                f"{dg['n_ensembles']} ensembles × {dg['n_walkers']} walkers × {dg['n_steps']} steps, "

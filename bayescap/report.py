@@ -54,6 +54,11 @@ def _row(name, s):
     return line
 
 
+def format_or_na(value, spec: str) -> str:
+    """``format(value, spec)``, or "n/a" for a diagnostic that could not be computed (null in the JSON)."""
+    return "n/a" if value is None else format(value, spec)
+
+
 def format_text(result: FitResult | dict) -> str:
     """The human-readable report printed by ``bayescap fit``."""
     d = result.to_dict() if isinstance(result, FitResult) else result
@@ -62,10 +67,7 @@ def format_text(result: FitResult | dict) -> str:
     name = d["sensor"].get("sensor", "")
     lines.append(f"bayescap {d['bayescap_version']}: {d['input']}" + (f"  ({name})" if name else ""))
     conv = "converged" if dg["converged"] else "NOT CONVERGED"
-
-    def num(key, spec):   # a diagnostic that could not be computed is null in the JSON: print n/a
-        v = dg.get(key)
-        return "n/a" if v is None else format(v, spec)
+    num = lambda key, spec: format_or_na(dg.get(key), spec)  # noqa: E731
 
     if dg.get("method") == "laplace-is":
         lines.append(f"sampler: {conv}: Laplace–IS, Pareto k̂ {num('khat', '.2f')} (target < {dg['khat_max']:g}), "
