@@ -80,6 +80,26 @@ SBC_PRIOR = dict(log_k_bounds=(math.log(0.5), math.log(8.0)), read_log_bounds=(1
 SBC_LEVELS = 50
 
 
+def _draw_core(rng):
+    """The draws both truth generators share, in this order (the random stream depends on it):
+    K log-U(0.5, 8) e⁻/DN, read noise log-U(1, 20) e⁻, full well log-U(3 000, 60 000) e⁻, dark
+    current log-U(1, 200) e⁻/s, QE U(0.3, 0.8), ADC range / full well log-U(0.4, 2.5). Black level
+    64·2^j DN, the smallest at least 6 read-noise sd above 0 DN: a real camera's offset keeps the
+    dark noise off the ADC's zero (64 DN fixed clipped 3 % of the dark pixels of a K = 0.56, 19 e⁻
+    sensor, an artefact the model rightly does not describe); ADC bits from the range, 10–16."""
+    K = _logu(rng, 0.5, 8.0)
+    rn = _logu(rng, 1.0, 20.0)
+    fw = _logu(rng, 3000.0, 60000.0)
+    dc = _logu(rng, 1.0, 200.0)
+    qe = float(rng.uniform(0.3, 0.8))
+    ratio = _logu(rng, 0.4, 2.5)
+    black = 64.0
+    while black < 6.0 * rn / K:
+        black *= 2.0
+    bits = int(np.clip(round(math.log2(ratio * fw / K + black + 1.0)), 10, 16))
+    return K, rn, fw, dc, qe, black, bits
+
+
 def draw_sensor_prior(rng, n_levels=SBC_LEVELS):
     """One sensor drawn from ``SBC_PRIOR`` (classic SBC), its simulation settings and the
     discrepancies to inject.
@@ -97,16 +117,7 @@ def draw_sensor_prior(rng, n_levels=SBC_LEVELS):
     """
     from bayescap.simulate import SensorTruth
 
-    K = _logu(rng, 0.5, 8.0)
-    rn = _logu(rng, 1.0, 20.0)
-    fw = _logu(rng, 3000.0, 60000.0)
-    dc = _logu(rng, 1.0, 200.0)
-    qe = float(rng.uniform(0.3, 0.8))
-    ratio = _logu(rng, 0.4, 2.5)
-    black = 64.0
-    while black < 6.0 * rn / K:
-        black *= 2.0
-    bits = int(np.clip(round(math.log2(ratio * fw / K + black + 1.0)), 10, 16))
+    K, rn, fw, dc, qe, black, bits = _draw_core(rng)
     while True:  # truncated log-normal (rejection)
         spread = float(np.exp(rng.normal(math.log(0.005), 1.5)))
         if spread < 0.02:
@@ -170,19 +181,7 @@ def draw_sensor(rng):
     """
     from bayescap.simulate import SensorTruth
 
-    K = _logu(rng, 0.5, 8.0)
-    rn = _logu(rng, 1.0, 20.0)
-    fw = _logu(rng, 3000.0, 60000.0)
-    dc = _logu(rng, 1.0, 200.0)
-    qe = float(rng.uniform(0.3, 0.8))
-    ratio = _logu(rng, 0.4, 2.5)
-    # black level 64·2^j DN, the smallest at least 6 read-noise sd above 0 DN: a real camera's
-    # offset keeps the dark noise off the ADC's zero (64 DN fixed clipped 3 % of the dark pixels
-    # of a K = 0.56, 19 e⁻ sensor, an artefact the model rightly does not describe)
-    black = 64.0
-    while black < 6.0 * rn / K:
-        black *= 2.0
-    bits = int(np.clip(round(math.log2(ratio * fw / K + black + 1.0)), 10, 16))
+    K, rn, fw, dc, qe, black, bits = _draw_core(rng)
     spread = float(rng.uniform(0.0, 0.03))
     spatial = bool(rng.uniform() < 0.4)
     if spatial:
