@@ -146,7 +146,7 @@ def _cmd_mtf(args) -> int:
             raise InputError(f"--roi must be x0,y0,x1,y1 (four integers), got '{args.roi}'") from None
     try:
         img = read_image(args.image)
-        with warnings.catch_warnings(record=True) as caught:
+        with warnings.catch_warnings(record=True):   # MTFWarnings come back in r.warnings
             warnings.simplefilter("always", MTFWarning)
             r = measure_sfr(img, roi=roi, npol=args.npol, channel=args.channel, window=args.window,
                             n_boot=args.n_boot, seed=args.seed, correct_bin_width=args.correct_bin_width)
@@ -169,7 +169,6 @@ def _cmd_mtf(args) -> int:
 
 def _cmd_fit(args) -> int:
     from .api import fit, load
-    from .posterior import Scene
     from .ptc import PTCInputError
     from .report import format_text, to_json, write_outputs
 

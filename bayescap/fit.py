@@ -379,7 +379,6 @@ def _default_jobs(n_ensembles):
 
 
 def _map_segments(tasks, n_jobs, pbar=None):
-    global _WORKER_MODEL
     if n_jobs > 1 and len(tasks) > 1 and "fork" in mp.get_all_start_methods():
         ctx = mp.get_context("fork")
         out = []

@@ -848,7 +848,7 @@ class PTCModel:
     # ------------------------------------------------------------------ start point
     def initial_guess(self) -> np.ndarray:
         """A deterministic starting point from EMVA-1288-style linear fits (no randomness)."""
-        d, tm = self.data, self.terms
+        tm = self.terms
         s, v = self.s_obs, self.v
         vd_ok = self.vd[~self.full_sat]
         lin = s <= 0.7 * s.max()

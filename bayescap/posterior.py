@@ -15,8 +15,7 @@ from . import __version__
 from .capacity import (NoiseCoefficients, dynamic_range_db, mtf_loss_bits, snr_db, tonal_range,
                        N_GREY_LEVELS)
 from .fit import ChainResult, ConvergenceWarning, fast_diagnostics, stuck_threshold, stuck_walkers
-from .model import PARAMETER_INFO, PTCModel
-from .optics import default_mtf
+from .model import PTCModel
 
 __all__ = ["FitResult", "Scene", "summarize", "DERIVED_INFO"]
 
