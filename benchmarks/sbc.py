@@ -100,7 +100,7 @@ def _draw_core(rng):
     return K, rn, fw, dc, qe, black, bits
 
 
-def draw_sensor_prior(rng, n_levels=SBC_LEVELS):
+def draw_sensor_prior(rng, n_levels=SBC_LEVELS, spatial_fraction=0.4):
     """One sensor drawn from ``SBC_PRIOR`` (classic SBC), its simulation settings and the
     discrepancies to inject.
 
@@ -122,7 +122,7 @@ def draw_sensor_prior(rng, n_levels=SBC_LEVELS):
         spread = float(np.exp(rng.normal(math.log(0.005), 1.5)))
         if spread < 0.02:
             break
-    spatial = bool(rng.uniform() < 0.4)
+    spatial = bool(rng.uniform() < spatial_fraction)
     if spatial:
         prnu = _logu(rng, 0.003, 0.02)
         dsnu = _logu(rng, 1.0, 20.0)
@@ -291,13 +291,14 @@ def run_one(args):
     i, truth_ss, sim_seed, fit_seed, quality, L = args[:6]
     truths = args[6] if len(args) > 6 else "realistic"
     n_levels = args[7] if len(args) > 7 else SBC_LEVELS
+    spatial_fraction = args[8] if len(args) > 8 else 0.4
     import bayescap
     from bayescap.simulate import simulate_ptc
 
     rng = np.random.default_rng(truth_ss)
     prior, extra = None, {}
     if truths == "prior":
-        truth, sim, extra = draw_sensor_prior(rng, n_levels)
+        truth, sim, extra = draw_sensor_prior(rng, n_levels, spatial_fraction)
         prior = SBC_PRIOR
     else:
         truth, sim = draw_sensor(rng)
@@ -521,6 +522,9 @@ def main(argv=None):
                          "realistic: draw_sensor's range fitted with the production priors")
     ap.add_argument("--jobs", type=int, default=2, help="worker processes (each fit is independent)")
     ap.add_argument("--levels", type=int, default=SBC_LEVELS, help="exposure levels per sensor (--truths prior)")
+    ap.add_argument("--spatial-fraction", type=float, default=0.4,
+                    help="share of sensors with a spatial stack (PRNU, DSNU) (--truths prior); 1 ranks PRNU "
+                         "and DSNU on every sensor")
     ap.add_argument("--L", type=int, default=99, help="thinned posterior draws per sensor (L+1 ranks)")
     ap.add_argument("--bins", type=int, default=10)
     ap.add_argument("--out", type=Path, default=RESULTS)
@@ -543,7 +547,7 @@ def main(argv=None):
         note = "" if m == args.n else f" (partial: the first {m} of {args.n} sensors)"
         report(records, args=args, cmd=(args.cmd or cmd) + note, wall_s=None)
         return
-    tasks = [(i, a, b, c, args.quality, args.L, args.truths, args.levels)
+    tasks = [(i, a, b, c, args.quality, args.L, args.truths, args.levels, args.spatial_fraction)
              for i, (a, b, c) in enumerate(sensor_seeds(args.seed, args.n))]
     t0 = time.perf_counter()
     records = []
