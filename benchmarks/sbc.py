@@ -439,7 +439,7 @@ CLASSIC_TEXT = (
     "**Classic SBC** (`--truths prior`, Talts et al. 2018): every model parameter is drawn from "
     "`SBC_PRIOR` and every fit uses exactly that prior (`bayescap.fit(prior=SBC_PRIOR)`): K "
     "log-U(0.5, 8) e⁻/DN, read noise log-U(1, 20) e⁻, dark current log-U(1, 200) e⁻/s, QE "
-    "U(0.3, 0.8), PRNU log-U(0.3 %, 2 %) and DSNU log-U(1, 20) e⁻ (40 % of sensors, with an "
+    "U(0.3, 0.8), PRNU log-U(0.3 %, 2 %) and DSNU log-U(1, 20) e⁻ ({spatial_pct:g} % of sensors, with an "
     "8-frame spatial stack at every 5th level), variance discrepancy f ~ logN(log 1 %, 1) and mean "
     "discrepancy g ~ logN(log 0.5 %, 1), **injected into the simulated data** as the likelihood "
     "describes them (`inject_discrepancies`). Not model parameters, hence not from the model's prior: "
@@ -466,7 +466,9 @@ def write_report(records, summary, path_md, *, cmd, wall_s, args, n_bins, strata
         f"Quality preset: `{args.quality}`" + (f" (SamplerSettings({', '.join(f'{k}={v}' for k, v in SBC_SETTINGS.items())}), the rest as `standard`)" if args.quality == "sbc" else "") + f"; rank among L = {L} draws thinned by the integrated "
         f"autocorrelation time; {n_bins} rank bins.",
         "",
-        (CLASSIC_TEXT.format(levels=records[0]["sim"]["n_levels"]) if records[0].get("truths") == "prior"
+        (CLASSIC_TEXT.format(levels=records[0]["sim"]["n_levels"],
+                             spatial_pct=100.0 * getattr(args, "spatial_fraction", 0.4))
+         if records[0].get("truths") == "prior"
          else REALISTIC_TEXT),
         "",
         f"ADC clips first: {sum(r['adc_clips_first'] for r in records)}/{n}; fitted clip mechanism: "
