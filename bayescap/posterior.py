@@ -328,6 +328,7 @@ class FitResult:
         if self.outliers:
             desc = ", ".join(f"row {o['row']} ({o['block']}, P = {o['probability']:.2f})" for o in self.outliers)
             self.notes.append(f"outlier rows (down-weighted by the mixture, not removed): {desc}")
+        self._check_dark_floor()
         # variance turning over below the clip: the top unclipped rows sit well below the model
         with np.errstate(over="ignore", invalid="ignore", divide="ignore"):
             obs, model, k, _ = m.predict(th)["bright_var"]
@@ -345,6 +346,31 @@ class FitResult:
                               + ", ".join(str(int(rows[i])) for i in low)
                               + ": the model has no term for that (non-linearity or a soft clip before "
                                 "full well?); treat full well and the top of the range with caution")
+
+    #: dark rows whose mean sits fewer than this many sd (temporal and, where measured, spatial)
+    #: above 0 DN: the ADC's zero clips the low tail, shrinking the dark variances (≈ 0.2 % at 2.5 sd,
+    #: 1.3 % at 2 sd, against a ≈ 1 % sampling error), a censoring the model does not have
+    DARK_FLOOR_SD = 2.5
+
+    def _check_dark_floor(self):
+        """Flag dark rows whose pixel distribution reaches the ADC's zero (black level too low for
+        the read noise and DSNU): read noise and DSNU are then biased low, silently otherwise."""
+        d = self.model.data
+        var = np.asarray(d.dark_temporal_var_dn2, float).copy()
+        if d.dark_spatial_var_dn2 is not None:
+            sp = np.asarray(d.dark_spatial_var_dn2, float)
+            var = np.where(np.isfinite(sp), np.maximum(var, sp), var)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            margin = np.asarray(d.dark_mean_dn, float) / np.sqrt(np.maximum(var, 1e-12))
+        low = np.nonzero(margin < self.DARK_FLOOR_SD)[0]
+        if low.size:
+            rows = [int(d.row_label(i)) for i in low]
+            self.flags["dark_floor_clipping"] = rows
+            self.notes.append(
+                f"dark mean only {float(np.min(margin[low])):.1f} sd above 0 DN on rows "
+                + ", ".join(str(r) for r in rows[:8]) + (" …" if len(rows) > 8 else "")
+                + ": the ADC's zero clips the darkest pixels, so read noise and DSNU are biased low "
+                  "(raise the black level / offset, as EMVA 1288 requires)")
 
     def at_scene(self, scene: "Scene") -> "FitResult":
         """The same posterior evaluated at another scene (exposure time, temperature): derived

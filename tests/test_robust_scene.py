@@ -102,3 +102,28 @@ def test_model_selection_by_loo_keeps_the_mixture_for_corrupted_rows(tmp_path):
     assert s_bad["chosen"] == "discrepancy+outliers"
     assert s_bad["variants"]["gamma_only"]["n_khat_above_0.7"] > 0
     assert s_clean["chosen"] == "gamma_only"
+
+
+def test_dark_pixels_clipped_at_zero_are_flagged():
+    """A black level too low for the read noise and DSNU: the ADC's zero clips the darkest pixels
+    (black 8 DN, dark pixel sd ≈ 5.4 DN: 7 % clipped), which shrinks the dark variances and biases
+    read noise and DSNU low; the result names the rows. The same sensor at black 64 DN is not
+    flagged."""
+    from types import SimpleNamespace
+
+    from bayescap.model import PTCModel
+    from bayescap.posterior import FitResult
+    from bayescap.simulate import SensorTruth, simulate_ptc
+
+    for black, expect in ((8.0, True), (64.0, False)):
+        tr = SensorTruth(conversion_gain_e_per_dn=2.0, read_noise_e=6.0, full_well_e=8000,
+                         dsnu_e=8.0, prnu_frac=0.005, adc_bits=12, black_level_dn=black)
+        d = simulate_ptc(tr, seed=2, n_levels=12, shape=(40, 40), spatial_frames=4, spatial_every=3)
+        res = SimpleNamespace(model=PTCModel(d), flags={}, notes=[], DARK_FLOOR_SD=FitResult.DARK_FLOOR_SD)
+        FitResult._check_dark_floor(res)
+        assert ("dark_floor_clipping" in res.flags) is expect
+        if expect:
+            # the rows whose spatial column shows the DSNU (3 DN of read noise alone stays clear)
+            spatial = [int(d.row_label(i)) for i in np.nonzero(np.isfinite(d.dark_spatial_var_dn2))[0]]
+            assert res.flags["dark_floor_clipping"] == spatial
+            assert "biased low" in res.notes[0] and "sd above 0 DN" in res.notes[0]
