@@ -8,7 +8,7 @@ autocorrelation time. If the posterior is calibrated the ranks are uniform on ``
 
 **Classic SBC (``--truths prior``, the default).** Classic SBC needs truths drawn from the prior
 the fit uses. The production prior (``PTCModel.PRIOR``) is deliberately wide (log K uniform on
-1e-3..1e3 e⁻/DN, read noise of scale 1000 e⁻, ...): most of its draws are not sensors. So the SBC
+1e-4..1e4 e⁻/DN, read noise of scale 1000 e⁻, ...): most of its draws are not sensors. So the SBC
 uses a proper, realistic prior ``SBC_PRIOR`` for every model parameter, draws the truths from it
 (:func:`draw_sensor_prior`) and fits with exactly it (``bayescap.fit(prior=SBC_PRIOR)``). The
 simulator has no systematics, so the variance and mean discrepancies f and g are drawn from their
@@ -86,18 +86,30 @@ def _draw_core(rng):
     current log-U(1, 200) e⁻/s, QE U(0.3, 0.8), ADC range / full well log-U(0.4, 2.5). Black level
     64·2^j DN, the smallest at least 6 read-noise sd above 0 DN: a real camera's offset keeps the
     dark noise off the ADC's zero (64 DN fixed clipped 3 % of the dark pixels of a K = 0.56, 19 e⁻
-    sensor, an artefact the model rightly does not describe); ADC bits from the range, 10–16."""
+    sensor, an artefact the model rightly does not describe); ADC bits from the range, 10–16.
+    The last value, the drawn ADC range / full well, lets :func:`_black_and_bits` raise the black
+    level for a DSNU drawn later."""
     K = _logu(rng, 0.5, 8.0)
     rn = _logu(rng, 1.0, 20.0)
     fw = _logu(rng, 3000.0, 60000.0)
     dc = _logu(rng, 1.0, 200.0)
     qe = float(rng.uniform(0.3, 0.8))
     ratio = _logu(rng, 0.4, 2.5)
+    black, bits = _black_and_bits(K, rn, fw, ratio)
+    return K, rn, fw, dc, qe, black, bits, ratio
+
+
+def _black_and_bits(K, rn, fw, ratio, dsnu=0.0):
+    """Black level 64·2^j DN, the smallest at least 6 sd of the dark pixel distribution (read noise
+    and DSNU) above 0 DN, and the ADC bits that give the drawn range. Without DSNU this is the
+    rule of the runs before 2026-11-23; with it, the all-spatial SBC (seed 2) had two sensors
+    (68, 174) whose dark pixels clipped at 0 DN for 2–4 % (black 64 DN at 1.7–2.1 sd): both had
+    read noise and DSNU in the outer 2.5 % (the fit now flags such data: ``dark_floor_clipping``)."""
     black = 64.0
-    while black < 6.0 * rn / K:
+    while black < 6.0 * math.hypot(rn, dsnu) / K:
         black *= 2.0
     bits = int(np.clip(round(math.log2(ratio * fw / K + black + 1.0)), 10, 16))
-    return K, rn, fw, dc, qe, black, bits
+    return black, bits
 
 
 def draw_sensor_prior(rng, n_levels=SBC_LEVELS, spatial_fraction=0.4):
@@ -117,7 +129,7 @@ def draw_sensor_prior(rng, n_levels=SBC_LEVELS, spatial_fraction=0.4):
     """
     from bayescap.simulate import SensorTruth
 
-    K, rn, fw, dc, qe, black, bits = _draw_core(rng)
+    K, rn, fw, dc, qe, black, bits, ratio = _draw_core(rng)
     while True:  # truncated log-normal (rejection)
         spread = float(np.exp(rng.normal(math.log(0.005), 1.5)))
         if spread < 0.02:
@@ -126,6 +138,7 @@ def draw_sensor_prior(rng, n_levels=SBC_LEVELS, spatial_fraction=0.4):
     if spatial:
         prnu = _logu(rng, 0.003, 0.02)
         dsnu = _logu(rng, 1.0, 20.0)
+        black, bits = _black_and_bits(K, rn, fw, ratio, dsnu)
     else:
         prnu = float(rng.uniform(0.002, 0.01)) if rng.uniform() < 0.5 else 0.0
         dsnu = 0.0
@@ -181,12 +194,13 @@ def draw_sensor(rng):
     """
     from bayescap.simulate import SensorTruth
 
-    K, rn, fw, dc, qe, black, bits = _draw_core(rng)
+    K, rn, fw, dc, qe, black, bits, ratio = _draw_core(rng)
     spread = float(rng.uniform(0.0, 0.03))
     spatial = bool(rng.uniform() < 0.4)
     if spatial:
         prnu = float(rng.uniform(0.003, 0.02))
         dsnu = _logu(rng, 1.0, 20.0)
+        black, bits = _black_and_bits(K, rn, fw, ratio, dsnu)
     else:
         prnu = float(rng.uniform(0.002, 0.01)) if rng.uniform() < 0.5 else 0.0
         dsnu = 0.0
