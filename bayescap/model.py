@@ -165,6 +165,102 @@ def _rounded_offset(frac_obs, s_tot, n_iter=12):
     return d
 
 
+#: Sheppard's s² + 1/12 is the variance of rounded values over *all* offsets; a pixel's temporal
+#: variance about its own mean is smaller by Q(s) = Σₖ e^{−4π²k²s²}/(2π²k²) (the rounding bias of
+#: its mean, h below, averaged): Q < 2e-5 DN² (relative < 1e-4) only for s² ≥ 0.2 DN²
+_QUANT_TEMPORAL_S2 = 0.2
+#: midpoint grid over a pixel mean's offset within one DN: the integrands are periodic with
+#: harmonics damped as e^{−2π²k²s²}, so M = 32 points are exact to ~e^{−2π²(Ms)²} (< 1e-8 for
+#: s ≥ 0.03 DN; below, the temporal variance is ≲ 1e-3 DN² and floored)
+_QG_M = 32
+_QG_X = (np.arange(_QG_M) + 0.5) / _QG_M - 0.5
+_QG_J = np.arange(-6, 6)  # wrapped-normal images j: enough for σ_o ≤ 0.7 (beyond, uniform)
+
+
+def _quantized_pixel_moments(delta, s, so):
+    """Rounding of pixels whose means are spread: offsets o ~ N(δ, σ_o²) (δ relative to an integer
+    DN, σ_o = ``so``), each pixel's values round(o + s·ε), ε ~ N(0, 1) drawn anew every frame.
+
+    Returns ``(V, E4, H)`` (1-D, like ``delta``):
+
+    * V  = E_o[var(round(o + sε) | o)], the temporal variance averaged over the pixels;
+    * E4 = E_o[μ₄ + var²] of the same, for the sampling variance of a pair estimate;
+    * H  = var_o(E[round(o + sε) | o]) − σ_o², the spatial variance that rounding adds to the
+      pixel means (up to 1/12 DN² for s → 0: a pattern whose pixels sit still is quantized too).
+
+    The offsets' distribution modulo 1 DN is the wrapped normal, integrated on a periodic midpoint
+    grid (uniform for σ_o > 0.7 DN, where its harmonics are < e^{−2π²·0.49} ≈ 6e-5, and then
+    tabulated in s); for σ_o < 1/M, Gauss–Hermite nodes about δ; for σ_o = 0, the point δ.
+    cov(o, h(o)) comes from Stein's lemma in closed form:
+    σ_o²·(Σ_b N(b; δ, s² + σ_o²) − 1), b the half-integer DN boundaries."""
+    delta = np.asarray(delta, float)
+    s = np.asarray(s, float)
+    so = np.asarray(so, float)
+    V = np.empty_like(delta)
+    E4 = np.empty_like(delta)
+    H = np.empty_like(delta)
+    point = so < 1e-6
+    narrow = ~point & (so < 1.0 / _QG_M)
+    wide = so > 0.7
+    grid = ~(point | narrow | wide)
+    if np.any(point):   # no pattern: the pixels share one offset
+        _, vp, m4p = _rounded_normal_moments(delta[point], s[point], J=5)
+        V[point], E4[point], H[point] = vp, m4p + vp * vp, 0.0
+    if np.any(narrow):
+        # a spread narrower than the grid: Gauss–Hermite nodes about δ (the integrands are smooth
+        # on the scale of s; the nodes stay within ±1 DN, so no wrapping is needed)
+        xg = delta[narrow, None] + so[narrow, None] * _GH_X
+        mg, vg, m4g = _rounded_normal_moments(xg, np.broadcast_to(s[narrow, None], xg.shape), J=5)
+        V[narrow] = (vg * _GH_W).sum(-1)
+        E4[narrow] = ((m4g + vg * vg) * _GH_W).sum(-1)
+        em = (mg * _GH_W).sum(-1)
+        H[narrow] = (mg * mg * _GH_W).sum(-1) - em * em - so[narrow] ** 2
+    if np.any(wide):    # offsets uniform modulo 1 DN: functions of s alone (tabulated)
+        V[wide], E4[wide], H[wide] = _uniform_offset_moments(s[wide])
+    if np.any(grid):
+        dl, sg, sog = delta[grid], s[grid], so[grid]
+        x = np.broadcast_to(_QG_X, dl.shape + (_QG_M,))
+        m, v, m4 = _rounded_normal_moments(x, np.broadcast_to(sg[:, None], x.shape), J=5)
+        h = m - x                                       # rounding bias of a pixel's mean
+        d = (x[..., None] - dl[:, None, None] + _QG_J) / sog[:, None, None]
+        w = np.exp(-0.5 * d * d).sum(-1)                # wrapped normal on the grid
+        w = w / w.sum(-1, keepdims=True)
+        V[grid] = (w * v).sum(-1)
+        E4[grid] = (w * (m4 + v * v)).sum(-1)
+        eh = (w * h).sum(-1)
+        var_h = np.maximum((w * h * h).sum(-1) - eh * eh, 0.0)
+        # Stein: cov(o, h(o)) = σ_o² E[h'(o)], E[h'] = Σ_b N(b; δ, τ²) − 1 (τ² = s² + σ_o²)
+        tau = np.sqrt(sg * sg + sog * sog)
+        zz = (_QG_J + 0.5 - dl[:, None]) / tau[:, None]
+        dens = np.exp(-0.5 * zz * zz).sum(-1) / (tau * np.sqrt(2.0 * np.pi))
+        dens = np.where(tau > 1.0, 1.0, dens)           # |Σ − 1| < 3e-9 beyond
+        H[grid] = var_h + 2.0 * sog * sog * (dens - 1.0)
+    return V, E4, H
+
+
+_UNIFORM_TABLE = {}
+
+
+def _uniform_offset_moments(s):
+    """(V, E4, H) of :func:`_quantized_pixel_moments` for offsets uniform modulo 1 DN (σ_o > 0.7):
+    functions of s alone, tabulated once (1 024 points, log-spaced s from 10⁻³ to 0.75 DN, each by a
+    512-point periodic midpoint rule; linear interpolation in log s, relative error < 1e-5) —
+    H = s² + 1/12 − V (Sheppard's total variance, split into the temporal part and the means')."""
+    if not _UNIFORM_TABLE:
+        ls = np.linspace(np.log(1e-3), np.log(0.75), 1024)
+        sg = np.exp(ls)
+        x = (np.arange(512) + 0.5) / 512 - 0.5
+        _, v, m4 = _rounded_normal_moments(np.broadcast_to(x, (sg.size, x.size)),
+                                           np.broadcast_to(sg[:, None], (sg.size, x.size)), J=5)
+        _UNIFORM_TABLE.update(ls=ls, lv=np.log(v.mean(-1)), le4=np.log((m4 + v * v).mean(-1)))
+        _UNIFORM_TABLE["sg"] = sg
+    t = _UNIFORM_TABLE
+    ls = np.log(np.clip(s, 1e-3, 0.75))
+    V = np.exp(np.interp(ls, t["ls"], t["lv"]))
+    E4 = np.exp(np.interp(ls, t["ls"], t["le4"]))
+    return V, E4, s * s + 1.0 / 12.0 - V
+
+
 @dataclass(frozen=True)
 class ModelTerms:
     """Which terms the data can inform, and why the others are left out."""
@@ -312,7 +408,7 @@ class PTCModel:
     #: [lo, hi] (QE: uniform on [lo, hi]). Override per model with ``PTCModel(data, prior={...})``
     #: or ``bayescap.fit(..., prior={...})``; ``benchmarks/sbc.py`` does so to fit with exactly
     #: the prior it draws its true sensors from (classic SBC).
-    PRIOR = dict(log_k_bounds=(np.log(1e-3), np.log(1e3)), read_scale_e=1000.0,
+    PRIOR = dict(log_k_bounds=(np.log(1e-4), np.log(1e4)), read_scale_e=1000.0,
                  dark_current_scale_e_per_s=1e4, prnu_scale=0.05, dsnu_scale_e=100.0,
                  f_center=0.01, f_log_sd=1.5, g_center=0.005, g_log_sd=1.5,
                  tau_log_sd=1.5, tau_max_frac=0.02,
@@ -538,40 +634,38 @@ class PTCModel:
         return a, b, c
 
     def _quantized_var(self, s2, frac, spread2):
-        """Temporal variance of rounded values and the factor φ of its sampling variance
-        (relative variance of a pair estimate over n pixels = φ/ν; φ = 2 for a normal).
+        """Quantization of the temporal variance, and of the fixed pattern, for every draw and row.
 
-        ``s2`` (n_draws, rows): variance before rounding (DN²); ``frac`` (rows,): measured
-        mean's offset from the nearest integer DN; ``spread2`` (n_draws, 1 or rows): variance of
-        the per-pixel mean offsets (fixed patterns). Where s² + σ_o² ≥ ½ DN², Sheppard's σ² + 1/12
-        (relative error < 3e-4, against a sampling error of ≥ 0.4 % for n ≤ 10⁵ pixels) and φ = 2. Below, the
-        exact moments of round(N(δ + σ_o·ξ, s²)) averaged over the pixel offsets ξ ~ N(0, 1)
-        (Gauss–Hermite), with δ from the measured mean (E[round] = measured offset)."""
+        ``s2`` (n_draws, rows): temporal variance before rounding (DN²); ``frac`` (rows,): the
+        measured mean's offset from the nearest integer DN; ``spread2`` (n_draws, 1 or rows):
+        variance σ_o² of the per-pixel mean offsets (fixed patterns, well spread).
+
+        Returns ``(var, phi, excess)``: the pixel-averaged temporal variance of the rounded values,
+        the factor φ of its sampling variance (relative variance of a pair estimate over n pixels
+        = φ/ν; 2 for a normal), and the excess of the per-pixel means' spatial variance over σ_o²
+        that rounding adds (what a spatial variance of frame averages sees besides σ_o²).
+        Sheppard's s² + 1/12, φ = 2 and no excess where s² ≥ 0.2 DN² and s² + σ_o² ≥ ½ DN²
+        (relative errors < 3e-4, below the ≥ 0.4 % sampling error of a variance over ≤ 10⁵
+        pixels); elsewhere the exact moments of :func:`_quantized_pixel_moments`."""
         var = s2 + 1.0 / 12.0
         phi = np.full_like(var, 2.0)
+        excess = np.zeros_like(var)
         sp2 = np.maximum(np.broadcast_to(spread2, s2.shape), 0.0)
-        need = s2 + sp2 < _QUANT_EXACT_S2
+        need = (s2 < _QUANT_TEMPORAL_S2) | (s2 + sp2 < _QUANT_EXACT_S2)
         if not np.any(need):
-            return var, phi
+            return var, phi, excess
         s = np.sqrt(np.maximum(s2[need], 1e-8))
-        spn = sp2[need]
+        so = np.sqrt(sp2[need])
         fr = np.broadcast_to(frac[None, :], s2.shape)[need]
-        delta = _rounded_offset(fr, np.sqrt(s * s + spn))
-        if np.any(spn > 0):
-            x = delta[:, None] + np.sqrt(spn)[:, None] * _GH_X
-            x = x - np.round(x)  # rounding is periodic in the offset: central moments are too
-            _, v, m4 = _rounded_normal_moments(x, np.broadcast_to(s[:, None], x.shape))
-            V = v @ _GH_W
-            E4 = (m4 + v * v) @ _GH_W
-        else:
-            _, V, m4 = _rounded_normal_moments(delta, s)
-            E4 = m4 + V * V
+        delta = _rounded_offset(fr, np.sqrt(s * s + so * so))
+        V, E4, H = _quantized_pixel_moments(delta, s, so)
         # the measured variances are floored at 1e-6 DN² (a sample with no differing pixel): so is
         # the model, which otherwise penalises a ratio 1e-6/1e-12 for identical "zero" data
         V = np.maximum(V, 1e-6)
         var[need] = V
         phi[need] = E4 / (2.0 * V * V)
-        return var, phi
+        excess[need] = H
+        return var, phi, excess
 
     # ------------------------------------------------------------------ likelihood
     def _clip_moments(self, mu, s, tau, c):
@@ -612,11 +706,11 @@ class PTCModel:
         out = {}
         pa, pb, pc = self._pattern_moments(th, p)  # realised ROI patterns (zeros without the terms)
         # dark temporal variances (all rows); rounding at the measured offset below 1 DN
-        vdm, phi_d = self._quantized_var(rd2_all / (K * K), self.dark_frac_dn, pb / (K * K))
+        vdm, phi_d, hd = self._quantized_var(rd2_all / (K * K), self.dark_frac_dn, pb / (K * K))
         out["dark_var"] = (self.vd, vdm, 1.0 / (phi_d / self.nu_d[None, :] + f2), "gamma")
         # bright temporal variances, unclipped rows: S from the measured mean
         S = np.broadcast_to(self.s_obs[None, :], rd2_ok.shape).copy()
-        vm, phi_b = self._quantized_var(S / K + rd2_ok / (K * K), self.bright_frac_dn,
+        vm, phi_b, hb = self._quantized_var(S / K + rd2_ok / (K * K), self.bright_frac_dn,
                                         pa * S * S + pb / (K * K) + 2.0 * pc * S / K)
         slope = np.ones_like(vm)
         if self.clip_rows.size:
@@ -659,7 +753,7 @@ class PTCModel:
             tau_full = np.broadcast_to(p["clip_spread_dn"][:, None], post_full.shape)
             # rounding of the plateau values: exact below the quantization floor (offsets spread by
             # the well spread τ), Sheppard above
-            vfull, phi_pl = self._quantized_var(post_full / (K * K), self.full_frac_dn, tau_full**2)
+            vfull, phi_pl, _ = self._quantized_var(post_full / (K * K), self.full_frac_dn, tau_full**2)
             cmean = np.broadcast_to(p["clip_dn"][:, None], vfull.shape)
             if self.adc is not None:
                 # the ADC clips the plateau's read noise too (wells just below the ADC maximum):
@@ -686,13 +780,14 @@ class PTCModel:
         if self.sp_rows.size:
             r = self.sp_rows
             Sr = S[:, r]
-            P = pa * Sr * Sr + pb / (K * K) + 2.0 * pc * Sr / K
+            # realised pattern, plus what rounding adds to it below the quantization floor
+            P = pa * Sr * Sr + pb / (K * K) + 2.0 * pc * Sr / K + hb[:, r]
             T = vm[:, r] / self.L_ok[r][None, :]
             out["spatial_var"] = (self.sp[r], np.maximum(P + T, 1e-12),
                                   self._pattern_shape(P, T, self.nu[r][None, :], f2), "gamma")
         if self.spd_rows.size:
             r = self.spd_rows
-            P = np.broadcast_to(pb / (K * K), (k.size, r.size))
+            P = pb / (K * K) + hd[:, r]
             T = vdm[:, r] / self.L_all[r][None, :]
             out["dark_spatial_var"] = (np.maximum(self.spd[r], 1e-9), np.maximum(P + T, 1e-12),
                                        self._pattern_shape(P, T, self.nu_d[r][None, :], f2), "gamma")

@@ -10,8 +10,8 @@ import pytest
 from scipy import stats
 
 import bayescap
-from bayescap.model import (PTCModel, _chi2_over_nu, _rounded_normal_moments, _rounded_offset,
-                            _QUANT_EXACT_S2)
+from bayescap.model import (PTCModel, _chi2_over_nu, _quantized_pixel_moments, _rounded_normal_moments,
+                            _rounded_offset, _uniform_offset_moments, _QUANT_EXACT_S2, _QUANT_TEMPORAL_S2)
 from bayescap.simulate import SensorTruth, simulate_ptc
 
 CASES = [(0.0, 0.12), (0.1, 0.2), (0.4, 0.3), (-0.3, 0.45), (0.5, 0.25), (0.2, 0.68)]
@@ -49,6 +49,102 @@ def test_sheppard_is_kept_where_it_is_exact():
     for delta in np.linspace(-0.5, 0.5, 11):
         _, v, _ = _rounded_normal_moments(np.array(delta), np.array(s))
         assert abs(v / (s * s + 1 / 12) - 1) < 3e-4
+
+
+def _pixel_moments_reference(delta, s, so):
+    """(V, E4, H) by brute force: a 200 001-point rule over the Gaussian pixel offsets o (±9 σ_o),
+    each pixel's exact rounded moments (no wrapping, no grid, no Stein)."""
+    o = np.linspace(delta - 9 * so, delta + 9 * so, 200_001)
+    w = np.exp(-0.5 * ((o - delta) / so) ** 2)
+    w /= w.sum()
+    base = np.round(o)
+    m, v, m4 = _rounded_normal_moments(o - base, np.full(o.size, s), J=7)
+    mabs = base + m
+    em, eo = (w * mabs).sum(), (w * o).sum()
+    H = (w * mabs**2).sum() - em**2 - ((w * o**2).sum() - eo**2)
+    return (w * v).sum(), (w * (m4 + v * v)).sum(), H
+
+
+@pytest.mark.parametrize("s", [0.05, 0.1, 0.2, 0.3, 0.44, 0.7])
+def test_quantized_pixel_moments_match_brute_force(s):
+    """Temporal variance, its 4th-moment term and the rounding excess of the pixel means, for
+    pattern spreads from none to many DN (all four regimes: point, Gauss–Hermite, wrapped-normal
+    grid, uniform table) and offsets up to the DN boundary. Tolerances from the method's error
+    terms: the uniform cut at σ_o > 0.7 leaves harmonics of e^{−2π²·0.49} ≈ 6e-5 (hence 1.5e-4;
+    measured ≤ 9.4e-5 over this grid)."""
+    tol = 1.5e-4
+    for delta in (-0.5, -0.3, 0.0, 0.2, 0.45):
+        for so in (0.0, 1e-4, 0.02, 0.06, 0.07, 0.1, 0.3, 0.6, 0.69, 0.71, 1.0, 3.0):
+            V, E4, H = _quantized_pixel_moments(np.array([delta]), np.array([s]), np.array([so]))
+            if so == 0.0:
+                _, v, m4 = _rounded_normal_moments(np.array(delta), np.array(s), J=7)
+                ref = (v, m4 + v * v, 0.0)
+            else:
+                ref = _pixel_moments_reference(delta, s, so)
+            if ref[0] > 1e-3:  # below, the model floors the variance anyway
+                assert V[0] == pytest.approx(ref[0], rel=tol), (delta, so)
+                assert E4[0] == pytest.approx(ref[1], rel=tol), (delta, so)
+            assert abs(H[0] - ref[2]) < tol, (delta, so)
+
+
+def test_sheppard_fails_for_the_temporal_variance_below_its_threshold():
+    """Sheppard's s² + 1/12 is the variance over all offsets; a pixel's temporal variance about its
+    own mean is smaller by the mean-square rounding bias of the pixel means (the uniform-offset H):
+    1e-4 relative at the threshold s² = 0.2 DN², 11 % at s = 0.2 DN (why the threshold exists)."""
+    s = np.sqrt(_QUANT_TEMPORAL_S2)
+    V, _, H = _uniform_offset_moments(np.array([s]))
+    assert abs(V[0] / (s * s + 1 / 12) - 1) < 1e-4 and H[0] > 0
+    V2, _, H2 = _uniform_offset_moments(np.array([0.2]))
+    assert V2[0] / (0.04 + 1 / 12) - 1 < -0.08
+    assert H2[0] == pytest.approx(0.04 + 1 / 12 - V2[0])
+
+
+def test_pattern_below_the_quantization_floor_at_the_truth():
+    """σ_read/K = 0.15 DN with a DSNU of 0.8 DN: the pixels' offsets spread over the DN grid, so
+    Sheppard's s² + 1/12 overstates each pixel's temporal variance and the means' spatial variance
+    gains what rounding adds. At the true parameters (the ROI latents set to the simulator's own
+    realised maps) the dark temporal rows scatter about the model with its own spread (mean z
+    within 4/√n), and the dark spatial rows' mean residual is within 4 sd of what the realised
+    map's own rounding fluctuates by (2·σ_o·sd(h)/√n_px) plus the rows' sampling error; the
+    model without these terms misses both (z = −13.7 and a residual of +0.017 DN²)."""
+    from bayescap.simulate import _FixedPattern
+
+    tr = SensorTruth(conversion_gain_e_per_dn=8.0, read_noise_e=1.2, full_well_e=20000,
+                     dark_current_e_per_s=2.0, quantum_efficiency=0.5, prnu_frac=0.005, dsnu_e=6.4,
+                     adc_bits=14, black_level_dn=64)
+    seed, shape = 4, (100, 100)
+    d = simulate_ptc(tr, seed=seed, n_levels=40, spatial_frames=8, spatial_every=2, shape=shape)
+    fp = _FixedPattern(tr, shape, np.random.default_rng(seed))  # the simulator's maps (same stream)
+    m = PTCModel(d)
+    th = m.initial_guess()
+    K = tr.conversion_gain_e_per_dn
+    for name, val in (("log_k", K), ("log_read", tr.read_noise_e), ("log_dc", tr.dark_current_e_per_s),
+                      ("log_dsnu", tr.dsnu_e), ("log_prnu", tr.prnu_frac), ("log_f", 1e-6)):
+        th[m.idx[name]] = np.log(val)
+    nu = m.nu_pattern
+    b = fp.dsnu.var(ddof=1)
+
+    def wh_inverse(q, n):  # Wilson–Hilferty: z with χ²_n/n(z) = q
+        a = 2 / (9 * n)
+        return (q ** (1 / 3) - 1 + a) / np.sqrt(a)
+
+    th[m.idx["z_roi_dsnu"]] = wh_inverse(b / tr.dsnu_e**2 * nu / (nu - 1), nu - 1)
+    th[m.idx["z_roi_cross"]] = 0.0
+    th[m.idx["z_roi_prnu"]] = wh_inverse((fp.prnu - 1).var(ddof=1) / tr.prnu_frac**2, nu)
+    assert m._pattern_moments(th[None], m.physical(th[None]))[1][0, 0] == pytest.approx(b, rel=1e-9)
+    pr = m.predict(th[None])
+    obs, model, shape_k, _ = pr["dark_var"]
+    z = (obs / model[0] - 1.0) * np.sqrt(shape_k[0])
+    assert abs(z.mean()) < 4.0 / np.sqrt(z.size), z.mean()
+    obs, model, shape_k, _ = pr["dark_spatial_var"]
+    row_sd = model[0] / np.sqrt(shape_k[0])
+    se_rows = np.sqrt(np.mean(row_sd**2) / row_sd.size)
+    s = tr.read_noise_e / K
+    sd_h = np.sqrt(_uniform_offset_moments(np.array([s]))[2][0])  # rms rounding bias of a pixel mean
+    sd_realised = 2.0 * (np.sqrt(b) / K) * sd_h / np.sqrt(fp.dsnu.size)
+    bound = 4.0 * np.hypot(se_rows, sd_realised)
+    assert abs(np.mean(obs - model[0])) < bound, (np.mean(obs - model[0]), bound)
+    assert bound < 0.012  # the test can tell: without the terms the residual is +0.017 DN²
 
 
 def _lowread_sensor(seed=3):
