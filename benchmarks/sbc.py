@@ -463,6 +463,11 @@ CLASSIC_TEXT = (
     "bits depend on the drawn sensor as in `draw_sensor`.")
 
 
+def _read_dn(rec):
+    t = rec["truth"]
+    return t["read_noise_e"] / t["conversion_gain_e_per_dn"]
+
+
 def write_report(records, summary, path_md, *, cmd, wall_s, args, n_bins, strata):
     L = records[0]["L"]
     n = len(records)
@@ -606,6 +611,9 @@ def report(records, *, args, cmd, wall_s):
         "Stratified: ADC clips first": summarise(records, n_bins, lambda r, n: r["adc_clips_first"]),
         "Stratified: full well clips first": summarise(records, n_bins, lambda r, n: not r["adc_clips_first"]),
         "Stratified: converged fits only": summarise(records, n_bins, lambda r, n: r["converged"]),
+        "Stratified: read noise below 0.5 DN (σ_read/K; quantization regime)": summarise(
+            records, n_bins, lambda r, n: _read_dn(r) < 0.5),
+        "Stratified: read noise at least 0.5 DN": summarise(records, n_bins, lambda r, n: _read_dn(r) >= 0.5),
         "Stratified: the fit reports the quantity constrained": summarise(
             records, n_bins, lambda r, n: r["q"][n]["constrained"]),
         "Stratified: the fit reports the quantity unconstrained (upper limit)": summarise(
