@@ -51,10 +51,8 @@ class SamplerSettings:
     independence_nu: float = 6.0         # its Student-t degrees of freedom
     independence_scale: float = 1.0      # its sd multiplier on the Laplace covariance
     map_restarts: int = 2           # extra optimiser starts in find_map (the Laplace start)
-    adaptive_extend: bool = False
-    init_scale: float = 1.0         # sd multiplier of the Laplace ball the walkers start from
+    adaptive_extend: bool = False   # size each further round from the ESS / τ shortfall (≥ extend_steps)
     importance_start: bool = True   # with the IndependenceMove: start from Laplace–IS draws when accepted
-    coordinate_fraction: float = 0.0  # share of single-coordinate Gaussian random-walk steps (sd = marginal sd)   # size each further round from the ESS / τ shortfall (≥ extend_steps)
 
 
 QUALITY_PRESETS = {
@@ -276,7 +274,13 @@ class IndependenceMove(emcee.moves.MHMove):
     def __init__(self, mean, cov, *, nu: float = 6.0, scale: float = 1.0):
         self.mean = np.asarray(mean, float)
         self.nu = float(nu)
-        self.L = np.linalg.cholesky(_proposal_cov(np.asarray(cov, float), scale))
+        c = _proposal_cov(np.asarray(cov, float), scale)
+        try:
+            self.L = np.linalg.cholesky(c)
+        except np.linalg.LinAlgError:   # eigenvalue floor at 1e-14 of the largest can still fail: jitter
+            self.L = np.linalg.cholesky(c + 1e-10 * np.max(np.diag(c)) * np.eye(c.shape[0]))
+        self.n_proposed = 0
+        self.n_accepted = 0
         super().__init__(self._get_proposal, ndim=self.mean.size)
 
     def log_q(self, x):
@@ -284,9 +288,6 @@ class IndependenceMove(emcee.moves.MHMove):
         z = np.linalg.solve(self.L, (np.atleast_2d(x) - self.mean).T)
         maha = np.einsum("ij,ij->j", z, z)
         return -0.5 * (self.nu + self.mean.size) * np.log1p(maha / self.nu)
-
-    n_proposed = 0
-    n_accepted = 0
 
     def propose(self, model, state):
         state, accepted = super().propose(model, state)
@@ -312,13 +313,6 @@ def _moves(settings: SamplerSettings, x_map=None, cov=None, fraction=None):
         out.append((IndependenceMove(x_map, cov, nu=settings.independence_nu, scale=settings.independence_scale),
                     ind))
     rest = 1.0 - ind
-    cf = settings.coordinate_fraction if x_map is not None else 0.0
-    if cf > 0:
-        # one random coordinate per walker, step sd = that coordinate's marginal sd: reaches a
-        # flat, prior-dominated tail (an upper limit at zero) that moves along the bulk's
-        # correlations (DE, the t) step into only rarely
-        out.append((emcee.moves.GaussianMove(np.diag(_proposal_cov(cov, 1.0)).copy(), mode="random"), cf))
-        rest -= cf
     if rest <= 0:
         return out
     if de >= 1:
@@ -330,12 +324,12 @@ def _moves(settings: SamplerSettings, x_map=None, cov=None, fraction=None):
 
 def _importance_start(model, x_map, cov, seed):
     """Distinct approximate posterior draws to start the walkers from, and their mean and
-    covariance for the IndependenceMove: the fast path's Laplace–IS (:func:`bayescap.fast.fast_posterior`
-    at this MAP and covariance, 3 000 importance draws, two ``log_prob`` calls) resampled. Walkers
-    started at the Laplace approximation need many steps to reach a skewed tail (an upper limit such
-    as the Basler's dark current: its 2.5 % quantile came out 9–16 e⁻/s after 40 + 60 steps against 7.4–7.9
-    from 350 DE steps), and a t fitted to such a burn-in never proposes there; importance weights
-    correct the tail from the start. None when the IS check rejects the draws (then: Laplace ball)."""
+    covariance for the IndependenceMove's first proposal: the fast path's Laplace–IS
+    (:func:`bayescap.fast.fast_posterior` at this MAP and covariance, default :class:`FastSettings`:
+    6 000 importance draws in two ``log_prob`` calls) resampled. Closer to the posterior than the
+    Laplace ball where the posterior is skewed; it does not remove the slow filling of the Basler dark
+    current's lower tail (docs/performance.md), which is why the standard burn-in stays 100 steps.
+    None when the IS check rejects the draws (then: the Laplace ball)."""
     from .fast import FastSettings, fast_posterior
 
     chains, diag = fast_posterior(model, seed=seed, x_map=x_map, cov=cov, settings=FastSettings(n_draws=4000))
@@ -580,7 +574,7 @@ def run_ensembles(model: PTCModel, *, settings: SamplerSettings = SamplerSetting
             draws = is_start[0]
             p0 = draws[rng.choice(draws.shape[0], size=nw, replace=False)]
         else:
-            p0 = _initial_ball(model, x_map, cov * settings.init_scale ** 2, nw, rng)
+            p0 = _initial_ball(model, x_map, cov, nw, rng)
         rstate = np.random.RandomState(child.generate_state(1)[0]).get_state()
         tasks.append((i, p0, None, rstate, settings.n_burn, settings.n_steps, settings, proposal))
     _WORKER_MODEL = model
