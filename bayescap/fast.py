@@ -54,8 +54,8 @@ METHOD = "laplace-is"
 class FastSettings:
     """Knobs of the Laplace–IS fast path (see ``docs/performance.md``)."""
 
-    nu: float = 6.0               # Student-t degrees of freedom of the proposals
-    n_proposals: int = 3000       # importance draws in all (two vectorised log_prob calls)
+    nu: float = 4.0               # Student-t degrees of freedom of the proposals (6 before 2026-11-23)
+    n_proposals: int = 6000       # importance draws in all (two vectorised log_prob calls; 3000 before)
     adapt_fraction: float = 2 / 3  # share drawn from the moment-matched second proposal
     adapt_inflation: float = 1.2  # sd multiplier on the weighted covariance of round 1
     refine_iter: int = 6          # at most this many whitened re-evaluations of the Hessian

@@ -46,16 +46,28 @@ class SamplerSettings:
     ess_target: float = 1000.0  # bulk and tail, every parameter and capacity
     tau_factor: float = 10.0    # production length ≥ tau_factor × integrated autocorrelation time
     max_draws: int = 8000       # posterior draws kept for propagation
-    de_fraction: float = 0.8    # DEMove share, the rest StretchMove
+    de_fraction: float = 0.8    # DEMove share of the non-independence moves, the rest StretchMove
+    independence_fraction: float = 0.0   # share of IndependenceMove steps (t proposal at the Laplace start)
+    independence_nu: float = 6.0         # its Student-t degrees of freedom
+    independence_scale: float = 1.0      # its sd multiplier on the Laplace covariance
+    map_restarts: int = 2           # extra optimiser starts in find_map (the Laplace start)
+    adaptive_extend: bool = False   # size each further round from the ESS / τ shortfall (≥ extend_steps)
+    importance_start: bool = True   # with the IndependenceMove: start from Laplace–IS draws when accepted
 
 
 QUALITY_PRESETS = {
     "fast": SamplerSettings(n_ensembles=2, n_burn=100, n_steps=150, extend_steps=None, max_rounds=3, ess_target=200,
                             tau_factor=10, max_draws=4000),
-    # standard: the issue's targets (R-hat < 1.01, ESS >= 1000 for every parameter and capacity);
-    # burn-in 50 from the Laplace start (100 and 200 gave the same intervals and ESS, measured on
-    # the bundled Basler and simulated sets, docs/performance.md); rounds of 100 more steps
-    "standard": SamplerSettings(),
+    # standard: the issue's targets (R-hat < 1.01, ESS >= 1000 for every parameter and capacity).
+    # 70 % of the steps are IndependenceMove proposals (t, ν 4, sd × 1.3) fitted to the burn-in (share
+    # cut where they are rarely accepted), the rest DE 0.8 + stretch 0.2; walkers start from Laplace–IS
+    # draws. τ 4–5 steps instead of 16–22. Burn-in stays 100 steps: the Basler dark current's lower tail
+    # (an upper limit) takes ~100–200 steps to fill from any start (with 40 burn-in + 60 steps its 2.5 %
+    # quantile came out 9–16 e⁻/s, reference 5.7, flipping the upper-limit flag); rounds after the first
+    # are sized from the ESS/τ shortfall; one optimiser start (polish_map reaches the 2-restart MAP on
+    # 13 sensors). Measurements: docs/performance.md.
+    "standard": SamplerSettings(n_burn=100, n_steps=100, extend_steps=20, max_rounds=16, independence_fraction=0.7,
+                                independence_nu=4.0, independence_scale=1.3, adaptive_extend=True, map_restarts=0),
     "accurate": SamplerSettings(n_ensembles=8, n_burn=400, n_steps=800, extend_steps=None, max_rounds=8,
                                 rhat_target=1.005, ess_target=2000, tau_factor=50, max_draws=20000),
 }
@@ -247,11 +259,87 @@ def laplace_start(model: PTCModel, *, n_restarts: int = 2, refine_iter: int = 6,
     return x_map, lp_map, cov, t_map
 
 
-def _moves(settings: SamplerSettings):
+class IndependenceMove(emcee.moves.MHMove):
+    """Independence Metropolis–Hastings for every walker at once: proposals from a fixed
+    multivariate Student-t ``t_ν(mean, scale²·cov)`` (here the Laplace approximation at the MAP),
+    accepted with probability ``min(1, p(x′) q(x) / (p(x) q(x′)))``.
+
+    The proposal does not depend on the current position, so the move leaves the target invariant
+    whatever ``mean`` and ``cov`` are (a poor approximation only lowers the acceptance); when the
+    approximation is good, successive states are nearly independent. One ``log_prob`` call per step
+    for the whole ensemble (emcee's red-blue moves need two). Mixed with DE/stretch moves, which
+    cover what the t misses (skewed upper limits, bounds). Calibration on known targets:
+    ``benchmarks/check_moves.py``."""
+
+    def __init__(self, mean, cov, *, nu: float = 6.0, scale: float = 1.0):
+        self.mean = np.asarray(mean, float)
+        self.nu = float(nu)
+        c = _proposal_cov(np.asarray(cov, float), scale)
+        try:
+            self.L = np.linalg.cholesky(c)
+        except np.linalg.LinAlgError:   # eigenvalue floor at 1e-14 of the largest can still fail: jitter
+            self.L = np.linalg.cholesky(c + 1e-10 * np.max(np.diag(c)) * np.eye(c.shape[0]))
+        self.n_proposed = 0
+        self.n_accepted = 0
+        super().__init__(self._get_proposal, ndim=self.mean.size)
+
+    def log_q(self, x):
+        """log proposal density up to a constant (the constant cancels in the ratio)."""
+        z = np.linalg.solve(self.L, (np.atleast_2d(x) - self.mean).T)
+        maha = np.einsum("ij,ij->j", z, z)
+        return -0.5 * (self.nu + self.mean.size) * np.log1p(maha / self.nu)
+
+    def propose(self, model, state):
+        state, accepted = super().propose(model, state)
+        self.n_proposed += accepted.size
+        self.n_accepted += int(np.sum(accepted))
+        return state, accepted
+
+    def _get_proposal(self, coords, random):
+        n, d = coords.shape
+        z = random.standard_normal((n, d))
+        u = random.chisquare(self.nu, size=n) / self.nu
+        q = self.mean + (z @ self.L.T) / np.sqrt(u)[:, None]
+        log_q_new = -0.5 * (self.nu + d) * np.log1p(np.einsum("ij,ij->i", z, z) / u / self.nu)
+        # MHMove adds this to log p(x') − log p(x): log q(x) − log q(x')
+        return q, self.log_q(coords) - log_q_new
+
+
+def _moves(settings: SamplerSettings, x_map=None, cov=None, fraction=None):
     de = settings.de_fraction
+    ind = (settings.independence_fraction if fraction is None else fraction) if x_map is not None else 0.0
+    out = []
+    if ind > 0:
+        out.append((IndependenceMove(x_map, cov, nu=settings.independence_nu, scale=settings.independence_scale),
+                    ind))
+    rest = 1.0 - ind
+    if rest <= 0:
+        return out
     if de >= 1:
-        return [(emcee.moves.DEMove(), 1.0)]
-    return [(emcee.moves.DEMove(), de), (emcee.moves.StretchMove(), 1.0 - de)]
+        out.append((emcee.moves.DEMove(), rest))
+    else:
+        out += [(emcee.moves.DEMove(), rest * de), (emcee.moves.StretchMove(), rest * (1.0 - de))]
+    return out
+
+
+def _importance_start(model, x_map, cov, seed):
+    """Distinct approximate posterior draws to start the walkers from, and their mean and
+    covariance for the IndependenceMove's first proposal: the fast path's Laplace–IS
+    (:func:`bayescap.fast.fast_posterior` at this MAP and covariance, default :class:`FastSettings`:
+    6 000 importance draws in two ``log_prob`` calls) resampled. Closer to the posterior than the
+    Laplace ball where the posterior is skewed; it does not remove the slow filling of the Basler dark
+    current's lower tail (docs/performance.md), which is why the standard burn-in stays 100 steps.
+    None when the IS check rejects the draws (then: the Laplace ball)."""
+    from .fast import FastSettings, fast_posterior
+
+    chains, diag = fast_posterior(model, seed=seed, x_map=x_map, cov=cov, settings=FastSettings(n_draws=4000))
+    if not diag["accepted"]:
+        return None
+    draws = np.unique(chains.chain.reshape(-1, model.ndim), axis=0)
+    if draws.shape[0] < 4 * model.ndim:
+        return None
+    x = chains.chain.reshape(-1, model.ndim)
+    return draws, x.mean(axis=0), np.cov(x.T)
 
 
 def _initial_ball(model, x_map, cov, n_walkers, rng):
@@ -290,15 +378,58 @@ class ChainResult:
 _WORKER_MODEL = None  # the model, inherited by forked workers (copy-on-write)
 
 
+def _sampler(model, nw, settings, proposal):
+    return emcee.EnsembleSampler(nw, model.ndim, model.log_prob, vectorize=True, moves=_moves(settings, *proposal))
+
+
+#: IndependenceMove acceptance at or above which it keeps its full share of the steps
+INDEPENDENCE_ACCEPT_REF = 0.25
+
+
+def _adapted_proposal(sampler, ndim, proposal, settings):
+    """The IndependenceMove's proposal for what follows a burn-in stretch: (mean, covariance of the
+    stretch's draws (walkers not stranded), share of the steps). The share is
+    ``independence_fraction · min(1, a / INDEPENDENCE_ACCEPT_REF)`` with ``a`` the move's acceptance in
+    the stretch, so that where the t fits the posterior badly (a ridge, several modes: acceptance
+    ≈ 0) the DE/stretch moves get the steps back. The previous mean and covariance are kept when
+    the new ones are not usable."""
+    mean, cov = proposal[0], proposal[1]
+    frac = proposal[2] if len(proposal) > 2 else settings.independence_fraction
+    mv = [m for m in sampler._moves if isinstance(m, IndependenceMove)]
+    if mv and mv[0].n_proposed:
+        a = mv[0].n_accepted / mv[0].n_proposed
+        frac = settings.independence_fraction * min(1.0, a / INDEPENDENCE_ACCEPT_REF)
+    chain, lp = sampler.get_chain(), sampler.get_log_prob()
+    keep = ~stuck_walkers(lp, ndim)
+    x = chain[:, keep].reshape(-1, ndim)
+    if x.shape[0] >= 4 * ndim:
+        mu, c = x.mean(axis=0), np.cov(x.T)
+        if np.all(np.isfinite(mu)) and np.all(np.isfinite(c)):
+            try:
+                np.linalg.cholesky(_proposal_cov(c, 1.0))
+                mean, cov = mu, c
+            except np.linalg.LinAlgError:
+                pass
+    return mean, cov, frac
+
+
 def _run_segment(task):
     """Run one ensemble for (optional burn-in +) ``n_steps`` from a given state.
 
     Self-contained so it can run in a forked worker; the ensemble's random stream travels in
-    the state, so results do not depend on which process runs which ensemble."""
-    idx, coords, log_prob, rstate, n_burn, n_steps, settings = task
+    the state, so results do not depend on which process runs which ensemble.
+
+    With ``settings.independence_fraction > 0`` the IndependenceMove proposes from a t at
+    ``task[7]`` = (mean, cov[, share]) (the Laplace start); after each half of the burn-in the t is
+    refitted to that half's draws and its share of the steps to its acceptance there
+    (:func:`_adapted_proposal`; burn-in only: in production the moves are fixed, so production is a
+    valid Markov chain), and the final proposal is returned for the next round."""
+    idx, coords, log_prob, rstate, n_burn, n_steps, settings = task[:7]
+    proposal = task[7] if len(task) > 7 else (None, None)
     model = _WORKER_MODEL
     nw = coords.shape[0]
-    s = emcee.EnsembleSampler(nw, model.ndim, model.log_prob, vectorize=True, moves=_moves(settings))
+    adapt = settings.independence_fraction > 0 and proposal[0] is not None
+    s = _sampler(model, nw, settings, proposal)
     state = emcee.State(coords, log_prob=log_prob, random_state=rstate)
     n_reset = 0
     if n_burn:
@@ -307,8 +438,11 @@ def _run_segment(task):
         for steps in (n_burn // 2, n_burn - n_burn // 2):
             if steps:
                 state = s.run_mcmc(state, steps, progress=False, skip_initial_state_check=True)
+                if adapt:
+                    proposal = _adapted_proposal(s, model.ndim, proposal, settings)
                 state, n = _reset_stuck_walkers(s, state, model.ndim)
                 n_reset += n
+                s = _sampler(model, nw, settings, proposal) if adapt else s
                 s.reset()
     # emcee's initial-state check (centred, column-scaled condition number <= 1e8) rejects a posterior
     # whose parameters are nearly collinear (gain x clip level pins the full well: condition ~1e11),
@@ -316,7 +450,7 @@ def _run_segment(task):
     state = s.run_mcmc(state, n_steps, progress=False, skip_initial_state_check=True)
     accepted = s.acceptance_fraction * n_steps
     return (idx, s.get_chain(), s.get_log_prob(), state.coords, state.log_prob, state.random_state, accepted,
-            n_reset)
+            n_reset, proposal)
 
 
 def stuck_threshold(ndim: int) -> float:
@@ -378,15 +512,20 @@ def _default_jobs(n_ensembles):
     return max(1, min(n_ensembles, os.cpu_count() or 1))
 
 
-def _map_segments(tasks, n_jobs, pbar=None):
-    if n_jobs > 1 and len(tasks) > 1 and "fork" in mp.get_all_start_methods():
-        ctx = mp.get_context("fork")
+def _pool(n_jobs, n_tasks):
+    """A fork pool kept for every round of one fit (None: run in this process)."""
+    if n_jobs > 1 and n_tasks > 1 and "fork" in mp.get_all_start_methods():
+        return mp.get_context("fork").Pool(min(n_jobs, n_tasks))
+    return None
+
+
+def _map_segments(tasks, pool, pbar=None):
+    if pool is not None:
         out = []
-        with ctx.Pool(min(n_jobs, len(tasks))) as pool:
-            for r in pool.imap_unordered(_run_segment, tasks):
-                out.append(r)
-                if pbar is not None:
-                    pbar.update(tasks[0][4] + tasks[0][5])
+        for r in pool.imap_unordered(_run_segment, tasks):
+            out.append(r)
+            if pbar is not None:
+                pbar.update(tasks[0][4] + tasks[0][5])
         return sorted(out, key=lambda r: r[0])
     out = []
     for t in tasks:
@@ -411,7 +550,7 @@ def run_ensembles(model: PTCModel, *, settings: SamplerSettings = SamplerSetting
     """
     global _WORKER_MODEL
     t0 = time.perf_counter()
-    x_map, lp_map, cov, _ = laplace_start(model)
+    x_map, lp_map, cov, _ = laplace_start(model, n_restarts=settings.map_restarts)
     ss = np.random.SeedSequence(seed)
     children = ss.spawn(settings.n_ensembles)
     nw = max(settings.min_walkers, settings.walkers_per_dim * model.ndim)
@@ -422,13 +561,24 @@ def run_ensembles(model: PTCModel, *, settings: SamplerSettings = SamplerSetting
         from tqdm.auto import tqdm
         pbar = tqdm(total=settings.n_ensembles * (settings.n_burn + settings.n_steps),
                     desc="sampling", unit="step", leave=False)
+    is_start = None
+    proposal = (x_map, cov)
+    if settings.independence_fraction > 0 and settings.importance_start:
+        is_start = _importance_start(model, x_map, cov, int(ss.spawn(1)[0].generate_state(1)[0]))
+        if is_start is not None:
+            proposal = (is_start[1], is_start[2])
     tasks = []
     for i, child in enumerate(children):
         rng = np.random.default_rng(child)
-        p0 = _initial_ball(model, x_map, cov, nw, rng)
+        if is_start is not None:
+            draws = is_start[0]
+            p0 = draws[rng.choice(draws.shape[0], size=nw, replace=False)]
+        else:
+            p0 = _initial_ball(model, x_map, cov, nw, rng)
         rstate = np.random.RandomState(child.generate_state(1)[0]).get_state()
-        tasks.append((i, p0, None, rstate, settings.n_burn, settings.n_steps, settings))
+        tasks.append((i, p0, None, rstate, settings.n_burn, settings.n_steps, settings, proposal))
     _WORKER_MODEL = model
+    pool = _pool(n_jobs, len(tasks))      # forked after _WORKER_MODEL is set: the workers inherit it
     try:
         chunks = [[] for _ in children]
         lps = [[] for _ in children]
@@ -438,27 +588,31 @@ def run_ensembles(model: PTCModel, *, settings: SamplerSettings = SamplerSetting
         rounds = 0
         while True:
             rounds += 1
-            results = _map_segments(tasks, n_jobs, pbar)
+            results = _map_segments(tasks, pool, pbar)
             n_prod += tasks[0][5]
-            n_next = settings.extend_steps or settings.n_steps
             tasks = []
-            for idx, ch, lp, coords, lpf, rstate, acc, n_reset in results:
+            for idx, ch, lp, coords, lpf, rstate, acc, n_reset, prop in results:
                 walkers_reset[idx] += n_reset
                 chunks[idx].append(ch)
                 lps[idx].append(lp)
                 accepted[idx] += acc.mean()
-                tasks.append((idx, coords, lpf, rstate, 0, n_next, settings))
+                tasks.append((idx, coords, lpf, rstate, 0, 0, settings, prop))
             chain = np.stack([np.concatenate(c, axis=0) for c in chunks])  # (E, S, W, D)
             cache = {}
             ok = (converged_fn(chain, settings) if converged_fn is not None
                   else _default_converged(chain, settings, cache, derived_fn))
             if ok or rounds >= settings.max_rounds:
                 break
+            n_next = _next_round_steps(chain.shape[1], settings, cache)
+            tasks = [t[:5] + (n_next,) + t[6:] for t in tasks]
             if pbar is not None:
                 pbar.total += settings.n_ensembles * n_next
                 pbar.refresh()
     finally:
         _WORKER_MODEL = None
+        if pool is not None:
+            pool.terminate()
+            pool.join()
         if pbar is not None:
             pbar.close()
     lp = np.stack([np.concatenate(c, axis=0) for c in lps])
@@ -471,12 +625,33 @@ def run_ensembles(model: PTCModel, *, settings: SamplerSettings = SamplerSetting
                               "param_diagnostics": cache if ok and converged_fn is None else None})
 
 
+def _emcee_integrated_time(x, c=5):
+    """emcee's ``autocorr.integrated_time(x, quiet=True, tol=0)`` for ``x`` (steps, walkers, params),
+    with every walker's and parameter's FFT in one call instead of one Python call per walker and
+    parameter (≈ 14 000 on a 4 × 300 × 96 × 12 chain, 0.6 s); equal to emcee's to rounding (tested)."""
+    n_t = x.shape[0]
+    n = 1
+    while n < n_t:
+        n <<= 1
+    y = np.ascontiguousarray(np.transpose(x, (1, 2, 0)))       # (walkers, params, steps)
+    f = np.fft.rfft(y - y.mean(axis=-1, keepdims=True), n=2 * n, axis=-1)
+    acf = np.fft.irfft(f.real ** 2 + f.imag ** 2, n=2 * n, axis=-1)[..., :n_t]
+    with np.errstate(invalid="ignore", divide="ignore"):
+        acf = acf / acf[..., :1]
+    f_mean = acf.mean(axis=0).T                 # (steps, params), walkers averaged
+    taus = 2.0 * np.cumsum(f_mean, axis=0) - 1.0
+    out = np.empty(x.shape[2])
+    for d in range(x.shape[2]):
+        m = np.arange(n_t) < c * taus[:, d]
+        w = int(np.argmin(m)) if np.any(m) else n_t - 1
+        out[d] = taus[w, d]
+    return out
+
+
 def integrated_time(chain):
     """Integrated autocorrelation time (steps) per parameter, emcee's estimator applied to each
     ensemble (walkers averaged, as emcee does) and the largest over ensembles kept."""
-    taus = []
-    for e in range(chain.shape[0]):
-        taus.append(emcee.autocorr.integrated_time(chain[e], quiet=True, tol=0))
+    taus = [_emcee_integrated_time(chain[e]) for e in range(chain.shape[0])]
     return np.max(np.array(taus), axis=0)
 
 
@@ -620,6 +795,8 @@ def _default_converged(chain, settings, cache=None, derived_fn=None):
     so that :class:`bayescap.posterior.FitResult` need not recompute them for the final chain."""
     E, S, W, D = chain.shape
     tau = integrated_time(chain)
+    if cache is not None:
+        cache["_shortfall"] = ("tau", float(np.nanmax(settings.tau_factor * tau) - S))
     if np.any(S < settings.tau_factor * tau):
         return False
 
@@ -627,6 +804,7 @@ def _default_converged(chain, settings, cache=None, derived_fn=None):
         d = fast_diagnostics(x)
         if cache is not None:
             cache[key] = d
+            cache["_shortfall"] = ("ess", min(d["ess_bulk"], d["ess_tail"]), d["rhat"])
         return d["rhat"] < settings.rhat_target and min(d["ess_bulk"], d["ess_tail"]) >= settings.ess_target
 
     for j in range(D):
@@ -636,4 +814,25 @@ def _default_converged(chain, settings, cache=None, derived_fn=None):
         for name, x in derived_fn(chain).items():
             if not ok(name, x):
                 return False
+    if cache is not None:
+        cache.pop("_shortfall", None)
     return True
+
+
+def _next_round_steps(n_done, settings, cache):
+    """Steps of the next round: ``extend_steps``, or with ``adaptive_extend`` enough to close the
+    shortfall of the check that failed (ESS grows about linearly with the steps: n·(target/ESS − 1)
+    + 10 %; a τ check: tau_factor·τ − n), at most 3 n + extend_steps. Even, so the shared-sort
+    diagnostics apply. Deterministic: depends only on the chain."""
+    base = settings.extend_steps or settings.n_steps
+    if not settings.adaptive_extend or not cache or "_shortfall" not in cache:
+        return base
+    kind, *v = cache["_shortfall"]
+    if kind == "tau":
+        need = v[0]
+    elif v[1] >= settings.rhat_target:     # R-hat failed: no ESS-based guess
+        need = base
+    else:
+        need = 1.1 * n_done * (settings.ess_target / max(v[0], 1.0) - 1.0)
+    n = int(np.ceil(min(max(need, base), 3 * n_done + base)))
+    return n + n % 2

@@ -163,15 +163,22 @@ def test_walkers_stranded_in_burn_in_are_moved():
     p0[:12] = bad
     lp_bad = model.log_prob(bad)
     assert np.all(np.isfinite(lp_bad)) and np.all(lp_bad < model.log_prob(x_map[None])[0] - 100)
-    rstate = np.random.RandomState(11).get_state()
-    settings = F.QUALITY_PRESETS["standard"]
-    F._WORKER_MODEL = model
-    try:
-        _, chain, lp, *_, n_reset = F._run_segment((0, p0, None, rstate, 100, 400, settings))
-    finally:
-        F._WORKER_MODEL = None
-    assert n_reset >= 12
-    assert not F.stuck_walkers(lp, model.ndim).any()
-    qe = chain[..., model.idx["qe"]].ravel()
-    lo, hi = np.quantile(qe, [0.025, 0.975])
-    assert 0.39 < lo < 0.3991 < hi < 0.41
+    from dataclasses import replace
+
+    # the reset itself, with DE/stretch moves only (the standard preset's IndependenceMove proposals
+    # usually pull such walkers back before the check, so it would not be exercised)
+    for settings, must_reset in ((replace(F.QUALITY_PRESETS["standard"], independence_fraction=0.0), True),
+                                 (F.QUALITY_PRESETS["standard"], False)):
+        rstate = np.random.RandomState(11).get_state()
+        F._WORKER_MODEL = model
+        try:
+            _, chain, lp, *_, n_reset, _ = F._run_segment((0, p0.copy(), None, rstate, 100, 400, settings,
+                                                           (x_map, cov)))
+        finally:
+            F._WORKER_MODEL = None
+        if must_reset:
+            assert n_reset >= 12
+        assert not F.stuck_walkers(lp, model.ndim).any()
+        qe = chain[..., model.idx["qe"]].ravel()
+        lo, hi = np.quantile(qe, [0.025, 0.975])
+        assert 0.39 < lo < 0.3991 < hi < 0.41
