@@ -586,6 +586,8 @@ def run_ensembles(model: PTCModel, *, settings: SamplerSettings = SamplerSetting
         walkers_reset = np.zeros(len(children), int)
         n_prod = 0
         rounds = 0
+        discard = 0          # production steps moved to the burn-in after a drift (below)
+        drift = []
         while True:
             rounds += 1
             results = _map_segments(tasks, pool, pbar)
@@ -597,13 +599,27 @@ def run_ensembles(model: PTCModel, *, settings: SamplerSettings = SamplerSetting
                 lps[idx].append(lp)
                 accepted[idx] += acc.mean()
                 tasks.append((idx, coords, lpf, rstate, 0, 0, settings, prop))
-            chain = np.stack([np.concatenate(c, axis=0) for c in chunks])  # (E, S, W, D)
+            chain = np.stack([np.concatenate(c, axis=0) for c in chunks])[:, discard:]  # (E, S, W, D)
             cache = {}
             ok = (converged_fn(chain, settings) if converged_fn is not None
                   else _default_converged(chain, settings, cache, derived_fn))
             if ok or rounds >= settings.max_rounds:
                 break
-            n_next = _next_round_steps(chain.shape[1], settings, cache)
+            n_done = chain.shape[1]
+            sf = cache.get("_shortfall")
+            if sf is not None and sf[0] == "ess" and not sf[2] < settings.rhat_target and chain.shape[1] >= 40:
+                # R-hat failed. Its halves are split in time (_draws_by_ensemble), so this is most
+                # often a drift that every ensemble shares: a burn-in transient slower than n_burn
+                # (the clip spread τ of sim00 relaxes over 300-400 steps). The first half of the
+                # production so far becomes burn-in; the checks then run on what follows.
+                cut = (chain.shape[1] // 2) & ~1
+                discard += cut
+                names = getattr(model, "names", None)
+                q = names[sf[3]] if names is not None and isinstance(sf[3], (int, np.integer)) else str(sf[3])
+                drift.append({"round": rounds, "quantity": q, "rhat": float(sf[2]), "steps_discarded": cut})
+                n_done -= cut
+                cache = {}
+            n_next = _next_round_steps(n_done, settings, cache)
             tasks = [t[:5] + (n_next,) + t[6:] for t in tasks]
             if pbar is not None:
                 pbar.total += settings.n_ensembles * n_next
@@ -615,12 +631,14 @@ def run_ensembles(model: PTCModel, *, settings: SamplerSettings = SamplerSetting
             pool.join()
         if pbar is not None:
             pbar.close()
-    lp = np.stack([np.concatenate(c, axis=0) for c in lps])
+    lp = np.stack([np.concatenate(c, axis=0) for c in lps])[:, discard:]
     acc = accepted / n_prod
     tau = integrated_time(chain)
     return ChainResult(chain=chain, log_prob=lp, acceptance=acc, tau=tau, x_map=x_map, lp_map=lp_map,
                        settings=settings, wall_s=time.perf_counter() - t0, n_rounds=rounds,
                        extra={"n_jobs": n_jobs, "walkers_reset": [int(v) for v in walkers_reset],
+                              # production steps discarded as burn-in after a time-split R-hat failure
+                              "burn_in_extended": int(discard), "drift": drift,
                               # diagnostics of the final chain's parameters, when all were computed
                               "param_diagnostics": cache if ok and converged_fn is None else None})
 
@@ -656,9 +674,14 @@ def integrated_time(chain):
 
 
 def _draws_by_ensemble(x):
-    """(E, S, W) -> (E, W*S) walker-major: each ensemble's draws as one chain for R-hat."""
+    """(E, S, W) -> (E, S*W) step-major: each ensemble's draws as one chain for R-hat, in the order
+    of the steps, so that R-hat's split into halves (ArviZ's ``_split_chains``) is a split *in time*
+    (Vehtari et al. 2021): a drift shared by every ensemble (all start from one approximation) shows
+    as a difference between the halves. Walker-major order (before 2026-11-23) split the walkers
+    instead, and a slow burn-in transient of the clip spread passed the check (docs/performance.md,
+    sim00)."""
     E, S, W = x.shape
-    return np.transpose(x, (0, 2, 1)).reshape(E, W * S)
+    return np.ascontiguousarray(x).reshape(E, S * W)
 
 
 def diagnostics(x_esw, arviz_module=None):
@@ -776,7 +799,7 @@ def fast_diagnostics(x_esw):
     by_ens = _draws_by_ensemble(x)
     # both splits hold every draw once (S even), so the rank of each draw is the same in both
     z = _z_scale(by_walker)
-    z_ens = z.reshape(E, W * S)          # = by_ens, z-scaled (walker-major per ensemble)
+    z_ens = np.transpose(z.reshape(E, W, S), (0, 2, 1)).reshape(E, S * W)   # = by_ens, z-scaled
     split_ens = _split(by_ens)
     folded = np.abs(split_ens - np.median(split_ens))
     with warnings.catch_warnings():
@@ -804,7 +827,7 @@ def _default_converged(chain, settings, cache=None, derived_fn=None):
         d = fast_diagnostics(x)
         if cache is not None:
             cache[key] = d
-            cache["_shortfall"] = ("ess", min(d["ess_bulk"], d["ess_tail"]), d["rhat"])
+            cache["_shortfall"] = ("ess", min(d["ess_bulk"], d["ess_tail"]), d["rhat"], key)
         return d["rhat"] < settings.rhat_target and min(d["ess_bulk"], d["ess_tail"]) >= settings.ess_target
 
     for j in range(D):

@@ -300,6 +300,10 @@ class FitResult:
             "n_walkers": W,
             "n_steps": S,
             "n_burn": st.n_burn,
+            # production steps turned into burn-in because the halves of the production disagreed
+            # (time-split R-hat, fit.run_ensembles), and each such event
+            "burn_in_extended_steps": int(c.extra.get("burn_in_extended", 0) or 0),
+            "drift_events": list(c.extra.get("drift") or []),
             "n_rounds": c.n_rounds,
             "tau_max_steps": tau_max,
             "acceptance": [float(a) for a in c.acceptance],
@@ -309,6 +313,12 @@ class FitResult:
             "seed": self.seed,
             "per_quantity": per,
         }
+        if self.diag["burn_in_extended_steps"]:
+            ev = "; ".join(f"{e['quantity']} R-hat {e['rhat']:.3f} after round {e['round']}"
+                           for e in self.diag["drift_events"])
+            self.notes.append(f"burn-in extended by {self.diag['burn_in_extended_steps']} steps: the first and "
+                              f"second halves of the production disagreed ({ev}), so the earlier steps were "
+                              "discarded as burn-in and the intervals come from the steps after them")
         if not converged:
             self.notes.insert(0, "NOT CONVERGED: " + "; ".join(failed) + ". Do not use these intervals; "
                               "rerun with --quality accurate")

@@ -182,3 +182,53 @@ def test_walkers_stranded_in_burn_in_are_moved():
         qe = chain[..., model.idx["qe"]].ravel()
         lo, hi = np.quantile(qe, [0.025, 0.975])
         assert 0.39 < lo < 0.3991 < hi < 0.41
+
+
+def test_rhat_halves_are_split_in_time():
+    """R-hat's split halves are the first and second half of the steps (Vehtari et al. 2021), so a
+    drift that every ensemble shares (all start from one approximation) fails the check; the same
+    draws without the drift pass. Before 2026-11-23 the halves were halves of the walkers and the
+    drifted chain passed (R-hat 1.000)."""
+    from bayescap.fit import diagnostics, fast_diagnostics
+
+    rng = np.random.default_rng(5)
+    E, S, W = 4, 200, 32
+    x = rng.standard_normal((E, S, W))
+    drifted = x + np.where(np.arange(S) < S // 2, 0.5, 0.0)[None, :, None]   # half an sd, first half only
+    # with ~E*S*W/2 independent draws per half, a 0.5 sd shift gives R-hat ≈ 1 + 0.5²/8 ≈ 1.03
+    for a in (fast_diagnostics(drifted), diagnostics(drifted)):
+        assert a["rhat"] > 1.02
+    for a in (fast_diagnostics(x), diagnostics(x)):
+        assert a["rhat"] < 1.005
+
+
+@pytest.mark.slow
+def test_slow_burn_in_transient_is_discarded_not_reported():
+    """A simulated 10-bit sensor (speed_accuracy.py's sim00: K 0.64 e-/DN, well clip 301 e-) whose
+    clip spread τ relaxes from its start over 300-400 steps, longer than the standard burn-in. The
+    standard preset used to say "converged" with τ's median at 2.3-2.7 DN; the accurate reference
+    (seed 7, 8 ensembles, 400 burn-in steps) has median 1.655 DN and sd(log τ) 1.10. Now the
+    time-split R-hat sees the drift and the first half of the production becomes burn-in.
+    Tolerance: 4 sd of the Monte Carlo error of a median of log τ at ESS ≥ 1000 (this run) and
+    ≥ 2000 (the reference): 4 · 1.2533 · 1.10 · sqrt(1/1000 + 1/2000) = 0.21."""
+    from bayescap.simulate import SensorTruth, simulate_ptc
+
+    rng = np.random.default_rng(2024)           # benchmarks/speed_accuracy.py sensor_set(1)[1]
+    bits = int(rng.choice([10, 12, 12, 14]))
+    k = float(np.exp(rng.uniform(np.log(0.3), np.log(10.0))))
+    fw = float(np.exp(rng.uniform(np.log(0.3), np.log(1.5))) * (2**bits - 1 - 64) * k)
+    truth = SensorTruth(conversion_gain_e_per_dn=k, read_noise_e=float(np.exp(rng.uniform(0.0, np.log(30)))),
+                        full_well_e=fw, dark_current_e_per_s=float(rng.choice([0.0, 30.0, 300.0])),
+                        quantum_efficiency=float(rng.uniform(0.3, 0.8)), prnu_frac=0.005,
+                        full_well_spread_frac=0.005, adc_bits=bits)
+    assert bits == 10 and abs(k - 0.64) < 0.01
+    d = simulate_ptc(truth, n_levels=50, seed=2024)
+    r = bayescap.fit(d, seed=1, quality="standard")
+    dg = r.diag
+    assert dg["converged"]
+    assert dg["burn_in_extended_steps"] > 0
+    # the check stops at the first quantity that fails (in parameter order), which names the event
+    assert dg["drift_events"] and all(e["rhat"] >= 1.01 for e in dg["drift_events"])
+    assert any(n.startswith("burn-in extended by") for n in r.notes)
+    med = np.median(r.draws["clip_spread_dn"])
+    assert abs(np.log(med / 1.655)) < 0.21
