@@ -298,3 +298,40 @@ def test_psis_weights_equal_arviz_psislw():
         assert k == pytest.approx(float(ref_k), rel=1e-12, abs=1e-12)
         np.testing.assert_allclose(w, ref_w, rtol=1e-10, atol=1e-300)
         assert ess == pytest.approx(1.0 / np.sum(ref_w**2), rel=1e-10)
+
+
+def test_log_clip_coordinates_round_trip_and_jacobian():
+    """z = log(clip_dn − lo): x → z → x is the identity and log p_z(z) = log p(x) + z_clip."""
+    from bayescap.batch import gpixel_sensors
+    from bayescap.fast import LogClipCoordinates
+    from bayescap.model import PTCModel
+
+    m = PTCModel(gpixel_sensors(n_max=1, seed=1)[0][0])
+    assert LogClipCoordinates.applies(m)
+    w = LogClipCoordinates(m)
+    x = np.tile(m.initial_guess(), (5, 1))
+    x[:, w.j] = w.lo + np.array([1e-6, 1e-3, 0.1, 1.0, 10.0])
+    z = w.to_z(x)
+    np.testing.assert_allclose(w.to_x(z), x, rtol=0, atol=1e-9)
+    np.testing.assert_allclose(w.log_prob(z), m.log_prob(x) + z[:, w.j], rtol=1e-12)
+
+
+def test_fast_path_with_clip_at_its_bound_finds_the_mode():
+    """Simulated Gpixel ROI 11 (batch.gpixel_sensors(seed=1)): the clip level's posterior piles up
+    within 0.03 DN of its lower bound. In the model's coordinates the Laplace covariance failed there
+    (k̂ 27.7, rejected); an optimiser run in z = log(clip − lo) alone stopped at a local mode 6 nats
+    below, whose draws passed k̂ with the clip 0.05-0.1 DN too high. The fast path now polishes in z
+    from the optimum found in the model's coordinates: accepted, and its draws reach the log posterior
+    the MCMC reaches (standard preset, seed 2: max −158.04 over its draws; the MAP is −157.90, and the
+    best of 4 000 draws in 8 dimensions sits ~1 nat below it)."""
+    from bayescap.batch import gpixel_sensors
+    from bayescap.model import PTCModel
+
+    d = gpixel_sensors(n_max=12, seed=1)[0][11]
+    m = PTCModel(d)
+    chains, diag = fast_posterior(m, seed=1)
+    assert diag["accepted"] and diag["coordinates"] == "log(clip_dn - lower bound)"
+    assert chains.log_prob.max() > -159.5
+    x = chains.chain.reshape(-1, m.ndim)
+    np.testing.assert_allclose(m.log_prob(x[:100]), chains.log_prob.reshape(-1)[:100], rtol=1e-12)
+    assert np.all(x[:, m.names.index("clip_dn")] > m.clip_bounds[0])
