@@ -72,6 +72,7 @@ class FastSettings:
     n_restarts: int = 0           # extra optimiser starts in find_map
     retry_restarts: int = 2       # on rejection, retry once with this many restarts
     scale: float = 1.0            # proposal scale factor on the Laplace covariance (sd multiplier)
+    polish_both: bool = False     # clip coordinates: polish in the model's coordinates first (the retry does)
 
 
 def student_t_draws(mean, cov, nu, n, rng):
@@ -235,6 +236,13 @@ class LogClipCoordinates:
         with np.errstate(all="ignore"):
             return self.model.log_prob(self.to_x(z)) + z[:, self.j]
 
+    def start_from_x(self, x):
+        """``to_z`` of a point of the model's coordinates, its clip moved off the bound (a MAP on
+        the bound, clip_dn = lo, has z = −∞) to ``lo + 1e-9 (hi − lo)``."""
+        x = np.array(x, float, copy=True)
+        x[self.j] = max(x[self.j], self.lo + 1e-9 * (self.hi - self.lo))
+        return self.to_z(x)
+
     def initial_guess(self):
         x0 = np.array(self.model.initial_guess(), float)
         x0[self.j] = max(x0[self.j], self.lo + 1e-3 * (self.hi - self.lo))
@@ -243,21 +251,15 @@ class LogClipCoordinates:
 
 def _fast_once(model, seed, n_draws, settings, x_map, cov):
     if x_map is None and cov is None and LogClipCoordinates.applies(model):
-        # the optimum in the model's own coordinates (both optimiser starts), then the Laplace
-        # approximation and a polish in z from there: an optimiser run in z alone stopped 6 nats
-        # below the mode on a simulated ROI (and its draws passed k̂, being a local mode)
+        # the optima in the model's own coordinates (every optimiser start), then the Laplace
+        # approximation and a polish in z from each (laplace_start's ``coords``): an optimiser run
+        # in z alone stopped 6 nats below the mode on a simulated ROI (and its draws passed k̂, being
+        # a local mode). Refining in x first and again in z cost 20 % of the fast path (measured
+        # on 8 simulated Gpixel ROIs, docs/performance.md "Fast path: fewer evaluations").
         t0 = time.perf_counter()
         wrapped = LogClipCoordinates(model)
-        xm, _, _, _ = laplace_start(model, n_restarts=settings.n_restarts, refine_iter=settings.refine_iter,
-                                    polish=settings.polish)
-        xm = np.array(xm, float)
-        xm[wrapped.j] = max(xm[wrapped.j], wrapped.lo + 1e-9 * (wrapped.hi - wrapped.lo))
-        z0 = wrapped.to_z(xm)
-        cz = refine_covariance(wrapped, z0, laplace_covariance(wrapped, z0), max_iter=settings.refine_iter)
-        if settings.polish:
-            z1, _, c1 = polish_map(wrapped, z0, cz)
-            if not np.array_equal(z1, z0):
-                z0, cz = z1, refine_covariance(wrapped, z1, c1, max_iter=settings.refine_iter)
+        z0, _, cz, _ = laplace_start(model, n_restarts=settings.n_restarts, refine_iter=settings.refine_iter,
+                                     polish=settings.polish, coords=wrapped, polish_both=settings.polish_both)
         t_start = time.perf_counter() - t0
         chains, diag = _fast_once(wrapped, seed, n_draws, settings, z0, cz)
         diag["wall_map_s"] += t_start
@@ -391,7 +393,7 @@ def fast_posterior(model, *, seed, n_draws: int | None = None,
     if not diag["accepted"] and x_map is None and settings.retry_restarts > settings.n_restarts:
         # a single optimiser start can stop at the initial guess (measured on small-frame
         # sensors): retry with restarts before declaring failure
-        retry = replace(settings, n_restarts=settings.retry_restarts)
+        retry = replace(settings, n_restarts=settings.retry_restarts, polish_both=True)
         c2, d2 = _fast_once(model, seed, n_draws, retry, None, None)
         first = {k: diag[k] for k in ("khat", "ess_is", "reason")}
         wall = d2["wall_s"] + diag["wall_s"]

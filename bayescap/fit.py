@@ -83,6 +83,48 @@ def _vectorised_grad(model: PTCModel, x, h=1e-5):
     return lp[0], g
 
 
+#: :func:`_bfgs` stops once this many consecutive evaluations have not lowered the best value by
+#: more than :data:`BFGS_STALL_NATS`. The finite-difference gradient carries the ~1e-5 jitter of
+#: ``log_prob``, so ``gtol`` is never met: measured on 58 optimiser runs (29 sensors × 2 starts),
+#: BFGS was within 1e-3 nats of its final value after 40 % of its evaluations and spent the rest in
+#: failing line searches. Runs stalled for up to 13 evaluations and then climbed on (by up to 212
+#: nats), so the window is 20: the value reached then differed from the full run's by ≤ 1e-4 nats
+#: on all 58, with 41 % fewer evaluations (docs/performance.md, "Optimiser stopping").
+BFGS_STALL_EVALS = 20
+BFGS_STALL_NATS = 1e-3
+
+
+class _Stalled(Exception):
+    pass
+
+
+def _bfgs(fun, x0):
+    """``scipy.optimize.minimize(method="BFGS")`` on ``fun`` (value and gradient), stopped early
+    when the value stalls (:data:`BFGS_STALL_EVALS`); returns (x, value): the best point seen when
+    stopped early, scipy's result otherwise."""
+    best = [np.inf, np.array(x0, float), 0]
+
+    def watched(x):
+        v, g = fun(x)
+        if v < best[0] - BFGS_STALL_NATS:
+            best[:] = [v, np.array(x, float), 0]
+        else:
+            if v < best[0]:
+                best[0], best[1] = v, np.array(x, float)
+            best[2] += 1
+            if best[2] >= BFGS_STALL_EVALS:
+                raise _Stalled
+        return v, g
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        try:
+            res = optimize.minimize(watched, x0, jac=True, method="BFGS", options=dict(maxiter=2000, gtol=1e-6))
+        except _Stalled:
+            return best[1], best[0]
+    return res.x, res.fun             # ran to its own end: as scipy returns it
+
+
 def find_map(model: PTCModel, x0=None, *, n_restarts: int = 2):
     """Maximum a posteriori point by L-BFGS on the unconstrained coordinates.
 
@@ -105,15 +147,13 @@ def find_map(model: PTCModel, x0=None, *, n_restarts: int = 2):
     for s in starts:
         if not np.isfinite(model.log_prob(s[None])[0]):
             continue
-        with warnings.catch_warnings():
-            warnings.simplefilter("ignore")
-            res = optimize.minimize(fun, s, jac=True, method="BFGS", options=dict(maxiter=2000, gtol=1e-6))
-        if best is None or res.fun < best.fun:
-            best = res
+        x, v = _bfgs(fun, s)
+        if best is None or v < best[1]:
+            best = (x, v)
     if best is None:
         raise RuntimeError("no finite starting point for the optimiser: the data may be inconsistent "
                            "with the model (check the units of the columns)")
-    return best.x, -best.fun
+    return best[0], -best[1]
 
 
 def laplace_covariance(model: PTCModel, x, h=1e-4):
@@ -267,10 +307,8 @@ def find_map_scaled(model: PTCModel, x0=None, *, h: float = 1e-3):
             return 1e300, np.zeros_like(y)
         return -lpv, -np.where(np.isfinite(g), g, 0.0) * D
 
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore")
-        res = optimize.minimize(fun, np.zeros(n), jac=True, method="BFGS", options=dict(maxiter=2000, gtol=1e-6))
-    return x0 + D * res.x, -float(res.fun)
+    y, v = _bfgs(fun, np.zeros(n))
+    return x0 + D * y, -float(v)
 
 
 #: shifts of log f (the variance discrepancy) for the extra optimiser starts of :func:`laplace_start`:
@@ -283,27 +321,59 @@ def find_map_scaled(model: PTCModel, x0=None, *, h: float = 1e-3):
 MAP_START_LOG_F_SHIFTS = (2.3,)
 
 
+#: shift of log τ (the clip spread) for the extra optimiser start of :func:`_map_starts` when the
+#: initial guess puts τ at its prior cap (``tau_max_frac`` of the clip level). The cap is a wall
+#: (log prior −∞ beyond it), and a start on it stays there: on sim00 (``benchmarks/speed_accuracy.py``)
+#: both optimisers stopped on the wall, 136-264 nats below the mode at τ 7 times smaller, and the
+#: mode had been reached only by chance (a polish step from one of those points). log τ − 2 reaches
+#: the mode from both f starts; so does −3 (docs/performance.md, "Local optima").
+MAP_START_LOG_TAU_SHIFT = -2.0
+
+
 def _map_starts(model):
     """Extra starting points for :func:`laplace_start`: the initial guess with the variance
-    discrepancy f shifted by :data:`MAP_START_LOG_F_SHIFTS` (or the guess itself without an f term).
+    discrepancy f shifted by :data:`MAP_START_LOG_F_SHIFTS` (or the guess itself without an f term),
+    and, when the guess's clip spread τ sits within a factor e of its prior cap, the guess with
+    log τ shifted by :data:`MAP_START_LOG_TAU_SHIFT`.
     The discrepancy and the outlier mixture trade off: a large f explains a deviant row, a small f
     with the row as an outlier is another local optimum, and the start decides which one a local
     optimiser finds (docs/performance.md, "Local optima")."""
     x0 = model.initial_guess()
     names = list(getattr(model, "names", []))
-    if "log_f" not in names:
-        return [x0]
-    j = names.index("log_f")
     out = []
-    for df in MAP_START_LOG_F_SHIFTS:
-        s = x0.copy()
-        s[j] += df
-        out.append(s)
+    if "log_f" in names:
+        j = names.index("log_f")
+        for df in MAP_START_LOG_F_SHIFTS:
+            s = x0.copy()
+            s[j] += df
+            out.append(s)
+    else:
+        out.append(x0)
+    if "log_tau" in names and hasattr(model, "PRIOR"):
+        # the cap as in PTCModel.log_prior: a fraction of the sampled clip level, or of the ADC's
+        cref = x0[names.index("clip_dn")] if "clip_dn" in names else getattr(model, "adc", None)
+        if cref is not None and np.exp(x0[names.index("log_tau")]) > model.PRIOR["tau_max_frac"] * cref / np.e:
+            s = x0.copy()
+            s[names.index("log_tau")] += MAP_START_LOG_TAU_SHIFT
+            out.append(s)
     return out
 
 
+def _refine_and_polish(target, x_map, lp_map, refine_iter, polish):
+    """Laplace covariance at an optimum, refined in whitened coordinates, then :func:`polish_map`
+    (and a second refinement when the polish climbs). Returns (x, log p, covariance)."""
+    cov = laplace_covariance(target, x_map)
+    cov = refine_covariance(target, x_map, cov, max_iter=refine_iter)
+    if polish:
+        x_pol, lp_pol, cov_pol = polish_map(target, x_map, cov)
+        if lp_pol > lp_map + 1e-6:
+            x_map, lp_map = x_pol, lp_pol
+            cov = refine_covariance(target, x_map, cov_pol, max_iter=refine_iter)
+    return x_map, lp_map, cov
+
+
 def laplace_start(model: PTCModel, *, n_restarts: int = 2, refine_iter: int = 6, polish: bool = True,
-                  multi_start: bool = True):
+                  multi_start: bool = True, coords=None, polish_both: bool = False):
     """MAP and a self-consistent Laplace covariance: where both the MCMC walkers and the fast path's
     importance proposals start.
 
@@ -315,7 +385,15 @@ def laplace_start(model: PTCModel, *, n_restarts: int = 2, refine_iter: int = 6,
     floor, sd capped at 1 in log units) landed in regions of negligible mass on simulated sensors
     (e.g. 55-74 of 80 walkers per ensemble on the 2.80 µm benchmark sensor needed moving in burn-in;
     none with this start on two of three sensors). Returns (x_map, lp_map, cov, seconds spent in
-    :func:`find_map`)."""
+    :func:`find_map`).
+
+    ``coords``: other coordinates for the refinement (an object with ``log_prob``, ``ndim`` and
+    ``start_from_x(x)``, e.g. :class:`bayescap.fast.LogClipCoordinates`). The optimisers still run
+    on ``model``; each optimum is mapped by ``start_from_x`` and the covariance, polish and the
+    returned (point, log p, covariance) are in those coordinates, log p with their Jacobian. With
+    ``polish_both`` each optimum is first refined and polished in the model's coordinates, then in
+    ``coords`` (twice the work; :func:`bayescap.fast.fast_posterior` does this on its retry)."""
+    target = model if coords is None else coords
     t_map = 0.0
     found = []
     t0 = time.perf_counter()
@@ -331,17 +409,17 @@ def laplace_start(model: PTCModel, *, n_restarts: int = 2, refine_iter: int = 6,
     best = None
     done = []          # (x, Cholesky factor of its covariance) of the optima refined so far
     for x_map, lp_map in sorted(found, key=lambda r: -r[1]):
+        if coords is not None and polish_both:
+            x_map, lp_map, _ = _refine_and_polish(model, x_map, lp_map, refine_iter, polish)
+        if coords is not None:
+            x_map = coords.start_from_x(x_map)
+            with np.errstate(all="ignore"):
+                lp_map = float(coords.log_prob(x_map[None])[0])
         # within 2 posterior sd (Mahalanobis, that optimum's covariance) of one already refined:
         # the same mode, and polishing it again would only cost time
         if any(np.sum(np.linalg.solve(L, x_map - x) ** 2) < 4.0 for x, L in done):
             continue
-        cov = laplace_covariance(model, x_map)
-        cov = refine_covariance(model, x_map, cov, max_iter=refine_iter)
-        if polish:
-            x_pol, lp_pol, cov_pol = polish_map(model, x_map, cov)
-            if lp_pol > lp_map + 1e-6:
-                x_map, lp_map = x_pol, lp_pol
-                cov = refine_covariance(model, x_map, cov_pol, max_iter=refine_iter)
+        x_map, lp_map, cov = _refine_and_polish(target, x_map, lp_map, refine_iter, polish)
         try:
             done.append((x_map, np.linalg.cholesky(_proposal_cov(cov, 1.0))))
         except np.linalg.LinAlgError:
@@ -414,24 +492,59 @@ def _moves(settings: SamplerSettings, x_map=None, cov=None, fraction=None):
     return out
 
 
-def _importance_start(model, x_map, cov, seed):
+def _importance_start(model, x_map, cov, seed, coords=None):
     """Distinct approximate posterior draws to start the walkers from, and their mean and
     covariance for the IndependenceMove's first proposal: the fast path's Laplace–IS
     (:func:`bayescap.fast.fast_posterior` at this MAP and covariance, default :class:`FastSettings`:
     6 000 importance draws in two ``log_prob`` calls) resampled. Closer to the posterior than the
     Laplace ball where the posterior is skewed; it does not remove the slow filling of the Basler dark
     current's lower tail (docs/performance.md), which is why the standard burn-in stays 100 steps.
-    None when the IS check rejects the draws (then: the Laplace ball)."""
+    With ``coords`` (:class:`bayescap.fast.LogClipCoordinates`), ``x_map`` and ``cov`` are in those
+    coordinates and the draws come back in the model's. None when the IS check rejects the draws
+    (then: the Laplace ball)."""
     from .fast import FastSettings, fast_posterior
 
-    chains, diag = fast_posterior(model, seed=seed, x_map=x_map, cov=cov, settings=FastSettings(n_draws=4000))
+    target = model if coords is None else coords
+    chains, diag = fast_posterior(target, seed=seed, x_map=x_map, cov=cov, settings=FastSettings(n_draws=4000))
     if not diag["accepted"]:
         return None
-    draws = np.unique(chains.chain.reshape(-1, model.ndim), axis=0)
+    x = chains.chain.reshape(-1, model.ndim)
+    if coords is not None:
+        x = coords.to_x(x)
+    draws = np.unique(x, axis=0)
     if draws.shape[0] < 4 * model.ndim:
         return None
-    x = chains.chain.reshape(-1, model.ndim)
     return draws, x.mean(axis=0), np.cov(x.T)
+
+
+def _clip_coordinates(model):
+    """:class:`bayescap.fast.LogClipCoordinates` of ``model`` where its clip level is free, else None."""
+    from .fast import LogClipCoordinates
+
+    return LogClipCoordinates(model) if LogClipCoordinates.applies(model) else None
+
+
+def mcmc_start(model, *, n_restarts: int = 0):
+    """Where the walkers start: :func:`laplace_start`, refined in
+    :class:`bayescap.fast.LogClipCoordinates` where the clip level is free (as the fast path does).
+
+    A local optimiser in the model's coordinates can stop with the clip level on its lower bound,
+    where the Hessian's stencil leaves the support and :func:`polish_map` crawls: on a simulated
+    Gpixel ROI (``benchmarks/local_optima.py``, ROI 17) it stopped 46 nats below the mode, and the
+    standard preset needed a 204-step burn-in extension to get there (docs/performance.md). Returns
+    (x_map, lp_map, cov, coords, z_map, cov_z): the point and covariance in the model's coordinates
+    (``cov`` by the delta method, ``∂clip/∂z = clip − lo``), and those of ``coords`` (None without)."""
+    coords = _clip_coordinates(model)
+    if coords is None:
+        x_map, lp_map, cov, _ = laplace_start(model, n_restarts=n_restarts)
+        return x_map, lp_map, cov, None, None, None
+    z_map, _, cz, _ = laplace_start(model, n_restarts=n_restarts, coords=coords)
+    x_map = coords.to_x(z_map)
+    with np.errstate(all="ignore"):
+        lp_map = float(model.log_prob(x_map[None])[0])
+    J = np.ones(model.ndim)
+    J[coords.j] = np.exp(z_map[coords.j])
+    return x_map, lp_map, cz * np.outer(J, J), coords, z_map, cz
 
 
 def _initial_ball(model, x_map, cov, n_walkers, rng):
@@ -642,7 +755,7 @@ def run_ensembles(model: PTCModel, *, settings: SamplerSettings = SamplerSetting
     """
     global _WORKER_MODEL
     t0 = time.perf_counter()
-    x_map, lp_map, cov, _ = laplace_start(model, n_restarts=settings.map_restarts)
+    x_map, lp_map, cov, coords, z_map, cov_z = mcmc_start(model, n_restarts=settings.map_restarts)
     ss = np.random.SeedSequence(seed)
     children = ss.spawn(settings.n_ensembles)
     nw = max(settings.min_walkers, settings.walkers_per_dim * model.ndim)
@@ -656,7 +769,9 @@ def run_ensembles(model: PTCModel, *, settings: SamplerSettings = SamplerSetting
     is_start = None
     proposal = (x_map, cov)
     if settings.independence_fraction > 0 and settings.importance_start:
-        is_start = _importance_start(model, x_map, cov, int(ss.spawn(1)[0].generate_state(1)[0]))
+        is_seed = int(ss.spawn(1)[0].generate_state(1)[0])
+        is_start = (_importance_start(model, x_map, cov, is_seed) if coords is None else
+                    _importance_start(model, z_map, cov_z, is_seed, coords=coords))
         if is_start is not None:
             proposal = (is_start[1], is_start[2])
     tasks = []
