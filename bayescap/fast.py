@@ -19,11 +19,14 @@ Steps (all vectorised; two ``log_prob`` calls for the importance draws):
    :func:`psis_weights`, so that the fast path does not import ArviZ), which also returns k̂;
 5. systematic resampling to ``n_draws`` equally weighted draws, shuffled.
 
-Step 1 is :func:`bayescap.fit.laplace_start`: BFGS from the initial guess and from a second start
-with a ten times larger variance discrepancy, the higher optimum kept. Where the model has a free
-clip level (``clip_dn`` between data-derived bounds), steps 2-5 then run in
-:class:`LogClipCoordinates` (the clip as ``log(clip_dn − lower bound)``), starting from that
-optimum, and the draws come back in the model's coordinates.
+Steps 1-2 are :func:`bayescap.fit.laplace_start`: BFGS from the initial guess and from the extra
+starts of :func:`bayescap.fit._map_starts` (a ten times larger variance discrepancy; log τ − 2 when
+the guess puts the clip spread on its prior cap), stopped when the value stalls, the highest
+refined optimum kept. Where the model has a free clip level (``clip_dn`` between data-derived
+bounds), the refinement and polish of step 2 and steps 3-5 run in :class:`LogClipCoordinates` (the
+clip as ``log(clip_dn − lower bound)``) from each optimum the optimisers found in the model's
+coordinates, and the draws come back in the model's coordinates. The retry after a rejection also
+polishes in the model's coordinates first (``FastSettings.polish_both``).
 
 **Its own diagnostic.** k̂ below ``khat_max`` (0.7, the PSIS paper's threshold for a few
 thousand draws, ``min(1 − 1/log10 S, 0.7)``) and an importance-sampling ESS ``1/Σw²`` of at
