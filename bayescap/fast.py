@@ -258,7 +258,7 @@ def _fast_once(model, seed, n_draws, settings, x_map, cov):
         # approximation and a polish in z from each (laplace_start's ``coords``): an optimiser run
         # in z alone stopped 6 nats below the mode on a simulated ROI (and its draws passed k̂, being
         # a local mode). Refining in x first and again in z cost 20 % of the fast path (measured
-        # on 8 simulated Gpixel ROIs, docs/performance.md "Fast path: fewer evaluations").
+        # on 8 simulated Gpixel ROIs, docs/performance.md, "fewer evaluations in the start").
         t0 = time.perf_counter()
         wrapped = LogClipCoordinates(model)
         z0, _, cz, _ = laplace_start(model, n_restarts=settings.n_restarts, refine_iter=settings.refine_iter,

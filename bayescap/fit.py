@@ -89,7 +89,7 @@ def _vectorised_grad(model: PTCModel, x, h=1e-5):
 #: BFGS was within 1e-3 nats of its final value after 40 % of its evaluations and spent the rest in
 #: failing line searches. Runs stalled for up to 13 evaluations and then climbed on (by up to 212
 #: nats), so the window is 20: the value reached then differed from the full run's by ≤ 1e-4 nats
-#: on all 58, with 41 % fewer evaluations (docs/performance.md, "Optimiser stopping").
+#: on all 58, with 41 % fewer evaluations (docs/performance.md, "fewer evaluations in the start").
 BFGS_STALL_EVALS = 20
 BFGS_STALL_NATS = 1e-3
 
@@ -326,7 +326,7 @@ MAP_START_LOG_F_SHIFTS = (2.3,)
 #: (log prior −∞ beyond it), and a start on it stays there: on sim00 (``benchmarks/speed_accuracy.py``)
 #: both optimisers stopped on the wall, 136-264 nats below the mode at τ 7 times smaller, and the
 #: mode had been reached only by chance (a polish step from one of those points). log τ − 2 reaches
-#: the mode from both f starts; so does −3 (docs/performance.md, "Local optima").
+#: the mode from both f starts; so does −3 (docs/performance.md, "two starts that were luck").
 MAP_START_LOG_TAU_SHIFT = -2.0
 
 

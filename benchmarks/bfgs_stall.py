@@ -26,7 +26,8 @@ def traces():
 
     fm = importlib.import_module("bayescap.fit")
     fm.BFGS_STALL_EVALS = 10**9          # full runs
-    paths = ([ROOT / "data" / "emva1288_basler_ccd12.csv"] + sorted(glob.glob(str(ROOT / "data" / "benchmark" / "*.csv")))
+    paths = ([ROOT / "data" / "emva1288_basler_ccd12.csv"]
+             + sorted(glob.glob(str(ROOT / "data" / "benchmark" / "*.csv")))
              + sorted(glob.glob(str(ROOT / "data" / "simulated" / "*.csv"))))
     datas = gpixel_sensors(n_max=20, seed=0)[0] + [read_ptc_csv(p) for p in paths]
     orig = optimize.minimize
