@@ -97,25 +97,35 @@ def test_latent_signal_inverts_the_clipped_mean():
     assert np.all(mu >= m.m[rows] - 1e-9)
 
 
-def test_clip_mean_closed_form_matches_quadrature_at_large_well_spread():
-    """The mean of clip(N(mu + τξ, s²), c) over ξ is the clipped mean of N(mu, s² + τ²). Checked
-    against a 4001-point sum over ξ (agreeing to 1e-9 s) for τ/s from 0.1 to 30; the 9-node
-    Gauss–Hermite sum it replaced was off by 1.3e-3 s at τ = 2 s and 0.22 s at τ = 10 s."""
+def test_clip_moments_closed_form_match_quadrature_at_large_well_spread():
+    """Mean, within-pixel variance and unclipped fraction of clip(N(mu + τξ, s²), c) averaged over
+    ξ: the closed forms of PTCModel._clip_mean/_clip_moments against an 8001-point sum over ξ
+    (agreeing to 1e-9 s and 1e-9 s²) for τ/s from 0.01 to 100, mu from 6 s' below to 6 s' above
+    the clip. The 9-node Gauss–Hermite sums they replaced were off by 1.3e-3 s (mean) and 5.3e-3 s²
+    (variance) at τ = 2 s, 0.22 s and 0.12 s² at τ = 10 s."""
     from scipy.special import ndtr
 
-    xi = np.linspace(-10, 10, 4001)
+    xi = np.linspace(-10, 10, 8001)
     w = np.exp(-0.5 * xi**2)
     w /= w.sum()
-    for r in (0.1, 1.0, 3.0, 10.0, 30.0):
+    for r in (0.01, 0.1, 1.0, 3.0, 10.0, 30.0, 100.0):
         s, tau, c = 1.0, r, 0.0
-        mu = np.linspace(-5, 5, 201) * np.hypot(s, tau)
+        mu = np.linspace(-6, 6, 241) * np.hypot(s, tau)
         x = mu[:, None] + tau * xi
         a = (c - x) / s
-        m1 = c - (c - x) * ndtr(a) - s * np.exp(-0.5 * a * a) / np.sqrt(2 * np.pi)
-        ref_mean, ref_slope = m1 @ w, ndtr(a) @ w
-        mean, slope = PTCModel._clip_mean(mu, np.full_like(mu, s), np.full_like(mu, tau), np.full_like(mu, c))
-        np.testing.assert_allclose(mean, ref_mean, rtol=0, atol=1e-9 * s)
-        np.testing.assert_allclose(slope, ref_slope, rtol=0, atol=1e-9)
+        Phi, phi = ndtr(a), np.exp(-0.5 * a * a) / np.sqrt(2 * np.pi)
+        m1 = c - (c - x) * Phi - s * phi
+        m2 = (x * x + s * s) * Phi - s * phi * (x + c) + c * c * (1.0 - Phi)
+        ref = (m1 @ w, np.maximum(m2 - m1 * m1, 0.0) @ w, Phi @ w)
+        full = [np.full_like(mu, v) for v in (s, tau, c)]
+        mean, slope = PTCModel._clip_mean(mu, *full)
+        got = PTCModel._clip_moments(None, mu, *full)
+        np.testing.assert_allclose(mean, ref[0], rtol=0, atol=1e-9 * s)
+        np.testing.assert_allclose(slope, ref[2], rtol=0, atol=1e-9)
+        np.testing.assert_allclose(got[0], ref[0], rtol=0, atol=1e-9 * s)
+        np.testing.assert_allclose(got[1], ref[1], rtol=0, atol=1e-9 * s * s)
+        np.testing.assert_allclose(got[2], ref[2], rtol=0, atol=1e-9)
+        assert np.all(np.isfinite(got[1])) and np.all(got[1] >= 0)
 
 
 def test_log_prob_vectorised_and_finite_at_start():
