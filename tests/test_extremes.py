@@ -95,13 +95,13 @@ SLOWEST = {"read_noise_200e", "gain_0.01e_per_dn_16bit", "full_well_1e6_16bit"}
 
 #: known failures of the sanity check, each with its diagnosis (strict: a fix flips them).
 KNOWN = {"noise_below_one_dn_everywhere": pytest.mark.xfail(strict=True, reason=(
-    "K = 1000 e-/DN, 8 bits, read noise 0.005 DN: the fast path rejects itself (k̂ 2.1) and its "
-    "draws put K's median at 1442 (44 % high; the check allows 30 % for a rejected result). The "
-    "optimisers stop ~190 nats below the highest point the MCMC reaches (log p 4 810 vs 5 002: read "
-    "noise and f run off along flat directions, log f → −136), and the standard MCMC does not "
-    "converge either (R-hat 1.13 after 290 s; K median 1018, 95 % [994, 1658]). It passed before "
-    "2026-11-23 evening at 29.6 %, by the luck of where a polish step landed; the closed-form clip "
-    "mean (model._clip_mean) moved that point (without the BFGS stall rule it lands at K 1054)"))}
+    "K = 1000 e-/DN, 8 bits, read noise 0.005 DN: the fast path rejects itself (k̂ 1.32) and its "
+    "draws put K's median at 570 (43 % low; the check allows 30 % for a rejected result). Its "
+    "optimum (log p 823, f = 0.6) is thousands of nats below the highest point the MCMC reaches "
+    "(5 001, with log f → −135), and the standard MCMC does not converge either (R-hat 1.14 after "
+    "154 s; K median 1016, 95 % [898, 2151]). It passed before 2026-11-23 evening at 29.6 %, by the "
+    "luck of where a polish step landed; the closed-form clip moments (model._clip_mean, "
+    "_clip_moments) moved that point"))}
 
 
 def _case_param(c):
