@@ -13,7 +13,7 @@ PRNU enter only through the spatial columns: ``spatial_var = (PRNU·S)² + DSNU�
 **Saturation.** Pixel values clip at a level ``c`` (DN): the ADC maximum or the full well,
 whichever comes first. Across the ROI, pixels approach the clip at different light levels
 (PRNU, per-pixel well depth), described by a spread ``τ`` (DN) of the pixel means. The mean and
-temporal variance of a clipped Gaussian, averaged over that spread by Gauss–Hermite quadrature,
+temporal variance of a clipped Gaussian, averaged over that spread (closed forms, ``_clip_moments``),
 give the smooth roll-off of the measured variance; the latent (unclipped) signal of each row
 near the clip is found by inverting the clipped-mean relation with a monotone Newton iteration.
 Fully clipped rows (variance ≈ 0) locate the clip level only: they enter through their mean.
@@ -736,10 +736,11 @@ class PTCModel:
         if self.clip_rows.size:
             c = p["clip_dn"]
             tau = p["clip_spread_dn"]
-            # rows whose farthest Gauss-Hermite node stays > 8.5 sd below the clip for every draw
-            # are unclipped to double precision: keep only the others
+            # rows more than 8.5 sd of N(mean, s² + τ²) below the clip for every draw are unclipped
+            # to double precision (_clip_mean): keep only the others. (The rule of the 9-node
+            # quadrature, 8.5 s + 4.52 τ, let rows with τ ≫ s in at h ≈ 4.5: a clipped fraction 3e-6)
             s_est = np.sqrt(self.v[self.clip_rows] + self.s_obs[self.clip_rows] / k.min())
-            alpha_min = (c.min() - self.m[self.clip_rows] - 4.52 * tau.max()) / s_est
+            alpha_min = (c.min() - self.m[self.clip_rows]) / np.sqrt(s_est**2 + tau.max()**2)
             rows = self.clip_rows[alpha_min < 8.5]
         if self.clip_rows.size and rows.size:
             if self.terms.clip == "well":
