@@ -1,6 +1,7 @@
 """Laplace–IS fast path, PSIS weights, emcee move calibration, batch fitting (issue 7)."""
 import json
 import sys
+import warnings
 from pathlib import Path
 
 import emcee
@@ -247,13 +248,21 @@ def test_fit_many_gpixel_and_a_bad_sensor():
     tr = gpixel_truths()
     assert len(tr) == 1024 and {g for (_, g), _ in tr} == {0, 1, 2, 3}
     datas, truths = gpixel_sensors(n_max=3, seed=4)
-    res = fit_many(datas + ["no_such_file.csv"], seed=4, summary_only=True, fallback=False)
+    with warnings.catch_warnings(record=True) as w:
+        warnings.simplefilter("always")
+        res = fit_many(datas + ["no_such_file.csv"], seed=4, summary_only=True, fallback=False)
     assert len(res) == 4 and "PTCInputError" in res[3]["error"] and "file not found" in res[3]["error"]
+    # without the MCMC fallback a rejected sensor is returned flagged, and warns; an accepted one does not
+    rejected = [r for r in res[:3] if not r["accepted"]]
+    assert all(not r["converged"] for r in rejected)
+    assert sum("NOT CONVERGED" in str(x.message) for x in w) == len(rejected)
     for r, t in zip(res[:3], truths):
         lo, med, hi = r["conversion_gain_e_per_dn"]
         assert lo < med < hi and abs(med / t.conversion_gain_e_per_dn - 1) < 0.1
     # reproducible
-    res2 = fit_many(datas, seed=4, summary_only=True, fallback=False)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", ConvergenceWarning)   # the same rejections as above
+        res2 = fit_many(datas, seed=4, summary_only=True, fallback=False)
     assert res2[0]["conversion_gain_e_per_dn"] == res[0]["conversion_gain_e_per_dn"]
 
 
