@@ -4,7 +4,6 @@ import sys
 import warnings
 from pathlib import Path
 
-import emcee
 import numpy as np
 import pytest
 from scipy import stats
