@@ -50,8 +50,8 @@ from dataclasses import asdict, dataclass, replace
 import numpy as np
 from scipy.special import gammaln
 
-from .fit import (QUALITY_PRESETS, ChainResult, _proposal_cov, find_map, laplace_covariance, laplace_start,
-                  polish_map, refine_covariance)
+from .fit import (QUALITY_PRESETS, ChainResult, LogClipCoordinates, _clip_coordinates, _proposal_cov, find_map,
+                  laplace_covariance, laplace_start, polish_map, refine_covariance)
 
 __all__ = ["FastSettings", "fast_posterior", "fast_fit", "student_t_draws", "LogClipCoordinates",
            "student_t_logpdf", "psis_weights", "refine_covariance", "polish_map", "METHOD"]
@@ -199,68 +199,15 @@ def _systematic_resample(w, n, rng):
     return np.searchsorted(c, pos, side="left")
 
 
-class LogClipCoordinates:
-    """The posterior of ``model`` with the clip level as ``z = log(clip_dn − lo)``, ``lo`` its
-    data-derived lower bound (the largest unclipped row mean), Jacobian included; every other
-    coordinate unchanged. The fast path's own Laplace start and proposals work here.
-
-    Why: where the clip level's posterior piles up against ``lo`` (the well clips just above the
-    last unclipped row), the MAP sits on the bound, the Hessian's stencil leaves the support and the
-    Laplace covariance falls back to ``diag(1e-4)`` or comes out 1 000× too wide; the importance
-    weights then fail (k̂ 87 and 28 on two simulated Gpixel ROIs). In ``z`` the density
-    ``p(clip)·(clip − lo)`` vanishes at the bound and the mode is interior. On the 20 ROIs of
-    ``benchmarks/local_optima.py`` the fast path is accepted on 17 instead of 15 (accuracy against
-    accurate MCMC references: ``benchmarks/fast_clip_coordinates.py``, docs/performance.md). The
-    MCMC keeps sampling ``clip_dn`` itself."""
-
-    def __init__(self, model):
-        self.model, self.names, self.ndim = model, list(model.names), model.ndim
-        self.j = self.names.index("clip_dn")
-        self.lo, self.hi = model.clip_bounds
-
-    @staticmethod
-    def applies(model) -> bool:
-        names = list(getattr(model, "names", []))
-        cb = getattr(model, "clip_bounds", None)
-        return "clip_dn" in names and cb is not None and cb[1] > cb[0]
-
-    def to_x(self, z):
-        x = np.array(z, float, copy=True)
-        x[..., self.j] = self.lo + np.exp(x[..., self.j])
-        return x
-
-    def to_z(self, x):
-        z = np.array(x, float, copy=True)
-        z[..., self.j] = np.log(np.maximum(z[..., self.j] - self.lo, 1e-300))
-        return z
-
-    def log_prob(self, z):
-        z = np.atleast_2d(np.asarray(z, float))
-        with np.errstate(all="ignore"):
-            return self.model.log_prob(self.to_x(z)) + z[:, self.j]
-
-    def start_from_x(self, x):
-        """``to_z`` of a point of the model's coordinates, its clip moved off the bound (a MAP on
-        the bound, clip_dn = lo, has z = −∞) to ``lo + 1e-9 (hi − lo)``."""
-        x = np.array(x, float, copy=True)
-        x[self.j] = max(x[self.j], self.lo + 1e-9 * (self.hi - self.lo))
-        return self.to_z(x)
-
-    def initial_guess(self):
-        x0 = np.array(self.model.initial_guess(), float)
-        x0[self.j] = max(x0[self.j], self.lo + 1e-3 * (self.hi - self.lo))
-        return self.to_z(x0)
-
-
 def _fast_once(model, seed, n_draws, settings, x_map, cov):
-    if x_map is None and cov is None and LogClipCoordinates.applies(model):
+    wrapped = _clip_coordinates(model) if x_map is None and cov is None else None
+    if wrapped is not None:
         # the optima in the model's own coordinates (every optimiser start), then the Laplace
         # approximation and a polish in z from each (laplace_start's ``coords``): an optimiser run
         # in z alone stopped 6 nats below the mode on a simulated ROI (and its draws passed k̂, being
         # a local mode). Refining in x first and again in z cost 20 % of the fast path (measured
         # on 8 simulated Gpixel ROIs, docs/performance.md, "fewer evaluations in the start").
         t0 = time.perf_counter()
-        wrapped = LogClipCoordinates(model)
         z0, _, cz, _ = laplace_start(model, n_restarts=settings.n_restarts, refine_iter=settings.refine_iter,
                                      polish=settings.polish, coords=wrapped, polish_both=settings.polish_both)
         t_start = time.perf_counter() - t0

@@ -24,7 +24,8 @@ from .model import PTCModel
 
 __all__ = ["SamplerSettings", "QUALITY_PRESETS", "find_map", "find_map_scaled", "laplace_covariance", "laplace_start",
            "refine_covariance", "polish_map", "run_ensembles",
-           "diagnostics", "fast_diagnostics", "ConvergenceWarning", "stuck_walkers", "stuck_threshold"]
+           "diagnostics", "fast_diagnostics", "ConvergenceWarning", "stuck_walkers", "stuck_threshold",
+           "LogClipCoordinates", "mcmc_start"]
 
 
 class ConvergenceWarning(UserWarning):
@@ -349,10 +350,8 @@ def _map_starts(model):
             out.append(s)
     else:
         out.append(x0)
-    if "log_tau" in names and hasattr(model, "PRIOR"):
-        # the cap as in PTCModel.log_prior: a fraction of the sampled clip level, or of the ADC's
-        cref = x0[names.index("clip_dn")] if "clip_dn" in names else getattr(model, "adc", None)
-        if cref is not None and np.exp(x0[names.index("log_tau")]) > model.PRIOR["tau_max_frac"] * cref / np.e:
+    if "log_tau" in names and hasattr(model, "tau_cap_dn"):
+        if np.exp(x0[names.index("log_tau")]) > float(model.tau_cap_dn(x0)[0]) / np.e:
             s = x0.copy()
             s[names.index("log_tau")] += MAP_START_LOG_TAU_SHIFT
             out.append(s)
@@ -388,7 +387,7 @@ def laplace_start(model: PTCModel, *, n_restarts: int = 2, refine_iter: int = 6,
     :func:`find_map`).
 
     ``coords``: other coordinates for the refinement (an object with ``log_prob``, ``ndim`` and
-    ``start_from_x(x)``, e.g. :class:`bayescap.fast.LogClipCoordinates`). The optimisers still run
+    ``start_from_x(x)``, e.g. :class:`LogClipCoordinates`). The optimisers still run
     on ``model``; each optimum is mapped by ``start_from_x`` and the covariance, polish and the
     returned (point, log p, covariance) are in those coordinates, log p with their Jacobian. With
     ``polish_both`` each optimum is first refined and polished in the model's coordinates, then in
@@ -499,7 +498,7 @@ def _importance_start(model, x_map, cov, seed, coords=None):
     6 000 importance draws in two ``log_prob`` calls) resampled. Closer to the posterior than the
     Laplace ball where the posterior is skewed; it does not remove the slow filling of the Basler dark
     current's lower tail (docs/performance.md), which is why the standard burn-in stays 100 steps.
-    With ``coords`` (:class:`bayescap.fast.LogClipCoordinates`), ``x_map`` and ``cov`` are in those
+    With ``coords`` (:class:`LogClipCoordinates`), ``x_map`` and ``cov`` are in those
     coordinates and the draws come back in the model's. None when the IS check rejects the draws
     (then: the Laplace ball)."""
     from .fast import FastSettings, fast_posterior
@@ -517,16 +516,68 @@ def _importance_start(model, x_map, cov, seed, coords=None):
     return draws, x.mean(axis=0), np.cov(x.T)
 
 
-def _clip_coordinates(model):
-    """:class:`bayescap.fast.LogClipCoordinates` of ``model`` where its clip level is free, else None."""
-    from .fast import LogClipCoordinates
+class LogClipCoordinates:
+    """The posterior of ``model`` with the clip level as ``z = log(clip_dn − lo)``, ``lo`` its
+    data-derived lower bound (the largest unclipped row mean), Jacobian included; every other
+    coordinate unchanged. The Laplace refinement of both the fast path (whose importance proposals
+    are drawn here too) and the MCMC start (:func:`mcmc_start`) work here; the MCMC itself samples
+    ``clip_dn``.
 
+    Why: where the clip level's posterior piles up against ``lo`` (the well clips just above the
+    last unclipped row), the MAP sits on the bound, the Hessian's stencil leaves the support and the
+    Laplace covariance falls back to ``diag(1e-4)`` or comes out 1 000× too wide; the importance
+    weights then fail (k̂ 87 and 28 on two simulated Gpixel ROIs). In ``z`` the density
+    ``p(clip)·(clip − lo)`` vanishes at the bound and the mode is interior. On the 20 ROIs of
+    ``benchmarks/local_optima.py`` the fast path is accepted on 17 instead of 15 (accuracy against
+    accurate MCMC references: ``benchmarks/fast_clip_coordinates.py``, docs/performance.md)."""
+
+    def __init__(self, model):
+        self.model, self.names, self.ndim = model, list(model.names), model.ndim
+        self.j = self.names.index("clip_dn")
+        self.lo, self.hi = model.clip_bounds
+
+    @staticmethod
+    def applies(model) -> bool:
+        names = list(getattr(model, "names", []))
+        cb = getattr(model, "clip_bounds", None)
+        return "clip_dn" in names and cb is not None and cb[1] > cb[0]
+
+    def to_x(self, z):
+        x = np.array(z, float, copy=True)
+        x[..., self.j] = self.lo + np.exp(x[..., self.j])
+        return x
+
+    def to_z(self, x):
+        z = np.array(x, float, copy=True)
+        z[..., self.j] = np.log(np.maximum(z[..., self.j] - self.lo, 1e-300))
+        return z
+
+    def log_prob(self, z):
+        z = np.atleast_2d(np.asarray(z, float))
+        with np.errstate(all="ignore"):
+            return self.model.log_prob(self.to_x(z)) + z[:, self.j]
+
+    def start_from_x(self, x):
+        """``to_z`` of a point of the model's coordinates, its clip moved off the bound (a MAP on
+        the bound, clip_dn = lo, has z = −∞) to ``lo + 1e-9 (hi − lo)``."""
+        x = np.array(x, float, copy=True)
+        x[self.j] = max(x[self.j], self.lo + 1e-9 * (self.hi - self.lo))
+        return self.to_z(x)
+
+    def initial_guess(self):
+        x0 = np.array(self.model.initial_guess(), float)
+        x0[self.j] = max(x0[self.j], self.lo + 1e-3 * (self.hi - self.lo))
+        return self.to_z(x0)
+
+
+def _clip_coordinates(model):
+    """:class:`LogClipCoordinates` of ``model`` where its clip level is free, else None."""
     return LogClipCoordinates(model) if LogClipCoordinates.applies(model) else None
 
 
 def mcmc_start(model, *, n_restarts: int = 0):
     """Where the walkers start: :func:`laplace_start`, refined in
-    :class:`bayescap.fast.LogClipCoordinates` where the clip level is free (as the fast path does).
+    :class:`LogClipCoordinates` where the clip level is free (as the fast path does).
 
     A local optimiser in the model's coordinates can stop with the clip level on its lower bound,
     where the Hessian's stencil leaves the support and :func:`polish_map` crawls: on a simulated

@@ -566,6 +566,18 @@ class PTCModel:
         return np.broadcast_to(p["dark_noise_e"][:, None] ** 2, (p["dark_noise_e"].size, t.size))
 
     # ------------------------------------------------------------------ prior
+    def _clip_reference_dn(self, th):
+        """The clip level the clip spread's prior refers to, per draw: the sampled ``clip_dn``, or
+        the ADC maximum when the ADC clips at a known level."""
+        if "clip_dn" in self.idx:
+            return th[:, self.idx["clip_dn"]]
+        return np.full(th.shape[0], float(self.adc))
+
+    def tau_cap_dn(self, th):
+        """Upper bound of the clip spread τ (DN) in the prior, per draw: ``tau_max_frac`` of
+        :meth:`_clip_reference_dn` (a wall: log prior −∞ beyond it)."""
+        return self.PRIOR["tau_max_frac"] * self._clip_reference_dn(np.atleast_2d(th))
+
     def log_prior(self, th):
         P = self.PRIOR
         g = lambda n: th[:, self.idx[n]]  # noqa: E731
@@ -580,14 +592,12 @@ class PTCModel:
             c = g("clip_dn")
             lo, hi = self.clip_bounds
             lp = lp + np.where((c > lo) & (c < hi), -np.log(hi - lo), -np.inf)
-            cref = c
-        elif self.terms.clip == "adc":
-            cref = np.full(th.shape[0], self.adc)
         if self.terms.clip_spread:
+            cref = self._clip_reference_dn(th)
             lt = g("log_tau")
             center = np.log(0.005 * np.maximum(cref - self.black_dn, 1.0))
             lp = lp + _norm_logpdf(lt, center, P["tau_log_sd"])
-            lp = lp + np.where(np.exp(lt) < P["tau_max_frac"] * cref, 0.0, -np.inf)
+            lp = lp + np.where(np.exp(lt) < self.tau_cap_dn(th), 0.0, -np.inf)
         if self.terms.quantum_efficiency:
             qe = g("qe")
             qlo, qhi = P["qe_bounds"] if P["qe_bounds"] is not None else (0.0, 1.0)
