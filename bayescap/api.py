@@ -80,7 +80,8 @@ def measured_mtf(path, *, seed: int = 0, n_boot: int = 200):
 def fit(data: PTCData | PTCModel | str, *, seed: int | None = None,
         quality: str | SamplerSettings = "standard", mtf=None, scene: Scene | None = None,
         progress: bool = False, terms=None, n_jobs: int | None = None, fast_settings=None,
-        fallback: bool = True, fallback_quality: str = "fast", prior: dict | None = None) -> FitResult:
+        fallback: bool = True, fallback_quality: str = "fast", prior: dict | None = None,
+        fast_result=None) -> FitResult:
     """Fit the Eq. 1 noise model to photon-transfer data and propagate to capacity.
 
     Parameters
@@ -105,6 +106,10 @@ def fit(data: PTCData | PTCModel | str, *, seed: int | None = None,
     prior : overrides of :attr:`bayescap.model.PTCModel.PRIOR` (e.g. ``{"read_log_bounds": (1, 20)}``
         for a log-uniform read-noise prior on 1–20 e⁻); default: the documented production priors.
         Ignored when ``data`` is already a PTCModel (it carries its own prior).
+    fast_result : with ``quality="fast"``, the ``(ChainResult, diagnostics)`` pair that
+        :func:`bayescap.fast.fast_posterior` returned for this model and ``seed`` (computed for many
+        sensors at once by :func:`bayescap.batch.fit_many`); the fit then starts from it instead
+        of running the fast path again (the fallback, when it is rejected, is unchanged).
     """
     if isinstance(data, PTCModel):
         model, data = data, data.data
@@ -125,7 +130,7 @@ def fit(data: PTCData | PTCModel | str, *, seed: int | None = None,
         from .fast import FastSettings, fast_posterior
 
         fs = fast_settings or FastSettings()
-        chains, fd = fast_posterior(model, seed=seed, settings=fs)
+        chains, fd = fast_result if fast_result is not None else fast_posterior(model, seed=seed, settings=fs)
         if fd["accepted"] or not fallback:
             res = FitResult.from_chains(model, chains, quality="fast", **kw)
         else:

@@ -1,21 +1,38 @@
 """Many sensors at once with the fast path (issue 7): :func:`fit_many`, and the Gpixel
 GSPRINT4521 per-ROI results turned into simulated photon-transfer data (:func:`gpixel_sensors`).
 
-What is shared across sensors: the imports, the MTF (one per distinct metadata), the cached
-Gauss–Legendre nodes and the PSIS smoothing. What is not: the log-posterior, which
-:class:`bayescap.model.PTCModel` evaluates for one sensor per call, so the MAP, the Laplace
-Hessian and the importance draws run per sensor; ``n_jobs > 1`` spreads sensors over processes.
+**Vectorised across fits.** A fast-path fit makes ~200 ``log_prob`` calls, most on 1–50 points,
+where a call costs ~0.6 ms whatever its size (measured: 17 points 0.70 ms, 1 000 points 5.7 ms).
+:func:`fit_many` therefore runs the fast paths of up to ``stack_size`` sensors in lockstep: each
+sensor's unchanged fast path (:func:`bayescap.fast.fast_posterior`) runs in a greenlet whose model
+hands its ``log_prob`` requests to a :class:`Lockstep` evaluator; once every running path is
+waiting, all requests are evaluated in one :class:`bayescap.model.PTCModelStack` call and each
+path resumes with its own values. Sensors stack when their models have the same structure
+(:meth:`~bayescap.model.PTCModelStack.signature`; 200 simulated Gpixel ROIs form 4 groups); a
+stacked call returns each sensor's ``log_prob`` bit for bit, so a sensor's result does not depend
+on the batch, on ``stack_size`` or on ``n_jobs``. The paths take turns on one core: the gain is
+the per-call overhead paid once per stacked call instead of once per sensor. ``n_jobs > 1`` shares
+each group of stackable sensors out among processes.
+
+What else is shared across sensors: the imports, the MTF (one per distinct metadata), the cached
+Gauss–Legendre nodes. After the fast path, each sensor's result is built, and an MCMC fallback
+run where the fast path rejected its draws, one sensor at a time (:func:`bayescap.api.fit` with
+``fast_result``).
 """
 from __future__ import annotations
 
+import copy
 import csv
+import time
+import warnings
+from collections import defaultdict
 from pathlib import Path
 
 import numpy as np
 
 from .fast import FastSettings
 
-__all__ = ["fit_many", "gpixel_truths", "gpixel_sensors", "GPIXEL_CSV"]
+__all__ = ["fit_many", "Lockstep", "stack_groups", "gpixel_truths", "gpixel_sensors", "GPIXEL_CSV"]
 
 GPIXEL_CSV = Path(__file__).resolve().parents[1] / "data" / "gpixel_gsprint4521" / "roi_results.csv"
 
@@ -37,36 +54,193 @@ def _mtf_key(md):
     return tuple(md.get(k) for k in ("fill_factor", "f_number", "wavelength_nm", "pixel_pitch_um"))
 
 
-def _fit_chunk(args):
-    datas, seeds, settings, fallback, summary_only = args
-    from .api import fit, load, mtf_from_metadata
-    from .ptc import PTCData
+class Lockstep:
+    """Evaluate the ``log_prob`` requests of many fits in one stacked call.
 
-    mtfs, out = {}, []
-    for d, s in zip(datas, seeds):
+    ``run(fns, concurrency)`` runs ``fns[i](log_prob_i)``, where ``log_prob_i(theta)`` stands for
+    ``stack.models[i].log_prob(theta)``, each in a greenlet (a coroutine with its own stack: the
+    fit's code, scipy's BFGS included, runs unchanged). A request suspends its fit; once every
+    running fit has made one (or finished), all requests are evaluated together, in task order and
+    in chunks of at most ``max_points`` draws (whole requests), and every fit resumes with its own
+    values. A fit that finishes hands its place to the next task, so the stacked calls stay full
+    until the queue runs dry (a fast path that is retried makes twice the calls of the others).
+
+    A request of ``solo_points`` draws or more goes to its own model instead: at that size the
+    per-call overhead no longer matters, and a stacked call, whose data are (draws, rows) arrays
+    instead of broadcast rows, costs more per draw. The values are the same either way (bit for
+    bit). Greenlets rather than threads: switching costs ~1 µs instead of ~25 µs per request, and
+    the order of evaluation is fixed by the code, not by a scheduler.
+
+    Counts: ``n_calls`` stacked calls, ``n_requests`` requests, ``n_points`` draws (both kinds)."""
+
+    def __init__(self, stack, *, max_points: int = 16384, solo_points: int = 512):
+        self.stack = stack
+        self.max_points = int(max_points)
+        self.solo_points = int(solo_points)
+        self.n_calls = self.n_requests = self.n_points = 0
+        self._main = None
+
+    def log_prob_for(self, slot: int):
+        def log_prob(theta):
+            r = self._main.switch((slot, np.atleast_2d(np.asarray(theta, float))))
+            if isinstance(r, BaseException):
+                raise r
+            return r
+        return log_prob
+
+    def _evaluate(self, requests):
+        """{slot: theta} -> {slot: log p or the exception raised}."""
+        res, stacked = {}, []
+        for s in sorted(requests):
+            th = requests[s]
+            self.n_requests += 1
+            self.n_points += th.shape[0]
+            if th.shape[0] >= self.solo_points:
+                try:
+                    res[s] = self.stack.models[s].log_prob(th)
+                except Exception as e:
+                    res[s] = e
+            else:
+                stacked.append(s)
+        chunk, n = [], 0
+        for j, s in enumerate(stacked):
+            chunk.append(s)
+            n += requests[s].shape[0]
+            if j == len(stacked) - 1 or n + requests[stacked[j + 1]].shape[0] > self.max_points:
+                self._evaluate_stacked(chunk, requests, res)
+                chunk, n = [], 0
+        return res
+
+    def _evaluate_stacked(self, slots, requests, res):
+        th = [requests[s] for s in slots]
+        sizes = [t.shape[0] for t in th]
         try:
-            d = d if isinstance(d, PTCData) else load(d)
-            key = _mtf_key(d.metadata)
-            if key not in mtfs:
-                mtfs[key] = mtf_from_metadata(d.metadata)
-            r = fit(d, seed=s, quality="fast", fast_settings=settings, mtf=mtfs[key], fallback=fallback)
-        except Exception as e:  # one bad sensor must not stop a batch: report it
-            out.append({"error": f"{type(e).__name__}: {e}"} if summary_only else e)
-            continue
-        out.append(_summary(r) if summary_only else r)
+            lp = self.stack.log_prob(np.vstack(th), np.repeat(np.asarray(slots, int), sizes))
+        except Exception as e:   # every fit of the chunk sees the error
+            for s in slots:
+                res[s] = e
+            return
+        self.n_calls += 1
+        for s, part in zip(slots, np.split(lp, np.cumsum(sizes)[:-1])):
+            res[s] = part
+
+    def run(self, fns, concurrency: int | None = None):
+        """``[fns[i](log_prob_i) for i]``, at most ``concurrency`` at a time (default all), in
+        lockstep; an exception is returned in its slot instead of stopping the others."""
+        import greenlet
+
+        out: list = [None] * len(fns)
+        todo = iter(range(len(fns)))
+
+        def worker():
+            for i in todo:
+                try:
+                    out[i] = fns[i](self.log_prob_for(i))
+                except Exception as e:   # one sensor's failure must not stop the others
+                    out[i] = e
+
+        n = len(fns) if concurrency is None else max(1, min(int(concurrency), len(fns)))
+        self._main = greenlet.getcurrent()
+        running = [(greenlet.greenlet(worker), None) for _ in range(n)]
+        # warnings.catch_warnings (scipy's BFGS wrapper, the PSIS fit) saves and restores the
+        # process-wide filter list; fits that enter and leave it interleaved would restore each
+        # other's lists. One outer block restores the caller's filters whatever the order inside.
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            while running:
+                requests = {}
+                waiting = []
+                for g, value in running:
+                    r = g.switch(value) if value is not None else g.switch()
+                    if not g.dead:
+                        requests[r[0]] = r[1]
+                        waiting.append((g, r[0]))
+                res = self._evaluate(requests)
+                running = [(g, res[s]) for g, s in waiting]
+        return out
+
+
+def _with_log_prob(model, log_prob):
+    """A shallow copy of ``model`` whose ``log_prob`` is ``log_prob`` (the rest is shared)."""
+    proxy = copy.copy(model)
+    proxy.log_prob = log_prob
+    return proxy
+
+
+def _fast_paths(models, seeds, settings, stack_size: int = 64):
+    """Fast-path results ``(ChainResult, diagnostics)`` (or an exception) of stackable models, at
+    most ``stack_size`` in lockstep. Wall times are the whole run's divided by the number of
+    sensors (amortised)."""
+    from .fast import fast_posterior
+    from .model import PTCModelStack
+
+    ls = Lockstep(PTCModelStack(models))
+    fns = [(lambda lp, m=m, s=s: fast_posterior(_with_log_prob(m, lp), seed=s, settings=settings))
+           for m, s in zip(models, seeds)]
+    t0 = time.perf_counter()
+    out = ls.run(fns, concurrency=stack_size)
+    wall = (time.perf_counter() - t0) / len(models)
+    for r in out:
+        if isinstance(r, tuple):
+            chains, fd = r
+            chains.wall_s = fd["wall_s"] = wall
+            fd["stacked"] = chains.extra["stacked"] = {
+                "sensors": len(models), "stack_size": int(stack_size), "stacked_calls": ls.n_calls,
+                "note": "fast path run in lockstep with other sensors (bayescap.batch); wall time amortised"}
+    return out
+
+
+def stack_groups(models, n_parts: int = 1):
+    """Indices of the models that stack together (:meth:`~bayescap.model.PTCModelStack.signature`),
+    each group in input order and cut into ``n_parts`` near-equal parts (one per process)."""
+    from .model import PTCModelStack
+
+    groups = defaultdict(list)
+    for i, m in enumerate(models):
+        if m is not None:
+            groups[PTCModelStack.signature(m)].append(i)
+    return [[list(p) for p in np.array_split(g, min(n_parts, len(g)))] for g in groups.values()]
+
+
+def _fit_groups(args):
+    models, seeds, groups, settings, fallback, summary_only, stack_size = args
+    from .api import fit, mtf_from_metadata
+
+    mtfs, out = {}, {}
+    for ix in groups:
+        fast = _fast_paths([models[i] for i in ix], [seeds[i] for i in ix], settings, stack_size)
+        for i, fr in zip(ix, fast):
+            m = models[i]
+            try:
+                if isinstance(fr, BaseException):
+                    raise fr
+                key = _mtf_key(m.data.metadata)
+                if key not in mtfs:
+                    mtfs[key] = mtf_from_metadata(m.data.metadata)
+                r = fit(m, seed=seeds[i], quality="fast", fast_settings=settings, mtf=mtfs[key],
+                        fallback=fallback, fast_result=fr)
+            except Exception as e:  # one bad sensor must not stop a batch: report it
+                out[i] = {"error": f"{type(e).__name__}: {e}"} if summary_only else e
+                continue
+            out[i] = _summary(r) if summary_only else r
     return out
 
 
 def fit_many(datas, *, quality: str = "fast", seed, n_jobs: int = 1, fallback: bool = True,
-             settings: FastSettings = FastSettings(), summary_only: bool = False):
-    """Fit many sensors with the Laplace–IS fast path (MCMC fallback per sensor if ``fallback``).
+             settings: FastSettings = FastSettings(), summary_only: bool = False, stack_size: int = 64):
+    """Fit many sensors with the Laplace–IS fast path (MCMC fallback per sensor if ``fallback``),
+    vectorised across sensors (module docstring).
 
     Parameters
     ----------
     datas : sequence of PTCData (or contract CSV paths).
     quality : only ``"fast"`` is batched; other presets call :func:`bayescap.fit` per sensor.
-    seed : base seed; sensor ``i`` uses an independent child of ``SeedSequence(seed)``.
-    n_jobs : worker processes (1 = in this process).
+    seed : base seed; sensor ``i`` uses an independent child of ``SeedSequence(seed)``, and its
+        result is ``bayescap.fit(data_i, seed=child_i, quality="fast")``'s whatever the batch,
+        ``stack_size`` or ``n_jobs``.
+    n_jobs : worker processes (1 = in this process); each group of stackable sensors is shared
+        out among them.
+    stack_size : at most this many sensors in lockstep (1: one at a time, no stacking).
     summary_only : return per-sensor dicts ``{name: (q2.5, q50, q97.5), "accepted", "converged",
         "khat", "method"}`` (``accepted``: the Laplace–IS check passed; ``converged``: the
         returned result, MCMC after a fallback, passed its checks)
@@ -81,16 +255,41 @@ def fit_many(datas, *, quality: str = "fast", seed, n_jobs: int = 1, fallback: b
 
         res = [bayescap.fit(d, seed=s, quality=quality) for d, s in zip(datas, seeds)]
         return [_summary(r) for r in res] if summary_only else res
-    if n_jobs <= 1 or len(datas) < 2:
-        return _fit_chunk((datas, seeds, settings, fallback, summary_only))
-    from concurrent.futures import ProcessPoolExecutor
+    from .api import load
+    from .model import PTCModel, select_terms
+    from .ptc import PTCData
 
-    n_chunks = min(len(datas), 4 * n_jobs)
-    idx = np.array_split(np.arange(len(datas)), n_chunks)
-    jobs = [([datas[i] for i in ix], [seeds[i] for i in ix], settings, fallback, summary_only) for ix in idx]
-    with ProcessPoolExecutor(max_workers=n_jobs) as ex:
-        parts = list(ex.map(_fit_chunk, jobs))
-    return [r for p in parts for r in p]
+    models, out = [], [None] * len(datas)
+    for i, d in enumerate(datas):
+        try:
+            d = d if isinstance(d, PTCData) else load(d)
+            models.append(PTCModel(d, terms=select_terms(d)))
+        except Exception as e:  # one bad sensor must not stop a batch: report it
+            models.append(None)
+            out[i] = {"error": f"{type(e).__name__}: {e}"} if summary_only else e
+    n_jobs = max(1, int(n_jobs))
+    parts = stack_groups(models, n_jobs)      # [group][part] -> indices
+    stack_size = max(1, int(stack_size))
+    if n_jobs == 1 or sum(len(g) for g in parts) < 2:
+        done = _fit_groups((models, seeds, [ix for g in parts for ix in g], settings, fallback,
+                            summary_only, stack_size))
+    else:
+        from concurrent.futures import ProcessPoolExecutor
+
+        # process w gets part w of every group, and only those models
+        shares = [[g[w] for g in parts if w < len(g)] for w in range(n_jobs)]
+        jobs = []
+        for share in shares:
+            ids = {i for ix in share for i in ix}
+            sub = [models[i] if i in ids else None for i in range(len(models))]
+            jobs.append((sub, seeds, share, settings, fallback, summary_only, stack_size))
+        done = {}
+        with ProcessPoolExecutor(max_workers=n_jobs) as ex:
+            for part in ex.map(_fit_groups, jobs):
+                done.update(part)
+    for i, r in done.items():
+        out[i] = r
+    return out
 
 
 def gpixel_truths(path=GPIXEL_CSV):

@@ -34,6 +34,7 @@ every left-out term are recorded.
 """
 from __future__ import annotations
 
+import copy
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -41,7 +42,7 @@ from scipy.special import gammaln, ndtr, owens_t
 
 from .ptc import PTCData, PTCInputError, check_not_all_saturated
 
-__all__ = ["PTCModel", "ModelTerms", "select_terms", "saturation_flags", "gamma_logpdf", "PARAMETER_INFO"]
+__all__ = ["PTCModel", "PTCModelStack", "ModelTerms", "select_terms", "saturation_flags", "gamma_logpdf", "PARAMETER_INFO"]
 
 _LOG_2PI = np.log(2.0 * np.pi)
 #: prior probability that a row is a bad measurement, and the relative scatter of bad rows
@@ -140,8 +141,10 @@ def _rounded_normal_moments(delta, s, J=6):
 def _rounded_offset(frac_obs, s_tot, n_iter=12):
     """The offset δ ∈ [−½, ½] whose rounded normal N(δ, s_tot²) has mean ``frac_obs`` (the
     measured mean's distance from the nearest integer DN). E[round] is increasing in δ and
-    maps [−½, ½] onto itself: safeguarded Newton (bisection when a step leaves the bracket),
-    stopped when every mean matches to 1e-9 DN."""
+    maps [−½, ½] onto itself: safeguarded Newton (bisection when a step leaves the bracket);
+    each element stops once its mean matches to 1e-9 DN (so its value does not depend on the
+    other elements of the array: a stacked evaluation, :class:`PTCModelStack`, gives each sensor
+    its own numbers bit for bit)."""
     b = np.arange(6, dtype=float) + 0.5  # positive boundaries; E[round X] is odd in δ
     shape = np.broadcast(frac_obs, s_tot).shape
     lo = np.full(shape, -0.5)
@@ -156,12 +159,13 @@ def _rounded_offset(frac_obs, s_tot, n_iter=12):
         m = np.sum(ndtr(zp) - ndtr(zm), axis=-1)
         dm = np.sum(np.exp(-0.5 * zp * zp) + np.exp(-0.5 * zm * zm), axis=-1) * (0.3989422804014327 / s[..., 0])
         gap = m - fo
-        if np.all(np.abs(gap) < 1e-9):
+        done = np.abs(gap) < 1e-9
+        if np.all(done):
             break
         lo = np.where(gap < 0, d, lo)
         hi = np.where(gap >= 0, d, hi)
         nd = d - gap / np.maximum(dm, 1e-300)
-        d = np.where((nd > lo) & (nd < hi), nd, 0.5 * (lo + hi))
+        d = np.where(done, d, np.where((nd > lo) & (nd < hi), nd, 0.5 * (lo + hi)))
     return d
 
 
@@ -498,6 +502,8 @@ class PTCModel:
         self.full_means = d.mean_dn[self.full_sat]
         self.full_v = d.temporal_var_dn2[self.full_sat]
         self.full_nu = d.n_pixels[self.full_sat] - 1.0
+        self.t_full = self.t[self.full_sat]
+        self.vd_ok = self.vd[~self.full_sat]
         self.full_sd = np.sqrt(d.temporal_var_dn2[self.full_sat] / d.n_pixels[self.full_sat]
                                + (1e-4 * np.maximum(self.full_means, 1.0)) ** 2 + 0.01**2)
         # spatial rows
@@ -562,8 +568,8 @@ class PTCModel:
         """σ_read² + D·t (e⁻²) for each draw at exposure times t: shape (n_draws, n_t)."""
         t = np.atleast_1d(np.asarray(t, float))
         if self.terms.dark_current:
-            return p["read_noise_e"][:, None] ** 2 + p["dark_current_e_per_s"][:, None] * t[None, :]
-        return np.broadcast_to(p["dark_noise_e"][:, None] ** 2, (p["dark_noise_e"].size, t.size))
+            return p["read_noise_e"][:, None] ** 2 + p["dark_current_e_per_s"][:, None] * t
+        return np.broadcast_to(p["dark_noise_e"][:, None] ** 2, (p["dark_noise_e"].size, t.shape[-1]))
 
     # ------------------------------------------------------------------ prior
     def _clip_reference_dn(self, th):
@@ -571,12 +577,32 @@ class PTCModel:
         the ADC maximum when the ADC clips at a known level."""
         if "clip_dn" in self.idx:
             return th[:, self.idx["clip_dn"]]
-        return np.full(th.shape[0], float(self.adc))
+        return np.full(th.shape[0], self.adc, dtype=float)
 
     def tau_cap_dn(self, th):
         """Upper bound of the clip spread τ (DN) in the prior, per draw: ``tau_max_frac`` of
         :meth:`_clip_reference_dn` (a wall: log prior −∞ beyond it)."""
         return self.PRIOR["tau_max_frac"] * self._clip_reference_dn(np.atleast_2d(th))
+
+    #: request ids of the draws in a call (a PTCModelStack's view sets them): reductions over
+    #: "the draws of this call" are then per request, so a sensor's numbers do not depend on which
+    #: other sensors share the call
+    _request_ids = None
+
+    def _request_reduce(self, ufunc, a):
+        """``ufunc.reduce`` of ``a`` (n,) over the draws of one request: a scalar for a single
+        model; per draw (n,) for a stacked view."""
+        if self._request_ids is None:
+            return ufunc.reduce(a)
+        ids = self._request_ids
+        starts = np.flatnonzero(np.r_[True, ids[1:] != ids[:-1]])
+        return np.repeat(ufunc.reduceat(a, starts), np.diff(np.r_[starts, ids.size]))
+
+    @staticmethod
+    def _per_draw(x):
+        """A per-sensor number as a column for (n_draws, rows) arithmetic: scalars unchanged,
+        per-draw arrays (n,) of a stacked view as (n, 1)."""
+        return x if np.ndim(x) == 0 else np.asarray(x)[:, None]
 
     def log_prior(self, th):
         P = self.PRIOR
@@ -669,7 +695,7 @@ class PTCModel:
             return var, phi, excess
         s = np.sqrt(np.maximum(s2[need], 1e-8))
         so = np.sqrt(sp2[need])
-        fr = np.broadcast_to(frac[None, :], s2.shape)[need]
+        fr = np.broadcast_to(frac, s2.shape)[need]
         delta = _rounded_offset(fr, np.sqrt(s * s + so * so))
         V, E4, H = _quantized_pixel_moments(delta, s, so)
         # the measured variances are floored at 1e-6 DN² (a sample with no differing pixel): so is
@@ -737,9 +763,9 @@ class PTCModel:
         pa, pb, pc = self._pattern_moments(th, p)  # realised ROI patterns (zeros without the terms)
         # dark temporal variances (all rows); rounding at the measured offset below 1 DN
         vdm, phi_d, hd = self._quantized_var(rd2_all / (K * K), self.dark_frac_dn, pb / (K * K))
-        out["dark_var"] = (self.vd, vdm, 1.0 / (phi_d / self.nu_d[None, :] + f2), "gamma")
+        out["dark_var"] = (self.vd, vdm, 1.0 / (phi_d / self.nu_d + f2), "gamma")
         # bright temporal variances, unclipped rows: S from the measured mean
-        S = np.broadcast_to(self.s_obs[None, :], rd2_ok.shape).copy()
+        S = np.broadcast_to(self.s_obs, rd2_ok.shape).copy()
         vm, phi_b, hb = self._quantized_var(S / K + rd2_ok / (K * K), self.bright_frac_dn,
                                         pa * S * S + pb / (K * K) + 2.0 * pc * S / K)
         slope = np.ones_like(vm)
@@ -749,38 +775,47 @@ class PTCModel:
             # rows more than 8.5 sd of N(mean, s² + τ²) below the clip for every draw are unclipped
             # to double precision (_clip_mean): keep only the others. (The rule of the 9-node
             # quadrature, 8.5 s + 4.52 τ, let rows with τ ≫ s in at h ≈ 4.5: a clipped fraction 3e-6)
-            s_est = np.sqrt(self.v[self.clip_rows] + self.s_obs[self.clip_rows] / k.min())
-            alpha_min = (c.min() - self.m[self.clip_rows]) / np.sqrt(s_est**2 + tau.max()**2)
-            rows = self.clip_rows[alpha_min < 8.5]
+            # (bounds over each sensor's draws: over all draws here, per request in a PTCModelStack)
+            k_min, c_min, tau_max = (self._per_draw(self._request_reduce(f, a)) for f, a in
+                                     ((np.minimum, k), (np.minimum, c), (np.maximum, tau)))
+            cr = self.clip_rows
+            s_est = np.sqrt(self.v[..., cr] + self.s_obs[..., cr] / k_min)
+            alpha_min = (c_min - self.m[..., cr]) / np.sqrt(s_est**2 + tau_max**2)
+            need = alpha_min < 8.5
+            rows = cr[need if need.ndim == 1 else need.any(axis=0)]
         if self.clip_rows.size and rows.size:
+            # stacked sensors: a row one sensor needs is computed for all, kept where needed
+            keep = None if need.ndim == 1 else need[:, np.isin(cr, rows)]
+            keep = None if keep is None or keep.all() else keep
+            put = (lambda new, old: new) if keep is None else (lambda new, old: np.where(keep, new, old))
             if self.terms.clip == "well":
                 # the well clips the collected charge; read noise and quantization come after
-                dc_e2 = (p["dark_current_e_per_s"][:, None] * self.tt[None, rows]
+                dc_e2 = (p["dark_current_e_per_s"][:, None] * self.tt[..., rows]
                          if self.terms.dark_current else np.zeros((k.size, rows.size)))
                 pre = dc_e2 / (K * K)
                 post = (rd2_ok[:, rows] - dc_e2) / (K * K) + 1.0 / 12.0
                 mu, var_c, sl = self._latent_clip_rows(k, pre, tau, c, rows)
-                vm[:, rows] = var_c + post
+                vm[:, rows] = put(var_c + post, vm[:, rows])
             else:
                 # the ADC clips everything; quantization survives only for the unclipped pixels
                 mu, var_c, sl = self._latent_clip_rows(k, rd2_ok[:, rows] / (K * K), tau, c, rows)
-                vm[:, rows] = var_c + sl / 12.0
-            S[:, rows] = mu - self.dm[rows][None, :]
-            slope[:, rows] = sl
-        out["bright_var"] = (self.v, np.maximum(vm, 1e-12), 1.0 / (phi_b / self.nu[None, :] + f2), "gamma")
+                vm[:, rows] = put(var_c + sl / 12.0, vm[:, rows])
+            S[:, rows] = put(mu - self.dm[..., rows], S[:, rows])
+            slope[:, rows] = put(sl, slope[:, rows])
+        out["bright_var"] = (self.v, np.maximum(vm, 1e-12), 1.0 / (phi_b / self.nu + f2), "gamma")
         self._last_latent_signal_dn = S
         if self.terms.quantum_efficiency:
             qe = p["quantum_efficiency"][:, None]
             g2 = p["mean_discrepancy"][:, None] ** 2
-            s_model = qe * self.mu_p[None, :] / K
-            m_err2 = (self.v + self.vd[~self.full_sat]) / (self.nu + 1.0)
-            sd = np.sqrt(g2 * s_model**2 + m_err2[None, :] / np.maximum(slope, 1e-6) ** 2)
+            s_model = qe * self.mu_p / K
+            m_err2 = (self.v + self.vd_ok) / (self.nu + 1.0)
+            sd = np.sqrt(g2 * s_model**2 + m_err2 / np.maximum(slope, 1e-6) ** 2)
             out["mean"] = (S, s_model, sd, "normal")
         if self.terms.clip == "well" and self.full_means.size:
             # plateau rows: charge at the (spread) well; read noise and quantization remain
-            post_full = self.dark_var_e2(p, self.t[self.full_sat])
+            post_full = self.dark_var_e2(p, self.t_full)
             if self.terms.dark_current:
-                post_full = post_full - p["dark_current_e_per_s"][:, None] * self.t[self.full_sat][None, :]
+                post_full = post_full - p["dark_current_e_per_s"][:, None] * self.t_full
             tau_full = np.broadcast_to(p["clip_spread_dn"][:, None], post_full.shape)
             # rounding of the plateau values: exact below the quantization floor (offsets spread by
             # the well spread τ), Sheppard above
@@ -791,19 +826,19 @@ class PTCModel:
                 # moments of clip(N(c + τξ, σ²_post), ADC) over the well spread ξ
                 cm, cv, unclipped = self._clip_moments(
                     np.array(cmean), np.sqrt(post_full) / K, tau_full,
-                    np.full(vfull.shape, float(self.adc)))
+                    np.broadcast_to(self._per_draw(self.adc), vfull.shape).astype(float))
                 # only where the ADC clips a measurable part (keeps the exact rounding otherwise)
                 clipped = unclipped < 1.0 - 1e-9
                 vfull = np.where(clipped, cv + unclipped / 12.0, vfull)
                 cmean = cm
             out["plateau_var"] = (np.maximum(self.full_v, 1e-6), np.maximum(vfull, 1e-6),
-                                  1.0 / (phi_pl / self.full_nu[None, :] + f2), "gamma")
+                                  1.0 / (phi_pl / self.full_nu + f2), "gamma")
         else:
             cmean = None
         if self.terms.clip in ("adc_sampled", "well") and self.full_means.size:
             if cmean is None:
                 cmean = np.broadcast_to(p["clip_dn"][:, None], (k.size, self.full_means.size))
-            out["clip_mean"] = (self.full_means, cmean, self.full_sd[None, :], "normal")
+            out["clip_mean"] = (self.full_means, cmean, np.atleast_2d(self.full_sd), "normal")
         # spatial variances of L-frame averages: the ROI's realised pattern P (the same in every
         # row, see _pattern_moments) plus the averaged temporal noise T. Given the pattern, only
         # T's sample variance and its sample covariance with the pattern scatter:
@@ -813,15 +848,15 @@ class PTCModel:
             Sr = S[:, r]
             # realised pattern, plus what rounding adds to it below the quantization floor
             P = pa * Sr * Sr + pb / (K * K) + 2.0 * pc * Sr / K + hb[:, r]
-            T = vm[:, r] / self.L_ok[r][None, :]
-            out["spatial_var"] = (self.sp[r], np.maximum(P + T, 1e-12),
-                                  self._pattern_shape(P, T, self.nu[r][None, :], f2), "gamma")
+            T = vm[:, r] / self.L_ok[..., r]
+            out["spatial_var"] = (self.sp[..., r], np.maximum(P + T, 1e-12),
+                                  self._pattern_shape(P, T, self.nu[..., r], f2), "gamma")
         if self.spd_rows.size:
             r = self.spd_rows
             P = pb / (K * K) + hd[:, r]
-            T = vdm[:, r] / self.L_all[r][None, :]
-            out["dark_spatial_var"] = (np.maximum(self.spd[r], 1e-9), np.maximum(P + T, 1e-12),
-                                       self._pattern_shape(P, T, self.nu_d[r][None, :], f2), "gamma")
+            T = vdm[:, r] / self.L_all[..., r]
+            out["dark_spatial_var"] = (np.maximum(self.spd[..., r], 1e-9), np.maximum(P + T, 1e-12),
+                                       self._pattern_shape(P, T, self.nu_d[..., r], f2), "gamma")
         return out
 
     @staticmethod
@@ -917,8 +952,8 @@ class PTCModel:
         is added before the clip). The clipped mean is increasing and concave in μ, so Newton
         steps from μ = measured mean approach the root from below without overshoot.
         Returns (μ, variance of the clipped values, unclipped fraction = dE/dμ)."""
-        m_obs = self.m[rows][None, :]
-        dm = self.dm[rows][None, :]
+        m_obs = self.m[..., rows]
+        dm = self.dm[..., rows]
         K = k[:, None]
         shape = pre_var_dn2.shape
         cc = np.broadcast_to(c[:, None], shape)
@@ -1079,3 +1114,119 @@ class PTCModel:
             if np.any(np.isfinite(lp)):
                 x = cand[int(np.nanargmax(np.where(np.isfinite(lp), lp, -np.inf)))]
         return x
+
+
+class PTCModelStack:
+    """Several :class:`PTCModel` of one structure evaluated in one ``log_prob`` call (issue 7:
+    a batch vectorised across sensors, :func:`bayescap.batch.fit_many`).
+
+    A ``log_prob`` call on a few points costs ~0.6 ms, almost all of it per-call overhead (the
+    fast path makes ~200 such calls per sensor); stacking sensors pays it once per call. Sensors
+    stack when :meth:`signature` agrees: the same parameters, terms and prior, and the same rows
+    in every block (clip rows, spatial rows, fully clipped rows), so every array of the model has
+    the same shape. The per-row data become (n_draws, rows) arrays gathered by each draw's sensor
+    and the per-sensor numbers (black level, ADC maximum, clip-level bounds) per-draw arrays;
+    :class:`PTCModel`'s own methods then run unchanged on that view.
+
+    A sensor's numbers do not depend on the other sensors in the call: every operation is
+    elementwise over (draw, row) except the choice of rows near the clip, which is taken over
+    each request's draws (``request``), as a single model takes it over its call's draws.
+    ``tests/test_batch.py`` checks that a stacked call equals each model's own ``log_prob``
+    bit for bit.
+    """
+
+    #: per-row data arrays (stacked along a new first axis)
+    ROW_ARRAYS = ("m", "v", "vd", "dm", "tt", "t", "nu", "nu_d", "s_obs", "mu_p", "full_means", "full_v",
+                  "full_nu", "full_sd", "sp", "spd", "L_ok", "L_all", "dark_frac_dn", "bright_frac_dn",
+                  "full_frac_dn", "t_full", "vd_ok")
+
+    def __init__(self, models):
+        self.models = list(models)
+        if not self.models:
+            raise ValueError("PTCModelStack needs at least one model")
+        sig = self.signature(self.models[0])
+        for i, m in enumerate(self.models[1:], 1):
+            if self.signature(m) != sig:
+                raise ValueError(f"model {i} does not stack with model 0: different parameters, terms, "
+                                 "prior or block rows (group models by PTCModelStack.signature)")
+        m0 = self.models[0]
+        self.ndim, self.names = m0.ndim, m0.names
+        self._rows = {a: np.stack([getattr(m, a) for m in self.models]) for a in self.ROW_ARRAYS if hasattr(m0, a)}
+        self._black = np.array([m.black_dn for m in self.models], float)
+        self._adc = None if m0.adc is None else np.array([m.adc for m in self.models], float)
+        self._nu_pattern = np.array([m.nu_pattern for m in self.models], float)
+        self._clip_bounds = (None if m0.clip_bounds is None else
+                             tuple(np.array([m.clip_bounds[j] for m in self.models], float) for j in (0, 1)))
+
+    @staticmethod
+    def signature(model: PTCModel):
+        """What must agree for models to stack (a hashable tuple)."""
+        tm = model.terms
+        terms = (tm.dark_current, tm.clip, tm.clip_spread, tm.quantum_efficiency, tm.prnu, tm.dsnu,
+                 tm.robust, tm.discrepancy)
+        shapes = tuple((a, np.shape(getattr(model, a))) for a in PTCModelStack.ROW_ARRAYS if hasattr(model, a))
+        rows = tuple(tuple(np.asarray(getattr(model, a)).tolist()) for a in ("clip_rows", "lin_rows", "sp_rows", "spd_rows"))
+        prior = tuple(sorted((k, repr(v)) for k, v in model.PRIOR.items()))
+        return (tuple(model.names), terms, shapes, rows, int(np.sum(model.full_sat)), model.adc is None,
+                model.clip_bounds is None, prior)
+
+    def view(self, sensor, request=None) -> PTCModel:
+        """A PTCModel whose data are those of ``sensor[i]`` for draw ``i`` (``request``: the id of
+        the request each draw belongs to, for the per-request reductions)."""
+        sensor = np.asarray(sensor, int)
+        v = copy.copy(self.models[0])
+        v.__class__ = _StackView
+        v._stack_rows, v._stack_sensor, v._gathered = self._rows, sensor, {}
+        v.black_dn = self._black[sensor]
+        v.adc = None if self._adc is None else self._adc[sensor]
+        v.nu_pattern = self._nu_pattern[sensor][:, None]
+        v.clip_bounds = None if self._clip_bounds is None else tuple(b[sensor] for b in self._clip_bounds)
+        v._request_ids = np.asarray(sensor if request is None else request)
+        return v
+
+    def log_prob(self, theta, sensor, request=None):
+        """``PTCModel.log_prob`` of draw ``theta[i]`` under model ``sensor[i]``: (n,).
+
+        Draws of one request must be contiguous (the clip-row choice is per request)."""
+        th = np.atleast_2d(np.asarray(theta, float))
+        sensor = np.asarray(sensor, int)
+        request = sensor if request is None else np.asarray(request)
+        lp = self.view(sensor, request).log_prior(th)
+        good = np.isfinite(lp)
+        out = np.full(th.shape[0], -np.inf)
+        if np.any(good):
+            with np.errstate(over="ignore", invalid="ignore", divide="ignore"):
+                ll = self.view(sensor[good], request[good]).log_likelihood(th[good])
+            ll = np.where(np.isfinite(ll), ll, -np.inf)
+            out[good] = lp[good] + ll
+        return out
+
+
+class _GatheredRows:
+    """A per-row data array of a :class:`PTCModelStack` view, gathered by draw on first use (a
+    log-prior evaluation, or a model that does not use the array, never pays for it)."""
+
+    def __set_name__(self, owner, name):
+        self.name = name
+
+    def __get__(self, obj, owner=None):
+        if obj is None:
+            return self
+        got = obj._gathered
+        if self.name not in got:
+            got[self.name] = obj._stack_rows[self.name][obj._stack_sensor]
+        return got[self.name]
+
+    def __set__(self, obj, value):
+        obj._gathered[self.name] = value
+
+
+class _StackView(PTCModel):
+    """A :class:`PTCModel` evaluated on stacked data (made by :meth:`PTCModelStack.view` only)."""
+
+
+for _a in PTCModelStack.ROW_ARRAYS:
+    _d = _GatheredRows()
+    _d.__set_name__(_StackView, _a)
+    setattr(_StackView, _a, _d)
+del _a, _d
