@@ -50,11 +50,17 @@ def build_parser() -> argparse.ArgumentParser:
                        description="Fit the Eq. 1 noise model to a photon-transfer CSV by MCMC and "
                                    "report every parameter, the derived figures and the information "
                                    "capacity with 68 %% and 95 %% credible intervals.")
-    p.add_argument("csv", help="photon-transfer CSV (format: README, 'Photon-transfer CSV')")
-    p.add_argument("--json", action="store_true", help="print the result as JSON (the contract's fit JSON)")
+    p.add_argument("csv", nargs="+", help="photon-transfer CSV (format: README, 'Photon-transfer CSV'); several "
+                                         "CSVs are fitted as a batch (bayescap.batch.fit_many: the fast "
+                                         "preset is vectorised across sensors)")
+    p.add_argument("--json", action="store_true", help="print the result as JSON (the contract's fit JSON; "
+                                                       "a JSON array of them for several CSVs)")
+    p.add_argument("--jobs", type=int, default=1, metavar="N",
+                   help="several CSVs: worker processes for the batch (default 1)")
     p.add_argument("--seed", type=int, default=None, help="random seed: the same seed gives the same numbers")
     p.add_argument("--out", metavar="DIR", help="also write result.json, report.txt, posterior.nc "
-                                               "(ArviZ InferenceData), ptc.png and corner.png into DIR")
+                                               "(ArviZ InferenceData), ptc.png and corner.png into DIR "
+                                               "(several CSVs: into DIR/<csv name>/)")
     p.add_argument("--quality", choices=("fast", "standard", "accurate"), default="standard",
                    help="speed/accuracy preset (README, 'Quality presets'); default standard")
     p.add_argument("--scene", default=None, metavar="KEY=VALUE,...",
@@ -173,8 +179,10 @@ def _cmd_fit(args) -> int:
     from .report import format_text, to_json, write_outputs
 
     overrides = {k: getattr(args, k) for k in _OVERRIDE_KEYS if getattr(args, k, None) is not None}
+    if len(args.csv) > 1:
+        return _cmd_fit_many(args, overrides)
     try:
-        data = load(args.csv, **overrides)
+        data = load(args.csv[0], **overrides)
     except PTCInputError as e:
         raise InputError(str(e)) from None
     scene = _scene_from_args(args, data)
@@ -199,6 +207,79 @@ def _cmd_fit(args) -> int:
         write_outputs(result, args.out)
     sys.stdout.write(to_json(result) if args.json else format_text(result))
     return 0
+
+
+def _cmd_fit_many(args, overrides) -> int:
+    """``bayescap fit a.csv b.csv ...``: every CSV checked first (a bad one stops the run before
+    anything is fitted or written), then :func:`bayescap.batch.fit_many`."""
+    from .api import load
+    from .batch import fit_many
+    from .ptc import PTCInputError
+    from .report import format_text, write_outputs
+
+    for opt, name in ((args.select_model, "--select-model"), (args.mtf, "--mtf"), (args.scene, "--scene"),
+                      (args.scene_exposure_s is not None, "--scene-exposure-s"),
+                      (args.temperature_c is not None, "--temperature-c")):
+        if opt:
+            raise InputError(f"{name} applies to one CSV at a time: fit the CSVs one by one to use it")
+    if args.jobs < 1:
+        raise InputError(f"--jobs must be at least 1, got {args.jobs}")
+    datas = []
+    for path in args.csv:
+        try:
+            datas.append(load(path, **overrides))
+        except PTCInputError as e:
+            raise InputError(str(e)) from None
+    results = fit_many(datas, quality=args.quality, seed=args.seed, n_jobs=args.jobs)
+    failed = [(p, r) for p, r in zip(args.csv, results) if isinstance(r, BaseException)]
+    if args.out:
+        from pathlib import Path
+
+        used = set()
+        for path, r in zip(args.csv, results):
+            if isinstance(r, BaseException):
+                continue
+            stem, k = Path(path).stem, 1
+            while (stem if k == 1 else f"{stem}_{k}") in used:
+                k += 1
+            name = stem if k == 1 else f"{stem}_{k}"
+            used.add(name)
+            write_outputs(r, Path(args.out) / name)
+    if args.json:
+        import json
+
+        docs = [r.to_dict() if not isinstance(r, BaseException) else {"input": p, "error": f"{type(r).__name__}: {r}"}
+                for p, r in zip(args.csv, results)]
+        sys.stdout.write(json.dumps(docs, indent=2, ensure_ascii=False, allow_nan=False) + "\n")
+    else:
+        for p, r in zip(args.csv, results):
+            sys.stdout.write(f"bayescap: {p}: error: {type(r).__name__}: {r}\n\n" if isinstance(r, BaseException)
+                             else format_text(r) + "\n")
+        sys.stdout.write(_batch_table(args.csv, results))
+    for p, r in failed:
+        print(f"bayescap: error: {p}: {type(r).__name__}: {r}", file=sys.stderr)
+    return 1 if failed else 0
+
+
+def _batch_table(paths, results) -> str:
+    """One line per CSV: method, convergence, K and capacity with 95 % intervals."""
+    import numpy as np
+
+    def q(x):
+        lo, med, hi = np.quantile(x, [0.025, 0.5, 0.975])
+        return f"{med:.4g} [{lo:.4g}, {hi:.4g}]"
+
+    lines = [f"batch summary ({len(paths)} CSVs): median [95 % interval]",
+             "csv | method | converged | conversion_gain_e_per_dn | capacity_bits"]
+    for p, r in zip(paths, results):
+        if isinstance(r, BaseException):
+            lines.append(f"{p} | error | - | - | -")
+            continue
+        dg = r.diag
+        cap = q(r.derived["capacity_bits"]) if "capacity_bits" in r.derived else "n/a"
+        lines.append(f"{p} | {dg.get('method', 'mcmc')} | {'yes' if dg.get('converged') else 'NO'} | "
+                     f"{q(r.draws['conversion_gain_e_per_dn'])} | {cap}")
+    return "\n".join(lines) + "\n"
 
 
 def _scene_from_args(args, data):

@@ -61,3 +61,30 @@ def test_help_lists_every_command():
     r = _run("--help")
     for cmd in ("fit", "ingest", "mtf", "sweep", "compare", "report"):
         assert cmd in r.stdout
+
+
+def test_fit_many_csvs_as_a_batch(tmp_path):
+    """``bayescap fit a.csv b.csv ... --quality fast``: one fit JSON per CSV (each the same as that
+    CSV fitted alone, by the batch's child seed), outputs in DIR/<name>/; a bad CSV among them
+    stops the run with exit 2 before anything is written."""
+    from bayescap.batch import gpixel_sensors
+    from bayescap.ptc import write_ptc_csv
+
+    datas, _ = gpixel_sensors(n_max=3, seed=6)
+    paths = [tmp_path / f"roi{i}.csv" for i in range(3)]
+    for d, p in zip(datas, paths):
+        write_ptc_csv(d, p)
+    out = tmp_path / "out"
+    r = _run("fit", *paths, "--quality", "fast", "--seed", "3", "--json", "--out", out)
+    assert r.returncode == 0, r.stderr
+    docs = json.loads(r.stdout)
+    assert [Path(d["input"]).name for d in docs] == [p.name for p in paths]
+    assert sorted(x.name for x in out.iterdir()) == ["roi0", "roi1", "roi2"]
+    assert json.loads((out / "roi1" / "result.json").read_text()) == docs[1]
+    # a missing file: exit 2, one line naming it, nothing written
+    out2 = tmp_path / "out2"
+    r = _run("fit", paths[0], tmp_path / "missing.csv", "--quality", "fast", "--out", out2)
+    assert r.returncode == 2 and "missing.csv" in r.stderr and "Traceback" not in r.stderr
+    assert not out2.exists()
+    r = _run("fit", paths[0], paths[1], "--select-model")
+    assert r.returncode == 2 and "one CSV at a time" in r.stderr
