@@ -93,15 +93,18 @@ def _check_sensible(truth, r, *, tol_k_rejected=0.3):
 
 SLOWEST = {"read_noise_200e", "gain_0.01e_per_dn_16bit", "full_well_1e6_16bit"}
 
-#: known failures of the sanity check, each with its diagnosis (strict: a fix flips them).
-KNOWN = {"noise_below_one_dn_everywhere": pytest.mark.xfail(strict=True, reason=(
+#: known failures of the sanity check, each with its diagnosis. Not strict: this one passes or
+#: fails with the last digits of log p (below), so neither outcome says the defect is fixed.
+KNOWN = {"noise_below_one_dn_everywhere": pytest.mark.xfail(strict=False, reason=(
     "K = 1000 e-/DN, 8 bits, read noise 0.005 DN: the fast path rejects itself (k̂ 1.32) and its "
     "draws put K's median at 570 (43 % low; the check allows 30 % for a rejected result). Its "
     "optimum (log p 823, f = 0.6) is thousands of nats below the highest point the MCMC reaches "
     "(5 001, with log f → −135), and the standard MCMC does not converge either (R-hat 1.14 after "
     "154 s; K median 1016, 95 % [898, 2151]). It passed before 2026-11-23 evening at 29.6 %, by the "
     "luck of where a polish step landed; the closed-form clip moments (model._clip_mean, "
-    "_clip_moments) moved that point"))}
+    "_clip_moments) moved that point. It passes again since 2026-11-23 night (model._rounded_offset "
+    "stops each element on its own; rounding-level changes to log p): the fast path still rejects "
+    "itself (k̂ 1.15), and its draws happen to put K's median at 1024"))}
 
 
 def _case_param(c):
