@@ -116,9 +116,14 @@ class Lockstep:
         sizes = [t.shape[0] for t in th]
         try:
             lp = self.stack.log_prob(np.vstack(th), np.repeat(np.asarray(slots, int), sizes))
-        except Exception as e:   # every fit of the chunk sees the error
+        except Exception:
+            # one sensor's failure must not fail the others: each request on its own model, so
+            # that only the failing fit sees its error
             for s in slots:
-                res[s] = e
+                try:
+                    res[s] = self.stack.models[s].log_prob(requests[s])
+                except Exception as e:
+                    res[s] = e
             return
         self.n_calls += 1
         for s, part in zip(slots, np.split(lp, np.cumsum(sizes)[:-1])):

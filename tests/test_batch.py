@@ -64,7 +64,8 @@ def test_stack_refuses_models_of_different_structure():
 
 
 class _Toy:
-    """A stand-in stack: log p = −|x|²/2 per model, with a counter of calls."""
+    """A stand-in stack: log p = −|x|²/2 per model, with a counter of calls; a point with x₀ = 99
+    raises (a model that fails on its input)."""
 
     def __init__(self, n):
         self.models = [self] * n
@@ -72,7 +73,10 @@ class _Toy:
 
     def log_prob(self, theta, sensor=None):
         self.calls += 1
-        return -0.5 * np.sum(np.atleast_2d(theta) ** 2, axis=1)
+        th = np.atleast_2d(theta)
+        if np.any(th[:, 0] == 99):
+            raise FloatingPointError("bad point")
+        return -0.5 * np.sum(th**2, axis=1)
 
 
 def test_lockstep_returns_each_fit_its_values_and_isolates_a_failure():
@@ -95,6 +99,14 @@ def test_lockstep_returns_each_fit_its_values_and_isolates_a_failure():
     # 2 at a time, each request waits for the other running fit: fewer calls than requests
     assert ls.n_requests == sum(k + 1 for k in (0, 1, 2, 4))
     assert toy.calls == ls.n_calls < ls.n_requests
+
+
+def test_lockstep_a_failing_request_fails_only_its_fit():
+    ls = Lockstep(_Toy(3), solo_points=10**9)
+    fns = [lambda lp, x=x: float(lp(np.array([[x, 0.0]]))[0]) for x in (1.0, 99.0, 2.0)]
+    out = ls.run(fns)
+    assert out[0] == -0.5 and out[2] == -2.0
+    assert isinstance(out[1], FloatingPointError)
 
 
 def test_fit_many_gives_each_sensor_its_own_fit():
