@@ -258,8 +258,15 @@ def fit_many(datas, *, quality: str = "fast", seed, n_jobs: int = 1, fallback: b
     if quality != "fast":
         import bayescap
 
-        res = [bayescap.fit(d, seed=s, quality=quality) for d, s in zip(datas, seeds)]
-        return [_summary(r) for r in res] if summary_only else res
+        res = []
+        for d, s in zip(datas, seeds):
+            try:
+                r = bayescap.fit(d, seed=s, quality=quality)
+            except Exception as e:  # one bad sensor must not stop a batch: report it
+                res.append({"error": f"{type(e).__name__}: {e}"} if summary_only else e)
+                continue
+            res.append(_summary(r) if summary_only else r)
+        return res
     from .api import load
     from .model import PTCModel, select_terms
     from .ptc import PTCData

@@ -129,3 +129,11 @@ def test_fit_many_gives_each_sensor_its_own_fit():
     groups = [len(ix) for g in stack_groups([PTCModel(d) for d in datas]) for ix in g]
     assert sorted(r.chains.extra["stacked"]["sensors"] for r in batch) == sorted(n for n in groups for _ in range(n))
     assert max(groups) >= 2                          # some sensors were evaluated stacked
+
+
+def test_fit_many_mcmc_preset_reports_a_bad_sensor_instead_of_stopping():
+    """quality="standard" fits one sensor at a time (MCMC); a refused input is reported in its
+    place, as with the fast preset."""
+    res = fit_many(["data/simulated/sim_phone_1p75um_10bit.csv", "no_such_file.csv"], quality="standard",
+                   seed=1, summary_only=True)
+    assert res[0]["converged"] and "file not found" in res[1]["error"]
