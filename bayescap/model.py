@@ -1000,16 +1000,7 @@ class PTCModel:
         return sum(v.sum(axis=1) for v in terms.values())
 
     def log_prob(self, theta):
-        th = np.atleast_2d(np.asarray(theta, float))
-        lp = self.log_prior(th)
-        good = np.isfinite(lp)
-        out = np.full(th.shape[0], -np.inf)
-        if np.any(good):
-            with np.errstate(over="ignore", invalid="ignore", divide="ignore"):
-                ll = self.log_likelihood(th[good])
-            ll = np.where(np.isfinite(ll), ll, -np.inf)
-            out[good] = lp[good] + ll
-        return out
+        return _log_posterior(theta, lambda good: self)
 
     # ------------------------------------------------------------------ start point
     def initial_guess(self) -> np.ndarray:
@@ -1116,6 +1107,22 @@ class PTCModel:
         return x
 
 
+def _log_posterior(theta, model_for):
+    """log prior + log likelihood of draws ``theta`` (n, ndim): the likelihood only where the prior
+    is finite. ``model_for(good)`` gives the model to evaluate the draws ``good`` (a boolean mask;
+    None: all draws) with: the model itself, or a :class:`PTCModelStack` view of those draws."""
+    th = np.atleast_2d(np.asarray(theta, float))
+    lp = model_for(None).log_prior(th)
+    good = np.isfinite(lp)
+    out = np.full(th.shape[0], -np.inf)
+    if np.any(good):
+        with np.errstate(over="ignore", invalid="ignore", divide="ignore"):
+            ll = model_for(good).log_likelihood(th[good])
+        ll = np.where(np.isfinite(ll), ll, -np.inf)
+        out[good] = lp[good] + ll
+    return out
+
+
 class PTCModelStack:
     """Several :class:`PTCModel` of one structure evaluated in one ``log_prob`` call (issue 7:
     a batch vectorised across sensors, :func:`bayescap.batch.fit_many`).
@@ -1188,18 +1195,10 @@ class PTCModelStack:
         """``PTCModel.log_prob`` of draw ``theta[i]`` under model ``sensor[i]``: (n,).
 
         Draws of one request must be contiguous (the clip-row choice is per request)."""
-        th = np.atleast_2d(np.asarray(theta, float))
         sensor = np.asarray(sensor, int)
         request = sensor if request is None else np.asarray(request)
-        lp = self.view(sensor, request).log_prior(th)
-        good = np.isfinite(lp)
-        out = np.full(th.shape[0], -np.inf)
-        if np.any(good):
-            with np.errstate(over="ignore", invalid="ignore", divide="ignore"):
-                ll = self.view(sensor[good], request[good]).log_likelihood(th[good])
-            ll = np.where(np.isfinite(ll), ll, -np.inf)
-            out[good] = lp[good] + ll
-        return out
+        return _log_posterior(theta, lambda good: self.view(sensor if good is None else sensor[good],
+                                                            request if good is None else request[good]))
 
 
 class _GatheredRows:
