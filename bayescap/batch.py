@@ -2,7 +2,8 @@
 GSPRINT4521 per-ROI results turned into simulated photon-transfer data (:func:`gpixel_sensors`).
 
 **Vectorised across fits.** A fast-path fit makes ~200 ``log_prob`` calls, most on 1–50 points,
-where a call costs ~0.6 ms whatever its size (measured: 17 points 0.70 ms, 1 000 points 5.7 ms).
+where a call costs ~0.6 ms whatever its size (17 points 0.7–0.8 ms, 1 000 points 6–8 ms:
+``benchmarks/batch_lockstep.py``).
 :func:`fit_many` therefore runs the fast paths of up to ``stack_size`` sensors in lockstep: each
 sensor's unchanged fast path (:func:`bayescap.fast.fast_posterior`) runs in a greenlet whose model
 hands its ``log_prob`` requests to a :class:`Lockstep` evaluator; once every running path is
