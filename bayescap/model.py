@@ -80,19 +80,30 @@ def gamma_logpdf(v, sigma2, k):
     core = np.log1p(d) - d
     kk = np.asarray(k, float)
     with np.errstate(divide="ignore"):
-        stirling = 0.5 * np.log(kk) - 0.5 * _LOG_2PI - 1.0 / (12.0 * kk) + 1.0 / (360.0 * kk**3)
-    big = kk > 10.0
-    if np.all(big):      # the usual case (ν = n_pixels − 1): no lgamma needed
-        bracket = stirling
-    else:
-        small = kk * np.log(kk) - kk - gammaln(kk)
-        bracket = np.where(big, stirling, small)
-    return kk * core + bracket - np.log(v)
+        inv = 1.0 / kk
+        stirling = 0.5 * np.log(kk) - 0.5 * _LOG_2PI - inv * (1.0 / 12.0 - inv * inv * (1.0 / 360.0))
+    small = ~(kk > 10.0)
+    if np.any(small):    # rare (ν = n_pixels − 1 is large): lgamma only where Stirling is not used
+        stirling = np.array(np.broadcast_to(stirling, np.broadcast_shapes(stirling.shape, core.shape)))
+        ks = np.broadcast_to(kk, stirling.shape)[small := np.broadcast_to(small, stirling.shape)]
+        with np.errstate(divide="ignore", invalid="ignore"):
+            stirling[small] = ks * np.log(ks) - ks - gammaln(ks)
+    return kk * core + stirling - np.log(v)
 
 
 def _norm_logpdf(x, mu, sd):
     z = (x - mu) / sd
     return -0.5 * z * z - np.log(sd) - 0.5 * _LOG_2PI
+
+
+def _logaddexp(a, b):
+    """``np.logaddexp(a, b)`` from numpy's vectorised exp and log1p: 3× faster on large arrays
+    (numpy's logaddexp calls the scalar libm functions element by element); equal to it within
+    1 ulp of max(|result|, 1) (``tests/test_model.py``), −inf where both are −inf."""
+    m = np.maximum(a, b)
+    with np.errstate(invalid="ignore"):
+        out = m + np.log1p(np.exp(-np.abs(a - b)))
+    return np.where(m == -np.inf, m, out)
 
 
 def _halfnormal_log_prior(u, scale):
@@ -725,22 +736,28 @@ class PTCModel:
         5.3e-3 s² at τ = 2 s and 0.12 s² at τ = 10 s; this agrees with an 8 001-point sum to
         1e-10 s² for τ/s up to 100 (``tests/test_model.py``) and costs a third. Returns (mean,
         var, unclipped fraction)."""
-        mean, unclipped = PTCModel._clip_mean(mu, s, tau, c)
+        mu, s, tau, c = np.broadcast_arrays(mu, s, tau, c)
         s2 = s * s
         sp2 = np.maximum(s2 + tau * tau, 1e-300)
-        rho = tau * tau / sp2
-        h = (c - mu) / np.sqrt(sp2)
-        k = np.sqrt((1.0 - rho) / (1.0 + rho))
+        sp = np.sqrt(sp2)
+        d = c - mu
+        h = d / sp
         Ph = ndtr(h)
         ph = np.exp(-0.5 * h * h) * 0.3989422804014327
-        P2 = Ph - 2.0 * owens_t(h, k)
-        M = ((h * h + rho) * P2 + 2.0 * h * ph * ndtr(h * k)
-             + np.sqrt(1.0 - rho * rho) * 0.15915494309189535 * np.exp(-h * h / (1.0 + rho)))
-        var = sp2 * ((h * h + 1.0) * Ph + h * ph - M)
+        mean = c - d * Ph - sp * ph          # _clip_mean's, from the same h
         # more than 8.5 s' below the clip nothing is clipped to double precision: the temporal
-        # variance itself (the difference above loses digits as h² grows)
-        var = np.where(h > 8.5, s2, np.maximum(var, 0.0))
-        return mean, var, unclipped
+        # variance itself (the difference below loses digits as h² grows). The bivariate part
+        # (Owen's T, ~85 ns an element) is evaluated only where it is kept.
+        var = np.array(s2, dtype=float)      # a copy, also for 0-d input
+        w = ~(h > 8.5)
+        if w.any():
+            hw, phw, Phw, rho = h[w], ph[w], Ph[w], tau[w] * tau[w] / sp2[w]
+            k = np.sqrt((1.0 - rho) / (1.0 + rho))
+            P2 = Phw - 2.0 * owens_t(hw, k)
+            M = ((hw * hw + rho) * P2 + 2.0 * hw * phw * ndtr(hw * k)
+                 + np.sqrt(1.0 - rho * rho) * 0.15915494309189535 * np.exp(-hw * hw / (1.0 + rho)))
+            var[w] = np.maximum(sp2[w] * ((hw * hw + 1.0) * Phw + hw * phw - M), 0.0)
+        return mean, var, Ph
 
     def predict(self, th):
         """Model predictions per observation block, for draws ``th`` (n, ndim).
@@ -883,7 +900,7 @@ class PTCModel:
             bad = _norm_logpdf(obs, model, np.hypot(spread, OUTLIER_REL_SD * np.abs(model)))
         a = np.log1p(-OUTLIER_RATE) + good
         b = np.log(OUTLIER_RATE) + bad
-        ll = np.logaddexp(a, b)
+        ll = _logaddexp(a, b)
         if with_outlier_prob:
             return ll, np.exp(b - ll)
         return ll

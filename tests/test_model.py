@@ -140,3 +140,41 @@ def test_log_prob_vectorised_and_finite_at_start():
     bad = x.copy()
     bad[m.idx["log_k"]] = 50.0
     assert m.log_prob(bad[None])[0] == -np.inf
+
+
+def test_gamma_logpdf_mixed_shapes_match_scipy():
+    """Shapes k ≤ 10 (lgamma) and > 10 (Stirling) in one array: each element as scipy's."""
+    sigma2 = np.array([[3.0], [40.0]])
+    k = np.array([0.7, 5.0, 10.0, 10.5, 3e3, 5e6])
+    v = sigma2 * np.array([0.5, 0.9, 1.0, 1.001, 1.3, 0.999])
+    ref = stats.gamma.logpdf(v, a=k, scale=sigma2 / k)
+    np.testing.assert_allclose(gamma_logpdf(v, sigma2, k), ref, rtol=1e-9, atol=1e-7)
+
+
+def test_logaddexp_matches_numpy():
+    from bayescap.model import _logaddexp
+
+    rng = np.random.default_rng(4)
+    a, b = rng.normal(0, 40, 10**5), rng.normal(0, 40, 10**5)
+    a[:4], b[:4] = [-np.inf, -np.inf, 3.0, -800.0], [-np.inf, 2.0, -np.inf, -801.0]
+    got, ref = _logaddexp(a, b), np.logaddexp(a, b)
+    assert np.array_equal(np.isneginf(got), np.isneginf(ref)) and got[1] == 2.0 and got[2] == 3.0
+    fin = np.isfinite(ref)
+    scale = np.spacing(np.maximum(np.abs(ref[fin]), 1.0))
+    assert np.max(np.abs(got[fin] - ref[fin]) / scale) <= 4
+
+
+def test_clip_moments_far_below_the_clip_is_the_temporal_variance():
+    """More than 8.5 s' below the clip the variance is s² (the bivariate part is skipped there);
+    an array mixing both sides gives each element what it gives alone."""
+    mu = np.array([-20.0, -9.0, -8.0, -3.0, 0.0, 2.0])
+    s, tau, c = np.full(6, 0.8), np.full(6, 0.6), np.zeros(6)
+    mean, var, slope = PTCModel._clip_moments(None, mu, s, tau, c)
+    far = (c - mu) / np.hypot(s, tau) > 8.5
+    assert far.sum() == 2 and np.all(var[far] == s[far] ** 2)
+    for i in range(6):
+        one = PTCModel._clip_moments(None, mu[i:i + 1], s[i:i + 1], tau[i:i + 1], c[i:i + 1])
+        assert (one[0][0], one[1][0], one[2][0]) == (mean[i], var[i], slope[i])
+    ref_mean, ref_slope = PTCModel._clip_mean(mu, s, tau, c)
+    np.testing.assert_array_equal(mean, ref_mean)
+    np.testing.assert_array_equal(slope, ref_slope)
