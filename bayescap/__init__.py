@@ -9,6 +9,10 @@ Eq. 1) -> image information capacity C = s' * b' (Eq. 6-9) with credible interva
 """
 __version__ = "0.1.0"
 
+from ._heap import retain_freed_memory as _retain_freed_memory  # noqa: E402
+
+_retain_freed_memory()   # glibc keeps freed temporaries for the next log_prob call (bayescap/_heap.py)
+
 from .api import fit, load, default_scene  # noqa: E402
 from .posterior import FitResult, Scene  # noqa: E402
 from .ptc import PTCData, PTCInputError, read_ptc_csv, write_ptc_csv  # noqa: E402
