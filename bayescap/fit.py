@@ -161,26 +161,29 @@ def laplace_covariance(model: PTCModel, x, h=1e-4):
     """Inverse of the negative Hessian of log-prob at ``x`` (finite differences, one
     vectorised call), made positive definite by eigenvalue clipping.
 
-    The four-point stencil ``f(x±e_i±e_j)`` is evaluated once per unordered pair ``i ≤ j``
-    (``2n² + 2n`` points instead of ``4n²``): ``(i, j)`` and ``(j, i)`` are the same points, and
-    each entry is summed in the order of the full ``n × n`` stencil, so the Hessian is bit for bit
-    the one of evaluating every ordered pair (``tests/test_fit.py``)."""
+    Central differences on ``n² + n + 1`` points: ``x``, ``x ± e_i`` and ``x ± (e_i + e_j)``
+    (``i < j``), with ``e_i`` the step ``h·max(1, |x_i|)`` along axis ``i``::
+
+        H_ii = [f(+i) − 2 f(0) + f(−i)] / e_i²
+        H_ij = [f(+i+j) + f(−i−j) − f(+i) − f(−i) − f(+j) − f(−j) + 2 f(0)] / (2 e_i e_j)
+
+    (Abramowitz & Stegun 25.3.23/25.3.27; both exact for a quadratic, error O(e²)). The four-point
+    stencil ``f(x±e_i±e_j)`` used before 2026-11-23 took ``2n² + 2n`` points (144 for n = 8, 73
+    now), a third of the fast path's ``log_prob`` points (docs/performance.md, "2026-11-23 (day)")."""
     n = x.size
     step = h * np.maximum(1.0, np.abs(x))
     E = np.diag(step)
-    iu, ju = np.triu_indices(n)
-    Ei, Ej = E[iu], E[ju]
-    # (+,+), (+,-), (-,+), (-,-) for every i <= j, in the order x + E_i ± E_j and x - E_i ± E_j
-    pts = np.stack([x + Ei + Ej, x + Ei - Ej, x - Ei + Ej, x - Ei - Ej], axis=1).reshape(-1, n)
+    iu, ju = np.triu_indices(n, 1)
+    pts = np.vstack([x[None], x + E, x - E, x + E[iu] + E[ju], x - E[iu] - E[ju]])
     with np.errstate(all="ignore"):   # the stencil may leave the prior support: -inf, handled below
-        q = model.log_prob(pts).reshape(-1, 4)
-        den = 4 * (step[iu] * step[ju])           # as 4 * np.outer(step, step)
-        upper = (q[:, 0] - q[:, 1] - q[:, 2] + q[:, 3]) / den
-        # the (j, i) entry of the full stencil: its (+,-) point is (i, j)'s (-,+) and vice versa
-        lower = (q[:, 0] - q[:, 2] - q[:, 1] + q[:, 3]) / den
+        q = model.log_prob(pts)
+        f0, fp, fm = q[0], q[1:n + 1], q[n + 1:2 * n + 1]
+        fpp, fmm = q[2 * n + 1:2 * n + 1 + iu.size], q[2 * n + 1 + iu.size:]
         H = np.empty((n, n))
-        H[ju, iu] = lower
-        H[iu, ju] = upper                          # the diagonal takes the (i, i) order
+        H[np.arange(n), np.arange(n)] = (fp - 2.0 * f0 + fm) / step**2
+        off = (fpp + fmm - fp[iu] - fm[iu] - fp[ju] - fm[ju] + 2.0 * f0) / (2.0 * step[iu] * step[ju])
+        H[iu, ju] = off
+        H[ju, iu] = off
     H = 0.5 * (H + H.T)
     if not np.all(np.isfinite(H)):
         return np.diag(np.full(n, 1e-4))

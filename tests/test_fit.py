@@ -259,3 +259,36 @@ def test_slow_burn_in_transient_is_discarded_not_reported(monkeypatch):
     assert any(n.startswith("burn-in extended by") for n in r.notes)
     med = np.median(r.draws["clip_spread_dn"])
     assert abs(np.log(med / 1.655)) < 0.21
+
+
+class _Quadratic:
+    """log p = −½ (x − m)ᵀ A (x − m) + c·(x₀ − m₀)⁴ (no Hessian contribution at m)."""
+
+    def __init__(self, A, m, c=0.0):
+        self.A, self.m, self.c, self.ndim = A, m, c, m.size
+
+    def log_prob(self, x):
+        d = np.atleast_2d(x) - self.m
+        return -0.5 * np.einsum("ij,jk,ik->i", d, self.A, d) + self.c * d[:, 0] ** 4
+
+
+def test_laplace_covariance_is_exact_for_a_quadratic_and_second_order_otherwise():
+    import importlib
+
+    F = importlib.import_module("bayescap.fit")
+    rng = np.random.default_rng(5)
+    n = 7
+    B = rng.standard_normal((n, n))
+    A = B @ B.T + n * np.eye(n)          # eigenvalues ≥ n > 1: below laplace_covariance's sd cap
+    m = rng.normal(0, 3, n)
+    cov = F.laplace_covariance(_Quadratic(A, m), m, h=1e-2)
+    np.testing.assert_allclose(cov, np.linalg.inv(A), rtol=1e-6, atol=1e-9)
+    # with a quartic term the error is O(h²): the second difference of c·d⁴ is 12 c d² + 2 c h²
+    x = m + 0.3
+    exact = np.linalg.inv(A - np.diag([12 * 2.0 * 0.3**2] + [0] * (n - 1)))
+    errs = [np.max(np.abs(F.laplace_covariance(_Quadratic(A, m, c=2.0), x, h=hh) - exact)) for hh in (3e-2, 3e-3)]
+    assert 50 < errs[0] / errs[1] < 200                       # 100× for a 10× smaller step
+    e0 = 3e-2 * max(1.0, abs(x[0]))                           # the step along x₀
+    predicted = np.linalg.inv(A - np.diag([12 * 2.0 * 0.3**2 + 2 * 2.0 * e0**2] + [0] * (n - 1)))
+    np.testing.assert_allclose(F.laplace_covariance(_Quadratic(A, m, c=2.0), x, h=3e-2), predicted,
+                               rtol=1e-6, atol=1e-9)
