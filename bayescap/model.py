@@ -984,10 +984,12 @@ class PTCModel:
         # against a 1e-13 solution on the bundled simulated 10-bit sensor).
         mu_f = mu.reshape(-1)          # a view: updates land in mu
         idx = np.arange(mu_f.size)
-        mo_a, dm_a, k_a, pre_a, tau_a, c_a = (np.broadcast_to(a, shape).ravel()
-                                              for a in (m_obs, dm, K, pre_var_dn2, tt_, cc))
+        # the fixed inputs of each element, one row each, so that dropping the converged elements
+        # is one fancy-indexing call instead of six
+        P = np.stack([np.broadcast_to(a, shape).ravel() for a in (m_obs, dm, K, pre_var_dn2, tt_, cc)])
         mu_a = mu_f.copy()
         for it in range(30):
+            mo_a, dm_a, k_a, pre_a, tau_a, c_a = P
             s = np.sqrt(np.maximum(mu_a - dm_a, 0.0) / k_a + pre_a)
             mean, slope = self._clip_mean(mu_a, s, tau_a, c_a)
             gap = mo_a - mean
@@ -996,18 +998,18 @@ class PTCModel:
                 if not todo.any():
                     break
                 # elements already converged at the measured mean (unclipped rows) stay there
-                idx, mu_a, mo_a, dm_a, k_a, pre_a, tau_a, c_a, gap, slope, s, todo = (
-                    a[todo] for a in (idx, mu_a, mo_a, dm_a, k_a, pre_a, tau_a, c_a, gap, slope, s, todo))
+                idx, mu_a, gap, slope, s, tau_a, P = (
+                    idx[todo], mu_a[todo], gap[todo], slope[todo], s[todo], tau_a[todo], P[:, todo])
+                todo = todo[todo]
             # the others take this step also when they have just converged: a Newton step from
             # within the tolerance lands on the root to rounding, so the result does not depend
             # on the iteration at which an element crossed the tolerance (nor on the batch)
-            mu_a = mu_a + np.clip(gap / np.maximum(slope, 1e-12), 0.0, 50.0 * (s + tau_a))
+            mu_a = mu_a + np.minimum(np.maximum(gap / np.maximum(slope, 1e-12), 0.0), 50.0 * (s + tau_a))
             mu_f[idx] = mu_a
             if not todo.any():
                 break
             if not todo.all():   # drop the converged elements
-                idx, mu_a, mo_a, dm_a, k_a, pre_a, tau_a, c_a = (
-                    a[todo] for a in (idx, mu_a, mo_a, dm_a, k_a, pre_a, tau_a, c_a))
+                idx, mu_a, P = idx[todo], mu_a[todo], P[:, todo]
         s = np.sqrt(np.maximum(mu - dm, 0.0) / K + pre_var_dn2)
         mean, var, slope = self._clip_moments(mu, s, tt_, cc)
         return mu, var, slope
