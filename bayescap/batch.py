@@ -130,9 +130,11 @@ class Lockstep:
         for s, part in zip(slots, np.split(lp, np.cumsum(sizes)[:-1])):
             res[s] = part
 
-    def run(self, fns, concurrency: int | None = None):
+    def run(self, fns, concurrency: int | None = None, ignore_warnings: bool = True):
         """``[fns[i](log_prob_i) for i]``, at most ``concurrency`` at a time (default all), in
-        lockstep; an exception is returned in its slot instead of stopping the others."""
+        lockstep; an exception is returned in its slot instead of stopping the others.
+        ``ignore_warnings``: silence warnings inside (the fast paths' own checks report what
+        matters); the caller's filters are restored either way."""
         import greenlet
 
         out: list = [None] * len(fns)
@@ -152,7 +154,8 @@ class Lockstep:
         # process-wide filter list; fits that enter and leave it interleaved would restore each
         # other's lists. One outer block restores the caller's filters whatever the order inside.
         with warnings.catch_warnings():
-            warnings.simplefilter("ignore")
+            if ignore_warnings:
+                warnings.simplefilter("ignore")
             while running:
                 requests = {}
                 waiting = []

@@ -292,3 +292,37 @@ def test_laplace_covariance_is_exact_for_a_quadratic_and_second_order_otherwise(
     predicted = np.linalg.inv(A - np.diag([12 * 2.0 * 0.3**2 + 2 * 2.0 * e0**2] + [0] * (n - 1)))
     np.testing.assert_allclose(F.laplace_covariance(_Quadratic(A, m, c=2.0), x, h=3e-2), predicted,
                                rtol=1e-6, atol=1e-9)
+
+
+def test_ensembles_in_lockstep_give_the_chains_of_one_after_the_other():
+    """_run_segments runs the ensembles of one process in lockstep (one stacked log_prob call for
+    their walkers); the chains, log p, final states and proposals are those of _run_segment run
+    for each ensemble in turn, bit for bit."""
+    import importlib
+
+    from bayescap.model import PTCModel
+
+    F = importlib.import_module("bayescap.fit")
+    model = PTCModel(bayescap.load(Path(__file__).resolve().parents[1] / "data" / "emva1288_basler_ccd12.csv"))
+    x_map, _, cov, _ = F.laplace_start(model, n_restarts=0)
+    settings = F.QUALITY_PRESETS["standard"]
+    tasks = []
+    for i in range(3):
+        p0 = F._initial_ball(model, x_map, cov, 8 * model.ndim, np.random.default_rng(i))
+        rstate = np.random.RandomState(20 + i).get_state()
+        tasks.append((i, p0, None, rstate, 20, 30 + 10 * i, settings, (x_map, cov)))
+    F._WORKER_MODEL = model
+    try:
+        together = F._run_segments(tasks)
+        alone = [F._run_segment(t) for t in tasks]
+    finally:
+        F._WORKER_MODEL = None
+    for a, b in zip(together, alone):
+        assert a[0] == b[0]
+        for u, v in zip(a[1:6], b[1:6]):
+            if isinstance(u, tuple):              # the RandomState state
+                assert all(np.array_equal(p, q) for p, q in zip(u, v))
+            else:
+                assert np.array_equal(u, v)
+        assert np.array_equal(a[6], b[6]) and a[7] == b[7]
+        assert all(np.array_equal(p, q) for p, q in zip(a[8], b[8]))
