@@ -888,7 +888,7 @@ def run_ensembles(model: PTCModel, *, settings: SamplerSettings = SamplerSetting
             chain = np.stack([np.concatenate(c, axis=0) for c in chunks])[:, discard:]  # (E, S, W, D)
             cache = {}
             ok = (converged_fn(chain, settings) if converged_fn is not None
-                  else _default_converged(chain, settings, cache, derived_fn))
+                  else _default_converged(chain, settings, cache, derived_fn, pool))
             if ok or rounds >= settings.max_rounds:
                 break
             n_done = chain.shape[1]
@@ -1097,11 +1097,22 @@ def fast_diagnostics(x_esw):
     return {"rhat": rhat, "ess_bulk": ess_b, "ess_tail": ess_t}
 
 
-def _default_converged(chain, settings, cache=None, derived_fn=None):
+def _diagnostics_share(xs):
+    """:func:`fast_diagnostics` of each (E, S, W) array of ``xs`` (a pool worker's share)."""
+    return [fast_diagnostics(x) for x in xs]
+
+
+def _default_converged(chain, settings, cache=None, derived_fn=None, pool=None):
     """R-hat/ESS of every parameter (then of the derived quantities ``derived_fn(chain)``
-    returns, ``{name: (E, S, W) draws}``) and length ≥ tau_factor·τ; stops at the first failure.
-    ``cache`` (a dict) receives the diagnostics computed (keys: parameter index, derived name),
-    so that :class:`bayescap.posterior.FitResult` need not recompute them for the final chain."""
+    returns, ``{name: (E, S, W) draws}``) and length ≥ tau_factor·τ; the first failure, in that
+    order, decides. ``cache`` (a dict) receives the diagnostics up to it (keys: parameter index,
+    derived name), so that :class:`bayescap.posterior.FitResult` need not recompute them for the
+    final chain.
+
+    Without ``pool`` the quantities are checked one after the other, stopping at the first
+    failure. With the ensembles' ``pool`` (idle between rounds) every quantity is diagnosed, shared
+    out among its processes: the rank sorts cost ~2 ms per quantity and were 20 % of a standard fit
+    on the Basler CSV. The answer and the cache are the same either way."""
     E, S, W, D = chain.shape
     tau = integrated_time(chain)
     if cache is not None:
@@ -1109,20 +1120,32 @@ def _default_converged(chain, settings, cache=None, derived_fn=None):
     if np.any(S < settings.tau_factor * tau):
         return False
 
-    def ok(key, x):
-        d = fast_diagnostics(x)
+    def ok(key, d):
         if cache is not None:
             cache[key] = d
             cache["_shortfall"] = ("ess", min(d["ess_bulk"], d["ess_tail"]), d["rhat"], key)
         return d["rhat"] < settings.rhat_target and min(d["ess_bulk"], d["ess_tail"]) >= settings.ess_target
 
-    for j in range(D):
-        if not ok(j, chain[..., j]):
-            return False
-    if derived_fn is not None:
-        for name, x in derived_fn(chain).items():
-            if not ok(name, x):
+    if pool is not None:
+        items = [(j, chain[..., j]) for j in range(D)]
+        if derived_fn is not None:
+            items += list(derived_fn(chain).items())
+        n = max(1, min(pool._processes, len(items)))
+        parts = pool.map(_diagnostics_share, [[x for _, x in items[w::n]] for w in range(n)])
+        diags = [None] * len(items)
+        for w, part in enumerate(parts):
+            diags[w::n] = part
+        for (key, _), d in zip(items, diags):
+            if not ok(key, d):
                 return False
+    else:
+        for j in range(D):
+            if not ok(j, fast_diagnostics(chain[..., j])):
+                return False
+        if derived_fn is not None:
+            for name, x in derived_fn(chain).items():
+                if not ok(name, fast_diagnostics(x)):
+                    return False
     if cache is not None:
         cache.pop("_shortfall", None)
     return True

@@ -326,3 +326,28 @@ def test_ensembles_in_lockstep_give_the_chains_of_one_after_the_other():
                 assert np.array_equal(u, v)
         assert np.array_equal(a[6], b[6]) and a[7] == b[7]
         assert all(np.array_equal(p, q) for p, q in zip(a[8], b[8]))
+
+
+@pytest.mark.parametrize("shift", [0.0, 0.5])
+def test_convergence_check_in_the_pool_decides_as_one_after_the_other(shift):
+    """_default_converged with the ensembles' pool (every quantity diagnosed in the workers) gives
+    the answer and the cache of the serial check (stop at the first failure)."""
+    import importlib
+    import multiprocessing as mp
+
+    F = importlib.import_module("bayescap.fit")
+    rng = np.random.default_rng(9)
+    E, S, W, D = 4, 400, 24, 5
+    chain = rng.standard_normal((E, S, W, D))
+    chain[:, : S // 2, :, 2] += shift          # a drift in parameter 2: R-hat fails there
+    settings = F.QUALITY_PRESETS["standard"]
+
+    def derived(ch):
+        return {"sum": ch.sum(axis=-1)}
+
+    serial, pooled = {}, {}
+    a = F._default_converged(chain, settings, serial, derived)
+    with mp.get_context("fork").Pool(2) as pool:
+        b = F._default_converged(chain, settings, pooled, derived, pool)
+    assert a == b == (shift == 0.0)
+    assert serial.keys() == pooled.keys() and all(serial[k] == pooled[k] for k in serial)
