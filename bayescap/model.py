@@ -84,8 +84,10 @@ def gamma_logpdf(v, sigma2, k):
         stirling = 0.5 * np.log(kk) - 0.5 * _LOG_2PI - inv * (1.0 / 12.0 - inv * inv * (1.0 / 360.0))
     small = ~(kk > 10.0)
     if np.any(small):    # rare (ν = n_pixels − 1 is large): lgamma only where Stirling is not used
-        stirling = np.array(np.broadcast_to(stirling, np.broadcast_shapes(stirling.shape, core.shape)))
-        ks = np.broadcast_to(kk, stirling.shape)[small := np.broadcast_to(small, stirling.shape)]
+        shape = np.broadcast_shapes(stirling.shape, core.shape)
+        stirling = np.array(np.broadcast_to(stirling, shape))      # a writable copy
+        small = np.broadcast_to(small, shape)
+        ks = np.broadcast_to(kk, shape)[small]
         with np.errstate(divide="ignore", invalid="ignore"):
             stirling[small] = ks * np.log(ks) - ks - gammaln(ks)
     return kk * core + stirling - np.log(v)
