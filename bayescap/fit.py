@@ -23,7 +23,7 @@ from scipy.special import ndtri
 from .model import PTCModel
 
 __all__ = ["SamplerSettings", "QUALITY_PRESETS", "find_map", "find_map_scaled", "laplace_covariance", "laplace_start",
-           "refine_covariance", "polish_map", "run_ensembles",
+           "newton_map", "NewtonOptimum", "refine_covariance", "polish_map", "run_ensembles",
            "diagnostics", "fast_diagnostics", "ConvergenceWarning", "stuck_walkers", "stuck_threshold",
            "LogClipCoordinates", "mcmc_start"]
 
@@ -140,10 +140,7 @@ def find_map(model: PTCModel, x0=None, *, n_restarts: int = 2):
         g = np.where(np.isfinite(g), g, 0.0)
         return -lp, -g
 
-    starts = [x0]
-    offsets = np.linspace(-1, 1, model.ndim)
-    for r in range(n_restarts):
-        starts.append(x0 + (0.3 * (r + 1)) * np.roll(offsets, r) * (1 if r % 2 == 0 else -1))
+    starts = [x0] + _restart_points(x0, n_restarts)
     best = None
     for s in starts:
         if not np.isfinite(model.log_prob(s[None])[0]):
@@ -289,6 +286,210 @@ def _proposal_cov(cov, scale):
     return (V * (w * scale * scale)) @ V.T
 
 
+def _unit_stencil(n):
+    """The ``n² + n + 1`` unit offsets of :func:`laplace_covariance`'s stencil: 0, ±e_i, ±(e_i + e_j)
+    (i < j), and the pair indices."""
+    iu, ju = np.triu_indices(n, 1)
+    eye = np.eye(n)
+    return np.vstack([np.zeros((1, n)), eye, -eye, eye[iu] + eye[ju], -eye[iu] - eye[ju]]), iu, ju
+
+
+def _stencil_derivatives(q, step, iu, ju):
+    """Value, gradient and Hessian from ``log_prob`` on the stencil of :func:`_unit_stencil` scaled by
+    ``step`` (per axis): central differences, A&S 25.3.23/25.3.27 (exact for a quadratic)."""
+    n = step.size
+    f0, fp, fm = q[0], q[1:n + 1], q[n + 1:2 * n + 1]
+    fpp, fmm = q[2 * n + 1:2 * n + 1 + iu.size], q[2 * n + 1 + iu.size:]
+    H = np.empty((n, n))
+    H[np.arange(n), np.arange(n)] = (fp - 2.0 * f0 + fm) / step**2
+    off = (fpp + fmm - fp[iu] - fm[iu] - fp[ju] - fm[ju] + 2.0 * f0) / (2.0 * step[iu] * step[ju])
+    H[iu, ju] = off
+    H[ju, iu] = off
+    return f0, (fp - fm) / (2.0 * step), H
+
+
+def _clipped_inverse(H):
+    """``(−H)⁻¹`` with the eigenvalues of ``−H`` floored at 1e-8 of the largest and at 1 (no direction
+    wider than sd 1 in the units of ``H``'s coordinates): :func:`laplace_covariance`'s rule."""
+    w, V = np.linalg.eigh(-0.5 * (H + H.T))
+    w = np.clip(w, 1e-8 * max(w.max(), 1e-8), None)
+    w = np.maximum(w, 1.0)
+    return (V / w) @ V.T
+
+
+#: :func:`newton_map`'s knobs. The stencil's half-width in whitened units (``h·α`` = 0.2 posterior sd,
+#: far above the 1e-5-1e-4 jitter of ``log_prob``, as in :func:`refine_covariance`); α, the whitening
+#: scale (the coordinates ``y`` have ``x = x_k + α L_k y``, ``L_k`` the Cholesky factor of the current
+#: covariance, so a self-consistent Hessian is ``−α² I``); the stopping rule: predicted gain
+#: ``gᵀ(−H)⁻¹g/2`` below 1e-4 nats with every whitened curvature within the ±25 % of
+#: :func:`refine_covariance`; the step lengths tried along each Newton step in the same call.
+NEWTON_H = 0.05
+NEWTON_ALPHA = 4.0
+NEWTON_GAIN_TOL = 1e-4
+NEWTON_STEPS = (1.0, 0.5, 0.25, 0.125, 1.0 / 16, 1.0 / 64, 2.0)
+
+
+@dataclass
+class NewtonOptimum:
+    """One start's end point in :func:`newton_map`: the point ``x``, ``log_prob`` there, the
+    covariance ``(−H)⁻¹`` from the last whitened Hessian, iterations, whether the stopping rule was
+    met (``converged``) and why it stopped (``reason``)."""
+
+    x: np.ndarray
+    lp: float
+    cov: np.ndarray
+    iterations: int
+    converged: bool
+    reason: str
+
+
+def newton_map(target, starts, *, max_iter: int = 60, h: float = NEWTON_H, alpha: float = NEWTON_ALPHA,
+               raw_h: float = 1e-4, max_stalls: int = 3):
+    """Maximise ``target.log_prob`` from several starts at once by Newton's method on
+    finite-difference Hessians in whitened coordinates; returns one :class:`NewtonOptimum` per
+    finite start (in the order given) and the number of ``log_prob`` calls.
+
+    Why: a ``log_prob`` call costs ~0.6 ms whatever its size up to a few hundred points (Python
+    overhead), so what counts is the number of calls. BFGS on central-difference gradients
+    (:func:`find_map`) made ~90-150 calls per sensor and then needed :func:`refine_covariance` and
+    :func:`polish_map` for a usable covariance. Here each iteration of all starts together is one
+    call: the Hessian stencil (``n² + n + 1`` points, :func:`laplace_covariance`'s) at the full
+    Newton step of every start, with the shorter steps of :data:`NEWTON_STEPS` beside it. When the
+    full step is the best (near the mode, always) its stencil is the next iteration's; otherwise
+    one more call takes the stencil at the best step.
+
+    1. One call: the raw stencil (relative steps ``raw_h``) at every start, whose covariance
+       (eigenvalues floored as in :func:`laplace_covariance`) sets the first whitening.
+    2. Each iteration: gradient ``g`` and Hessian ``H`` in ``y`` (step ``h``; ``h/10``, ``h/100`` if
+       the stencil leaves the support); Newton step ``d = V diag(1/max(|w|, 1/4)) Vᵀ g`` (``w`` the
+       eigenvalues of ``−H``: directions of positive curvature are climbed, not descended), at most
+       2 whitened units long; the new covariance ``α L (−H)⁻¹ Lᵀ α`` with :func:`laplace_covariance`'s
+       floor (so a sd grows at most α-fold an iteration). Stop when ``gᵀd/2 <``
+       :data:`NEWTON_GAIN_TOL` and the whitened Hessian is consistent with the covariance it was
+       taken in (±25 %, as :func:`refine_covariance`), or when no step length improves
+       ``log_prob`` ``max_stalls`` times in a row (the covariance is still refined then).
+    3. A start that comes within 2 sd (Mahalanobis) of a higher one is dropped: the same mode.
+
+    The covariance returned is the last whitened Hessian's, taken at the returned point: what
+    :func:`refine_covariance` would give there."""
+    starts = [np.asarray(s, float) for s in starts]
+    n = starts[0].size
+    Y, iu, ju = _unit_stencil(n)
+    m = Y.shape[0]
+    ts = np.asarray(NEWTON_STEPS, float)
+    n_calls = [0]
+
+    def lp_of(X):
+        n_calls[0] += 1
+        with np.errstate(all="ignore"):
+            return np.asarray(target.log_prob(X), float)
+
+    with np.errstate(all="ignore"):
+        lp0 = np.asarray(target.log_prob(np.vstack(starts)), float)
+    n_calls[0] += 1
+    keep = [i for i in range(len(starts)) if np.isfinite(lp0[i])]
+    if not keep:
+        raise RuntimeError("no finite starting point for the optimiser: the data may be inconsistent "
+                           "with the model (check the units of the columns)")
+    states = [dict(i=i, x=starts[i], lp=float(lp0[i]), it=0, stalls=0, done=False, reason="", conv=False, spec=False)
+              for i in keep]
+    # 1. the raw stencil at every start, one call
+    steps = [raw_h * np.maximum(1.0, np.abs(s["x"])) for s in states]
+    Q = lp_of(np.vstack([s["x"] + Y * st for s, st in zip(states, steps)])).reshape(len(states), m)
+    for s, q, st in zip(states, Q, steps):
+        H = _stencil_derivatives(q, st, iu, ju)[2] if np.all(np.isfinite(q)) else None
+        c = _clipped_inverse(H) if H is not None and np.all(np.isfinite(H)) else np.diag(np.full(n, 1e-4))
+        s["cov"] = _proposal_cov(c, 1.0)
+        s["L"] = alpha * np.linalg.cholesky(s["cov"])
+        s["Q"] = None
+    for _ in range(max_iter):
+        active = [s for s in states if not s["done"]]
+        if not active:
+            break
+        need = [s for s in active if s["Q"] is None]
+        if need:
+            Q = lp_of(np.vstack([s["x"] + (h * Y) @ s["L"].T for s in need])).reshape(len(need), m)
+            for s, q in zip(need, Q):
+                s["Q"], s["h"] = q, h
+        moves = []
+        for s in active:
+            q = s["Q"]
+            for hh in (0.1 * s["h"], 0.01 * s["h"]):
+                if np.all(np.isfinite(q)):
+                    break
+                q, s["h"] = lp_of(s["x"] + (hh * Y) @ s["L"].T), hh
+            s["it"] += 1
+            s["Q"] = None
+            if not np.all(np.isfinite(q)):
+                s.update(done=True, reason="the Hessian stencil leaves the support at every step size")
+                continue
+            f0, g, H = _stencil_derivatives(q, np.full(n, s["h"]), iu, ju)
+            w, V = np.linalg.eigh(-0.5 * (H + H.T))
+            wc = np.maximum(np.clip(w, 1e-8 * max(w.max(), 1e-8), None), 1.0)
+            cov_new = _proposal_cov(s["L"] @ ((V / wc) @ V.T) @ s["L"].T, 1.0)
+            consistent = bool(np.all(w > alpha * alpha / 1.25) and np.all(w < alpha * alpha / 0.8))
+            d = V @ ((V.T @ g) / np.maximum(np.abs(w), 0.25))
+            gain = 0.5 * float(g @ d)
+            nd = float(np.linalg.norm(d))
+            if nd > 2.0:
+                d *= 2.0 / nd
+            s["lp"] = float(f0)
+            try:
+                L_new = alpha * np.linalg.cholesky(cov_new)
+            except np.linalg.LinAlgError:
+                s.update(done=True, reason="the covariance is not positive definite")
+                continue
+            s["cov"] = cov_new
+            if gain < NEWTON_GAIN_TOL and consistent:
+                s.update(done=True, conv=True, reason="converged")
+                continue
+            s["d"], s["L_old"], s["L"] = d, s["L"], L_new
+            moves.append(s)
+        if moves:
+            # one call: every step length of every start, and where the last full step was the best
+            # (Newton's quadratic phase), the stencil at this full step in place of its centre
+            parts, sizes = [], []
+            for s in moves:
+                if s["spec"]:
+                    parts.append(s["x"] + s["L_old"] @ s["d"] + (h * Y) @ s["L"].T)
+                    parts.append(s["x"] + (ts[1:, None] * s["d"][None, :]) @ s["L_old"].T)
+                    sizes.append(m + ts.size - 1)
+                else:
+                    parts.append(s["x"] + (ts[:, None] * s["d"][None, :]) @ s["L_old"].T)
+                    sizes.append(ts.size)
+            vals = np.split(lp_of(np.vstack(parts)), np.cumsum(sizes)[:-1])
+            for s, v in zip(moves, vals):
+                cand = np.concatenate([v[:1], v[m:]]) if s["spec"] else v
+                cand = np.where(np.isfinite(cand), cand, -np.inf)
+                j = int(np.argmax(cand))
+                if cand[j] > s["lp"] + 1e-9:
+                    s["x"] = s["x"] + ts[j] * (s["L_old"] @ s["d"])
+                    s["lp"], s["stalls"] = float(cand[j]), 0
+                    if j == 0 and s["spec"]:
+                        s["Q"], s["h"] = v[:m], h
+                else:
+                    s["stalls"] += 1
+                    if s["stalls"] >= max_stalls:
+                        s.update(done=True, reason=f"no step length raised log p in {max_stalls} iterations")
+                s["spec"] = j == 0
+        # 3. starts that met a higher one: the same mode
+        live = sorted([s for s in states if not s["done"] or s["conv"]], key=lambda s: -s["lp"])
+        for a_i, a in enumerate(live):
+            if a["done"]:
+                continue
+            for b in live[:a_i]:
+                r = np.linalg.solve(np.linalg.cholesky(b["cov"]), a["x"] - b["x"])
+                if float(r @ r) < 4.0:
+                    a.update(done=True, reason="reached the mode of a higher start")
+                    break
+    else:
+        for s in states:
+            if not s["done"]:
+                s.update(done=True, reason=f"{max_iter} iterations")
+    out = [NewtonOptimum(s["x"], s["lp"], s["cov"], s["it"], s["conv"], s["reason"]) for s in states]
+    return out, n_calls[0]
+
+
 def find_map_scaled(model: PTCModel, x0=None, *, h: float = 1e-3):
     """MAP by BFGS in coordinates scaled by the curvature at the start: ``x = x0 + D y`` with
     ``D_i = (−∂²log p/∂x_i²)^(−1/2)`` from one vectorised call of ``2n + 1`` points (relative step
@@ -374,12 +575,33 @@ def _refine_and_polish(target, x_map, lp_map, refine_iter, polish):
     return x_map, lp_map, cov
 
 
+def _restart_points(x0, n_restarts):
+    """:func:`find_map`'s fixed perturbations of the initial guess."""
+    offsets = np.linspace(-1, 1, x0.size)
+    return [x0 + (0.3 * (r + 1)) * np.roll(offsets, r) * (1 if r % 2 == 0 else -1) for r in range(n_restarts)]
+
+
+#: the optimiser of :func:`laplace_start`: ``"newton"`` (:func:`newton_map`, since 2026-11-23
+#: evening) or ``"bfgs"`` (:func:`find_map` / :func:`find_map_scaled`, then :func:`refine_covariance`
+#: and :func:`polish_map`: the route before, kept for comparison in the benchmarks).
+LAPLACE_OPTIMIZER = "newton"
+
+
 def laplace_start(model: PTCModel, *, n_restarts: int = 2, refine_iter: int = 6, polish: bool = True,
-                  multi_start: bool = True, coords=None, polish_both: bool = False):
+                  multi_start: bool = True, coords=None, polish_both: bool = False, optimizer: str | None = None):
     """MAP and a self-consistent Laplace covariance: where both the MCMC walkers and the fast path's
     importance proposals start.
 
-    :func:`find_map` (BFGS, ``n_restarts`` extra starts) and, with ``multi_start``,
+    With ``optimizer="newton"`` (the default, :data:`LAPLACE_OPTIMIZER`): :func:`newton_map` from
+    the initial guess, ``n_restarts`` fixed perturbations of it (:func:`find_map`'s) and, with
+    ``multi_start``, the starts of :func:`_map_starts`, all at once; the highest end point and its
+    covariance are returned. With ``coords`` the starts are mapped by ``start_from_x`` and Newton
+    runs in those coordinates; with ``polish_both`` it runs in the model's coordinates first and
+    again in ``coords`` from there. ``refine_iter`` and ``polish`` apply to the BFGS route only
+    (Newton's covariance is self-consistent by its stopping rule). Measured against the BFGS route
+    on the 29 sensors of ``benchmarks/local_optima.py``: docs/performance.md, "Newton's method".
+
+    With ``optimizer="bfgs"``: :func:`find_map` (BFGS, ``n_restarts`` extra starts) and, with ``multi_start``,
     :func:`find_map_scaled` from the starts of :func:`_map_starts`; each optimum not within 2 sd of
     one already refined gets :func:`laplace_covariance`, then
     :func:`refine_covariance` in whitened coordinates and :func:`polish_map` from there (with a
@@ -395,6 +617,11 @@ def laplace_start(model: PTCModel, *, n_restarts: int = 2, refine_iter: int = 6,
     returned (point, log p, covariance) are in those coordinates, log p with their Jacobian. With
     ``polish_both`` each optimum is first refined and polished in the model's coordinates, then in
     ``coords`` (twice the work; :func:`bayescap.fast.fast_posterior` does this on its retry)."""
+    optimizer = LAPLACE_OPTIMIZER if optimizer is None else optimizer
+    if optimizer == "newton":
+        return _laplace_start_newton(model, n_restarts, multi_start, coords, polish_both)
+    if optimizer != "bfgs":
+        raise ValueError(f"optimizer must be 'newton' or 'bfgs', not {optimizer!r}")
     target = model if coords is None else coords
     t_map = 0.0
     found = []
@@ -429,6 +656,23 @@ def laplace_start(model: PTCModel, *, n_restarts: int = 2, refine_iter: int = 6,
         if best is None or lp_map > best[1]:
             best = (x_map, lp_map, cov)
     return best[0], best[1], best[2], t_map
+
+
+def _laplace_start_newton(model, n_restarts, multi_start, coords, polish_both):
+    """:func:`laplace_start` with :func:`newton_map` (see there). The fourth value returned is the
+    time of the whole start (the MAP and the covariance come out of the same iterations)."""
+    t0 = time.perf_counter()
+    x0 = np.asarray(model.initial_guess(), float)
+    starts = [x0] + _restart_points(x0, n_restarts) + (_map_starts(model) if multi_start else [])
+    if coords is not None and polish_both:
+        starts = [o.x for o in newton_map(model, starts)[0]]
+    target = model
+    if coords is not None:
+        starts = [coords.start_from_x(s) for s in starts]
+        target = coords
+    ends, _ = newton_map(target, starts)
+    best = max(ends, key=lambda o: o.lp)
+    return best.x, best.lp, best.cov, time.perf_counter() - t0
 
 
 class IndependenceMove(emcee.moves.MHMove):

@@ -214,25 +214,104 @@ def _sim00():
 
 
 def test_laplace_start_finds_the_higher_optimum():
-    """On sim00 the initial guess puts the clip spread τ on its prior cap (a wall), and BFGS from it
-    stops there, 136 nats below the mode the MCMC samples (its 4 x 100 x 64 draws reach log p =
-    -408.48); so does the start with a ten times larger variance discrepancy. The extra start with
-    log τ - 2 (fit.MAP_START_LOG_TAU_SHIFT) reaches the mode."""
+    """On sim00 the initial guess puts the clip spread τ on its prior cap (a wall), and the optimiser
+    from it stops there, > 90 nats below the mode the MCMC samples (its 4 x 100 x 64 draws reach
+    log p = -408.48); so does the start with a ten times larger variance discrepancy. The extra start
+    with log τ - 2 (fit.MAP_START_LOG_TAU_SHIFT) reaches the mode. Checked in log(clip - lower bound)
+    coordinates, where mcmc_start and the fast path optimise a free clip level."""
     import importlib
 
     from bayescap.model import PTCModel
 
     F = importlib.import_module("bayescap.fit")
     m = PTCModel(_sim00())
-    _, lp_one, _, _ = F.laplace_start(m, n_restarts=0, multi_start=False)
-    x, lp, cov, _ = F.laplace_start(m, n_restarts=0)
-    assert lp_one < -500
-    assert lp > -408.48
+    c = F._clip_coordinates(m)
+
+    def lp_x(z):
+        return float(m.log_prob(c.to_x(z)[None])[0])
+
+    z_one, _, _, _ = F.laplace_start(m, n_restarts=0, multi_start=False, coords=c)
+    z, lp, cov, _ = F.laplace_start(m, n_restarts=0, coords=c)
+    assert lp_x(z_one) < -500
+    assert lp_x(z) > -408.48
     assert np.all(np.isfinite(cov)) and np.all(np.linalg.eigvalsh(cov) > 0)
-    # the optimiser itself reaches the mode from the τ start (not a later polish step by chance)
+    # the optimiser itself reaches the mode from the τ start (not a later step by chance)
     starts = F._map_starts(m)
     assert len(starts) == 2
-    assert F.find_map_scaled(m, starts[-1])[1] > -408.48
+    (end,), _ = F.newton_map(c, [c.start_from_x(starts[-1])])
+    assert lp_x(end.x) > -408.48
+    # the BFGS route (kept for comparison) agrees
+    z_b, _, _, _ = F.laplace_start(m, n_restarts=0, coords=c, optimizer="bfgs")
+    assert abs(lp_x(z_b) - lp_x(z)) < 0.01
+
+
+class _Gaussians:
+    """log of a mixture of two well separated Gaussians N(m_k, C_k) (weights w_k), or of one."""
+
+    def __init__(self, means, covs, weights):
+        self.means, self.covs, self.w, self.ndim = means, covs, weights, means[0].size
+
+    def log_prob(self, x):
+        x = np.atleast_2d(x)
+        out = []
+        for m, C, w in zip(self.means, self.covs, self.w):
+            d = x - m
+            out.append(np.log(w) - 0.5 * np.einsum("ij,jk,ik->i", d, np.linalg.inv(C), d)
+                       - 0.5 * np.linalg.slogdet(2 * np.pi * C)[1])
+        return np.logaddexp.reduce(np.array(out), axis=0)
+
+
+def test_newton_map_finds_a_gaussian_mode_and_its_covariance():
+    """A correlated 6-d Gaussian with sds 0.01-0.5 (condition number ~2500), started 3-8 sd away
+    from two points: the mode to 1e-6 sd and the covariance to 1e-6 (the stencil is exact for a
+    quadratic), the lower start dropped as the same mode, a non-finite start skipped."""
+    import importlib
+
+    F = importlib.import_module("bayescap.fit")
+    rng = np.random.default_rng(3)
+    n = 6
+    Q, _ = np.linalg.qr(rng.standard_normal((n, n)))
+    C = (Q * np.geomspace(0.01, 0.5, n) ** 2) @ Q.T
+    m = rng.normal(0, 2, n)
+    g = _Gaussians([m], [C], [1.0])
+    L = np.linalg.cholesky(C)
+
+    class WithWall(_Gaussians):
+        def log_prob(self, x):
+            x = np.atleast_2d(x)
+            return np.where(x[:, 0] > 1e3, -np.inf, super().log_prob(x))
+
+    g = WithWall([m], [C], [1.0])
+    starts = [m + L @ rng.normal(0, 3, n), m + L @ rng.normal(0, 5, n), np.full(n, 2e3)]
+    ends, n_calls = F.newton_map(g, starts)
+    assert len(ends) == 2                       # the start beyond the wall is not an optimum
+    best = max(ends, key=lambda o: o.lp)
+    assert best.converged and best.reason == "converged"
+    np.testing.assert_allclose(np.linalg.solve(L, best.x - m), 0.0, atol=1e-6)
+    np.testing.assert_allclose(best.cov, C, rtol=1e-6, atol=1e-12)
+    other = min(ends, key=lambda o: o.lp)
+    assert other.reason in ("reached the mode of a higher start", "converged")
+    assert n_calls < 30
+    with pytest.raises(RuntimeError, match="no finite starting point"):
+        F.newton_map(g, [np.full(n, 2e3)])
+
+
+def test_newton_map_keeps_each_start_on_its_own_mode():
+    """Two Gaussians 40 sd apart (weights 0.3 and 0.7): one start near each ends on its own mode,
+    with log p and covariance of that component (the other's mass is e^-800 there)."""
+    import importlib
+
+    F = importlib.import_module("bayescap.fit")
+    n = 3
+    C1, C2 = np.diag([0.04, 0.09, 0.01]), np.diag([0.01, 0.25, 0.04])
+    m1, m2 = np.zeros(n), np.array([8.0, 0.0, 0.0])
+    g = _Gaussians([m1, m2], [C1, C2], [0.3, 0.7])
+    ends, _ = F.newton_map(g, [m1 + 0.3, m2 - 0.3])
+    for o, m, C, w in zip(ends, (m1, m2), (C1, C2), (0.3, 0.7)):
+        assert o.converged
+        np.testing.assert_allclose(o.x, m, atol=1e-6)
+        np.testing.assert_allclose(o.cov, C, rtol=1e-6, atol=1e-12)
+        assert abs(o.lp - (np.log(w) - 0.5 * np.linalg.slogdet(2 * np.pi * C)[1])) < 1e-9
 
 
 @pytest.mark.slow
