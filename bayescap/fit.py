@@ -1041,17 +1041,35 @@ def _default_jobs(n_ensembles):
     return max(1, min(n_ensembles, os.cpu_count() or 1))
 
 
+class _Workers:
+    """A fork pool and its number of processes (``multiprocessing.Pool`` keeps that private)."""
+
+    def __init__(self, n_processes: int):
+        self.n_processes = int(n_processes)
+        self._pool = mp.get_context("fork").Pool(self.n_processes)
+
+    def imap_unordered(self, fn, items):
+        return self._pool.imap_unordered(fn, items)
+
+    def map(self, fn, items):
+        return self._pool.map(fn, items)
+
+    def close(self):
+        self._pool.terminate()
+        self._pool.join()
+
+
 def _pool(n_jobs, n_tasks):
-    """A fork pool kept for every round of one fit (None: run in this process)."""
+    """A fork pool (:class:`_Workers`) kept for every round of one fit (None: run in this process)."""
     if n_jobs > 1 and n_tasks > 1 and "fork" in mp.get_all_start_methods():
-        return mp.get_context("fork").Pool(min(n_jobs, n_tasks))
+        return _Workers(min(n_jobs, n_tasks))
     return None
 
 
 def _map_segments(tasks, pool, pbar=None):
     """Results of every task, in task order. The tasks are shared out among the pool's processes
     (or this one), and each share runs in lockstep (:func:`_run_segments`)."""
-    n_proc = 1 if pool is None else max(1, min(pool._processes, len(tasks)))
+    n_proc = 1 if pool is None else max(1, min(pool.n_processes, len(tasks)))
     shares = [tasks[w::n_proc] for w in range(n_proc)]
     out = []
     runs = pool.imap_unordered(_run_segments, shares) if pool is not None else map(_run_segments, shares)
@@ -1157,8 +1175,7 @@ def run_ensembles(model: PTCModel, *, settings: SamplerSettings = SamplerSetting
     finally:
         _WORKER_MODEL = None
         if pool is not None:
-            pool.terminate()
-            pool.join()
+            pool.close()
         if pbar is not None:
             pbar.close()
     lp = np.stack([np.concatenate(c, axis=0) for c in lps])[:, discard:]
@@ -1374,7 +1391,7 @@ def _default_converged(chain, settings, cache=None, derived_fn=None, pool=None):
         items = [(j, chain[..., j]) for j in range(D)]
         if derived_fn is not None:
             items += list(derived_fn(chain).items())
-        n = max(1, min(pool._processes, len(items)))
+        n = max(1, min(pool.n_processes, len(items)))
         parts = pool.map(_diagnostics_share, [[x for _, x in items[w::n]] for w in range(n)])
         diags = [None] * len(items)
         for w, part in enumerate(parts):

@@ -412,7 +412,6 @@ def test_convergence_check_in_the_pool_decides_as_one_after_the_other(shift):
     """_default_converged with the ensembles' pool (every quantity diagnosed in the workers) gives
     the answer and the cache of the serial check (stop at the first failure)."""
     import importlib
-    import multiprocessing as mp
 
     F = importlib.import_module("bayescap.fit")
     rng = np.random.default_rng(9)
@@ -426,7 +425,10 @@ def test_convergence_check_in_the_pool_decides_as_one_after_the_other(shift):
 
     serial, pooled = {}, {}
     a = F._default_converged(chain, settings, serial, derived)
-    with mp.get_context("fork").Pool(2) as pool:
+    pool = F._Workers(2)
+    try:
         b = F._default_converged(chain, settings, pooled, derived, pool)
+    finally:
+        pool.close()
     assert a == b == (shift == 0.0)
     assert serial.keys() == pooled.keys() and all(serial[k] == pooled[k] for k in serial)
