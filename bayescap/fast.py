@@ -2,31 +2,28 @@
 
 Steps (all vectorised; two ``log_prob`` calls for the importance draws):
 
-1. MAP by :func:`bayescap.fit.find_map` with a single start (the restarts cost 3×); if the
-   draws are rejected (below), the whole path is retried once with ``retry_restarts`` starts —
-   a single start can stop at the initial guess (seen on small-frame simulated sensors);
-2. Laplace covariance Σ at the MAP by :func:`bayescap.fit.laplace_covariance`, then
-   :func:`refine_covariance`: the Hessian again in whitened coordinates (the raw one is
-   distorted by the ~1e11 condition number, an eigenvalue floor and ``log_prob`` jitter);
-   :func:`polish_map` then climbs on from the MAP in those coordinates (``find_map`` can stop
-   at its starting point because of the same jitter) and Σ is refined at the new point;
-3. ``n_proposals/3`` draws from a multivariate Student-t ``t_ν(x_MAP, Σ)``; their PSIS weights
+1. MAP and Laplace covariance by :func:`bayescap.fit.laplace_start`: Newton's method
+   (:func:`bayescap.fit.newton_map`) on finite-difference Hessians taken in whitened coordinates
+   (the raw Hessian is distorted by the ~1e11 condition number and ``log_prob`` jitter), from the
+   initial guess and the extra starts of :func:`bayescap.fit._map_starts`, all in one ``log_prob``
+   call per iteration; the covariance is the whitened Hessian's at the optimum, consistent to
+   ±25 %. If the draws are rejected (below), the whole path is retried once with
+   ``retry_restarts`` more starts (before 2026-11-23 evening: BFGS, then
+   :func:`refine_covariance` and :func:`polish_map`, still available as
+   ``laplace_start(optimizer="bfgs")``);
+2. ``n_proposals/3`` draws from a multivariate Student-t ``t_ν(x_MAP, Σ)``; their PSIS weights
    give a weighted mean and covariance, and the other ``2/3`` are drawn from a t at those
    moments (one round of adaptive importance sampling);
-4. importance weights ``log p(x) − log q_mix(x)`` over all draws (the mixture of the two
+3. importance weights ``log p(x) − log q_mix(x)`` over all draws (the mixture of the two
    proposals, the balance heuristic), smoothed by PSIS (Vehtari, Simpson, Gelman, Yao & Gabry
    2024, JMLR 25(72)) with the algorithm of :func:`arviz.psislw` (re-implemented in
    :func:`psis_weights`, so that the fast path does not import ArviZ), which also returns k̂;
-5. systematic resampling to ``n_draws`` equally weighted draws, shuffled.
+4. systematic resampling to ``n_draws`` equally weighted draws, shuffled.
 
-Steps 1-2 are :func:`bayescap.fit.laplace_start`: BFGS from the initial guess and from the extra
-starts of :func:`bayescap.fit._map_starts` (a ten times larger variance discrepancy; log τ − 2 when
-the guess puts the clip spread on its prior cap), stopped when the value stalls, the highest
-refined optimum kept. Where the model has a free clip level (``clip_dn`` between data-derived
-bounds), the refinement and polish of step 2 and steps 3-5 run in :class:`LogClipCoordinates` (the
-clip as ``log(clip_dn − lower bound)``) from each optimum the optimisers found in the model's
-coordinates, and the draws come back in the model's coordinates. The retry after a rejection also
-polishes in the model's coordinates first (``FastSettings.polish_both``).
+Where the model has a free clip level (``clip_dn`` between data-derived bounds), Newton and steps
+2-4 run in :class:`LogClipCoordinates` (the clip as ``log(clip_dn − lower bound)``), and the draws
+come back in the model's coordinates. The retry after a rejection runs Newton in the model's
+coordinates first and then in those (``FastSettings.polish_both``).
 
 **Its own diagnostic.** k̂ below ``khat_max`` (0.7, the PSIS paper's threshold for a few
 thousand draws, ``min(1 − 1/log10 S, 0.7)``) and an importance-sampling ESS ``1/Σw²`` of at
@@ -67,15 +64,15 @@ class FastSettings:
     n_proposals: int = 6000       # importance draws in all (two vectorised log_prob calls; 3000 before)
     adapt_fraction: float = 2 / 3  # share drawn from the moment-matched second proposal
     adapt_inflation: float = 1.2  # sd multiplier on the weighted covariance of round 1
-    refine_iter: int = 6          # at most this many whitened re-evaluations of the Hessian
-    polish: bool = True           # whitened gradient ascent after find_map (polish_map)
+    refine_iter: int = 6          # BFGS route only (laplace_start(optimizer="bfgs")): whitened Hessian re-evaluations
+    polish: bool = True           # BFGS route only: whitened gradient ascent after find_map (polish_map)
     n_draws: int = 4000           # equally weighted draws returned after resampling
     khat_max: float = 0.7         # accept when Pareto k̂ < khat_max ...
     min_ess_is: float = 200.0     # ... and the importance-sampling ESS ≥ this
     n_restarts: int = 0           # extra optimiser starts in find_map
     retry_restarts: int = 2       # on rejection, retry once with this many restarts
     scale: float = 1.0            # proposal scale factor on the Laplace covariance (sd multiplier)
-    polish_both: bool = False     # clip coordinates: polish in the model's coordinates first (the retry does)
+    polish_both: bool = False     # clip coordinates: optimise in the model's coordinates first (the retry does)
 
 
 def student_t_draws(mean, cov, nu, n, rng):
@@ -202,11 +199,10 @@ def _systematic_resample(w, n, rng):
 def _fast_once(model, seed, n_draws, settings, x_map, cov):
     wrapped = _clip_coordinates(model) if x_map is None and cov is None else None
     if wrapped is not None:
-        # the optima in the model's own coordinates (every optimiser start), then the Laplace
-        # approximation and a polish in z from each (laplace_start's ``coords``): an optimiser run
-        # in z alone stopped 6 nats below the mode on a simulated ROI (and its draws passed k̂, being
-        # a local mode). Refining in x first and again in z cost 20 % of the fast path (measured
-        # on 8 simulated Gpixel ROIs, docs/performance.md, "fewer evaluations in the start").
+        # Newton from every start mapped into z (laplace_start's ``coords``). (BFGS run in z alone
+        # had stopped 6 nats below the mode on a simulated ROI, so the BFGS route optimised in x and
+        # refined in z; Newton in z reaches the same optimum or a higher one on the 29 sensors of
+        # benchmarks/local_optima.py, docs/performance.md, "Newton's method".)
         t0 = time.perf_counter()
         z0, _, cz, _ = laplace_start(model, n_restarts=settings.n_restarts, refine_iter=settings.refine_iter,
                                      polish=settings.polish, coords=wrapped, polish_both=settings.polish_both)
@@ -297,7 +293,7 @@ def _fast_once(model, seed, n_draws, settings, x_map, cov):
         "min_ess_is": settings.min_ess_is,
         "nu": settings.nu,
         "wall_s": wall,
-        "wall_map_s": t_map - t0,
+        "wall_map_s": t_map - t0,          # with Newton (the default) the covariance too
         "wall_laplace_s": t_lap - t_map,
         "wall_is_s": t_is - t_lap,
         "settings": asdict(settings),
