@@ -37,7 +37,7 @@ def main(argv=None):
                         "print(time.perf_counter()-t)"], capture_output=True, text=True, check=True)
     import_s = float(r.stdout.strip())
     import bayescap
-    from bayescap.fit import find_map, laplace_covariance
+    from bayescap.fit import mcmc_start
     from bayescap.model import PTCModel
 
     files = {"Basler CCD (real, 51 rows)": ROOT / "data" / "emva1288_basler_ccd12.csv",
@@ -47,8 +47,7 @@ def main(argv=None):
         data = bayescap.load(path)
         m = PTCModel(data)
         t = time.perf_counter()
-        x, _ = find_map(m)
-        laplace_covariance(m, x)
+        x = mcmc_start(m)[0]       # the fit's start: MAP and Laplace covariance
         t_map = time.perf_counter() - t
         X = np.tile(x, (36, 1)) + 1e-4 * np.random.default_rng(0).standard_normal((36, m.ndim))
         t = time.perf_counter()
