@@ -167,28 +167,13 @@ def laplace_covariance(model: PTCModel, x, h=1e-4):
     (Abramowitz & Stegun 25.3.23/25.3.27; both exact for a quadratic, error O(e²)). The four-point
     stencil ``f(x±e_i±e_j)`` used before 2026-11-23 took ``2n² + 2n`` points (144 for n = 8, 73
     now), a third of the fast path's ``log_prob`` points (docs/performance.md, "2026-11-23 (day)")."""
-    n = x.size
     step = h * np.maximum(1.0, np.abs(x))
-    E = np.diag(step)
-    iu, ju = np.triu_indices(n, 1)
-    pts = np.vstack([x[None], x + E, x - E, x + E[iu] + E[ju], x - E[iu] - E[ju]])
+    Y, iu, ju = _unit_stencil(x.size)
     with np.errstate(all="ignore"):   # the stencil may leave the prior support: -inf, handled below
-        q = model.log_prob(pts)
-        f0, fp, fm = q[0], q[1:n + 1], q[n + 1:2 * n + 1]
-        fpp, fmm = q[2 * n + 1:2 * n + 1 + iu.size], q[2 * n + 1 + iu.size:]
-        H = np.empty((n, n))
-        H[np.arange(n), np.arange(n)] = (fp - 2.0 * f0 + fm) / step**2
-        off = (fpp + fmm - fp[iu] - fm[iu] - fp[ju] - fm[ju] + 2.0 * f0) / (2.0 * step[iu] * step[ju])
-        H[iu, ju] = off
-        H[ju, iu] = off
-    H = 0.5 * (H + H.T)
+        H = _stencil_derivatives(model.log_prob(x + Y * step), step, iu, ju)[2]
     if not np.all(np.isfinite(H)):
-        return np.diag(np.full(n, 1e-4))
-    w, V = np.linalg.eigh(-H)
-    w = np.clip(w, 1e-8 * max(w.max(), 1e-8), None)
-    w = np.maximum(w, 1.0)  # no direction wider than sd 1 in log units
-    w = np.where(w > 0, w, 1.0)
-    return (V / w) @ V.T
+        return np.diag(np.full(x.size, 1e-4))
+    return _clipped_inverse(H)
 
 
 class _Whitened:
@@ -418,6 +403,7 @@ def newton_map(target, starts, *, max_iter: int = 60, h: float = NEWTON_H, alpha
     states = [dict(i=i, x=starts[i], lp=float(lp0[i]), it=0, stalls=0, walls=0, done=False, reason="", conv=False,
                    spec=False)
               for i in keep]
+
     def raw_stencil(group):
         """The raw stencil at each state's point, one call: it sets the whitening (covariance with
         laplace_covariance's floor) and, where finite, the derivatives of the next step, carried into
