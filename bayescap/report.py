@@ -119,7 +119,8 @@ def format_text(result: FitResult | dict) -> str:
         lines.append(f"  model selection ({ms['criterion']}): chose '{ms['chosen']}', {ms['why']}")
         for n, v in ms["variants"].items():
             lines.append(f"    {n:<22} elpd_loo {v['elpd_loo']:9.1f} ± {v['se']:.1f}   Δ {v['elpd_diff']:7.1f} ± "
-                         f"{v['se_diff']:.1f}   p_loo {v['p_loo']:.1f}   k̂>0.7: {v['n_khat_above_0.7']}")
+                         f"{v['se_diff']:.1f}   p_loo {v['p_loo']:.1f}   k̂>0.7: {v['n_khat_above_0.7']}"
+                         + ("" if v.get("converged", True) else "   NOT CONVERGED"))
     if d.get("notes"):
         lines.append("")
         for n in d["notes"]:

@@ -72,6 +72,9 @@ def select_model(data, *, seed=None, quality="standard", variants=None, progress
         terms = replace(base, **change)
         res = fit(data, seed=seed, quality=quality, terms=terms, progress=progress, **fit_kwargs)
         lo = loo(res)
+        # an unconverged variant's elpd is uncertain too: say so with its numbers
+        lo["converged"] = bool(res.diag.get("converged", False))
+        lo["method"] = res.diag.get("method", "mcmc")
         results[name] = res
         table[name] = lo
     best = max(names, key=lambda n: table[n]["elpd_loo"])
@@ -105,6 +108,12 @@ def select_model(data, *, seed=None, quality="standard", variants=None, progress
     res.model_selection = summary
     res.notes.append(f"model selection by PSIS-LOO: '{chosen}' ({why}); "
                      + ", ".join(f"{n}: elpd {table[n]['elpd_loo']:.1f}" for n in names))
+    unconverged = [n for n in names if not table[n]["converged"]]
+    summary["unconverged_variants"] = unconverged
+    if unconverged:
+        res.notes.append("model selection: the fit of " + ", ".join(f"'{n}'" for n in unconverged)
+                         + " did not converge (its R-hat/ESS or fast-path check failed), so its elpd is "
+                           "uncertain; rerun with --quality accurate to confirm the choice")
     return res, summary
 
 

@@ -97,11 +97,19 @@ def test_model_selection_by_loo_keeps_the_mixture_for_corrupted_rows(tmp_path):
                                                  "frac_saturated")}
     cols["temporal_var_dn2"][[10, 25]] *= [1.4, 0.6]
     write_ptc_csv(cols, tmp_path / "bad.csv", metadata=d.metadata)
-    _, s_bad = select_model(bayescap.load(tmp_path / "bad.csv"), seed=1, quality="fast")
-    _, s_clean = select_model(d, seed=1, quality="fast")
+    r_bad, s_bad = select_model(bayescap.load(tmp_path / "bad.csv"), seed=1, quality="fast")
+    r_clean, s_clean = select_model(d, seed=1, quality="fast")
     assert s_bad["chosen"] == "discrepancy+outliers"
     assert s_bad["variants"]["gamma_only"]["n_khat_above_0.7"] > 0
     assert s_clean["chosen"] == "gamma_only"
+    # every variant says whether its fit converged; a failed one is named in the result's notes
+    for s in (s_bad, s_clean):
+        assert all(isinstance(v["converged"], bool) for v in s["variants"].values())
+        assert s["unconverged_variants"] == [n for n, v in s["variants"].items() if not v["converged"]]
+    for r, s in ((r_bad, s_bad), (r_clean, s_clean)):
+        named = [n for n in r.notes if n.startswith("model selection: the fit of")]
+        assert bool(named) == bool(s["unconverged_variants"])
+        assert all(f"'{v}'" in named[0] for v in s["unconverged_variants"])
 
 
 def test_dark_pixels_clipped_at_zero_are_flagged():
