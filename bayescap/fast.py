@@ -13,7 +13,8 @@ Steps (all vectorised; two ``log_prob`` calls for the importance draws):
    ``laplace_start(optimizer="bfgs")``);
 2. ``n_proposals/3`` draws from a multivariate Student-t ``t_ν(x_MAP, Σ)``; their PSIS weights
    give a weighted mean and covariance, and the other ``2/3`` are drawn from a t at those
-   moments (one round of adaptive importance sampling);
+   moments (one round of adaptive importance sampling; ``FastSettings.adapt_rounds`` splits them
+   into several rounds, each at the moments of all draws so far);
 3. importance weights ``log p(x) − log q_mix(x)`` over all draws (the mixture of the two
    proposals, the balance heuristic), smoothed by PSIS (Vehtari, Simpson, Gelman, Yao & Gabry
    2024, JMLR 25(72)) with the algorithm of :func:`arviz.psislw` (re-implemented in
@@ -73,6 +74,7 @@ class FastSettings:
     retry_restarts: int = 2       # on rejection, retry once with this many restarts
     scale: float = 1.0            # proposal scale factor on the Laplace covariance (sd multiplier)
     polish_both: bool = False     # clip coordinates: optimise in the model's coordinates first (the retry does)
+    adapt_rounds: int = 3         # moment-matching rounds sharing the adapt_fraction draws (1 before 2026-11-23 late day)
 
 
 def student_t_draws(mean, cov, nu, n, rng):
@@ -196,6 +198,56 @@ def _systematic_resample(w, n, rng):
     return np.searchsorted(c, pos, side="left")
 
 
+def _moment_matched(x, w, fallback, inflation):
+    """Student-t location and scale at the weighted mean and covariance of ``x`` (``fallback`` when
+    they are not usable)."""
+    m = w @ x
+    c_w = np.cov(x.T, aweights=w)
+    if np.all(np.isfinite(m)) and np.all(np.isfinite(c_w)) and np.linalg.matrix_rank(c_w) == x.shape[1]:
+        return m, _proposal_cov(c_w, inflation)
+    return fallback
+
+
+def _adaptive_rounds(model, settings, rng, x_map, c1, x1, lp1, n1, n2):
+    """``settings.adapt_rounds`` moment-matching rounds sharing ``n2`` draws: every round's t sits at
+    the PSIS-weighted moments of all draws so far, weighted against the mixture of the proposals so
+    far (the balance heuristic). Each proposal's density on each batch of draws is computed once.
+    Returns (draws, log p, log q of the final mixture)."""
+    nu = settings.nu
+    R = int(settings.adapt_rounds)
+    sizes = [n2 // R + (1 if r < n2 % R else 0) for r in range(R)]
+    props = [(x_map, c1)]
+    counts = [n1]
+    xs, lps = [x1], [lp1]
+    dens = [[student_t_logpdf(x1, x_map, c1, nu)]]     # dens[k][b]: proposal k on batch b
+
+    def mix_logq():
+        n_all = float(sum(counts))
+        out = None
+        for k, n in enumerate(counts):
+            term = np.log(n / n_all) + np.concatenate(dens[k])
+            out = term if out is None else np.logaddexp(out, term)
+        return out
+
+    for n_r in sizes:
+        x = np.vstack(xs)
+        w, _, ess_r = psis_weights(np.concatenate(lps) - mix_logq())
+        mu, c = props[-1]
+        if ess_r >= 5:
+            mu, c = _moment_matched(x, w, (mu, c), settings.adapt_inflation)
+        xr, lq_own = student_t_draws(mu, c, nu, n_r, rng)
+        with np.errstate(all="ignore"):
+            lpr = model.log_prob(xr)
+        for k, (mu_k, c_k) in enumerate(props):        # the earlier proposals on the new batch
+            dens[k].append(student_t_logpdf(xr, mu_k, c_k, nu))
+        dens.append([student_t_logpdf(xb, mu, c, nu) for xb in xs] + [lq_own])   # the new one on all
+        props.append((mu, c))
+        counts.append(n_r)
+        xs.append(xr)
+        lps.append(lpr)
+    return np.vstack(xs), np.concatenate(lps), mix_logq()
+
+
 def _fast_once(model, seed, n_draws, settings, x_map, cov):
     wrapped = _clip_coordinates(model) if x_map is None and cov is None else None
     if wrapped is not None:
@@ -245,7 +297,9 @@ def _fast_once(model, seed, n_draws, settings, x_map, cov):
     with np.errstate(all="ignore"):
         lp1 = model.log_prob(x1)
     x, logp, logq = x1, lp1, student_t_logpdf(x1, x_map, c1, nu)
-    if n2 > 0:
+    if n2 > 0 and settings.adapt_rounds > 1:
+        x, logp, logq = _adaptive_rounds(model, settings, rng, x_map, c1, x1, lp1, n1, n2)
+    elif n2 > 0:
         # one moment-matching round: t proposal at the PSIS-weighted mean and covariance of
         # round 1; all draws weighted by the deterministic mixture (balance heuristic)
         w1, _, ess1 = psis_weights(lp1 - logq)

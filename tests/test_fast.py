@@ -85,6 +85,37 @@ def test_fast_posterior_recovers_a_known_gaussian():
     np.testing.assert_array_equal(ch.chain, ch2.chain)
 
 
+class BananaModel:
+    """A banana: a ~ N(0, 1), c | a ~ N(a² − 1, 0.5²), d ~ N(0, 1); E[c] = 0, sd(c) = √2.25. The
+    Laplace t at the mode (a = 0, c = −1) misses the curved arms."""
+
+    ndim = 3
+
+    def log_prob(self, th):
+        th = np.atleast_2d(th)
+        a, c, d = th[:, 0], th[:, 1], th[:, 2]
+        return -0.5 * a * a - 0.5 * (c - (a * a - 1.0)) ** 2 / 0.25 - 0.5 * d * d
+
+    def initial_guess(self):
+        return np.array([0.1, 0.0, 0.1])
+
+
+def test_adaptive_rounds_on_a_banana():
+    """Three moment-matching rounds (FastSettings.adapt_rounds) against one, same 6 000 draws, 5 seeds:
+    a higher median IS ESS (measured: 1 302 vs 921), and every accepted 3-round run has E[c] within
+    4 Monte Carlo sd (from its IS ESS) of 0 (one round's runs were off by up to 0.22)."""
+    model = BananaModel()
+    ess = {1: [], 3: []}
+    for seed in range(5):
+        for rounds in (1, 3):
+            ch, dg = fast_posterior(model, seed=seed, settings=FastSettings(adapt_rounds=rounds, retry_restarts=0))
+            ess[rounds].append(dg["ess_is"])
+            if rounds == 3 and dg["accepted"]:
+                c = ch.chain.reshape(-1, 3)[:, 1]
+                assert abs(c.mean()) < 4 * 1.5 / np.sqrt(dg["ess_is"])
+    assert np.median(ess[3]) > np.median(ess[1])
+
+
 PHONE_CSV = Path(__file__).resolve().parents[1] / "data" / "simulated" / "sim_phone_1p75um_10bit.csv"
 PHONE_TRUTH = json.loads(PHONE_CSV.with_suffix("").with_suffix(".truth.json").read_text())["truth"]
 
