@@ -23,7 +23,10 @@ ROOT = Path(__file__).resolve().parents[1]
 
 
 def _machine():
-    return f"{describe_machine()}; load average before the run {os.getloadavg()[0]:.2f}"
+    import datetime
+
+    return (f"{describe_machine()}; load average before the run {os.getloadavg()[0]:.2f}; "
+            f"{datetime.datetime.now().isoformat(timespec='minutes')}")
 
 
 def main(argv=None):

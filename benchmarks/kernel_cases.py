@@ -98,11 +98,13 @@ def main(argv=None):
                      f"{np.max(np.abs(v[fin] - r[fin])) if fin.any() else 0.0:.3g} |")
     d = bayescap.load(ROOT / "data" / "emva1288_basler_ccd12.csv")
     m = PTCModel(d)
-    fast = []
+    fast, dgs = [], []
     for _ in range(5):
         t = time.perf_counter()
         _, dg = fast_posterior(m, seed=1)
         fast.append(time.perf_counter() - t)
+        dgs.append(dg)
+    dg = dgs[int(np.argmin(fast))]     # the stages of the best run
     std = []
     for _ in range(2):
         t = time.perf_counter()
