@@ -1,6 +1,6 @@
 """Fast path: Laplace approximation + Pareto-smoothed importance sampling (Laplace–IS).
 
-Steps (all vectorised; two ``log_prob`` calls for the importance draws):
+Steps (all vectorised; 1 + ``adapt_rounds`` ``log_prob`` calls for the importance draws):
 
 1. MAP and Laplace covariance by :func:`bayescap.fit.laplace_start`: Newton's method
    (:func:`bayescap.fit.newton_map`) on finite-difference Hessians taken in whitened coordinates
@@ -8,14 +8,14 @@ Steps (all vectorised; two ``log_prob`` calls for the importance draws):
    initial guess and the extra starts of :func:`bayescap.fit._map_starts`, all in one ``log_prob``
    call per iteration; the covariance is the whitened Hessian's at the optimum, consistent to
    ±25 %. If the draws are rejected (below), the whole path is retried once with
-   ``retry_restarts`` more starts (before 2026-11-23 evening: BFGS, then
+   ``retry_restarts`` more starts (before 2026-11-23 late day: BFGS, then
    :func:`refine_covariance` and :func:`polish_map`, still available as
    ``laplace_start(optimizer="bfgs")``);
 2. ``n_proposals/3`` draws from a multivariate Student-t ``t_ν(x_MAP, Σ)``; their PSIS weights
    give a weighted mean and covariance, and the other ``2/3`` are drawn from a t at those
-   moments (one round of adaptive importance sampling; ``FastSettings.adapt_rounds`` splits them
-   into several rounds, each at the moments of all draws so far);
-3. importance weights ``log p(x) − log q_mix(x)`` over all draws (the mixture of the two
+   moments, in ``FastSettings.adapt_rounds`` rounds (3; one before 2026-11-23 late day), each at
+   the moments of all draws so far (adaptive importance sampling);
+3. importance weights ``log p(x) − log q_mix(x)`` over all draws (the mixture of the
    proposals, the balance heuristic), smoothed by PSIS (Vehtari, Simpson, Gelman, Yao & Gabry
    2024, JMLR 25(72)) with the algorithm of :func:`arviz.psislw` (re-implemented in
    :func:`psis_weights`, so that the fast path does not import ArviZ), which also returns k̂;
@@ -64,7 +64,7 @@ class FastSettings:
     nu: float = 4.0               # Student-t degrees of freedom of the proposals (6 before 2026-11-23)
     n_proposals: int = 6000       # importance draws in all (two vectorised log_prob calls; 3000 before)
     adapt_fraction: float = 2 / 3  # share drawn from the moment-matched second proposal
-    adapt_inflation: float = 1.2  # sd multiplier on the weighted covariance of round 1
+    adapt_inflation: float = 1.2  # sd multiplier on the weighted covariance of the draws so far
     refine_iter: int = 6          # BFGS route only (laplace_start(optimizer="bfgs")): whitened Hessian re-evaluations
     polish: bool = True           # BFGS route only: whitened gradient ascent after find_map (polish_map)
     n_draws: int = 4000           # equally weighted draws returned after resampling
@@ -214,7 +214,7 @@ def _adaptive_rounds(model, settings, rng, x_map, c1, x1, lp1, n1, n2):
     far (the balance heuristic). Each proposal's density on each batch of draws is computed once.
     Returns (draws, log p, log q of the final mixture)."""
     nu = settings.nu
-    R = int(settings.adapt_rounds)
+    R = max(1, int(settings.adapt_rounds))
     sizes = [n2 // R + (1 if r < n2 % R else 0) for r in range(R)]
     props = [(x_map, c1)]
     counts = [n1]
@@ -293,31 +293,14 @@ def _fast_once(model, seed, n_draws, settings, x_map, cov):
     n2 = int(round(settings.adapt_fraction * settings.n_proposals))
     n1 = settings.n_proposals - n2
     c1 = _proposal_cov(cov, settings.scale)
-    x1, _ = student_t_draws(x_map, c1, nu, n1, rng)
+    # adapt_fraction 1 leaves nothing to adapt from: then every draw comes from the Laplace t
+    x1, _ = student_t_draws(x_map, c1, nu, n1 if n1 > 0 else n2, rng)
     with np.errstate(all="ignore"):
         lp1 = model.log_prob(x1)
-    x, logp, logq = x1, lp1, student_t_logpdf(x1, x_map, c1, nu)
-    if n2 > 0 and settings.adapt_rounds > 1:
+    if n1 > 0 and n2 > 0:
         x, logp, logq = _adaptive_rounds(model, settings, rng, x_map, c1, x1, lp1, n1, n2)
-    elif n2 > 0:
-        # one moment-matching round: t proposal at the PSIS-weighted mean and covariance of
-        # round 1; all draws weighted by the deterministic mixture (balance heuristic)
-        w1, _, ess1 = psis_weights(lp1 - logq)
-        mu2, c2 = x_map, c1
-        if ess1 >= 5:
-            m2 = w1 @ x1
-            c_w = np.cov(x1.T, aweights=w1)
-            if np.all(np.isfinite(m2)) and np.all(np.isfinite(c_w)) and np.linalg.matrix_rank(c_w) == x_map.size:
-                mu2, c2 = m2, _proposal_cov(c_w, settings.adapt_inflation)
-        x2, _ = student_t_draws(mu2, c2, nu, n2, rng)
-        with np.errstate(all="ignore"):
-            lp2 = model.log_prob(x2)
-        x = np.vstack([x1, x2])
-        logp = np.concatenate([lp1, lp2])
-        f1 = n1 / (n1 + n2)
-        logq = np.logaddexp(np.log(f1) + student_t_logpdf(x, x_map, c1, nu),
-                            np.log1p(-f1) + student_t_logpdf(x, mu2, c2, nu)) if n1 else \
-            student_t_logpdf(x, mu2, c2, nu)
+    else:
+        x, logp, logq = x1, lp1, student_t_logpdf(x1, x_map, c1, nu)
     n_outside = int(np.sum(~np.isfinite(logp)))
     w, khat, ess = psis_weights(logp - logq)
     khat, ess = float(khat), float(ess)
