@@ -38,7 +38,7 @@ import copy
 from dataclasses import dataclass, field
 
 import numpy as np
-from scipy.special import gammaln, ndtr, owens_t
+from scipy.special import erfcx, gammaln, ndtr, owens_t
 
 from .ptc import PTCData, PTCInputError, check_not_all_saturated
 
@@ -131,6 +131,47 @@ def _chi2_over_nu(z, nu):
 
 
 #: below this s² + σ_o² (DN²) the rounded-normal moments replace Sheppard's σ² + 1/12
+def _log_shortfall(h):
+    """log ψ(h), ψ(h) = h Φ(h) + φ(h): the clipped normal's shortfall below the clip in units of its
+    sd, E[(c − X)⁺]/s' for X ~ N(c − h s', s'²). For h < 0 as φ(h) (1 − |h| R(|h|)) with the
+    Mills ratio R from ``erfcx``, so that it stays finite and accurate (relative error ~1e-12 at
+    h = −37, where ψ is ~1e-300) instead of cancelling."""
+    h = np.asarray(h, float)
+    out = np.empty_like(h)
+    neg = h < 0
+    hn = h[neg]
+    with np.errstate(divide="ignore", invalid="ignore"):
+        out[neg] = -0.5 * hn * hn + np.log(0.3989422804014327 - 0.5 * (-hn) * erfcx(-0.7071067811865476 * hn))
+    hp = h[~neg]
+    out[~neg] = np.log(hp * ndtr(hp) + 0.3989422804014327 * np.exp(-0.5 * hp * hp))
+    return out
+
+
+# ψ⁻¹ tabulated on a uniform grid of log ψ from −60 (h ≈ −10.8) to 2.5 (h ≈ 12), for the first
+# guess of the latent clip solver: an index computed, not searched (np.interp on a table uniform in
+# h cost 80 µs for 700 elements); outside the grid the guess is the end's h, and Newton goes on
+_PSI_L0, _PSI_DL = -60.0, 0.01
+
+
+def _psi_inverse_table():
+    h = np.linspace(-11.0, 12.5, 200001)
+    L = _log_shortfall(h)
+    grid = _PSI_L0 + _PSI_DL * np.arange(int(round((2.5 - _PSI_L0) / _PSI_DL)) + 1)
+    return np.interp(grid, L, h)
+
+
+_PSI_INV = _psi_inverse_table()
+
+
+def _psi_inverse_guess(L):
+    """h with log ψ(h) ≈ L by linear interpolation in :data:`_PSI_INV` (clamped to its range; NaN
+    gives its upper end)."""
+    t = np.fmax(np.fmin((L - _PSI_L0) / _PSI_DL, _PSI_INV.size - 1.000001), 0.0)   # fmin: NaN → top
+    i = t.astype(np.intp)
+    lo = _PSI_INV[i]
+    return lo + (t - i) * (_PSI_INV[i + 1] - lo)
+
+
 _QUANT_EXACT_S2 = 0.5
 
 
@@ -968,9 +1009,15 @@ class PTCModel:
         """Latent unclipped row means (DN) of the clip rows: solve E[clip(μ)] = measured mean.
 
         The clipped quantity has variance ``(μ − dark)/K + pre_var_dn2`` (shot noise plus what
-        is added before the clip). The clipped mean is increasing and concave in μ, so Newton
-        steps from μ = measured mean approach the root from below without overshoot.
-        Returns (μ, variance of the clipped values, unclipped fraction = dE/dμ)."""
+        is added before the clip). Written as its shortfall below the clip, the equation is
+        ``s' ψ((c − μ)/s') = c − measured mean`` (s'² that variance plus τ², ψ of
+        :func:`_log_shortfall`), and its logarithm is concave and decreasing in μ: a Newton step on
+        it overshoots the root at most once, from below, and then converges from above (plain
+        Newton steps on the clipped mean, used before 2026-11-24, approach from below but crawl
+        where the root lies deep in the clip: 12 passes on the simulated 1.75 µm sensor, now 4).
+        The first guess inverts ψ from a table at the variance of the measured mean; steps that
+        leave the bracket of the points seen so far bisect it. Returns (μ, variance of the clipped
+        values, unclipped fraction = dE/dμ)."""
         m_obs = self.m[..., rows]
         dm = self.dm[..., rows]
         K = k[:, None]
@@ -978,40 +1025,72 @@ class PTCModel:
         cc = np.broadcast_to(c[:, None], shape)
         tt_ = np.broadcast_to(tau[:, None], shape)
         mu = np.broadcast_to(m_obs, shape).copy()
-        # Newton on the elements (draw, row) not yet converged only: each stops once the clipped
-        # mean is within 1e-9 of the noise. Most elements converge in 0-2 steps (μ = measured
-        # mean, unclipped), so this costs ~1/4 of iterating the full array until every element
-        # has converged (the former rule, 1e-6 of the noise, on all elements at once), and
-        # log_prob is closer to the exact root: |Δ log p| ≤ 2e-7 vs 4e-4 before (measured
-        # against a 1e-13 solution on the bundled simulated 10-bit sensor).
         mu_f = mu.reshape(-1)          # a view: updates land in mu
-        idx = np.arange(mu_f.size)
         # the fixed inputs of each element, one row each, so that dropping the converged elements
         # is one fancy-indexing call instead of six
-        P = np.stack([np.broadcast_to(a, shape).ravel() for a in (m_obs, dm, K, pre_var_dn2, tt_, cc)])
+        P = np.empty((6,) + shape)
+        for i, a in enumerate((m_obs, dm, K, pre_var_dn2, tt_, cc)):
+            P[i] = a
+        P = P.reshape(6, -1)
+        idx = np.arange(mu_f.size)
         mu_a = mu_f.copy()
-        for it in range(30):
+        # first pass, on every element: the clipped mean at the measured mean
+        mo_a, dm_a, k_a, pre_a, tau_a, c_a = P
+        s = np.sqrt(np.maximum(mu_a - dm_a, 0.0) / k_a + pre_a)
+        mean, _ = self._clip_mean(mu_a, s, tau_a, c_a)
+        # elements already within 1e-9 of the noise of it (the unclipped rows) stay there
+        todo = ~(mo_a - mean < 1e-9 * s)
+        if todo.any():
+            idx, mu_a, P, s = idx[todo], mu_a[todo], P[:, todo], s[todo]
             mo_a, dm_a, k_a, pre_a, tau_a, c_a = P
-            s = np.sqrt(np.maximum(mu_a - dm_a, 0.0) / k_a + pre_a)
-            mean, slope = self._clip_mean(mu_a, s, tau_a, c_a)
-            gap = mo_a - mean
-            todo = ~(gap < 1e-9 * s)
-            if it == 0:
-                if not todo.any():
-                    break
-                # elements already converged at the measured mean (unclipped rows) stay there
-                idx, mu_a, gap, slope, s, tau_a, P = (
-                    idx[todo], mu_a[todo], gap[todo], slope[todo], s[todo], tau_a[todo], P[:, todo])
-                todo = todo[todo]
-            # the others take this step also when they have just converged: a Newton step from
-            # within the tolerance lands on the root to rounding, so the result does not depend
-            # on the iteration at which an element crossed the tolerance (nor on the batch)
-            mu_a = mu_a + np.minimum(np.maximum(gap / np.maximum(slope, 1e-12), 0.0), 50.0 * (s + tau_a))
-            mu_f[idx] = mu_a
-            if not todo.any():
-                break
-            if not todo.all():   # drop the converged elements
-                idx, mu_a, P = idx[todo], mu_a[todo], P[:, todo]
+            g_obs = c_a - mo_a           # the measured shortfall (≤ 0: no root, μ → ∞)
+            pos = g_obs > 0
+            with np.errstate(divide="ignore", invalid="ignore"):
+                # first guess: ψ inverted at the variance of the measured mean, never below it
+                sp = np.sqrt(s * s + tau_a * tau_a)
+                guess = c_a - sp * _psi_inverse_guess(np.log(g_obs / sp))
+            mu_a = np.where(pos & (guess > mu_a), guess, mu_a)
+            lo, hi = mo_a.copy(), np.full(mu_a.size, np.inf)   # the clipped mean is below / above
+            with np.errstate(divide="ignore", invalid="ignore", over="ignore", under="ignore"):
+                for _ in range(30):
+                    mo_a, dm_a, k_a, pre_a, tau_a, c_a = P
+                    g_obs = c_a - mo_a
+                    s = np.sqrt(np.maximum(mu_a - dm_a, 0.0) / k_a + pre_a)
+                    sp = np.sqrt(s * s + tau_a * tau_a)
+                    h = np.minimum((c_a - mu_a) / sp, 30.0)
+                    # Φ(h) = ½ erfcx(−h/√2) e^{−h²/2} and ψ(h) = e^{−h²/2} (φ(0) + ½ h erfcx(−h/√2)):
+                    # one erfcx gives both, without cancellation for h < 0 (:func:`_log_shortfall`)
+                    e2 = np.exp(-0.5 * h * h)
+                    X = erfcx(-0.7071067811865476 * h)
+                    B = 0.3989422804014327 + 0.5 * h * X
+                    short = sp * e2 * B
+                    gap = short - g_obs          # = measured mean − clipped mean
+                    # converged within 1e-9 of the noise and 1e-6 of the shortfall itself (a row
+                    # deep in the clip has a shortfall far below the noise; the step taken after
+                    # convergence squares that relative error)
+                    done = np.abs(gap) < np.where(pos, np.minimum(1e-9 * s, 1e-6 * g_obs), 1e-9 * s)
+                    below = gap > 0
+                    lo = np.where(below, np.maximum(lo, mu_a), lo)
+                    hi = np.where(below, hi, np.minimum(hi, mu_a))
+                    # d(clipped mean)/dμ, with the growth of the shot noise with μ
+                    slope = np.maximum(e2 * (0.5 * X - 0.3989422804014327 * (mu_a > dm_a) * 0.5 / (k_a * sp)),
+                                       1e-300)
+                    step_lin = np.minimum(np.maximum(gap / slope, 0.0), 50.0 * (s + tau_a))
+                    step_log = (np.log(B) - 0.5 * h * h + np.log(sp / g_obs)) * short / slope
+                    new = mu_a + np.where(pos, step_log, step_lin)
+                    # a step from within the tolerance is taken too (it lands on the root to
+                    # rounding, so the result does not depend on the pass at which an element
+                    # converged); one leaving the bracket bisects it, or without an upper end takes
+                    # the plain Newton step (which never passes the root)
+                    out = ~((new > lo) & (new < hi)) & pos & ~done
+                    new = np.where(out, np.where(hi < np.inf, 0.5 * (lo + hi), mu_a + step_lin), new)
+                    mu_a = np.where(np.isfinite(new), new, mu_a)
+                    mu_f[idx] = mu_a
+                    if done.all():
+                        break
+                    if done.any():   # drop the converged elements
+                        keep = ~done
+                        idx, mu_a, P, lo, hi, pos = idx[keep], mu_a[keep], P[:, keep], lo[keep], hi[keep], pos[keep]
         s = np.sqrt(np.maximum(mu - dm, 0.0) / K + pre_var_dn2)
         mean, var, slope = self._clip_moments(mu, s, tt_, cc)
         return mu, var, slope

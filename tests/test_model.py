@@ -1,4 +1,6 @@
 """The likelihood pieces and the data-driven term selection."""
+import warnings
+
 import numpy as np
 import pytest
 from scipy import stats
@@ -95,6 +97,37 @@ def test_latent_signal_inverts_the_clipped_mean():
                            np.broadcast_to(p["clip_dn"][:, None], mu.shape))
     np.testing.assert_allclose(mean, m.m[rows][None, :], atol=1e-5 * s.max())
     assert np.all(mu >= m.m[rows] - 1e-9)
+
+
+def test_latent_clip_solver_reaches_roots_deep_in_the_clip():
+    """The latent clip means solve s' ψ((c − μ)/s') = c − measured mean (the shortfall below the
+    clip) to its own precision, from rows far below the clip to rows whose measured mean lies 1e-12
+    DN below it (root ~7 s' above the clip), for a small and a large conversion gain and well
+    spread; rows at or above the clip (no root) stay finite. Until 2026-11-24 plain Newton steps
+    on the clipped mean stopped once it was within 1e-9 s of the measured one, which at a
+    shortfall of 1e-8 DN put the root at h = −5.84 instead of −5.96."""
+    import types
+    from bayescap.model import _log_shortfall
+
+    g = np.array([300, 30, 5, 1, 0.1, 1e-2, 1e-4, 1e-8, 1e-12, 0.0, -0.5])
+    c0, dark = 1000.0, 10.0
+    fake = types.SimpleNamespace(m=c0 - g, dm=np.full(g.size, dark), _clip_mean=PTCModel._clip_mean,
+                                 _clip_moments=lambda mu, s, t, c: PTCModel._clip_moments(None, mu, s, t, c))
+    k, tau, c = np.array([0.5, 4.0, 50.0]), np.array([0.0, 3.0, 40.0]), np.full(3, c0)
+    pre = np.full((3, g.size), 2.0)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        mu, var, slope = PTCModel._latent_clip_rows(fake, k, pre, tau, c, np.arange(g.size))
+    assert np.all(np.isfinite(mu)) and np.all(np.isfinite(var)) and np.all(np.isfinite(slope))
+    s = np.sqrt(np.maximum(mu - dark, 0) / k[:, None] + pre)
+    sp = np.sqrt(s * s + tau[:, None] ** 2)
+    short = sp * np.exp(_log_shortfall((c0 - mu) / sp))
+    # the first row is unclipped: μ is its measured mean
+    np.testing.assert_array_equal(mu[:, 0], c0 - g[0])
+    np.testing.assert_allclose(short[:, 1:9], np.broadcast_to(c0 - fake.m[1:9], (3, 8)), rtol=1e-9)
+    # the deeper the measured mean sits in the clip, the higher the latent mean
+    assert np.all(np.diff(mu[:, :9], axis=1) > 0)
+    assert np.all(mu[:, 9:] >= c0)
 
 
 def test_clip_moments_closed_form_match_quadrature_at_large_well_spread():
