@@ -55,6 +55,7 @@ __all__ = ["FastSettings", "fast_posterior", "fast_fit", "student_t_draws", "Log
            "student_t_logpdf", "psis_weights", "refine_covariance", "polish_map", "METHOD"]
 
 METHOD = "laplace-is"
+CLIP_FLOOR_INFLATION = 1.0
 
 
 @dataclass(frozen=True)
@@ -75,6 +76,7 @@ class FastSettings:
     scale: float = 1.0            # proposal scale factor on the Laplace covariance (sd multiplier)
     polish_both: bool = False     # clip coordinates: optimise in the model's coordinates first (the retry does)
     adapt_rounds: int = 3         # moment-matching rounds sharing the adapt_fraction draws (1 before 2026-11-23 late day)
+    clip_floor_fraction: float = 0.1  # clip coordinates: share of the first draws from _clip_floor_proposal (0 before 2026-11-24)
 
 
 def student_t_draws(mean, cov, nu, n, rng):
@@ -208,18 +210,52 @@ def _moment_matched(x, w, fallback, inflation):
     return fallback
 
 
-def _adaptive_rounds(model, settings, rng, x_map, c1, x1, lp1, n1, n2):
+def _clip_floor_proposal(model, x_map, c1, nu):
+    """Defensive proposal for the clip level near its lower bound, in :class:`LogClipCoordinates`.
+
+    Where the clip's posterior density stays up down to its data-derived lower bound ``lo`` (the
+    well clips just above the last unclipped row), ``z = log(clip − lo)`` has a long exponential
+    left tail that a t around the mode does not reach: on a simulated 10-bit sensor the MCMC put
+    2.5 % of the mass below z = −3.78 where 48 000 t draws put 0.1 % below −3.22, and the clip
+    spread's lower interval end came out 0.16–0.20 of the width too high with k̂ 0.4–0.5 (k̂ cannot
+    see a region no draw visits). This component draws ``clip − lo`` uniform on (0, e^{z_MAP + 3 sd})
+    and the other coordinates from the Laplace t's marginal (Hesterberg 1995, defensive importance
+    sampling). Returns (draw(n, rng) -> (z, log q), logpdf(z))."""
+    D = x_map.size
+    j = model.j
+    oth = np.array([i for i in range(D) if i != j], int)
+    m_o, c_o = x_map[oth], c1[np.ix_(oth, oth)] * CLIP_FLOOR_INFLATION**2
+    log_a = float(x_map[j] + 3.0 * np.sqrt(c1[j, j]))
+
+    def draw(n, rng):
+        xo, lqo = student_t_draws(m_o, c_o, nu, n, rng)
+        z = np.empty((n, D))
+        z[:, oth] = xo
+        z[:, j] = log_a + np.log1p(-rng.random(n))      # log of a uniform on (0, 1]
+        return z, lqo + (z[:, j] - log_a)
+
+    def logpdf(z):
+        z = np.atleast_2d(z)
+        out = student_t_logpdf(z[:, oth], m_o, c_o, nu) + (z[:, j] - log_a)
+        return np.where(z[:, j] <= log_a, out, -np.inf)
+
+    return draw, logpdf
+
+
+def _adaptive_rounds(model, settings, rng, comps, n2):
     """``settings.adapt_rounds`` moment-matching rounds sharing ``n2`` draws: every round's t sits at
     the PSIS-weighted moments of all draws so far, weighted against the mixture of the proposals so
-    far (the balance heuristic). Each proposal's density on each batch of draws is computed once.
+    far (the balance heuristic). ``comps``: the first proposals, ``[(logpdf, draws, log p), ...]``,
+    the Laplace t first. Each proposal's density on each batch of draws is computed once.
     Returns (draws, log p, log q of the final mixture)."""
     nu = settings.nu
     R = max(1, int(settings.adapt_rounds))
     sizes = [n2 // R + (1 if r < n2 % R else 0) for r in range(R)]
-    props = [(x_map, c1)]
-    counts = [n1]
-    xs, lps = [x1], [lp1]
-    dens = [[student_t_logpdf(x1, x_map, c1, nu)]]     # dens[k][b]: proposal k on batch b
+    pdfs = [c[0] for c in comps]
+    counts = [len(c[1]) for c in comps]
+    xs, lps = [c[1] for c in comps], [c[2] for c in comps]
+    dens = [[f(xb) for xb in xs] for f in pdfs]      # dens[k][b]: proposal k on batch b
+    last = None                                      # the last t proposal's (location, scale)
 
     def mix_logq():
         n_all = float(sum(counts))
@@ -232,20 +268,69 @@ def _adaptive_rounds(model, settings, rng, x_map, c1, x1, lp1, n1, n2):
     for n_r in sizes:
         x = np.vstack(xs)
         w, _, ess_r = psis_weights(np.concatenate(lps) - mix_logq())
-        mu, c = props[-1]
+        mu, c = last if last is not None else comps[0][3]
         if ess_r >= 5:
             mu, c = _moment_matched(x, w, (mu, c), settings.adapt_inflation)
         xr, lq_own = student_t_draws(mu, c, nu, n_r, rng)
         with np.errstate(all="ignore"):
             lpr = model.log_prob(xr)
-        for k, (mu_k, c_k) in enumerate(props):        # the earlier proposals on the new batch
-            dens[k].append(student_t_logpdf(xr, mu_k, c_k, nu))
+        for k, f in enumerate(pdfs):                 # the earlier proposals on the new batch
+            dens[k].append(f(xr))
         dens.append([student_t_logpdf(xb, mu, c, nu) for xb in xs] + [lq_own])   # the new one on all
-        props.append((mu, c))
+        pdfs.append(lambda z, mu=mu, c=c: student_t_logpdf(z, mu, c, nu))
+        last = (mu, c)
         counts.append(n_r)
         xs.append(xr)
         lps.append(lpr)
     return np.vstack(xs), np.concatenate(lps), mix_logq()
+
+
+def _physical_fn(model):
+    """``x (n, ndim) -> {name: values}`` for the model behind ``model`` (None if it has none)."""
+    if hasattr(model, "physical"):
+        return model.physical
+    inner = getattr(model, "model", None)
+    if inner is not None and hasattr(inner, "physical") and hasattr(model, "to_x"):
+        return lambda x: inner.physical(model.to_x(x))
+    return None
+
+
+def interval_end_mcse(values, w, probs=(0.025, 0.975)):
+    """Monte Carlo error of weighted quantiles, as a fraction of the 95 % interval's width.
+
+    For self-normalised importance weights ``w`` the estimate F̂(q) = Σ w_i 1{v_i ≤ q} has variance
+    ≈ Σ w_i² (1{v_i ≤ q} − p)² (the delta method; Owen 2013, "Monte Carlo theory, methods and
+    examples", §9.2); its standard error ``se`` in probability maps to the quantile as
+    (Q(p + se) − Q(p − se))/2, with Q the weighted quantile function. Returns the largest over
+    ``probs``, divided by Q(0.975) − Q(0.025) (0 when the width is 0)."""
+    v = np.asarray(values, float)
+    o = np.argsort(v)
+    v, ws = v[o], w[o]
+    F = np.cumsum(ws)
+    F /= F[-1]
+    Q = lambda p: np.interp(p, F, v)      # noqa: E731
+    width = Q(0.975) - Q(0.025)
+    if not width > 0:
+        return 0.0
+    out = 0.0
+    for p in probs:
+        q = Q(p)
+        ind = (v <= q).astype(float)
+        se = float(np.sqrt(np.sum(ws * ws * (ind - p) ** 2)))
+        out = max(out, 0.5 * (Q(min(p + se, 1.0)) - Q(max(p - se, 0.0))) / width)
+    return out
+
+
+def _end_mcse(model, x, w):
+    """{name: interval-end Monte Carlo error / width} of every physical parameter for weighted draws."""
+    phys = _physical_fn(model)
+    if phys is None:
+        return {}
+    keep = w > 1e-12 * np.max(w)
+    with np.errstate(all="ignore"):
+        p = phys(x[keep])
+    return {n: interval_end_mcse(v, w[keep]) for n, v in p.items()
+            if np.all(np.isfinite(v)) and np.ptp(v) > 0}
 
 
 def _fast_once(model, seed, n_draws, settings, x_map, cov):
@@ -294,16 +379,25 @@ def _fast_once(model, seed, n_draws, settings, x_map, cov):
     n1 = settings.n_proposals - n2
     c1 = _proposal_cov(cov, settings.scale)
     # adapt_fraction 1 leaves nothing to adapt from: then every draw comes from the Laplace t
-    x1, _ = student_t_draws(x_map, c1, nu, n1 if n1 > 0 else n2, rng)
+    floor = (isinstance(model, LogClipCoordinates) and settings.clip_floor_fraction > 0 and n1 > 0 and n2 > 0)
+    n_floor = int(round(settings.clip_floor_fraction * settings.n_proposals)) if floor else 0
+    x1, _ = student_t_draws(x_map, c1, nu, (n1 - n_floor) if n1 > 0 else n2, rng)
     with np.errstate(all="ignore"):
         lp1 = model.log_prob(x1)
     if n1 > 0 and n2 > 0:
-        x, logp, logq = _adaptive_rounds(model, settings, rng, x_map, c1, x1, lp1, n1, n2)
+        comps = [(lambda z: student_t_logpdf(z, x_map, c1, nu), x1, lp1, (x_map, c1))]
+        if n_floor:
+            draw_f, pdf_f = _clip_floor_proposal(model, x_map, c1, nu)
+            xf, _ = draw_f(n_floor, rng)
+            with np.errstate(all="ignore"):
+                comps.append((pdf_f, xf, model.log_prob(xf), None))
+        x, logp, logq = _adaptive_rounds(model, settings, rng, comps, n2)
     else:
         x, logp, logq = x1, lp1, student_t_logpdf(x1, x_map, c1, nu)
     n_outside = int(np.sum(~np.isfinite(logp)))
     w, khat, ess = psis_weights(logp - logq)
     khat, ess = float(khat), float(ess)
+    mcse = _end_mcse(model, x, w)
     t_is = time.perf_counter()
     idx = _systematic_resample(w, n_draws, rng)
     idx = idx[rng.permutation(n_draws)]
@@ -333,6 +427,7 @@ def _fast_once(model, seed, n_draws, settings, x_map, cov):
         "wall_map_s": t_map - t0,          # with Newton (the default) the covariance too
         "wall_laplace_s": t_lap - t_map,
         "wall_is_s": t_is - t_lap,
+        "end_mcse": mcse,
         "settings": asdict(settings),
     }
     D = x_map.size
@@ -345,7 +440,7 @@ def _fast_once(model, seed, n_draws, settings, x_map, cov):
         settings=QUALITY_PRESETS["fast"],
         wall_s=wall, n_rounds=0,
         extra={k: diag[k] for k in ("method", "khat", "ess_is", "n_proposals", "accepted", "reason",
-                                    "khat_max", "min_ess_is", "nu")},
+                                    "khat_max", "min_ess_is", "nu", "end_mcse")},
     )
     return chains, diag
 

@@ -247,6 +247,14 @@ class FitResult:
                           f"{x['n_proposals']} proposals (accept ≥ {x['min_ess_is']:g}); R-hat does not apply"),
             "per_quantity": {},
         }
+        mcse = x.get("end_mcse") or {}
+        if mcse:
+            # the importance draws' own Monte Carlo error of each 95 % interval end (fast.interval_end_mcse)
+            worst = max(mcse, key=mcse.get)
+            self.diag["interval_end_mcse"] = {k: float(v) for k, v in mcse.items()}
+            self.diag["interval_end_mcse_max"] = float(mcse[worst])
+            self.diag["fast_path"] += (f"; Monte Carlo error of the 95 % interval ends up to "
+                                       f"{mcse[worst]:.3f} of the width ({worst})")
         if not x["accepted"]:
             self.notes.insert(0, "NOT CONVERGED: the Laplace–IS fast path failed its own check ("
                               + x["reason"] + "); do not use these intervals")
