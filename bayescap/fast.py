@@ -55,7 +55,6 @@ __all__ = ["FastSettings", "fast_posterior", "fast_fit", "student_t_draws", "Log
            "student_t_logpdf", "psis_weights", "refine_covariance", "polish_map", "METHOD"]
 
 METHOD = "laplace-is"
-CLIP_FLOOR_INFLATION = 1.0
 
 
 @dataclass(frozen=True)
@@ -224,7 +223,7 @@ def _clip_floor_proposal(model, x_map, c1, nu):
     D = x_map.size
     j = model.j
     oth = np.array([i for i in range(D) if i != j], int)
-    m_o, c_o = x_map[oth], c1[np.ix_(oth, oth)] * CLIP_FLOOR_INFLATION**2
+    m_o, c_o = x_map[oth], c1[np.ix_(oth, oth)]
     log_a = float(x_map[j] + 3.0 * np.sqrt(c1[j, j]))
 
     def draw(n, rng):
