@@ -23,12 +23,17 @@ Steps (all vectorised; 1 + ``adapt_rounds`` ``log_prob`` calls for the importanc
 
 Where the model has a free clip level (``clip_dn`` between data-derived bounds), Newton and steps
 2-4 run in :class:`LogClipCoordinates` (the clip as ``log(clip_dn − lower bound)``), and the draws
-come back in the model's coordinates. The retry after a rejection runs Newton in the model's
+come back in the model's coordinates. There ``clip_floor_fraction`` (10 %) of the first draws come
+from a defensive proposal with the clip uniform down to its lower bound
+(:func:`_clip_floor_proposal`), part of the mixture of step 3. The retry after a rejection runs Newton in the model's
 coordinates first and then in those (``FastSettings.polish_both``).
 
 **Its own diagnostic.** k̂ below ``khat_max`` (0.7, the PSIS paper's threshold for a few
 thousand draws, ``min(1 − 1/log10 S, 0.7)``) and an importance-sampling ESS ``1/Σw²`` of at
-least ``min_ess_is`` (200). When either fails the draws must not be used: the caller falls back
+least ``min_ess_is`` (200). The diagnostics also carry each physical parameter's predicted Monte
+Carlo error of its 95 % interval ends (:func:`interval_end_mcse`, ``end_mcse``), which the report
+prints: at the default 6 000 draws it is typically 0.02–0.04 of the width for the worst parameter,
+so the worst of ~20 interval ends is often more than 0.05 off by Monte Carlo error alone. When either fails the draws must not be used: the caller falls back
 to MCMC (:func:`bayescap.fit` with ``quality="fast"`` does so, with a note). ``benchmarks/speed_accuracy.py`` measures
 the interval errors against long MCMC runs as a function of k̂.
 
@@ -52,7 +57,7 @@ from .fit import (QUALITY_PRESETS, ChainResult, LogClipCoordinates, _clip_coordi
                   laplace_covariance, laplace_start, polish_map, refine_covariance)
 
 __all__ = ["FastSettings", "fast_posterior", "fast_fit", "student_t_draws", "LogClipCoordinates",
-           "student_t_logpdf", "psis_weights", "refine_covariance", "polish_map", "METHOD"]
+           "student_t_logpdf", "psis_weights", "interval_end_mcse", "refine_covariance", "polish_map", "METHOD"]
 
 METHOD = "laplace-is"
 
@@ -75,7 +80,7 @@ class FastSettings:
     scale: float = 1.0            # proposal scale factor on the Laplace covariance (sd multiplier)
     polish_both: bool = False     # clip coordinates: optimise in the model's coordinates first (the retry does)
     adapt_rounds: int = 3         # moment-matching rounds sharing the adapt_fraction draws (1 before 2026-11-23 late day)
-    clip_floor_fraction: float = 0.1  # clip coordinates: share of the first draws from _clip_floor_proposal (0 before 2026-11-24)
+    clip_floor_fraction: float = 0.1  # clip coordinates: share of the first draws from _clip_floor_proposal (0 before 2026-11-23 afternoon)
 
 
 def student_t_draws(mean, cov, nu, n, rng):

@@ -1013,8 +1013,9 @@ class PTCModel:
         ``s' ψ((c − μ)/s') = c − measured mean`` (s'² that variance plus τ², ψ of
         :func:`_log_shortfall`), and its logarithm is concave and decreasing in μ: a Newton step on
         it overshoots the root at most once, from below, and then converges from above (plain
-        Newton steps on the clipped mean, used before 2026-11-24, approach from below but crawl
-        where the root lies deep in the clip: 12 passes on the simulated 1.75 µm sensor, now 4).
+        Newton steps on the clipped mean, used before commit d00d849, approach from below but
+        crawl where the root lies deep in the clip: 12 passes on the simulated 1.75 µm sensor,
+        now 4).
         The first guess inverts ψ from a table at the variance of the measured mean; steps that
         leave the bracket of the points seen so far bisect it. Returns (μ, variance of the clipped
         values, unclipped fraction = dE/dμ)."""

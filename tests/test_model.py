@@ -103,7 +103,7 @@ def test_latent_clip_solver_reaches_roots_deep_in_the_clip():
     """The latent clip means solve s' ψ((c − μ)/s') = c − measured mean (the shortfall below the
     clip) to its own precision, from rows far below the clip to rows whose measured mean lies 1e-12
     DN below it (root ~7 s' above the clip), for a small and a large conversion gain and well
-    spread; rows at or above the clip (no root) stay finite. Until 2026-11-24 plain Newton steps
+    spread; rows at or above the clip (no root) stay finite. Before commit d00d849 plain Newton steps
     on the clipped mean stopped once it was within 1e-9 s of the measured one, which at a
     shortfall of 1e-8 DN put the root at h = −5.84 instead of −5.96."""
     import types
