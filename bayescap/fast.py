@@ -25,17 +25,18 @@ Where the model has a free clip level (``clip_dn`` between data-derived bounds),
 2-4 run in :class:`LogClipCoordinates` (the clip as ``log(clip_dn − lower bound)``), and the draws
 come back in the model's coordinates. There ``clip_floor_fraction`` (10 %) of the first draws come
 from a defensive proposal with the clip uniform down to its lower bound
-(:func:`_clip_floor_proposal`), part of the mixture of step 3. The retry after a rejection runs Newton in the model's
-coordinates first and then in those (``FastSettings.polish_both``).
+(:func:`_clip_floor_proposal`), part of the mixture of step 3. The retry after a rejection runs
+Newton in the model's coordinates first and then in those (``FastSettings.polish_both``).
 
 **Its own diagnostic.** k̂ below ``khat_max`` (0.7, the PSIS paper's threshold for a few
 thousand draws, ``min(1 − 1/log10 S, 0.7)``) and an importance-sampling ESS ``1/Σw²`` of at
-least ``min_ess_is`` (200). The diagnostics also carry each physical parameter's predicted Monte
-Carlo error of its 95 % interval ends (:func:`interval_end_mcse`, ``end_mcse``), which the report
-prints: at the default 6 000 draws it is typically 0.02–0.04 of the width for the worst parameter,
-so the worst of ~20 interval ends is often more than 0.05 off by Monte Carlo error alone. When either fails the draws must not be used: the caller falls back
+least ``min_ess_is`` (200). When either fails the draws must not be used: the caller falls back
 to MCMC (:func:`bayescap.fit` with ``quality="fast"`` does so, with a note). ``benchmarks/speed_accuracy.py`` measures
-the interval errors against long MCMC runs as a function of k̂.
+the interval errors against long MCMC runs as a function of k̂. The diagnostics also carry each
+physical parameter's predicted Monte Carlo error of its 95 % interval ends
+(:func:`interval_end_mcse`, ``end_mcse``), which the report prints (not a check): at the default
+6 000 draws it is typically 0.02–0.04 of the width for the worst parameter, so the worst of ~20
+interval ends is often more than 0.05 off by Monte Carlo error alone.
 
 The draws come back as a :class:`bayescap.fit.ChainResult` with ``chain`` shaped
 ``(1, n_draws, 1, ndim)`` (one "ensemble", one "walker") and
@@ -249,8 +250,8 @@ def _clip_floor_proposal(model, x_map, c1, nu):
 def _adaptive_rounds(model, settings, rng, comps, n2):
     """``settings.adapt_rounds`` moment-matching rounds sharing ``n2`` draws: every round's t sits at
     the PSIS-weighted moments of all draws so far, weighted against the mixture of the proposals so
-    far (the balance heuristic). ``comps``: the first proposals, ``[(logpdf, draws, log p), ...]``,
-    the Laplace t first. Each proposal's density on each batch of draws is computed once.
+    far (the balance heuristic). ``comps``: the first proposals, ``[(logpdf, draws, log p, t
+    location and scale or None), ...]``, the Laplace t first. Each proposal's density on each batch of draws is computed once.
     Returns (draws, log p, log q of the final mixture)."""
     nu = settings.nu
     R = max(1, int(settings.adapt_rounds))
@@ -386,15 +387,17 @@ def _fast_once(model, seed, n_draws, settings, x_map, cov):
     floor = (isinstance(model, LogClipCoordinates) and settings.clip_floor_fraction > 0 and n1 > 0 and n2 > 0)
     n_floor = int(round(settings.clip_floor_fraction * settings.n_proposals)) if floor else 0
     x1, _ = student_t_draws(x_map, c1, nu, (n1 - n_floor) if n1 > 0 else n2, rng)
+    if n_floor:
+        draw_f, pdf_f = _clip_floor_proposal(model, x_map, c1, nu)
+        xf, _ = draw_f(n_floor, rng)
+        x1 = np.vstack([x1, xf])                        # one log_prob call for both
     with np.errstate(all="ignore"):
         lp1 = model.log_prob(x1)
     if n1 > 0 and n2 > 0:
-        comps = [(lambda z: student_t_logpdf(z, x_map, c1, nu), x1, lp1, (x_map, c1))]
+        n_t = x1.shape[0] - n_floor
+        comps = [(lambda z: student_t_logpdf(z, x_map, c1, nu), x1[:n_t], lp1[:n_t], (x_map, c1))]
         if n_floor:
-            draw_f, pdf_f = _clip_floor_proposal(model, x_map, c1, nu)
-            xf, _ = draw_f(n_floor, rng)
-            with np.errstate(all="ignore"):
-                comps.append((pdf_f, xf, model.log_prob(xf), None))
+            comps.append((pdf_f, x1[n_t:], lp1[n_t:], None))
         x, logp, logq = _adaptive_rounds(model, settings, rng, comps, n2)
     else:
         x, logp, logq = x1, lp1, student_t_logpdf(x1, x_map, c1, nu)
