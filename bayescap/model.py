@@ -130,21 +130,18 @@ def _chi2_over_nu(z, nu):
     return np.maximum(1.0 - a + z * np.sqrt(a), 1e-3) ** 3
 
 
-#: below this s² + σ_o² (DN²) the rounded-normal moments replace Sheppard's σ² + 1/12
 def _log_shortfall(h):
     """log ψ(h), ψ(h) = h Φ(h) + φ(h): the clipped normal's shortfall below the clip in units of its
-    sd, E[(c − X)⁺]/s' for X ~ N(c − h s', s'²). For h < 0 as φ(h) (1 − |h| R(|h|)) with the
-    Mills ratio R from ``erfcx``, so that it stays finite and accurate (relative error ~1e-12 at
-    h = −37, where ψ is ~1e-300) instead of cancelling."""
+    sd, E[(c − X)⁺]/s' for X ~ N(c − h s', s'²). Written as ψ(h) = e^{−h²/2} (φ(0) + ½ h
+    erfcx(−h/√2)), the form :meth:`PTCModel._latent_clip_rows` evaluates inline: its logarithm
+    stays finite where ψ itself underflows (h < −38), and the bracket's cancellation for h < 0
+    costs a relative error of only ~h²·1e-16 (1e-13 at h = −37); ψ = h to double precision above
+    h = 30, where erfcx would overflow."""
     h = np.asarray(h, float)
-    out = np.empty_like(h)
-    neg = h < 0
-    hn = h[neg]
+    hc = np.minimum(h, 30.0)
     with np.errstate(divide="ignore", invalid="ignore"):
-        out[neg] = -0.5 * hn * hn + np.log(0.3989422804014327 - 0.5 * (-hn) * erfcx(-0.7071067811865476 * hn))
-    hp = h[~neg]
-    out[~neg] = np.log(hp * ndtr(hp) + 0.3989422804014327 * np.exp(-0.5 * hp * hp))
-    return out
+        out = -0.5 * hc * hc + np.log(0.3989422804014327 + 0.5 * hc * erfcx(-0.7071067811865476 * hc))
+    return np.where(h > 30.0, np.log(np.maximum(h, 30.0)), out)
 
 
 # ψ⁻¹ tabulated on a uniform grid of log ψ from −60 (h ≈ −10.8) to 2.5 (h ≈ 12), for the first
@@ -172,6 +169,7 @@ def _psi_inverse_guess(L):
     return lo + (t - i) * (_PSI_INV[i + 1] - lo)
 
 
+#: below this s² + σ_o² (DN²) the rounded-normal moments replace Sheppard's σ² + 1/12
 _QUANT_EXACT_S2 = 0.5
 
 
