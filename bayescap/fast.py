@@ -35,8 +35,8 @@ to MCMC (:func:`bayescap.fit` with ``quality="fast"`` does so, with a note). ``b
 the interval errors against long MCMC runs as a function of k̂. The diagnostics also carry each
 physical parameter's predicted Monte Carlo error of its 95 % interval ends
 (:func:`interval_end_mcse`, ``end_mcse``), which the report prints (not a check): at the default
-6 000 draws it is typically 0.02–0.04 of the width for the worst parameter, so the worst of ~20
-interval ends is often more than 0.05 off by Monte Carlo error alone.
+6 000 draws its median for the worst parameter is 0.028 of the width (``fast_tradeoff.py``), so the
+worst of ~20 interval ends is often more than 0.05 off by Monte Carlo error alone.
 
 The draws come back as a :class:`bayescap.fit.ChainResult` with ``chain`` shaped
 ``(1, n_draws, 1, ndim)`` (one "ensemble", one "walker") and
@@ -221,9 +221,9 @@ def _clip_floor_proposal(model, x_map, c1, nu):
     Where the clip's posterior density stays up down to its data-derived lower bound ``lo`` (the
     well clips just above the last unclipped row), ``z = log(clip − lo)`` has a long exponential
     left tail that a t around the mode does not reach: on a simulated 10-bit sensor the MCMC put
-    2.5 % of the mass below z = −3.78 where 48 000 t draws put 0.1 % below −3.22, and the clip
-    spread's lower interval end came out 0.16–0.20 of the width too high with k̂ 0.4–0.5 (k̂ cannot
-    see a region no draw visits). This component draws ``clip − lo`` uniform on (0, e^{z_MAP + 3 sd})
+    2.5 % of the mass below z = −3.85 where 48 000 t draws put 0.1 % below −3.22
+    (``benchmarks/clip_floor_tail.py``), and the clip spread's lower interval end came out ~0.2 of
+    the width too high with k̂ 0.4–0.5 (k̂ cannot see a region no draw visits). This component draws ``clip − lo`` uniform on (0, e^{z_MAP + 3 sd})
     and the other coordinates from the Laplace t's marginal (Hesterberg 1995, defensive importance
     sampling). Returns (draw(n, rng) -> (z, log q), logpdf(z))."""
     D = x_map.size
