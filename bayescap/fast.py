@@ -34,9 +34,15 @@ least ``min_ess_is`` (200). When either fails the draws must not be used: the ca
 to MCMC (:func:`bayescap.fit` with ``quality="fast"`` does so, with a note). ``benchmarks/speed_accuracy.py`` measures
 the interval errors against long MCMC runs as a function of k̂. The diagnostics also carry each
 physical parameter's predicted Monte Carlo error of its 95 % interval ends
-(:func:`interval_end_mcse`, ``end_mcse``), which the report prints (not a check): at the default
-6 000 draws its median for the worst parameter is 0.028 of the width (``fast_tradeoff.py``), so the
-worst of ~20 interval ends is often more than 0.05 off by Monte Carlo error alone.
+(:func:`interval_end_mcse`, ``end_mcse``, counting the resampling to ``n_draws``), which the report
+prints: at the default 6 000 draws its median for the worst parameter is 0.028 of the width
+(``fast_tradeoff.py``), so the worst of ~20 interval ends is often more than 0.05 off by Monte Carlo
+error alone. ``FastSettings.end_mcse_max`` (off by default) makes it a check: below the target the
+path draws more, moment-matched, up to ``max_proposals`` (resampling more draws too, twice the IS
+ESS, unless the caller set ``n_draws``), and rejects the run (without the optimiser retry) when the
+target stays out of reach. Where k̂ is 0.5–0.7 the error falls more slowly than 1/√N (the weights'
+variance is infinite), so the top-up often ends in a rejection: ``fast_tradeoff.py --gate``
+(``benchmarks/results/fast_tradeoff_gate.md``) measures it.
 
 The draws come back as a :class:`bayescap.fit.ChainResult` with ``chain`` shaped
 ``(1, n_draws, 1, ndim)`` (one "ensemble", one "walker") and
@@ -82,6 +88,8 @@ class FastSettings:
     polish_both: bool = False     # clip coordinates: optimise in the model's coordinates first (the retry does)
     adapt_rounds: int = 3         # moment-matching rounds sharing the adapt_fraction draws (1 before 2026-11-23 late day)
     clip_floor_fraction: float = 0.1  # clip coordinates: share of the first draws from _clip_floor_proposal (0 before 2026-11-23 afternoon)
+    end_mcse_max: float | None = None  # accept only when every interval end's predicted Monte Carlo error ≤ this × width (None: report only)
+    max_proposals: int = 24000    # draws in all, topping up towards end_mcse_max (n_proposals: no top-up)
 
 
 def student_t_draws(mean, cov, nu, n, rng):
@@ -251,8 +259,10 @@ def _adaptive_rounds(model, settings, rng, comps, n2):
     """``settings.adapt_rounds`` moment-matching rounds sharing ``n2`` draws: every round's t sits at
     the PSIS-weighted moments of all draws so far, weighted against the mixture of the proposals so
     far (the balance heuristic). ``comps``: the first proposals, ``[(logpdf, draws, log p, t
-    location and scale or None), ...]``, the Laplace t first. Each proposal's density on each batch of draws is computed once.
-    Returns (draws, log p, log q of the final mixture)."""
+    location and scale or None), ...]``, the Laplace t first (one batch of draws each: a list
+    returned by an earlier call continues it). Each proposal's density on each batch of draws is
+    computed once. Returns (draws, log p, log q of the final mixture, the components in the format
+    of ``comps``)."""
     nu = settings.nu
     R = max(1, int(settings.adapt_rounds))
     sizes = [n2 // R + (1 if r < n2 % R else 0) for r in range(R)]
@@ -261,6 +271,7 @@ def _adaptive_rounds(model, settings, rng, comps, n2):
     xs, lps = [c[1] for c in comps], [c[2] for c in comps]
     dens = [[f(xb) for xb in xs] for f in pdfs]      # dens[k][b]: proposal k on batch b
     last = None                                      # the last t proposal's (location, scale)
+    moments = []                                     # (location, scale) of each new proposal
 
     def mix_logq():
         n_all = float(sum(counts))
@@ -284,10 +295,13 @@ def _adaptive_rounds(model, settings, rng, comps, n2):
         dens.append([student_t_logpdf(xb, mu, c, nu) for xb in xs] + [lq_own])   # the new one on all
         pdfs.append(lambda z, mu=mu, c=c: student_t_logpdf(z, mu, c, nu))
         last = (mu, c)
+        moments.append(last)
         counts.append(n_r)
         xs.append(xr)
         lps.append(lpr)
-    return np.vstack(xs), np.concatenate(lps), mix_logq()
+    comps_out = [(pdfs[k], xs[k], lps[k], comps[k][3] if k < len(comps) else moments[k - len(comps)])
+                 for k in range(len(xs))]
+    return np.vstack(xs), np.concatenate(lps), mix_logq(), comps_out
 
 
 def _physical_fn(model):
@@ -300,14 +314,17 @@ def _physical_fn(model):
     return None
 
 
-def interval_end_mcse(values, w, probs=(0.025, 0.975)):
+def interval_end_mcse(values, w, probs=(0.025, 0.975), n_resampled=None):
     """Monte Carlo error of weighted quantiles, as a fraction of the 95 % interval's width.
 
     For self-normalised importance weights ``w`` the estimate F̂(q) = Σ w_i 1{v_i ≤ q} has variance
     ≈ Σ w_i² (1{v_i ≤ q} − p)² (the delta method; Owen 2013, "Monte Carlo theory, methods and
     examples", §9.2); its standard error ``se`` in probability maps to the quantile as
-    (Q(p + se) − Q(p − se))/2, with Q the weighted quantile function. Returns the largest over
-    ``probs``, divided by Q(0.975) − Q(0.025) (0 when the width is 0)."""
+    (Q(p + se) − Q(p − se))/2, with Q the weighted quantile function. With ``n_resampled``, the
+    quantile is read off that many draws resampled from the N weighted ones, which adds
+    p(1 − p)(1/n − 1/N) to the variance (sampling n of N without replacement; systematic
+    resampling in the draws' random order does no better for a single parameter). Returns the
+    largest over ``probs``, divided by Q(0.975) − Q(0.025) (0 when the width is 0)."""
     v = np.asarray(values, float)
     o = np.argsort(v)
     v, ws = v[o], w[o]
@@ -321,24 +338,28 @@ def interval_end_mcse(values, w, probs=(0.025, 0.975)):
     for p in probs:
         q = Q(p)
         ind = (v <= q).astype(float)
-        se = float(np.sqrt(np.sum(ws * ws * (ind - p) ** 2)))
+        var = np.sum(ws * ws * (ind - p) ** 2)
+        if n_resampled:
+            var += p * (1.0 - p) * max(1.0 / n_resampled - 1.0 / v.size, 0.0)
+        se = float(np.sqrt(var))
         out = max(out, 0.5 * (Q(min(p + se, 1.0)) - Q(max(p - se, 0.0))) / width)
     return out
 
 
-def _end_mcse(model, x, w):
-    """{name: interval-end Monte Carlo error / width} of every physical parameter for weighted draws."""
+def _end_mcse(model, x, w, n_resampled=None):
+    """{name: interval-end Monte Carlo error / width} of every physical parameter for weighted draws
+    (and ``n_resampled`` draws resampled from them: :func:`interval_end_mcse`)."""
     phys = _physical_fn(model)
     if phys is None:
         return {}
     keep = w > 1e-12 * np.max(w)
     with np.errstate(all="ignore"):
         p = phys(x[keep])
-    return {n: interval_end_mcse(v, w[keep]) for n, v in p.items()
+    return {n: interval_end_mcse(v, w[keep], n_resampled=n_resampled) for n, v in p.items()
             if np.all(np.isfinite(v)) and np.ptp(v) > 0}
 
 
-def _fast_once(model, seed, n_draws, settings, x_map, cov):
+def _fast_once(model, seed, n_draws, settings, x_map, cov, default_n=False):
     wrapped = _clip_coordinates(model) if x_map is None and cov is None else None
     if wrapped is not None:
         # Newton from every start mapped into z (laplace_start's ``coords``). (BFGS run in z alone
@@ -349,7 +370,7 @@ def _fast_once(model, seed, n_draws, settings, x_map, cov):
         z0, _, cz, _ = laplace_start(model, n_restarts=settings.n_restarts, refine_iter=settings.refine_iter,
                                      polish=settings.polish, coords=wrapped, polish_both=settings.polish_both)
         t_start = time.perf_counter() - t0
-        chains, diag = _fast_once(wrapped, seed, n_draws, settings, z0, cz)
+        chains, diag = _fast_once(wrapped, seed, n_draws, settings, z0, cz, default_n)
         diag["wall_map_s"] += t_start
         diag["wall_s"] += t_start
         chains.wall_s += t_start
@@ -398,13 +419,33 @@ def _fast_once(model, seed, n_draws, settings, x_map, cov):
         comps = [(lambda z: student_t_logpdf(z, x_map, c1, nu), x1[:n_t], lp1[:n_t], (x_map, c1))]
         if n_floor:
             comps.append((pdf_f, x1[n_t:], lp1[n_t:], None))
-        x, logp, logq = _adaptive_rounds(model, settings, rng, comps, n2)
+        x, logp, logq, comps = _adaptive_rounds(model, settings, rng, comps, n2)
     else:
-        x, logp, logq = x1, lp1, student_t_logpdf(x1, x_map, c1, nu)
-    n_outside = int(np.sum(~np.isfinite(logp)))
+        x, logp, logq, comps = x1, lp1, student_t_logpdf(x1, x_map, c1, nu), None
     w, khat, ess = psis_weights(logp - logq)
     khat, ess = float(khat), float(ess)
-    mcse = _end_mcse(model, x, w)
+    mcse = _end_mcse(model, x, w, n_resampled=n_draws)
+    target = settings.end_mcse_max
+    worst = max(mcse.values(), default=0.0)
+    n_topup, n_out = 0, n_draws
+    # top up: more moment-matched draws until every interval end's predicted Monte Carlo error is
+    # below the target (its variance falls as 1/N), at most max_proposals in all; not when k̂
+    # already rejects the proposal (more of the same draws would not help)
+    while (target is not None and comps is not None and worst > target and khat < settings.khat_max
+           and x.shape[0] < settings.max_proposals):
+        want = x.shape[0] * (1.1 * (worst / target) ** 2 - 1.0)
+        n_more = int(min(max(want, settings.n_proposals / 3), settings.max_proposals - x.shape[0]))
+        x, logp, logq, comps = _adaptive_rounds(model, replace(settings, adapt_rounds=1), rng, comps, n_more)
+        n_topup += n_more
+        w, khat, ess = psis_weights(logp - logq)
+        khat, ess = float(khat), float(ess)
+        # more draws are resampled after a top-up (n_draws unless the caller set it), so that
+        # the resampling does not undo the gain: twice the IS ESS, at most every draw
+        n_out = n_draws if not default_n else int(min(max(n_draws, 2.0 * ess), x.shape[0]))
+        mcse = _end_mcse(model, x, w, n_resampled=n_out)
+        worst = max(mcse.values(), default=0.0)
+    n_draws = n_out
+    n_outside = int(np.sum(~np.isfinite(logp)))
     t_is = time.perf_counter()
     idx = _systematic_resample(w, n_draws, rng)
     idx = idx[rng.permutation(n_draws)]
@@ -417,6 +458,12 @@ def _fast_once(model, seed, n_draws, settings, x_map, cov):
         reasons.append(f"importance-sampling ESS {ess:.0f} < {settings.min_ess_is:g}")
     if not np.isfinite(lp_map):
         reasons.append("no finite MAP")
+    # a proposal that passes but whose draws are too few for the interval ends: not a failed
+    # optimiser, so fast_posterior does not retry it with restarts
+    mcse_only = not reasons
+    if target is not None and worst > target:
+        reasons.append(f"interval-end Monte Carlo error {worst:.3f} of the width > {target:g} "
+                       f"after {x.shape[0]} draws")
     wall = time.perf_counter() - t0
     diag = {
         "method": METHOD,
@@ -424,7 +471,10 @@ def _fast_once(model, seed, n_draws, settings, x_map, cov):
         "reason": "; ".join(reasons),
         "khat": khat,
         "ess_is": ess,
-        "n_proposals": int(settings.n_proposals),
+        "n_proposals": int(x.shape[0]),
+        "n_topup": int(n_topup),
+        "end_mcse_max": target,
+        "rejected_for_mcse_only": bool(reasons) and mcse_only,
         "n_draws": n_draws,
         "n_outside_support": n_outside,
         "khat_max": settings.khat_max,
@@ -446,8 +496,8 @@ def _fast_once(model, seed, n_draws, settings, x_map, cov):
         x_map=x_map, lp_map=float(lp_map),
         settings=QUALITY_PRESETS["fast"],
         wall_s=wall, n_rounds=0,
-        extra={k: diag[k] for k in ("method", "khat", "ess_is", "n_proposals", "accepted", "reason",
-                                    "khat_max", "min_ess_is", "nu", "end_mcse")},
+        extra={k: diag[k] for k in ("method", "khat", "ess_is", "n_proposals", "n_topup", "accepted", "reason",
+                                    "khat_max", "min_ess_is", "nu", "end_mcse", "end_mcse_max")},
     )
     return chains, diag
 
@@ -472,14 +522,16 @@ def fast_posterior(model, *, seed, n_draws: int | None = None,
     diagnostics ``{"accepted", "khat", "ess_is", "n_proposals", "khat_max", "min_ess_is",
     "reason", "wall_s", ...}``. ``accepted`` is False when the caller must fall back to MCMC.
     """
+    default_n = n_draws is None
     n_draws = int(settings.n_draws if n_draws is None else n_draws)
-    chains, diag = _fast_once(model, seed, n_draws, settings, x_map, cov)
+    chains, diag = _fast_once(model, seed, n_draws, settings, x_map, cov, default_n)
     diag["retried_with_restarts"] = False
-    if not diag["accepted"] and x_map is None and settings.retry_restarts > settings.n_restarts:
+    if (not diag["accepted"] and not diag["rejected_for_mcse_only"] and x_map is None
+            and settings.retry_restarts > settings.n_restarts):
         # a single optimiser start can stop at the initial guess (measured on small-frame
         # sensors): retry with restarts before declaring failure
         retry = replace(settings, n_restarts=settings.retry_restarts, polish_both=True)
-        c2, d2 = _fast_once(model, seed, n_draws, retry, None, None)
+        c2, d2 = _fast_once(model, seed, n_draws, retry, None, None, default_n)
         first = {k: diag[k] for k in ("khat", "ess_is", "reason")}
         wall = d2["wall_s"] + diag["wall_s"]
         if d2["accepted"] or d2["khat"] < diag["khat"]:   # keep the better of the two attempts

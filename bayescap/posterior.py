@@ -253,8 +253,13 @@ class FitResult:
             worst = max(mcse, key=mcse.get)
             self.diag["interval_end_mcse"] = {k: float(v) for k, v in mcse.items()}
             self.diag["interval_end_mcse_max"] = float(mcse[worst])
+            gate = x.get("end_mcse_max")
+            self.diag["interval_end_mcse_target"] = gate
+            self.diag["n_topup"] = int(x.get("n_topup", 0))
             self.diag["fast_path"] += (f"; Monte Carlo error of the 95 % interval ends up to "
-                                       f"{mcse[worst]:.3f} of the width ({worst})")
+                                       f"{mcse[worst]:.3f} of the width ({worst}"
+                                       + (f"; accept ≤ {gate:g}" if gate is not None else "") + ")"
+                                       + (f", after {x['n_topup']} more draws" if x.get("n_topup") else ""))
         if not x["accepted"]:
             self.notes.insert(0, "NOT CONVERGED: the Laplace–IS fast path failed its own check ("
                               + x["reason"] + "); do not use these intervals")
