@@ -35,8 +35,9 @@ to MCMC (:func:`bayescap.fit` with ``quality="fast"`` does so, with a note). ``b
 the interval errors against long MCMC runs as a function of k̂. The diagnostics also carry each
 physical parameter's predicted Monte Carlo error of its 95 % interval ends
 (:func:`interval_end_mcse`, ``end_mcse``, counting the resampling to ``n_draws``), which the report
-prints: at the default 6 000 draws its median for the worst parameter is 0.028 of the width
-(``fast_tradeoff.py``), so the worst of ~20 interval ends is often more than 0.05 off by Monte Carlo
+prints: at the default 6 000 draws its median for the worst parameter was 0.028 of the width before
+the resampling term (``fast_tradeoff.md``, 11 sensors) and 0.033 with it (``fast_tradeoff_gate.md``,
+3 sensors), so the worst of ~20 interval ends is often more than 0.05 off by Monte Carlo
 error alone. ``FastSettings.end_mcse_max`` (off by default) makes it a check: below the target the
 path draws more, moment-matched, up to ``max_proposals`` (resampling more draws too, twice the IS
 ESS, unless the caller set ``n_draws``), and rejects the run (without the optimiser retry) when the
@@ -74,7 +75,7 @@ class FastSettings:
     """Knobs of the Laplace–IS fast path (see ``docs/performance.md``)."""
 
     nu: float = 4.0               # Student-t degrees of freedom of the proposals (6 before 2026-11-23)
-    n_proposals: int = 6000       # importance draws in all (two vectorised log_prob calls; 3000 before)
+    n_proposals: int = 6000       # importance draws in all (1 + adapt_rounds vectorised log_prob calls; 3000 before)
     adapt_fraction: float = 2 / 3  # share drawn from the moment-matched second proposal
     adapt_inflation: float = 1.2  # sd multiplier on the weighted covariance of the draws so far
     refine_iter: int = 6          # BFGS route only (laplace_start(optimizer="bfgs")): whitened Hessian re-evaluations
@@ -270,8 +271,7 @@ def _adaptive_rounds(model, settings, rng, comps, n2):
     counts = [len(c[1]) for c in comps]
     xs, lps = [c[1] for c in comps], [c[2] for c in comps]
     dens = [[f(xb) for xb in xs] for f in pdfs]      # dens[k][b]: proposal k on batch b
-    last = None                                      # the last t proposal's (location, scale)
-    moments = []                                     # (location, scale) of each new proposal
+    moments = []                                     # (location, scale) of each new t proposal
 
     def mix_logq():
         n_all = float(sum(counts))
@@ -284,7 +284,7 @@ def _adaptive_rounds(model, settings, rng, comps, n2):
     for n_r in sizes:
         x = np.vstack(xs)
         w, _, ess_r = psis_weights(np.concatenate(lps) - mix_logq())
-        mu, c = last if last is not None else comps[0][3]
+        mu, c = moments[-1] if moments else comps[0][3]
         if ess_r >= 5:
             mu, c = _moment_matched(x, w, (mu, c), settings.adapt_inflation)
         xr, lq_own = student_t_draws(mu, c, nu, n_r, rng)
@@ -294,8 +294,7 @@ def _adaptive_rounds(model, settings, rng, comps, n2):
             dens[k].append(f(xr))
         dens.append([student_t_logpdf(xb, mu, c, nu) for xb in xs] + [lq_own])   # the new one on all
         pdfs.append(lambda z, mu=mu, c=c: student_t_logpdf(z, mu, c, nu))
-        last = (mu, c)
-        moments.append(last)
+        moments.append((mu, c))
         counts.append(n_r)
         xs.append(xr)
         lps.append(lpr)
@@ -359,7 +358,9 @@ def _end_mcse(model, x, w, n_resampled=None):
             if np.all(np.isfinite(v)) and np.ptp(v) > 0}
 
 
-def _fast_once(model, seed, n_draws, settings, x_map, cov, default_n=False):
+def _fast_once(model, seed, n_draws, settings, x_map, cov):
+    """One attempt of the fast path (:func:`fast_posterior`); ``n_draws`` None: ``settings.n_draws``,
+    more after a top-up."""
     wrapped = _clip_coordinates(model) if x_map is None and cov is None else None
     if wrapped is not None:
         # Newton from every start mapped into z (laplace_start's ``coords``). (BFGS run in z alone
@@ -370,7 +371,7 @@ def _fast_once(model, seed, n_draws, settings, x_map, cov, default_n=False):
         z0, _, cz, _ = laplace_start(model, n_restarts=settings.n_restarts, refine_iter=settings.refine_iter,
                                      polish=settings.polish, coords=wrapped, polish_both=settings.polish_both)
         t_start = time.perf_counter() - t0
-        chains, diag = _fast_once(wrapped, seed, n_draws, settings, z0, cz, default_n)
+        chains, diag = _fast_once(wrapped, seed, n_draws, settings, z0, cz)
         diag["wall_map_s"] += t_start
         diag["wall_s"] += t_start
         chains.wall_s += t_start
@@ -384,6 +385,8 @@ def _fast_once(model, seed, n_draws, settings, x_map, cov, default_n=False):
         chains.extra["coordinates"] = diag["coordinates"] = "log(clip_dn - lower bound)"
         return chains, diag
     t0 = time.perf_counter()
+    default_n = n_draws is None
+    n_draws = int(settings.n_draws if default_n else n_draws)
     if x_map is None and cov is None:
         x_map, lp_map, cov, t_map = laplace_start(model, n_restarts=settings.n_restarts,
                                                   refine_iter=settings.refine_iter, polish=settings.polish)
@@ -522,16 +525,14 @@ def fast_posterior(model, *, seed, n_draws: int | None = None,
     diagnostics ``{"accepted", "khat", "ess_is", "n_proposals", "khat_max", "min_ess_is",
     "reason", "wall_s", ...}``. ``accepted`` is False when the caller must fall back to MCMC.
     """
-    default_n = n_draws is None
-    n_draws = int(settings.n_draws if n_draws is None else n_draws)
-    chains, diag = _fast_once(model, seed, n_draws, settings, x_map, cov, default_n)
+    chains, diag = _fast_once(model, seed, n_draws, settings, x_map, cov)
     diag["retried_with_restarts"] = False
     if (not diag["accepted"] and not diag["rejected_for_mcse_only"] and x_map is None
             and settings.retry_restarts > settings.n_restarts):
         # a single optimiser start can stop at the initial guess (measured on small-frame
         # sensors): retry with restarts before declaring failure
         retry = replace(settings, n_restarts=settings.retry_restarts, polish_both=True)
-        c2, d2 = _fast_once(model, seed, n_draws, retry, None, None, default_n)
+        c2, d2 = _fast_once(model, seed, n_draws, retry, None, None)
         first = {k: diag[k] for k in ("khat", "ess_is", "reason")}
         wall = d2["wall_s"] + diag["wall_s"]
         if d2["accepted"] or d2["khat"] < diag["khat"]:   # keep the better of the two attempts
