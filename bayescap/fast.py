@@ -91,6 +91,8 @@ class FastSettings:
     clip_floor_fraction: float = 0.1  # clip coordinates: share of the first draws from _clip_floor_proposal (0 before 2026-11-23 afternoon)
     end_mcse_max: float | None = None  # accept only when every interval end's predicted Monte Carlo error ≤ this × width (None: report only)
     max_proposals: int = 24000    # draws in all, topping up towards end_mcse_max (n_proposals: no top-up)
+    tail_fraction: float = 0.05   # share of the draws from each long one-sided tail the probe finds (_tail_probe; 0: no probe)
+    tail_max_fraction: float = 0.2  # at most this share for all tail components together
 
 
 def student_t_draws(mean, cov, nu, n, rng):
@@ -256,6 +258,103 @@ def _clip_floor_proposal(model, x_map, c1, nu):
     return draw, logpdf
 
 
+#: where :func:`_tail_probe` looks, in Laplace sds from the MAP, and how far a tail must reach
+_TAIL_GRID = np.array([3.0, 4.5, 6.0, 8.0, 11.0, 16.0, 24.0, 36.0])
+_TAIL_DROP = 10.0      # a tail reaches as far as log p stays within this of the MAP's (nats)
+_TAIL_MIN_REACH = 6.0  # a Gaussian reaches 4.47 sd: beyond 6, the Laplace t under-covers the tail
+
+
+def _tail_probe(model, x_map, lp_map, cov, skip=()):
+    """Long one-sided tails of the posterior that the Laplace t does not reach.
+
+    For every coordinate j and side, log p on two rays from the MAP, at the multiples
+    :data:`_TAIL_GRID` of the Laplace sd of x_j: along the axis (the others at the MAP) and along
+    the Laplace conditional line (the others at their Laplace conditional mean,
+    ``x_MAP + s·Σ[:, j]/√Σ_jj``). A Gaussian posterior drops by s²/2 on the line, so stays within
+    :data:`_TAIL_DROP` (10 nats) of the MAP out to 4.5 sd. A scale parameter the data bound on one
+    side only (a dark current, a clip spread or a discrepancy that may be zero) has a posterior
+    that follows its prior far out on the other side: on the bundled Basler, log p is within
+    10 nats of the MAP out to 16 sd below the MAP in log(clip spread) and log(DSNU), where the
+    importance proposals put almost no draw (``docs/performance.md``, "Long one-sided tails"). One
+    ``log_prob`` call (4·D·8 points; the axis ray is left out where it is the line). Returns ``[(j, side, direction (D,), reach in sds), ...]``
+    for the rays that stay within 10 nats beyond :data:`_TAIL_MIN_REACH` sds (the better of the two
+    rays of a side), ``skip`` a set of (j, side) to leave out."""
+    D = x_map.size
+    sd = np.sqrt(np.diag(cov))
+    G = _TAIL_GRID
+    rays = []
+    for j in range(D):
+        line = cov[:, j] / sd[j]                     # one Laplace sd of x_j, the others conditional
+        axis = np.zeros(D)
+        axis[j] = sd[j]
+        dirs = [line] if np.array_equal(line, axis) else [line, axis]
+        for side in (-1.0, 1.0):
+            if (j, side) not in skip:
+                rays += [(j, side, side * v) for v in dirs]
+    if not rays:
+        return []
+    pts = x_map + (G[None, :, None] * np.array([r[2] for r in rays])[:, None, :]).reshape(-1, D)
+    with np.errstate(all="ignore"):
+        drop = (model.log_prob(pts) - lp_map).reshape(len(rays), G.size)
+    drop = np.where(np.isfinite(drop), drop, -np.inf)
+    best = {}
+    for (j, side, v), dr in zip(rays, drop):
+        above = dr >= -_TAIL_DROP
+        # the reach: the last grid point within the drop, before the first one beyond it
+        n_in = int(np.argmin(above)) if not above.all() else G.size
+        if n_in == 0:
+            continue
+        reach = G[n_in - 1]
+        if n_in < G.size and np.isfinite(dr[n_in]):   # linear interpolation to the crossing
+            a, b = dr[n_in - 1], dr[n_in]
+            reach += (G[n_in] - G[n_in - 1]) * (a + _TAIL_DROP) / (a - b)
+        if reach > _TAIL_MIN_REACH and reach > best.get((j, side), (0.0, None))[0]:
+            best[(j, side)] = (reach, v)
+    return [(j, side, v, reach) for (j, side), (reach, v) in sorted(best.items())]
+
+
+def _coord_name(model, j):
+    names = getattr(model, "names", None)
+    n = names[j] if names is not None and j < len(names) else f"x{j}"
+    return "log(clip_dn - lower bound)" if isinstance(model, LogClipCoordinates) and j == model.j else n
+
+
+def _tail_proposal(x_map, c1, nu, j, direction, reach):
+    """Defensive proposal for one long one-sided tail found by :func:`_tail_probe`: the distance s
+    (in Laplace sds of x_j) uniform on (0, 1.25·reach) along ``direction`` from the MAP, and the
+    other coordinates a Laplace t about that ray: the conditional covariance of the Laplace t given
+    x_j when the ray is the conditional line, its marginal when the ray is the axis (the others held
+    at the MAP). :func:`_clip_floor_proposal` is the same idea for the clip level. Returns
+    (draw(n, rng) -> (x, log q), logpdf(x))."""
+    D = x_map.size
+    oth = np.array([i for i in range(D) if i != j], int)
+    sd_j = float(np.sqrt(c1[j, j]))
+    step = np.asarray(direction, float) / direction[j]        # per unit of x_j − x_MAP,j
+    side = float(np.sign(direction[j]))
+    top = 1.25 * reach * sd_j                                   # the range of |x_j − x_MAP,j|
+    c_o = c1[np.ix_(oth, oth)]
+    if np.count_nonzero(step[oth]):                             # the conditional line
+        c_o = c_o - np.outer(c1[oth, j], c1[j, oth]) / c1[j, j]
+    c_o = _proposal_cov(c_o, 1.0)
+    zero = np.zeros(oth.size)
+
+    def draw(n, rng):
+        d = side * top * rng.random(n)
+        eo, lqo = student_t_draws(zero, c_o, nu, n, rng)
+        x = x_map + d[:, None] * step
+        x[:, oth] += eo
+        return x, lqo - np.log(top)
+
+    def logpdf(x):
+        x = np.atleast_2d(x)
+        d = x[:, j] - x_map[j]
+        r = x[:, oth] - (x_map[oth] + d[:, None] * step[oth])
+        out = student_t_logpdf(r, zero, c_o, nu) - np.log(top)
+        return np.where((side * d >= 0) & (side * d <= top), out, -np.inf)
+
+    return draw, logpdf
+
+
 def _adaptive_rounds(model, settings, rng, comps, n2):
     """``settings.adapt_rounds`` moment-matching rounds sharing ``n2`` draws: every round's t sits at
     the PSIS-weighted moments of all draws so far, weighted against the mixture of the proposals so
@@ -410,18 +509,34 @@ def _fast_once(model, seed, n_draws, settings, x_map, cov):
     # adapt_fraction 1 leaves nothing to adapt from: then every draw comes from the Laplace t
     floor = (isinstance(model, LogClipCoordinates) and settings.clip_floor_fraction > 0 and n1 > 0 and n2 > 0)
     n_floor = int(round(settings.clip_floor_fraction * settings.n_proposals)) if floor else 0
+    # defensive components: the clip floor, and each long one-sided tail the probe finds
+    extra = []                                          # [(logpdf, draws)]
+    tails = []
+    if n1 > 0 and n2 > 0 and settings.tail_fraction > 0:
+        skip = {(model.j, -1.0)} if floor else set()    # the clip floor covers that one
+        tails = _tail_probe(model, x_map, lp_map, c1, skip)
+        n_each = int(round(settings.tail_fraction * settings.n_proposals))
+        n_each = min(n_each, int(settings.tail_max_fraction * settings.n_proposals) // max(len(tails), 1),
+                     (n2 // 2) // max(len(tails), 1))
+        tails = tails if n_each > 0 else []
+        n2 -= n_each * len(tails)                       # the same number of draws in all
     x1, _ = student_t_draws(x_map, c1, nu, (n1 - n_floor) if n1 > 0 else n2, rng)
     if n_floor:
         draw_f, pdf_f = _clip_floor_proposal(model, x_map, c1, nu)
-        xf, _ = draw_f(n_floor, rng)
-        x1 = np.vstack([x1, xf])                        # one log_prob call for both
+        extra.append((pdf_f, draw_f(n_floor, rng)[0]))
+    for j, _, v, reach in tails:
+        draw_t, pdf_t = _tail_proposal(x_map, c1, nu, j, v, reach)
+        extra.append((pdf_t, draw_t(n_each, rng)[0]))
+    n_t = x1.shape[0]
+    x1 = np.vstack([x1] + [xe for _, xe in extra])    # one log_prob call for all
     with np.errstate(all="ignore"):
         lp1 = model.log_prob(x1)
     if n1 > 0 and n2 > 0:
-        n_t = x1.shape[0] - n_floor
         comps = [(lambda z: student_t_logpdf(z, x_map, c1, nu), x1[:n_t], lp1[:n_t], (x_map, c1))]
-        if n_floor:
-            comps.append((pdf_f, x1[n_t:], lp1[n_t:], None))
+        at = n_t
+        for pdf_e, xe in extra:
+            comps.append((pdf_e, x1[at:at + len(xe)], lp1[at:at + len(xe)], None))
+            at += len(xe)
         x, logp, logq, comps = _adaptive_rounds(model, settings, rng, comps, n2)
     else:
         x, logp, logq, comps = x1, lp1, student_t_logpdf(x1, x_map, c1, nu), None
@@ -488,6 +603,9 @@ def _fast_once(model, seed, n_draws, settings, x_map, cov):
         "wall_laplace_s": t_lap - t_map,
         "wall_is_s": t_is - t_lap,
         "end_mcse": mcse,
+        # the long one-sided tails the probe found, each given tail_fraction of the draws
+        "tails": [{"parameter": _coord_name(model, j), "side": "lower" if side < 0 else "upper",
+                   "reach_sd": round(float(reach), 2), "n_draws": int(n_each)} for j, side, _, reach in tails],
         "settings": asdict(settings),
     }
     D = x_map.size
@@ -500,7 +618,7 @@ def _fast_once(model, seed, n_draws, settings, x_map, cov):
         settings=QUALITY_PRESETS["fast"],
         wall_s=wall, n_rounds=0,
         extra={k: diag[k] for k in ("method", "khat", "ess_is", "n_proposals", "n_topup", "accepted", "reason",
-                                    "khat_max", "min_ess_is", "nu", "end_mcse", "end_mcse_max")},
+                                    "khat_max", "min_ess_is", "nu", "end_mcse", "end_mcse_max", "tails")},
     )
     return chains, diag
 

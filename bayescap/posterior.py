@@ -260,6 +260,13 @@ class FitResult:
                                        f"{mcse[worst]:.3f} of the width ({worst}"
                                        + (f"; accept ≤ {gate:g}" if gate is not None else "") + ")"
                                        + (f", after {x['n_topup']} more draws" if x.get("n_topup") else ""))
+        tails = x.get("tails")
+        if tails is not None:
+            # long one-sided tails the probe found, each given defensive draws (fast._tail_probe)
+            self.diag["fast_path_tails"] = [dict(t) for t in tails]
+            if tails:
+                self.diag["fast_path"] += ("; defensive draws for long tails: " + ", ".join(
+                    f"{t['parameter']} {t['side']} ({t['reach_sd']:g} sd)" for t in tails))
         if not x["accepted"]:
             self.notes.insert(0, "NOT CONVERGED: the Laplace–IS fast path failed its own check ("
                               + x["reason"] + "); do not use these intervals")
