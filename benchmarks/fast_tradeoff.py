@@ -20,7 +20,7 @@ error of its interval ends (``diagnostics.interval_end_mcse_max``), and, with ``
 acceptance gate on it (``FastSettings.end_mcse_max``: more draws until it is met, up to
 ``max_proposals``, else rejected; "none": report only, the default), and with ``--tails`` the share
 of draws given to each long one-sided tail the fast path's probe finds (``FastSettings.tail_fraction``;
-0: no probe, as before 2026-11-24). ``--ref-cache DIR`` keeps each reference's quantiles in DIR
+0: no probe, as before commit 89fd939). ``--ref-cache DIR`` keeps each reference's quantiles in DIR
 (computed on first use, by the same call; a reference takes 40–120 s here). Writes
 benchmarks/results/fast_tradeoff.md (``--out``).
 """
