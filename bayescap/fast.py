@@ -21,6 +21,11 @@ Steps (all vectorised; 1 + ``adapt_rounds`` ``log_prob`` calls for the importanc
    :func:`psis_weights`, so that the fast path does not import ArviZ), which also returns k̂;
 4. systematic resampling to ``n_draws`` equally weighted draws, shuffled.
 
+Before step 2, :func:`_tail_probe` evaluates the posterior on rays from the MAP (one ``log_prob``
+call) and finds the long one-sided tails the t does not reach (a dark current, clip spread or DSNU
+the data cannot tell from zero); each gets ``tail_fraction`` (5 %) of the draws from
+:func:`_tail_proposal`, taken from the adaptive rounds' share, part of the mixture of step 3.
+
 Where the model has a free clip level (``clip_dn`` between data-derived bounds), Newton and steps
 2-4 run in :class:`LogClipCoordinates` (the clip as ``log(clip_dn − lower bound)``), and the draws
 come back in the model's coordinates. There ``clip_floor_fraction`` (10 %) of the first draws come
