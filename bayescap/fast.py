@@ -97,7 +97,8 @@ class FastSettings:
     end_mcse_max: float | None = None  # accept only when every interval end's predicted Monte Carlo error ≤ this × width (None: report only)
     max_proposals: int = 24000    # draws in all, topping up towards end_mcse_max (n_proposals: no top-up)
     tail_fraction: float = 0.05   # share of the draws from each long one-sided tail the probe finds (_tail_probe; 0: no probe)
-    tail_max_fraction: float = 0.2  # at most this share for all tail components together
+    tail_max_fraction: float = 0.2  # at most this share for all tail (and pair) components together
+    floor_pair: bool = True       # with the clip floor and a tail: tail_fraction more draws from both at once (_pair_proposal)
 
 
 def student_t_draws(mean, cov, nu, n, rng):
@@ -360,6 +361,41 @@ def _tail_proposal(x_map, c1, nu, j, direction, reach):
     return draw, logpdf
 
 
+def _pair_proposal(x_map, c1, nu, axis, floor):
+    """Defensive proposal for a long tail meeting the clip floor: coordinate ``axis = (j, side,
+    reach)`` uniform on its side out to 1.25 reach Laplace sds, the clip (``floor = (k, log_a)``) as
+    in :func:`_clip_floor_proposal`, the other coordinates from the Laplace t's marginal.
+
+    On the simulated sim09 of ``speed_accuracy.sensor_set`` (10-bit, 878 e⁻ well) the MCMC
+    reference's draws in the clip spread's lower tail have the clip level spread down towards its
+    bound: a corner that neither the floor (the clip spread near its mode) nor the clip spread's own
+    tail proposal (the clip near its mode) reaches, and the clip spread's lower interval end came
+    out 0.04–0.11 of the width too high with k̂ ≈ 0 (docs/performance.md, "Long one-sided tails,
+    probed"). Returns (draw(n, rng) -> (x, log q), logpdf(x))."""
+    D = x_map.size
+    j, side, reach = int(axis[0]), float(axis[1]), float(axis[2])
+    k, log_a = floor
+    top = 1.25 * reach * np.sqrt(c1[j, j])
+    oth = np.array([i for i in range(D) if i not in (j, k)], int)
+    m_o, c_o = x_map[oth], c1[np.ix_(oth, oth)]
+
+    def draw(n, rng):
+        x = np.empty((n, D))
+        xo, lq = student_t_draws(m_o, c_o, nu, n, rng)
+        x[:, oth] = xo
+        x[:, j] = x_map[j] + side * top * rng.random(n)
+        x[:, k] = log_a + np.log1p(-rng.random(n))
+        return x, lq - np.log(top) + (x[:, k] - log_a)
+
+    def logpdf(x):
+        x = np.atleast_2d(x)
+        d = side * (x[:, j] - x_map[j])
+        out = student_t_logpdf(x[:, oth], m_o, c_o, nu) - np.log(top) + (x[:, k] - log_a)
+        return np.where((d >= 0) & (d <= top) & (x[:, k] <= log_a), out, -np.inf)
+
+    return draw, logpdf
+
+
 def _adaptive_rounds(model, settings, rng, comps, n2):
     """``settings.adapt_rounds`` moment-matching rounds sharing ``n2`` draws: every round's t sits at
     the PSIS-weighted moments of all draws so far, weighted against the mixture of the proposals so
@@ -516,15 +552,20 @@ def _fast_once(model, seed, n_draws, settings, x_map, cov):
     n_floor = int(round(settings.clip_floor_fraction * settings.n_proposals)) if floor else 0
     # defensive components: the clip floor, and each long one-sided tail the probe finds
     extra = []                                          # [(logpdf, draws)]
-    tails = []
+    tails, pairs = [], []
     if n1 > 0 and n2 > 0 and settings.tail_fraction > 0:
         skip = {(model.j, -1.0)} if floor else set()    # the clip floor covers that one
         tails = _tail_probe(model, x_map, lp_map, c1, skip)
-        n_each = int(round(settings.tail_fraction * settings.n_proposals))
-        n_each = min(n_each, int(settings.tail_max_fraction * settings.n_proposals) // max(len(tails), 1),
-                     (n2 // 2) // max(len(tails), 1))
-        tails = tails if n_each > 0 else []
-        n2 -= n_each * len(tails)                       # the same number of draws in all
+        # the clip floor meets the farthest-reaching other tail (on the benchmark sensors the clip
+        # spread's lower one: a sharp clip edge lets the clip level sit anywhere down to its bound)
+        others = [t for t in tails if n_floor and t[0] != model.j]
+        pairs = [max(others, key=lambda t: t[3])] if others and settings.floor_pair else []
+        n_comp = max(len(tails) + len(pairs), 1)
+        n_each = min(int(round(settings.tail_fraction * settings.n_proposals)),
+                     int(settings.tail_max_fraction * settings.n_proposals) // n_comp, (n2 // 2) // n_comp)
+        if n_each <= 0:
+            tails, pairs = [], []
+        n2 -= n_each * (len(tails) + len(pairs))        # the same number of draws in all
     x1, _ = student_t_draws(x_map, c1, nu, (n1 - n_floor) if n1 > 0 else n2, rng)
     if n_floor:
         draw_f, pdf_f = _clip_floor_proposal(model, x_map, c1, nu)
@@ -532,6 +573,10 @@ def _fast_once(model, seed, n_draws, settings, x_map, cov):
     for j, _, v, reach in tails:
         draw_t, pdf_t = _tail_proposal(x_map, c1, nu, j, v, reach)
         extra.append((pdf_t, draw_t(n_each, rng)[0]))
+    for j, side, _, reach in pairs:
+        draw_p, pdf_p = _pair_proposal(x_map, c1, nu, (j, side, reach),
+                                       (model.j, float(x_map[model.j] + 3.0 * np.sqrt(c1[model.j, model.j]))))
+        extra.append((pdf_p, draw_p(n_each, rng)[0]))
     n_t = x1.shape[0]
     x1 = np.vstack([x1] + [xe for _, xe in extra])    # one log_prob call for all
     with np.errstate(all="ignore"):
@@ -610,7 +655,9 @@ def _fast_once(model, seed, n_draws, settings, x_map, cov):
         "end_mcse": mcse,
         # the long one-sided tails the probe found, each given tail_fraction of the draws
         "tails": [{"parameter": _coord_name(model, j), "side": "lower" if side < 0 else "upper",
-                   "reach_sd": round(float(reach), 2), "n_draws": int(n_each)} for j, side, _, reach in tails],
+                   "reach_sd": round(float(reach), 2), "n_draws": int(n_each)} for j, side, _, reach in tails]
+                 + [{"parameter": _coord_name(model, j) + " with the clip floor", "side": "lower" if side < 0 else "upper",
+                     "reach_sd": round(float(reach), 2), "n_draws": int(n_each)} for j, side, _, reach in pairs],
         "settings": asdict(settings),
     }
     D = x_map.size
