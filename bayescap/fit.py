@@ -779,13 +779,17 @@ def _importance_start(model, x_map, cov, seed, coords=None):
     6 000 importance draws in two ``log_prob`` calls) resampled. Closer to the posterior than the
     Laplace ball where the posterior is skewed; it does not remove the slow filling of the Basler dark
     current's lower tail (docs/performance.md), which is why the standard burn-in stays 100 steps.
+    The draws reach the long one-sided tails the fast path's probe finds (fewer extra rounds: 7 → 5
+    of 22 benchmark fits), but not the clip floor's pair with a tail (``floor_pair=False``): walkers
+    started in that corner needed more steps, sim09's 140 and 180 → 290 and 404
+    (``benchmarks/standard_sweep.py``, docs/performance.md, "Long one-sided tails, probed").
     With ``coords`` (:class:`LogClipCoordinates`), ``x_map`` and ``cov`` are in those
     coordinates and the draws come back in the model's. None when the IS check rejects the draws
     (then: the Laplace ball)."""
     from .fast import FastSettings, fast_posterior
 
     target = model if coords is None else coords
-    chains, diag = fast_posterior(target, seed=seed, x_map=x_map, cov=cov, settings=FastSettings(n_draws=4000))
+    chains, diag = fast_posterior(target, seed=seed, x_map=x_map, cov=cov, settings=FastSettings(n_draws=4000, floor_pair=False))
     if not diag["accepted"]:
         return None
     x = chains.chain.reshape(-1, model.ndim)
