@@ -232,6 +232,11 @@ def _moment_matched(x, w, fallback, inflation):
     return fallback
 
 
+def _floor_top(x_map, c1, j):
+    """log of the clip floor's reach above the lower bound: the MAP plus 3 Laplace sds in z."""
+    return float(x_map[j] + 3.0 * np.sqrt(c1[j, j]))
+
+
 def _clip_floor_proposal(model, x_map, c1, nu):
     """Defensive proposal for the clip level near its lower bound, in :class:`LogClipCoordinates`.
 
@@ -247,7 +252,7 @@ def _clip_floor_proposal(model, x_map, c1, nu):
     j = model.j
     oth = np.array([i for i in range(D) if i != j], int)
     m_o, c_o = x_map[oth], c1[np.ix_(oth, oth)]
-    log_a = float(x_map[j] + 3.0 * np.sqrt(c1[j, j]))
+    log_a = _floor_top(x_map, c1, j)
 
     def draw(n, rng):
         xo, lqo = student_t_draws(m_o, c_o, nu, n, rng)
@@ -281,10 +286,11 @@ def _tail_probe(model, x_map, lp_map, cov, skip=()):
     side only (a dark current, a clip spread or a discrepancy that may be zero) has a posterior
     that follows its prior far out on the other side: on the bundled Basler, log p is within
     10 nats of the MAP out to 16 sd below the MAP in log(clip spread) and log(DSNU), where the
-    importance proposals put almost no draw (``docs/performance.md``, "Long one-sided tails"). One
-    ``log_prob`` call (4·D·8 points; the axis ray is left out where it is the line). Returns ``[(j, side, direction (D,), reach in sds), ...]``
-    for the rays that stay within 10 nats beyond :data:`_TAIL_MIN_REACH` sds (the better of the two
-    rays of a side), ``skip`` a set of (j, side) to leave out."""
+    importance proposals put almost no draw (``docs/performance.md``, "Long one-sided tails,
+    probed"). One ``log_prob`` call (4·D·8 points; the axis ray is left out where it is the line).
+    Returns ``[(j, side, direction (D,), reach in sds), ...]`` for the rays that stay within 10 nats
+    beyond :data:`_TAIL_MIN_REACH` sds (the better of the two rays of a side), ``skip`` a set of
+    (j, side) to leave out."""
     D = x_map.size
     sd = np.sqrt(np.diag(cov))
     G = _TAIL_GRID
@@ -574,8 +580,7 @@ def _fast_once(model, seed, n_draws, settings, x_map, cov):
         draw_t, pdf_t = _tail_proposal(x_map, c1, nu, j, v, reach)
         extra.append((pdf_t, draw_t(n_each, rng)[0]))
     for j, side, _, reach in pairs:
-        draw_p, pdf_p = _pair_proposal(x_map, c1, nu, (j, side, reach),
-                                       (model.j, float(x_map[model.j] + 3.0 * np.sqrt(c1[model.j, model.j]))))
+        draw_p, pdf_p = _pair_proposal(x_map, c1, nu, (j, side, reach), (model.j, _floor_top(x_map, c1, model.j)))
         extra.append((pdf_p, draw_p(n_each, rng)[0]))
     n_t = x1.shape[0]
     x1 = np.vstack([x1] + [xe for _, xe in extra])    # one log_prob call for all
