@@ -122,13 +122,27 @@ def student_t_draws(mean, cov, nu, n, rng):
 
 def student_t_logpdf(x, mean, cov, nu):
     """log density of ``t_ν(mean, cov)`` at rows of ``x`` (n, d)."""
-    L = np.linalg.cholesky(cov)
+    return _t_logpdf(mean, cov, nu)(x)
+
+
+def _t_logpdf(mean, cov, nu):
+    """``x -> log t_ν(x; mean, cov)`` for rows of ``x``, with the Cholesky factor's inverse and the
+    normalising constant computed once: the fast path evaluates each proposal on every batch of draws
+    (a matrix product per call instead of a Cholesky factorisation and a solve: ~8 % of a Basler
+    fast fit before)."""
+    mean = np.asarray(mean, float)
     d = mean.size
-    z = np.linalg.solve(L, (np.atleast_2d(x) - mean).T)
-    maha = np.einsum("ij,ij->j", z, z)
-    logdet = 2.0 * np.sum(np.log(np.diag(L)))
-    return (gammaln(0.5 * (nu + d)) - gammaln(0.5 * nu) - 0.5 * d * np.log(nu * np.pi)
-            - 0.5 * logdet - 0.5 * (nu + d) * np.log1p(maha / nu))
+    L = np.linalg.cholesky(cov)
+    Linv_t = np.linalg.inv(L).T
+    const = (gammaln(0.5 * (nu + d)) - gammaln(0.5 * nu) - 0.5 * d * np.log(nu * np.pi)
+             - np.sum(np.log(np.diag(L))))
+
+    def logpdf(x):
+        z = (np.atleast_2d(x) - mean) @ Linv_t
+        maha = np.einsum("ij,ij->i", z, z)
+        return const - 0.5 * (nu + d) * np.log1p(maha / nu)
+
+    return logpdf
 
 
 def _gpdfit(x):
@@ -261,9 +275,11 @@ def _clip_floor_proposal(model, x_map, c1, nu):
         z[:, j] = log_a + np.log1p(-rng.random(n))      # log of a uniform on (0, 1]
         return z, lqo + (z[:, j] - log_a)
 
+    t_o = _t_logpdf(m_o, c_o, nu)
+
     def logpdf(z):
         z = np.atleast_2d(z)
-        out = student_t_logpdf(z[:, oth], m_o, c_o, nu) + (z[:, j] - log_a)
+        out = t_o(z[:, oth]) + (z[:, j] - log_a)
         return np.where(z[:, j] <= log_a, out, -np.inf)
 
     return draw, logpdf
@@ -357,11 +373,13 @@ def _tail_proposal(x_map, c1, nu, j, direction, reach):
         x[:, oth] += eo
         return x, lqo - np.log(top)
 
+    t_o = _t_logpdf(zero, c_o, nu)
+
     def logpdf(x):
         x = np.atleast_2d(x)
         d = x[:, j] - x_map[j]
         r = x[:, oth] - (x_map[oth] + d[:, None] * step[oth])
-        out = student_t_logpdf(r, zero, c_o, nu) - np.log(top)
+        out = t_o(r) - np.log(top)
         return np.where((side * d >= 0) & (side * d <= top), out, -np.inf)
 
     return draw, logpdf
@@ -393,10 +411,12 @@ def _pair_proposal(x_map, c1, nu, axis, floor):
         x[:, k] = log_a + np.log1p(-rng.random(n))
         return x, lq - np.log(top) + (x[:, k] - log_a)
 
+    t_o = _t_logpdf(m_o, c_o, nu)
+
     def logpdf(x):
         x = np.atleast_2d(x)
         d = side * (x[:, j] - x_map[j])
-        out = student_t_logpdf(x[:, oth], m_o, c_o, nu) - np.log(top) + (x[:, k] - log_a)
+        out = t_o(x[:, oth]) - np.log(top) + (x[:, k] - log_a)
         return np.where((d >= 0) & (d <= top) & (x[:, k] <= log_a), out, -np.inf)
 
     return draw, logpdf
@@ -420,12 +440,14 @@ def _adaptive_rounds(model, settings, rng, comps, n2):
     moments = []                                     # (location, scale) of each new t proposal
 
     def mix_logq():
+        # log Σ_k (n_k/N) q_k(x), one log-sum-exp over the stacked components (numpy's pairwise
+        # logaddexp calls the scalar libm functions: 1.5 % of a Basler fast fit)
         n_all = float(sum(counts))
-        out = None
-        for k, n in enumerate(counts):
-            term = np.log(n / n_all) + np.concatenate(dens[k])
-            out = term if out is None else np.logaddexp(out, term)
-        return out
+        terms = np.stack([np.log(n / n_all) + np.concatenate(dens[k]) for k, n in enumerate(counts)])
+        top = np.max(terms, axis=0)
+        top = np.where(np.isfinite(top), top, 0.0)
+        with np.errstate(under="ignore", divide="ignore", invalid="ignore"):
+            return top + np.log(np.sum(np.exp(terms - top), axis=0))
 
     for n_r in sizes:
         x = np.vstack(xs)
@@ -438,8 +460,9 @@ def _adaptive_rounds(model, settings, rng, comps, n2):
             lpr = model.log_prob(xr)
         for k, f in enumerate(pdfs):                 # the earlier proposals on the new batch
             dens[k].append(f(xr))
-        dens.append([student_t_logpdf(xb, mu, c, nu) for xb in xs] + [lq_own])   # the new one on all
-        pdfs.append(lambda z, mu=mu, c=c: student_t_logpdf(z, mu, c, nu))
+        t_new = _t_logpdf(mu, c, nu)
+        dens.append([t_new(xb) for xb in xs] + [lq_own])   # the new one on all
+        pdfs.append(t_new)
         moments.append((mu, c))
         counts.append(n_r)
         xs.append(xr)
@@ -587,7 +610,7 @@ def _fast_once(model, seed, n_draws, settings, x_map, cov):
     with np.errstate(all="ignore"):
         lp1 = model.log_prob(x1)
     if n1 > 0 and n2 > 0:
-        comps = [(lambda z: student_t_logpdf(z, x_map, c1, nu), x1[:n_t], lp1[:n_t], (x_map, c1))]
+        comps = [(_t_logpdf(x_map, c1, nu), x1[:n_t], lp1[:n_t], (x_map, c1))]
         at = n_t
         for pdf_e, xe in extra:
             comps.append((pdf_e, x1[at:at + len(xe)], lp1[at:at + len(xe)], None))
