@@ -585,8 +585,8 @@ def _fast_once(model, seed, n_draws, settings, x_map, cov):
     if n1 > 0 and n2 > 0 and settings.tail_fraction > 0:
         skip = {(model.j, -1.0)} if floor else set()    # the clip floor covers that one
         tails = _tail_probe(model, x_map, lp_map, c1, skip)
-        # the clip floor meets the farthest-reaching other tail (on the benchmark sensors the clip
-        # spread's lower one: a sharp clip edge lets the clip level sit anywhere down to its bound)
+        # the clip floor meets the farthest-reaching other tail (on sim09 the clip spread's lower
+        # one: a sharp clip edge lets the clip level sit anywhere down to its bound)
         others = [t for t in tails if n_floor and t[0] != model.j]
         pairs = [max(others, key=lambda t: t[3])] if others and settings.floor_pair else []
         n_comp = max(len(tails) + len(pairs), 1)
