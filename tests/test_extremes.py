@@ -104,9 +104,10 @@ KNOWN = {"noise_below_one_dn_everywhere": pytest.mark.xfail(strict=False, reason
     "luck of where a polish step landed; the closed-form clip moments (model._clip_mean, "
     "_clip_moments) moved that point. It passes again since 2026-11-23 night (model._rounded_offset "
     "stops each element on its own; rounding-level changes to log p): the fast path still rejected "
-    "itself (k̂ 1.15), and its draws happened to put K's median at 1024. Since the tail probe "
-    "(fast._tail_probe, 2026-11-23 late night) it fails again: the fast path still rejects itself "
-    "and its resampled draws collapse onto one point, K 1430 (43 % high)"))}
+    "itself (k̂ 1.15), and its draws happened to put K's median at 1024. Later changes flip it either "
+    "way (with the tail probe, 2026-11-23 late night: failed, draws on one point at K 1430; with the "
+    "rounded offset's Fourier branch, commit 373a5a4: passed again); the fast path rejects itself "
+    "throughout"))}
 
 
 def _case_param(c):
