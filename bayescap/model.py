@@ -173,11 +173,128 @@ def _psi_inverse_guess(L):
 _QUANT_EXACT_S2 = 0.5
 
 
+#: from this s (DN) up, :func:`_rounded_normal_moments` uses the Fourier series of
+#: :func:`_rounded_normal_moments_fourier` (harmonics 1-4; the 5th is e^{−50π²s²} < 1e-19), as
+#: :func:`_rounded_offset` does from :data:`_RO_FOURIER_S`
+_RN_FOURIER_S = 0.3
+
+
 def _rounded_normal_moments(delta, s, J=6):
     """Mean, variance and central 4th moment of round(N(δ, s²)) (δ relative to an integer DN).
 
-    Direct sums over the integers j = −J..J (the tails beyond are < 1e-12 for s < 0.75 DN, |δ| ≤ ½).
+    Where s ≥ :data:`_RN_FOURIER_S` (0.3 DN): the Fourier series of
+    :func:`_rounded_normal_moments_fourier`; below, direct sums over the integers j = −J..J (the
+    tails beyond are < 1e-12 for s < 0.75 DN, |δ| ≤ ½). The sums cost a third of a fast fit of a
+    12-bit sensor whose dark noise is half a DN (sim05 of ``benchmarks/speed_accuracy.py``).
+    ``delta`` and ``s`` broadcast; an ``s`` that is constant along trailing axes may be given with
+    length-1 axes there.
     """
+    delta = np.asarray(delta, float)
+    s = np.asarray(s, float)
+    four = s >= _RN_FOURIER_S
+    if np.all(four):
+        return _rounded_normal_moments_fourier(delta, s)
+    if not np.any(four):
+        return _rounded_normal_moments_sums(delta, s, J)
+    shape = np.broadcast_shapes(delta.shape, s.shape)
+    d = np.broadcast_to(delta, shape)
+    sb = np.broadcast_to(s, shape)
+    four = np.broadcast_to(four, shape)
+    out = [np.empty(shape) for _ in range(3)]
+    for sel, r in ((four, _rounded_normal_moments_fourier(d[four], sb[four])),
+                   (~four, _rounded_normal_moments_sums(d[~four], sb[~four], J))):
+        for o, v in zip(out, r):
+            o[sel] = v
+    return tuple(out)
+
+
+def _harmonics(delta, K):
+    """sin(2πkδ) and cos(2πkδ), k = 1..K, for a 1-D ``delta``, as (K, n) arrays: one sin and one
+    cos, then the angle-addition recurrence (sin/cos cost ~11 ns an element here, a multiply ~1 ns)."""
+    th = (2.0 * np.pi) * delta
+    S = np.empty((K,) + th.shape)
+    C = np.empty((K,) + th.shape)
+    s1, c1 = np.sin(th, out=S[0]), np.cos(th, out=C[0])
+    for k in range(1, K):
+        np.add(S[k - 1] * c1, C[k - 1] * s1, out=S[k])
+        np.subtract(C[k - 1] * c1, S[k - 1] * s1, out=C[k])
+    return S, C
+
+
+def _gaussian_harmonics(s, K):
+    """e^{−2π²k²s²}, k = 1..K, for a 1-D ``s``, as a (K, n) array: one exponential, then
+    multiplications (e^{(k+1)²} = e^{k²} · e^{2k+1})."""
+    e = np.exp(-2.0 * np.pi**2 * s * s)
+    out = np.empty((K,) + e.shape)
+    out[0] = e
+    e2 = e * e
+    step = e
+    for k in range(1, K):
+        step = step * e2                       # e^{2k+1}
+        np.multiply(out[k - 1], step, out=out[k])
+    return out
+
+
+# ω = 2πk and the Fourier coefficients of the sawtooth's powers wⁿ (w(y) = y on [−½, ½), period
+# 1): n odd i(−1)^k αₙ, n even (−1)^k γₙ; the columns of the matrices below are the sums over k that
+# _rounded_normal_moments_fourier needs (each term times q_k = 2(−1)^k e^{−ω²s²/2})
+_RN_W = 2.0 * np.pi * np.arange(1.0, 5.0)
+_RN_SIN = np.stack([1.0 / _RN_W,                               # α₁
+                    0.25 / _RN_W - 6.0 / _RN_W**3,             # α₃
+                    2.0 / _RN_W,                               # ω γ₂
+                    _RN_W], axis=1)                            # ω² α₁
+_RN_COS = np.stack([np.ones(4),                                # ω α₁
+                    2.0 / _RN_W**2,                            # γ₂
+                    1.0 / _RN_W**2 - 24.0 / _RN_W**4,          # γ₄
+                    0.25 - 6.0 / _RN_W**2,                     # ω α₃
+                    _RN_W**2], axis=1)                         # ω³ α₁
+_RN_SIGN = 2.0 * np.array([-1.0, 1.0, -1.0, 1.0])              # 2 (−1)^k
+
+
+def _rounded_normal_moments_fourier(delta, s):
+    """:func:`_rounded_normal_moments` by Fourier series, for s ≥ 0.3 DN.
+
+    With X = δ + Y, Y ~ N(0, s²), the rounding error is e = round(X) − X = −w(X), w the sawtooth,
+    and round(X) − E[round X] = Y + e − ē. Its moments need E[Yᵐ eⁿ] (m ≤ 3, n ≤ 4), which follow
+    from the Fourier coefficients of wⁿ and E[Yᵐ e^{iωY}] = (−i d/dω)ᵐ e^{−ω²s²/2} (ω = 2πk: the
+    factor e^{−2π²k²s²} of each harmonic). Equal to the sums over the integers to ~1e-15
+    (``tests/test_calibration_terms.py``)."""
+    delta = np.asarray(delta, float)
+    s = np.asarray(s, float)
+    shape = np.broadcast_shapes(delta.shape, s.shape)
+    # harmonics of δ and of s each on their own (flat) elements, then broadcast: a grid of offsets
+    # sharing one s per row (_quantized_pixel_moments) computes each exponential once
+    S, C = _harmonics(delta.reshape(-1), 4)
+    S, C = S.reshape((4,) + delta.shape), C.reshape((4,) + delta.shape)
+    q = (_RN_SIGN[:, None] * _gaussian_harmonics(s.reshape(-1), 4)).reshape((4,) + s.shape)
+    QS = np.broadcast_to(q * S, (4,) + shape).reshape(4, -1)
+    QC = np.broadcast_to(q * C, (4,) + shape).reshape(4, -1)
+    A1, A3, A2, A4 = (_RN_SIN.T @ QS).reshape((4,) + shape)
+    B0, B2, B4, B3, B5 = (_RN_COS.T @ QC).reshape((5,) + shape)
+    v2 = s * s
+    v4 = v2 * v2
+    e1 = A1                                    # E[e]
+    e2 = 1.0 / 12.0 + B2                       # E[e²]
+    e3 = A3                                    # E[e³]
+    e4 = 1.0 / 80.0 + B4                       # E[e⁴]
+    ye1 = v2 * B0                              # E[Y e]
+    ye2 = -v2 * A2                             # E[Y e²]
+    ye3 = v2 * B3                              # E[Y e³]
+    y2e1 = v2 * A1 - v4 * A4                   # E[Y² e]
+    y2e2 = v2 / 12.0 + v2 * B2 - 2.0 * v4 * B0  # E[Y² e²]
+    y3e1 = 3.0 * v4 * B0 - v4 * v2 * B5        # E[Y³ e]
+    e1s = e1 * e1
+    m = delta + e1
+    v = v2 + 2.0 * ye1 + e2 - e1s
+    m4 = (3.0 * v4 + 4.0 * y3e1
+          + 6.0 * (y2e2 - 2.0 * e1 * y2e1 + e1s * v2)
+          + 4.0 * (ye3 - 3.0 * e1 * ye2 + 3.0 * e1s * ye1)
+          + (e4 - 4.0 * e1 * e3 + 6.0 * e1s * e2 - 3.0 * e1s * e1s))
+    return tuple(np.broadcast_to(r, shape) for r in (m, v, m4))
+
+
+def _rounded_normal_moments_sums(delta, s, J=6):
+    """:func:`_rounded_normal_moments` by direct sums over the integers j = −J..J."""
     j = np.arange(-J, J + 1, dtype=float)
     b = (j[:-1] + 0.5)  # boundaries between j and j+1
     cdf = ndtr((b - delta[..., None]) / s[..., None])
@@ -223,20 +340,20 @@ def _rounded_offset(frac_obs, s_tot, n_iter=12):
 
 
 def _rounded_offset_fourier(fo, s, n_iter):
-    """:func:`_rounded_offset` for 0.3 ≤ s ≤ 1.3 DN (1-D inputs): Newton on the Fourier series."""
-    k = np.arange(1.0, 5.0)
-    sign = np.array([1.0, -1.0, 1.0, -1.0])
-    qk = np.exp(-2.0 * np.pi**2 * (s[:, None] * k) ** 2) * sign   # (−1)^{k+1} e^{−2π²k²s²}
+    """:func:`_rounded_offset` for 0.3 ≤ s ≤ 1.3 DN (1-D inputs): Newton on the Fourier series
+    (the harmonics of each iterate by :func:`_harmonics`: one sin and one cos)."""
+    k = np.arange(1.0, 5.0)[:, None]
+    qk = np.array([1.0, -1.0, 1.0, -1.0])[:, None] * _gaussian_harmonics(s, 4)   # (−1)^{k+1} e^{−2π²k²s²}
     a = qk / (np.pi * k)
     b = 2.0 * qk
     d = fo.copy()
     for _ in range(n_iter):
-        ang = (2.0 * np.pi) * d[:, None] * k
-        gap = d - np.sum(a * np.sin(ang), axis=-1) - fo
+        S, C = _harmonics(d, 4)
+        gap = d - np.sum(a * S, axis=0) - fo
         done = np.abs(gap) < 1e-9
         if np.all(done):
             break
-        slope = 1.0 - np.sum(b * np.cos(ang), axis=-1)
+        slope = 1.0 - np.sum(b * C, axis=0)
         d = np.where(done, d, np.clip(d - gap / slope, -0.5, 0.5))
     return d
 
@@ -313,7 +430,7 @@ def _quantized_pixel_moments(delta, s, so):
         # a spread narrower than the grid: Gauss–Hermite nodes about δ (the integrands are smooth
         # on the scale of s; the nodes stay within ±1 DN, so no wrapping is needed)
         xg = delta[narrow, None] + so[narrow, None] * _GH_X
-        mg, vg, m4g = _rounded_normal_moments(xg, np.broadcast_to(s[narrow, None], xg.shape), J=5)
+        mg, vg, m4g = _rounded_normal_moments(xg, s[narrow, None], J=5)
         V[narrow] = (vg * _GH_W).sum(-1)
         E4[narrow] = ((m4g + vg * vg) * _GH_W).sum(-1)
         em = (mg * _GH_W).sum(-1)
@@ -323,7 +440,7 @@ def _quantized_pixel_moments(delta, s, so):
     if np.any(grid):
         dl, sg, sog = delta[grid], s[grid], so[grid]
         x = np.broadcast_to(_QG_X, dl.shape + (_QG_M,))
-        m, v, m4 = _rounded_normal_moments(x, np.broadcast_to(sg[:, None], x.shape), J=5)
+        m, v, m4 = _rounded_normal_moments(x, sg[:, None], J=5)
         h = m - x                                       # rounding bias of a pixel's mean
         d = (x[..., None] - dl[:, None, None] + _QG_J) / sog[:, None, None]
         w = np.exp(-0.5 * d * d).sum(-1)                # wrapped normal on the grid
@@ -357,7 +474,7 @@ def _uniform_offset_moments(s):
         a = np.minimum(0.5, 12.0 * sg)[:, None]          # beyond ±12 s from the boundary v = 0
         x = 0.5 + a * u                                   # offsets about the boundary at ½ DN
         x = x - np.round(x)
-        _, v, m4 = _rounded_normal_moments(x, np.broadcast_to(sg[:, None], x.shape), J=5)
+        _, v, m4 = _rounded_normal_moments(x, sg[:, None], J=5)
         w = a * wu                                        # ∫ over one period of length 1
         _UNIFORM_TABLE.update(ls=ls, lv=np.log((w * v).sum(-1)), le4=np.log((w * (m4 + v * v)).sum(-1)))
     t = _UNIFORM_TABLE

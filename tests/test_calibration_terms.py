@@ -11,7 +11,7 @@ from scipy import stats
 
 import bayescap
 from bayescap.model import (PTCModel, _chi2_over_nu, _quantized_pixel_moments, _rounded_normal_moments,
-                            _rounded_offset, _uniform_offset_moments, _QUANT_EXACT_S2, _QUANT_TEMPORAL_S2)
+                            _rounded_normal_moments_fourier, _rounded_normal_moments_sums, _rounded_offset, _uniform_offset_moments, _QUANT_EXACT_S2, _QUANT_TEMPORAL_S2)
 from bayescap.simulate import SensorTruth, simulate_ptc
 
 CASES = [(0.0, 0.12), (0.1, 0.2), (0.4, 0.3), (-0.3, 0.45), (0.5, 0.25), (0.2, 0.68)]
@@ -42,6 +42,29 @@ def test_rounded_offset_inverts_the_rounded_mean(delta, s):
         assert d == pytest.approx(delta, abs=1e-6)
 
 
+def test_rounded_normal_moments_fourier_equals_the_sums():
+    """From s = 0.3 DN the rounded normal's mean, variance and 4th central moment come from their
+    Fourier series (4 harmonics; the 5th is < 1e-19): equal to the direct sums over ±12 DN to
+    rounding (the 4th moment is a sum of O(1) terms: 1e-12), for offsets beyond ±½ too (periodic),
+    for a grid of offsets sharing one s per row as _quantized_pixel_moments passes them, and
+    through the dispatcher when an array holds s on both sides of the threshold."""
+    rng = np.random.default_rng(11)
+    d = rng.uniform(-0.8, 0.8, 20000)
+    s = rng.uniform(0.3, 1.0, d.size)
+    for a, b, tol in zip(_rounded_normal_moments_fourier(d, s), _rounded_normal_moments_sums(d, s, J=12),
+                         (1e-14, 1e-14, 1e-12)):
+        assert np.max(np.abs(a - b)) < tol
+    x = np.broadcast_to((np.arange(32) + 0.5) / 32 - 0.5, (40, 32))
+    sg = rng.uniform(0.3, 0.7, (40, 1))
+    for a, b in zip(_rounded_normal_moments_fourier(x, sg),
+                    _rounded_normal_moments_sums(x, np.broadcast_to(sg, x.shape), J=12)):
+        assert a.shape == (40, 32) and np.max(np.abs(a - b)) < 1e-12
+    mixed = np.r_[rng.uniform(0.05, 0.3, 50), rng.uniform(0.3, 0.7, 50)]
+    dm = rng.uniform(-0.5, 0.5, mixed.size)
+    for a, b in zip(_rounded_normal_moments(dm, mixed, J=7), _rounded_normal_moments_sums(dm, mixed, J=12)):
+        assert np.max(np.abs(a - b)) < 1e-12
+
+
 def test_sheppard_is_kept_where_it_is_exact():
     """Above s² = ½ DN² the exact variance differs from s² + 1/12 by < 3e-4 relative (below the
     ≥ 0.4 % sampling error of any pair variance over ≤ 10⁵ pixels), so the model keeps Sheppard."""
@@ -58,7 +81,7 @@ def _pixel_moments_reference(delta, s, so):
     w = np.exp(-0.5 * ((o - delta) / so) ** 2)
     w /= w.sum()
     base = np.round(o)
-    m, v, m4 = _rounded_normal_moments(o - base, np.full(o.size, s), J=7)
+    m, v, m4 = _rounded_normal_moments_sums(o - base, np.full(o.size, s), J=7)
     mabs = base + m
     em, eo = (w * mabs).sum(), (w * o).sum()
     H = (w * mabs**2).sum() - em**2 - ((w * o**2).sum() - eo**2)
@@ -77,7 +100,7 @@ def test_quantized_pixel_moments_match_brute_force(s):
         for so in (0.0, 1e-4, 0.02, 0.06, 0.07, 0.1, 0.3, 0.6, 0.69, 0.71, 1.0, 3.0):
             V, E4, H = _quantized_pixel_moments(np.array([delta]), np.array([s]), np.array([so]))
             if so == 0.0:
-                _, v, m4 = _rounded_normal_moments(np.array(delta), np.array(s), J=7)
+                _, v, m4 = _rounded_normal_moments_sums(np.array(delta), np.array(s), J=7)
                 ref = (v, m4 + v * v, 0.0)
             else:
                 ref = _pixel_moments_reference(delta, s, so)
@@ -258,7 +281,7 @@ def test_rounded_offset_branches_match_the_exact_mean():
     s = np.exp(rng.uniform(np.log(0.3), np.log(5.0), 20000))
     fo = rng.uniform(-0.5, 0.5, s.size)
     d = _rounded_offset(fo, s)
-    m, _, _ = _rounded_normal_moments(d, s, J=40)
+    m, _, _ = _rounded_normal_moments_sums(d, s, J=40)
     assert np.max(np.abs(m - fo)) < 1e-9
     low = s <= 0.75
     assert np.max(np.abs(d[low] - _rounded_offset_boundaries(fo[low], s[low]))) < 1e-12
