@@ -99,6 +99,7 @@ class FastSettings:
     tail_fraction: float = 0.05   # share of the draws from each long one-sided tail the probe finds (_tail_probe; 0: no probe)
     tail_max_fraction: float = 0.2  # at most this share for all tail (and pair) components together
     floor_pair: bool = True       # with the clip floor and a tail: tail_fraction more draws from both at once (_pair_proposal)
+    adapt_nu: float | None = None  # degrees of freedom of the moment-matched rounds' t (None: nu)
 
 
 def student_t_draws(mean, cov, nu, n, rng):
@@ -430,7 +431,7 @@ def _adaptive_rounds(model, settings, rng, comps, n2):
     returned by an earlier call continues it). Each proposal's density on each batch of draws is
     computed once. Returns (draws, log p, log q of the final mixture, the components in the format
     of ``comps``)."""
-    nu = settings.nu
+    nu = settings.nu if settings.adapt_nu is None else float(settings.adapt_nu)
     R = max(1, int(settings.adapt_rounds))
     sizes = [n2 // R + (1 if r < n2 % R else 0) for r in range(R)]
     pdfs = [c[0] for c in comps]

@@ -2,7 +2,7 @@
 
     python benchmarks/fast_tradeoff.py [--n-sim 4] [--seeds 4] [--sizes 1500,3000,6000,12000] [--rounds 1,3]
                                        [--floor 0.1] [--gate none,0.02] [--tails 0,0.05] [--floor-pair 0,1] [--ref-cache DIR]
-                                       [--out FILE]
+                                       [--adapt-nu none,10] [--inflation 1.2,1.0] [--out FILE]
 
 Issue 7 asks the fast path for both ≤ 50 ms per sensor and 95 % interval ends within 5 % of a long
 reference run's (as a fraction of the reference's width). After the Newton start
@@ -21,7 +21,9 @@ acceptance gate on it (``FastSettings.end_mcse_max``: more draws until it is met
 ``max_proposals``, else rejected; "none": report only, the default), and with ``--tails`` the share
 of draws given to each long one-sided tail the fast path's probe finds (``FastSettings.tail_fraction``;
 0: no probe, as before commit 89fd939) and with ``--floor-pair`` whether the clip floor and the
-farthest-reaching tail also get draws together (``FastSettings.floor_pair``). ``--ref-cache DIR`` keeps each reference's quantiles in DIR
+farthest-reaching tail also get draws together (``FastSettings.floor_pair``), and with ``--adapt-nu``
+and ``--inflation`` the moment-matched rounds' t degrees of freedom (``FastSettings.adapt_nu``; none:
+the Laplace t's ``nu``) and sd multiplier (``FastSettings.adapt_inflation``). ``--ref-cache DIR`` keeps each reference's quantiles in DIR
 (computed on first use, by the same call; a reference takes 40–120 s here). Writes
 benchmarks/results/fast_tradeoff.md (``--out``).
 """
@@ -53,6 +55,8 @@ def main(argv=None):
     ap.add_argument("--gate", default="none", help="end_mcse_max values, 'none' for no gate")
     ap.add_argument("--tails", default="0.05", help="FastSettings.tail_fraction values")
     ap.add_argument("--floor-pair", default="1", help="FastSettings.floor_pair values (0/1)")
+    ap.add_argument("--adapt-nu", default="none", help="FastSettings.adapt_nu values, 'none' for nu")
+    ap.add_argument("--inflation", default="1.2", help="FastSettings.adapt_inflation values")
     ap.add_argument("--ref-cache", default=None, help="directory keeping the references' quantiles")
     ap.add_argument("--out", default=str(OUT))
     a = ap.parse_args(argv)
@@ -64,7 +68,9 @@ def main(argv=None):
     from bayescap.model import PTCModel
 
     gates = [None if g.strip().lower() == "none" else float(g) for g in a.gate.split(",")]
-    sizes = [(int(n), int(r), float(f), g, float(tf), bool(int(fp))) for fp in a.floor_pair.split(",")
+    nus = [None if v.strip().lower() == "none" else float(v) for v in a.adapt_nu.split(",")]
+    sizes = [(int(n), int(r), float(f), g, float(tf), bool(int(fp)), an, float(inf))
+             for inf in a.inflation.split(",") for an in nus for fp in a.floor_pair.split(",")
              for tf in a.tails.split(",") for g in gates for f in a.floor.split(",") for r in a.rounds.split(",")
              for n in a.sizes.split(",")]
     t_all = time.perf_counter()
@@ -75,9 +81,11 @@ def main(argv=None):
         print(f"[{i + 1}/{len(sensors)}] {name}: reference", flush=True)
         qref = _reference(d, i, name, a.ref_cache, bayescap, sa)
         m = PTCModel(d)
-        for n, rounds, floor, gate, tails, pair in sizes:
+        for key in sizes:
+            n, rounds, floor, gate, tails, pair, anu, infl = key
             fs = replace(FastSettings(), n_proposals=n, adapt_rounds=rounds, clip_floor_fraction=floor,
-                         end_mcse_max=gate, tail_fraction=tails, floor_pair=pair)
+                         end_mcse_max=gate, tail_fraction=tails, floor_pair=pair, adapt_nu=anu,
+                         adapt_inflation=infl)
             # one attempt (no retry with restarts after a rejection, which would double the time)
             wall = min(fast_posterior(m, seed=1, settings=replace(fs, retry_restarts=0))[1]["wall_s"]
                        for _ in range(3))
@@ -87,16 +95,19 @@ def main(argv=None):
                 e = sa.errors_vs_ref(sa.quantiles(fr), qref)
                 x = fr.chains.extra
                 runs.append((e[0], e[1], float(x["khat"]), bool(x["accepted"]),
-                             float(fr.diag.get("interval_end_mcse_max", float("nan"))), int(x["n_proposals"])))
-            res[(n, rounds, floor, gate, tails, pair)].append((name, wall, runs))
+                             float(fr.diag.get("interval_end_mcse_max", float("nan"))), int(x["n_proposals"]),
+                             float(x["ess_is"])))
+            res[key].append((name, wall, runs))
             errs = [r[0] for r in runs]
-            print(f"   {n:6d} draws, {rounds} round(s), floor {floor:g}, gate {gate}, tails {tails:g}, floor pair {int(pair)}: {wall * 1e3:6.1f} ms, "
+            print(f"   {_label(key)}: {wall * 1e3:6.1f} ms, "
                   f"worst end error {min(errs):.3f}–{max(errs):.3f} ({', '.join(sorted(set(r[1] for r in runs)))}), "
                   f"k̂ {min(r[2] for r in runs):.2f}–{max(r[2] for r in runs):.2f}, "
                   f"accepted {sum(r[3] for r in runs)}/{len(runs)}", flush=True)
     L = ["# Fast path: importance draws against speed and accuracy", "",
          f"Generated by `python benchmarks/fast_tradeoff.py --n-sim {a.n_sim} --seeds {a.seeds} --sizes {a.sizes} "
          f"--rounds {a.rounds} --floor {a.floor} --gate {a.gate} --tails {a.tails} --floor-pair {a.floor_pair}"
+         f"{' --adapt-nu ' + a.adapt_nu if a.adapt_nu != 'none' else ''}"
+         f"{' --inflation ' + a.inflation if a.inflation != '1.2' else ''}"
          f"{' --ref-cache ' + a.ref_cache if a.ref_cache else ''}` on "
          f"{datetime.datetime.now().isoformat(timespec='minutes')} in {time.perf_counter() - t_all:.0f} s.",
          f"Machine: {describe_machine()}; load average before {load0[0]:.2f}, after {os.getloadavg()[0]:.2f}.", "",
@@ -107,8 +118,7 @@ def main(argv=None):
          "Carlo error is ~0.005–0.008 of the width, `speed_accuracy.md`), median and max over the seeds; "
          "accepted: the fast path's own check (k̂ < 0.7, IS ESS ≥ 200, and with a gate every interval end's "
          "predicted Monte Carlo error ≤ the gate × width after topping up to at most 24 000 draws).", "",
-         "| sensor | " + " | ".join(f"{n} draws, {r} round{'s' if r > 1 else ''}, floor {f:g}, gate {g if g is not None else 'none'}, "
-                                    f"tails {tf:g}, floor pair {int(fp)}: ms / error median (max) / k̂ median / accepted" for n, r, f, g, tf, fp in sizes) + " |",
+         "| sensor | " + " | ".join(f"{_label(key)}: ms / error median (max) / k̂ median / accepted" for key in sizes) + " |",
          "|---|" + "---|" * len(sizes)]
     for j, (name, _, _) in enumerate(sensors):
         cells = []
@@ -119,23 +129,33 @@ def main(argv=None):
                          f"{sum(r[3] for r in runs)}/{len(runs)}")
         L.append(f"| {name} | " + " | ".join(cells) + " |")
     L += ["", "Over all sensors and seeds, runs the fast path's own check accepted:", "",
-          "| draws | rounds | clip floor | gate | tails | floor pair | median time (ms) | accepted | draws used by accepted runs: median (max) | "
-          "k̂: median (max) | worst end error: median | within 0.05 | own predicted end MC error (max over parameters): median |",
-          "|---|---|---|---|---|---|---|---|---|---|---|---|---|"]
+          "| draws | rounds | clip floor | gate | tails | floor pair | adapt ν | inflation | median time (ms) | accepted | "
+          "draws used by accepted runs: median (max) | k̂: median (max) | IS ESS: median | worst end error: median | "
+          "within 0.05 | own predicted end MC error (max over parameters): median |",
+          "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|"]
     for key in sizes:
-        n, r, f, g, tf, fp = key
+        n, r, f, g, tf, fp, anu, infl = key
         walls = [w for _, w, _ in res[key]]
         acc = [x for _, _, runs in res[key] for x in runs if x[3]]
         tot = sum(len(runs) for _, _, runs in res[key])
         e = [x[0] for x in acc]
         used = [x[5] for x in acc]
         kh = [x[2] for _, _, runs in res[key] for x in runs]
-        L.append(f"| {n} | {r} | {f:g} | {g if g is not None else 'none'} | {tf:g} | {int(fp)} | {np.median(walls) * 1e3:.0f} | {len(acc)}/{tot} | "
+        ess = [x[6] for _, _, runs in res[key] for x in runs]
+        L.append(f"| {n} | {r} | {f:g} | {g if g is not None else 'none'} | {tf:g} | {int(fp)} | "
+                 f"{'ν' if anu is None else f'{anu:g}'} | {infl:g} | {np.median(walls) * 1e3:.0f} | {len(acc)}/{tot} | "
                  f"{f'{np.median(used):.0f} ({max(used)})' if used else '–'} | {np.median(kh):.2f} ({max(kh):.2f}) | "
+                 f"{np.median(ess):.0f} | "
                  f"{np.median(e) if e else float('nan'):.3f} | {sum(x <= 0.05 for x in e)}/{len(e)} | "
                  f"{np.nanmedian([x[4] for x in acc]) if acc else float('nan'):.3f} |")
     Path(a.out).write_text("\n".join(L) + "\n")
     print("\n".join(L))
+
+
+def _label(key):
+    n, r, f, g, tf, fp, anu, infl = key
+    return (f"{n} draws, {r} round{'s' if r > 1 else ''}, floor {f:g}, gate {g if g is not None else 'none'}, "
+            f"tails {tf:g}, floor pair {int(fp)}, adapt ν {'ν' if anu is None else f'{anu:g}'}, inflation {infl:g}")
 
 
 def _reference(d, i, name, cache, bayescap, sa):
