@@ -569,15 +569,16 @@ MAP_START_LOG_F_SHIFTS = (2.3,)
 MAP_START_LOG_TAU_SHIFT = -2.0
 
 
-def _map_starts(model):
+def _map_starts(model, x0=None):
     """Extra starting points for :func:`laplace_start`: the initial guess with the variance
     discrepancy f shifted by :data:`MAP_START_LOG_F_SHIFTS` (or the guess itself without an f term),
     and, when the guess's clip spread τ sits within a factor e of its prior cap, the guess with
     log τ shifted by :data:`MAP_START_LOG_TAU_SHIFT`.
     The discrepancy and the outlier mixture trade off: a large f explains a deviant row, a small f
     with the row as an outlier is another local optimum, and the start decides which one a local
-    optimiser finds (docs/performance.md, "Local optima")."""
-    x0 = model.initial_guess()
+    optimiser finds (docs/performance.md, "Local optima"). ``x0``: the initial guess when the
+    caller has it already (it costs ~3 ms on the Basler: a fast fit computed it twice)."""
+    x0 = np.array(model.initial_guess() if x0 is None else x0, dtype=float)   # a copy
     names = list(getattr(model, "names", []))
     out = []
     if "log_f" in names:
@@ -697,7 +698,7 @@ def _laplace_start_newton(model, n_restarts, multi_start, coords, polish_both):
     time of the whole start (the MAP and the covariance come out of the same iterations)."""
     t0 = time.perf_counter()
     x0 = np.asarray(model.initial_guess(), float)
-    starts = [x0] + _restart_points(x0, n_restarts) + (_map_starts(model) if multi_start else [])
+    starts = [x0] + _restart_points(x0, n_restarts) + (_map_starts(model, x0) if multi_start else [])
     if coords is not None and polish_both:
         starts = [o.x for o in newton_map(model, starts)[0]]
     target = model
