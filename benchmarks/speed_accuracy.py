@@ -386,7 +386,7 @@ def write_md(path, rows, timing, batch, *, args, load_before, load_after, wall_t
     L.append("")
     L.append("## Fast-path time per stage (best of 3, seconds)")
     L.append("")
-    L.append("| sensor | total | MAP (find_map) | Laplace + refinement | IS (2 log_prob calls + PSIS) |")
+    L.append("| sensor | total | MAP and covariance (Newton) | Laplace (BFGS route only) | IS (tail probe, 1 + 3 rounds of draws, PSIS, resampling) |")
     L.append("|---|---|---|---|---|")
     for name, dg in timing:
         L.append(f"| {name} | {dg['wall_s']:.3f} | {dg['wall_map_s']:.3f} | {dg['wall_laplace_s']:.3f} | {dg['wall_is_s']:.3f} |")
