@@ -184,8 +184,9 @@ def _rounded_normal_moments(delta, s, J=6):
 
     Where s ≥ :data:`_RN_FOURIER_S` (0.3 DN): the Fourier series of
     :func:`_rounded_normal_moments_fourier`; below, direct sums over the integers j = −J..J (the
-    tails beyond are < 1e-12 for s < 0.75 DN, |δ| ≤ ½). The sums cost a third of a fast fit of a
-    12-bit sensor whose dark noise is half a DN (sim05 of ``benchmarks/speed_accuracy.py``).
+    tails beyond are < 1e-12 for s < 0.75 DN, |δ| ≤ ½). With the sums, these moments and the offset
+    solver took most of a fast fit of a 12-bit sensor whose dark noise is half a DN (sim05 of
+    ``benchmarks/speed_accuracy.py``; docs/performance.md, "2026-11-23, 19:40–22:40").
     ``delta`` and ``s`` broadcast; an ``s`` that is constant along trailing axes may be given with
     length-1 axes there.
     """
@@ -257,8 +258,8 @@ def _rounded_normal_moments_fourier(delta, s):
     With X = δ + Y, Y ~ N(0, s²), the rounding error is e = round(X) − X = −w(X), w the sawtooth,
     and round(X) − E[round X] = Y + e − ē. Its moments need E[Yᵐ eⁿ] (m ≤ 3, n ≤ 4), which follow
     from the Fourier coefficients of wⁿ and E[Yᵐ e^{iωY}] = (−i d/dω)ᵐ e^{−ω²s²/2} (ω = 2πk: the
-    factor e^{−2π²k²s²} of each harmonic). Equal to the sums over the integers to ~1e-15
-    (``tests/test_calibration_terms.py``)."""
+    factor e^{−2π²k²s²} of each harmonic). Equal to the sums over the integers to 1e-14 (mean,
+    variance) and 1e-12 (4th moment, a sum of O(1) terms) (``tests/test_calibration_terms.py``)."""
     delta = np.asarray(delta, float)
     s = np.asarray(s, float)
     shape = np.broadcast_shapes(delta.shape, s.shape)
