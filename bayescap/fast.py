@@ -348,6 +348,13 @@ def _coord_name(model, j):
     return "log(clip_dn - lower bound)" if isinstance(model, LogClipCoordinates) and j == model.j else n
 
 
+def _tail_entry(model, tail, n_draws, suffix=""):
+    """A tail of :func:`_tail_probe` (or a pair with the clip floor) as the diagnostics list it."""
+    j, side, _, reach = tail
+    return {"parameter": _coord_name(model, j) + suffix, "side": "lower" if side < 0 else "upper",
+            "reach_sd": round(float(reach), 2), "n_draws": int(n_draws)}
+
+
 def _tail_proposal(x_map, c1, nu, j, direction, reach):
     """Defensive proposal for one long one-sided tail found by :func:`_tail_probe`: the distance s
     (in Laplace sds of x_j) uniform on (0, 1.25·reach) along ``direction`` from the MAP, and the
@@ -683,10 +690,8 @@ def _fast_once(model, seed, n_draws, settings, x_map, cov):
         "wall_is_s": t_is - t_lap,
         "end_mcse": mcse,
         # the long one-sided tails the probe found, each given tail_fraction of the draws
-        "tails": [{"parameter": _coord_name(model, j), "side": "lower" if side < 0 else "upper",
-                   "reach_sd": round(float(reach), 2), "n_draws": int(n_each)} for j, side, _, reach in tails]
-                 + [{"parameter": _coord_name(model, j) + " with the clip floor", "side": "lower" if side < 0 else "upper",
-                     "reach_sd": round(float(reach), 2), "n_draws": int(n_each)} for j, side, _, reach in pairs],
+        "tails": [_tail_entry(model, t, n_each) for t in tails]
+                 + [_tail_entry(model, t, n_each, " with the clip floor") for t in pairs],
         "settings": asdict(settings),
     }
     D = x_map.size
