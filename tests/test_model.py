@@ -184,6 +184,34 @@ def test_gamma_logpdf_mixed_shapes_match_scipy():
     np.testing.assert_allclose(gamma_logpdf(v, sigma2, k), ref, rtol=1e-9, atol=1e-7)
 
 
+def test_robust_blocks_are_the_two_component_mixture():
+    """The robust blocks' log-likelihood (computed with the shared log ratio and −log v added once)
+    against the mixture written out with scipy: (1 − ε) Gamma(k, σ²/k) + ε LogNormal(log σ², 0.3) for
+    the variances, (1 − ε) N(m, sd) + ε N(m, √(sd² + (0.3 m)²)) for the means; and the outlier
+    probabilities ε·bad / mixture."""
+    from bayescap.model import OUTLIER_RATE as eps, OUTLIER_REL_SD as rs
+
+    truth = SensorTruth(conversion_gain_e_per_dn=2.0, read_noise_e=5.0, full_well_e=8000.0, adc_bits=12)
+    m = PTCModel(simulate_ptc(truth, seed=3, shape=(64, 64), n_levels=20))
+    assert m.terms.robust
+    rng = np.random.default_rng(5)
+    obs = rng.uniform(1.0, 400.0, 30)
+    model = obs[None, :] * np.exp(rng.normal(0.0, 0.6, (4, 30)))     # up to ~4 sd of the outlier law
+    k = rng.uniform(0.8, 5e4, (4, 30))
+    ll, prob = m._block_loglik("bright_var", obs, model, k, "gamma", with_outlier_prob=True)
+    good = np.log1p(-eps) + stats.gamma.logpdf(obs, a=k, scale=model / k)
+    bad = np.log(eps) + stats.lognorm.logpdf(obs, s=rs, scale=model)
+    ref = np.logaddexp(good, bad)
+    np.testing.assert_allclose(ll, ref, rtol=1e-12, atol=1e-9)
+    np.testing.assert_allclose(prob, np.exp(bad - ref), rtol=1e-9, atol=1e-15)
+    sd = rng.uniform(0.1, 20.0, (4, 30))
+    mu = obs[None, :] + rng.normal(0.0, 1.0, (4, 30)) * sd * rng.choice([1.0, 30.0], (4, 30))
+    ll = m._block_loglik("mean", obs, mu, sd, "normal")
+    ref = np.logaddexp(np.log1p(-eps) + stats.norm.logpdf(obs, mu, sd),
+                       np.log(eps) + stats.norm.logpdf(obs, mu, np.hypot(sd, rs * mu)))
+    np.testing.assert_allclose(ll, ref, rtol=1e-12, atol=1e-9)
+
+
 def test_logaddexp_matches_numpy():
     from bayescap.model import _logaddexp
 
