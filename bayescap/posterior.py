@@ -350,8 +350,10 @@ class FitResult:
         m = self.model
         E, S, W, D = self.chains.chain.shape
         th = self.chains.chain.reshape(-1, D)[self.thin_index(n_draws)]
+        with np.errstate(over="ignore", invalid="ignore", divide="ignore"):
+            pred = m.predict(th)     # shared by the outlier probabilities and the turnover check
         self.outliers = []
-        for block, (rows, prob) in m.outlier_probabilities(th).items():
+        for block, (rows, prob) in m.outlier_probabilities(th, pred).items():
             for r, pr in zip(rows, prob):
                 if pr > 0.5:
                     self.outliers.append({"row": int(r), "block": block, "probability": float(pr)})
@@ -360,8 +362,7 @@ class FitResult:
             self.notes.append(f"outlier rows (down-weighted by the mixture, not removed): {desc}")
         self._check_dark_floor()
         # variance turning over below the clip: the top unclipped rows sit well below the model
-        with np.errstate(over="ignore", invalid="ignore", divide="ignore"):
-            obs, model, k, _ = m.predict(th)["bright_var"]
+        obs, model, k, _ = pred["bright_var"]
         med = np.median(model, axis=0)
         kk = np.median(np.broadcast_to(k, model.shape), axis=0)
         z = (obs - med) / (med / np.sqrt(kk))
