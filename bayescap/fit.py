@@ -434,6 +434,16 @@ def newton_map(target, starts, *, max_iter: int = 60, h: float = NEWTON_H, alpha
             Q = lp_of(np.vstack([s["x"] + (h * Y) @ s["L"].T for s in need])).reshape(len(need), m)
             for s, q in zip(need, Q):
                 s["Q"], s["h"] = q, h
+        # stencils that left the support: h/10 and h/100 for every such start in one call (the
+        # first finite one is used; one call per level and start before 2026-11-24: on the
+        # clip-coordinate sensors that was ~15 of their ~40 log_prob calls)
+        retry = [s for s in active if s["raw"] is None and not np.all(np.isfinite(s["Q"]))]
+        if retry:
+            R = lp_of(np.vstack([s["x"] + (hh * Y) @ s["L"].T for s in retry
+                                 for hh in (0.1 * s["h"], 0.01 * s["h"])])).reshape(len(retry), 2, m)
+            for s, qq in zip(retry, R):
+                h0 = s["h"]
+                s["Q"], s["h"] = (qq[0], 0.1 * h0) if np.all(np.isfinite(qq[0])) else (qq[1], 0.01 * h0)
         moves = []
         for s in active:
             s["it"] += 1
@@ -441,12 +451,7 @@ def newton_map(target, starts, *, max_iter: int = 60, h: float = NEWTON_H, alpha
             if raw is not None:
                 f0, g, H = raw
             else:
-                q = s["Q"]
-                for hh in (0.1 * s["h"], 0.01 * s["h"]):
-                    if np.all(np.isfinite(q)):
-                        break
-                    q, s["h"] = lp_of(s["x"] + (hh * Y) @ s["L"].T), hh
-                s["Q"] = None
+                q, s["Q"] = s["Q"], None
                 if not np.all(np.isfinite(q)):
                     # next to a wall of the prior (τ's cap, a bound): the raw stencil's steps are
                     # 1e-4 relative; a step from its derivatives (the BFGS route's line search moved

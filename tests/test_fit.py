@@ -320,6 +320,34 @@ def test_newton_map_keeps_each_start_on_its_own_mode():
         assert abs(o.lp - (np.log(w) - 0.5 * np.linalg.slogdet(2 * np.pi * C)[1])) < 1e-9
 
 
+def test_newton_map_next_to_a_wall_retries_the_stencil_at_smaller_steps():
+    """A Gaussian whose support ends 0.1 sd beyond the mode in x₀: the Hessian stencil at the
+    whitened step h crosses the wall, the retry evaluates it at h/10 and h/100 together (one call of
+    2 stencils), and the mode and covariance come out as without the wall (the stencil is exact for
+    a quadratic)."""
+    import importlib
+
+    F = importlib.import_module("bayescap.fit")
+    n = 3
+    C, m = np.diag([0.04, 0.09, 0.01]), np.zeros(n)
+    sizes = []
+
+    class Wall(_Gaussians):
+        def log_prob(self, x):
+            x = np.atleast_2d(x)
+            sizes.append(x.shape[0])
+            return np.where(x[:, 0] > 0.1 * 0.2, -np.inf, super().log_prob(x))
+
+    ends, n_calls = F.newton_map(Wall([m], [C], [1.0]), [m + np.array([-0.3, 0.4, 0.1])])
+    (o,) = ends
+    assert o.converged
+    np.testing.assert_allclose(o.x, m, atol=1e-6)
+    np.testing.assert_allclose(o.cov, C, rtol=1e-6, atol=1e-12)
+    stencil = n * n + n + 1
+    assert 2 * stencil in sizes          # the retry: both smaller steps in one call
+    assert n_calls == len(sizes)
+
+
 @pytest.mark.slow
 def test_slow_burn_in_transient_is_discarded_not_reported(monkeypatch):
     """The walkers of sim00 started from the optimum 136 nats below the mode (the Laplace start
