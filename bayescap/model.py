@@ -109,14 +109,16 @@ def _norm_logpdf(x, mu, sd):
 
 
 def _logaddexp(a, b):
-    """``np.logaddexp(a, b)`` from numpy's vectorised exp and log1p: 3× faster on large arrays
+    """``np.logaddexp(a, b)`` from numpy's vectorised exp and log: 3× faster on large arrays
     (numpy's logaddexp calls the scalar libm functions element by element); equal to it within
-    1 ulp of max(|result|, 1) (``tests/test_model.py``), −inf where both are −inf."""
+    1 ulp of max(|result|, 1) on 10⁶ random pairs (``tests/test_model.py`` allows 4), −inf where
+    both are −inf."""
     m = np.maximum(a, b)
     with np.errstate(invalid="ignore"):
         # log(1 + e) for e = exp(−|a − b|) in (0, 1]: absolute error ≤ 1.2e-16, i.e. within an ulp
-        # of max(|result|, 1), at half log1p's cost there; |a − b| capped at 50 (e ≥ 2e-22, which
-        # rounds away against 1) so that exp never takes its slow underflow path
+        # of max(|result|, 1), and cheaper than log1p there (7 against 11 ns an element,
+        # benchmarks/ufunc_costs.py); |a − b| capped at 50 (e ≥ 2e-22, which rounds away against 1)
+        # so that exp never takes its slow underflow path (25 against 9 ns)
         out = m + np.log(1.0 + np.exp(-np.minimum(np.abs(a - b), 50.0)))
     return np.where(m == -np.inf, m, out)
 
@@ -1118,7 +1120,7 @@ class PTCModel:
             shift = -np.log(obs)
         else:
             good = _norm_logpdf(obs, model, spread)
-            # hypot's overflow guard is not needed for DN-sized numbers; sqrt is ~6× cheaper
+            # hypot's overflow guard is not needed for DN-sized numbers; sqrt is ~4× cheaper
             bad = _norm_logpdf(obs, model, np.sqrt(spread * spread + (OUTLIER_REL_SD * model) ** 2))
             bad = bad + np.log(OUTLIER_RATE)
             shift = 0.0
