@@ -20,3 +20,24 @@ def describe_machine() -> str:
 
     return (f"{cpu}, {os.cpu_count()} cores; Python {platform.python_version()}, numpy {np.__version__}, "
             f"scipy {scipy.__version__}, emcee {emcee.__version__}")
+
+
+def emit(lines, out=None) -> str:
+    """Print a benchmark's Markdown lines and, with ``out``, write them there atomically (a
+    temporary file in the same folder, then renamed: an interrupted run leaves the old result)."""
+    import tempfile
+    from pathlib import Path
+
+    text = "\n".join(lines) + "\n"
+    print(text)
+    if out:
+        out = Path(out)
+        fd, tmp = tempfile.mkstemp(dir=out.parent, prefix=out.name, suffix=".tmp")
+        try:
+            with os.fdopen(fd, "w") as f:
+                f.write(text)
+            os.replace(tmp, out)
+        except BaseException:
+            os.unlink(tmp)
+            raise
+    return text

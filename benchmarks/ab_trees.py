@@ -78,7 +78,7 @@ def main(argv=None):
 
 
 def _run(a):
-    from _machine import describe_machine
+    from _machine import describe_machine, emit
     from speed_accuracy import sensor_set
 
     import bayescap
@@ -141,10 +141,7 @@ def _run(a):
               f"old {o:.2f} s, new {nw:.2f} s, ratio {r:.3f}"]
     L += ["", f"Load average before {load0[0]:.2f}, {load0[1]:.2f}, {load0[2]:.2f}; after "
           + ", ".join(f"{v:.2f}" for v in os.getloadavg()) + "."]
-    text = "\n".join(L) + "\n"
-    print(text)
-    if a.out:
-        Path(a.out).write_text(text)
+    emit(L, a.out)
 
 
 if __name__ == "__main__":

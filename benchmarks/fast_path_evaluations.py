@@ -25,7 +25,7 @@ def main(argv=None):
     ap.add_argument("--out", default=None)
     a = ap.parse_args(argv)
     import bayescap
-    from _machine import describe_machine
+    from _machine import describe_machine, emit
     from bayescap import fast
     from bayescap.batch import gpixel_sensors
     from bayescap.model import PTCModel
@@ -63,10 +63,7 @@ def main(argv=None):
          f"{describe_machine()}; load before {load[0]:.2f}, after {os.getloadavg()[0]:.2f}.", "",
          "| sensor | wall s (best of 2) | log_prob calls | points | largest batches (calls×points) | k̂ | retried |",
          "|---|---|---|---|---|---|---|", *rows, f"| **all** | **{total:.2f}** | | | | | |"]
-    text = "\n".join(L) + "\n"
-    print(text)
-    if a.out:
-        Path(a.out).write_text(text)
+    emit(L, a.out)
 
 
 if __name__ == "__main__":
