@@ -435,8 +435,8 @@ def newton_map(target, starts, *, max_iter: int = 60, h: float = NEWTON_H, alpha
             for s, q in zip(need, Q):
                 s["Q"], s["h"] = q, h
         # stencils that left the support: h/10 and h/100 for every such start in one call (the
-        # first finite one is used; one call per level and start before 2026-11-24: on the
-        # clip-coordinate sensors that was ~15 of their ~40 log_prob calls)
+        # first finite one is used; one call per level and start until 2026-11-23 late evening:
+        # on the clip-coordinate sensors that was ~15 of their ~40 log_prob calls)
         retry = [s for s in active if s["raw"] is None and not np.all(np.isfinite(s["Q"]))]
         if retry:
             R = lp_of(np.vstack([s["x"] + (hh * Y) @ s["L"].T for s in retry
