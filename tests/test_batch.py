@@ -55,6 +55,26 @@ def test_stacked_log_prob_equals_each_models_own_bit_for_bit():
     assert n_groups >= 3
 
 
+def test_a_model_stacked_with_itself_equals_its_own_calls_bit_for_bit():
+    """PTCModelStack([m, m, m]) (the MCMC ensembles in lockstep) uses m's own data for every draw
+    instead of gathering copies; each request's log p is still m.log_prob of that request alone,
+    bit for bit: requests near the clip and far from it in one call (the clip rows are chosen per
+    request), and one request repeated."""
+    rng = np.random.default_rng(11)
+    models = [PTCModel(bayescap.load("data/emva1288_basler_ccd12.csv"))] + _stackable_sets()[0][:2]
+    for m in models:
+        stack = PTCModelStack([m] * 3)
+        assert stack._same
+        x0 = m.initial_guess()
+        ths = [_points(m, 30, rng), x0 + 0.2 * rng.standard_normal((17, m.ndim)), _points(m, 5, rng)]
+        ths[1][:, m.idx["log_k"]] += rng.normal(0.0, 0.5, 17)      # gains far apart: clip rows differ
+        sensor = np.repeat(np.arange(3), [len(t) for t in ths])
+        lp = stack.log_prob(np.vstack(ths), sensor)
+        solo = np.concatenate([m.log_prob(t) for t in ths])
+        assert np.array_equal(lp, solo)
+        assert all(np.isfinite(part).sum() >= 2 for part in np.split(lp, np.cumsum([len(t) for t in ths])[:-1]))
+
+
 def test_stack_refuses_models_of_different_structure():
     a = PTCModel(bayescap.load("data/emva1288_basler_ccd12.csv"))
     b = PTCModel(gpixel_sensors(n_max=1, seed=0)[0][0])
