@@ -58,8 +58,8 @@ def test_stacked_log_prob_equals_each_models_own_bit_for_bit():
 def test_a_model_stacked_with_itself_equals_its_own_calls_bit_for_bit():
     """PTCModelStack([m, m, m]) (the MCMC ensembles in lockstep) uses m's own data for every draw
     instead of gathering copies; each request's log p is still m.log_prob of that request alone,
-    bit for bit: requests near the clip and far from it in one call (the clip rows are chosen per
-    request), and one request repeated."""
+    bit for bit, with requests of different spreads in one call (the rows near the clip are
+    chosen per request: the second request's gains are spread far wider)."""
     rng = np.random.default_rng(11)
     models = [PTCModel(bayescap.load("data/emva1288_basler_ccd12.csv"))] + _stackable_sets()[0][:2]
     for m in models:
