@@ -1,7 +1,7 @@
 """Where the fast path's time goes: log_prob calls, points evaluated and wall time of
 ``fast.fast_posterior`` on the bundled Basler CCD and 8 simulated Gpixel GSPRINT4521 ROIs.
 
-    python benchmarks/fast_path_evaluations.py [--out FILE]
+    python benchmarks/fast_path_evaluations.py [--set gpixel|speed_accuracy] [--out FILE]
 
 Uses only ``PTCModel.log_prob`` and ``fast_posterior``, so the same script measures an older commit
 (``git worktree add --detach /tmp/old <commit>; PYTHONPATH=/tmp/old python benchmarks/...``).
@@ -23,6 +23,8 @@ sys.path.insert(0, str(ROOT / "benchmarks"))
 def main(argv=None):
     ap = argparse.ArgumentParser()
     ap.add_argument("--out", default=None)
+    ap.add_argument("--set", choices=("gpixel", "speed_accuracy"), default="gpixel",
+                    help="the Basler and 8 Gpixel ROIs, or speed_accuracy.sensor_set(10) (the README's 11)")
     a = ap.parse_args(argv)
     import bayescap
     from _machine import describe_machine, emit
@@ -31,8 +33,12 @@ def main(argv=None):
     from bayescap.model import PTCModel
     from bayescap.ptc import read_ptc_csv
 
-    datas = [("Basler CCD (real)", read_ptc_csv(ROOT / "data" / "emva1288_basler_ccd12.csv"))]
-    datas += [(f"Gpixel ROI sim {i} (seed 0)", d) for i, d in enumerate(gpixel_sensors(n_max=8, seed=0)[0])]
+    if a.set == "speed_accuracy":
+        from speed_accuracy import sensor_set
+        datas = [(name, d) for name, d, _ in sensor_set(10)]
+    else:
+        datas = [("Basler CCD (real)", read_ptc_csv(ROOT / "data" / "emva1288_basler_ccd12.csv"))]
+        datas += [(f"Gpixel ROI sim {i} (seed 0)", d) for i, d in enumerate(gpixel_sensors(n_max=8, seed=0)[0])]
     hist = collections.Counter()
     orig = PTCModel.log_prob
 
