@@ -15,7 +15,7 @@ call) for the bundled Basler CCD and 3 simulated Gpixel ROIs, with the largest |
 path (``fast.fast_posterior``, seed 1) on ``speed_accuracy.sensor_set(10)`` (the README's 11
 sensors), with whether the draws are the same and the largest change of a 2.5/50/97.5 %
 quantile as a fraction of the 95 % width; with ``--standard``, ``bayescap.fit(quality="standard")``
-on the Basler (``--standard-reps`` pairs), with whether its draws are the same. The Basler's model
+on the Basler (``--standard-reps`` pairs), with whether its draws are the same. Each of the 4 models
 is also timed stacked with itself (2 × 48 draws: the MCMC ensembles in lockstep, ``fit._run_segments``)."""
 import argparse
 import importlib
