@@ -1445,7 +1445,8 @@ class PTCModelStack:
         # one model stacked with itself (the ensembles of an MCMC preset in lockstep,
         # fit._run_segments): its own data serve every draw, nothing to gather
         self._same = all(m is m0 for m in self.models)
-        self._rows = {a: np.stack([getattr(m, a) for m in self.models]) for a in self.ROW_ARRAYS if hasattr(m0, a)}
+        self._rows = {} if self._same else {a: np.stack([getattr(m, a) for m in self.models])
+                                            for a in self.ROW_ARRAYS if hasattr(m0, a)}
         self._black = np.array([m.black_dn for m in self.models], float)
         self._adc = None if m0.adc is None else np.array([m.adc for m in self.models], float)
         self._nu_pattern = np.array([m.nu_pattern for m in self.models], float)
