@@ -136,7 +136,8 @@ def fit(data: PTCData | PTCModel | str, *, seed: int | None = None,
         else:
             settings = QUALITY_PRESETS[fallback_quality]
             mc = run_ensembles(model, settings=settings, seed=seed, progress=progress, n_jobs=n_jobs,
-                               derived_fn=FitResult.derived_draws_fn(model, **kw))
+                               derived_fn=FitResult.derived_draws_fn(model, **kw),
+                               reported_fn=FitResult.reported_draws_fn(model, **kw))
             mc.wall_s += fd["wall_s"]          # the rejected attempt is part of the cost
             res = FitResult.from_chains(model, mc, quality="fast", **kw)
             res.diag.update({
@@ -156,7 +157,8 @@ def fit(data: PTCData | PTCModel | str, *, seed: int | None = None,
         settings = QUALITY_PRESETS[quality] if isinstance(quality, str) else quality
         qname = quality if isinstance(quality, str) else "custom"
         chains = run_ensembles(model, settings=settings, seed=seed, progress=progress, n_jobs=n_jobs,
-                               derived_fn=FitResult.derived_draws_fn(model, **kw))
+                               derived_fn=FitResult.derived_draws_fn(model, **kw),
+                               reported_fn=FitResult.reported_draws_fn(model, **kw))
         res = FitResult.from_chains(model, chains, quality=qname, **kw)
     res.notes.extend(notes)
     if defaults_used:

@@ -54,6 +54,9 @@ class SamplerSettings:
     map_restarts: int = 2           # extra optimiser starts in find_map (the Laplace start)
     adaptive_extend: bool = False   # size each further round from the ESS / τ shortfall (≥ extend_steps)
     importance_start: bool = True   # with the IndependenceMove: start from Laplace–IS draws when accepted
+    # largest Monte Carlo error of a reported 95 % interval end, as a fraction of its width
+    # (interval_end_mcse_mcmc; None: computed and reported, not checked)
+    end_mcse_target: float | None = None
 
 
 QUALITY_PRESETS = {
@@ -70,7 +73,8 @@ QUALITY_PRESETS = {
     "standard": SamplerSettings(n_burn=100, n_steps=100, extend_steps=20, max_rounds=16, independence_fraction=0.7,
                                 independence_nu=4.0, independence_scale=1.3, adaptive_extend=True, map_restarts=0),
     "accurate": SamplerSettings(n_ensembles=8, n_burn=400, n_steps=800, extend_steps=None, max_rounds=8,
-                                rhat_target=1.005, ess_target=2000, tau_factor=50, max_draws=20000),
+                                rhat_target=1.005, ess_target=2000, tau_factor=50, max_draws=20000,
+                                end_mcse_target=0.01),
 }
 
 
@@ -1129,13 +1133,15 @@ def _map_segments(tasks, pool, pbar=None):
 
 def run_ensembles(model: PTCModel, *, settings: SamplerSettings = SamplerSettings(), seed=None,
                   progress: bool = False, converged_fn=None, n_jobs: int | None = None,
-                  derived_fn=None) -> ChainResult:
+                  derived_fn=None, reported_fn=None) -> ChainResult:
     """Run ``settings.n_ensembles`` independently seeded emcee ensembles.
 
     Each ensemble: walkers drawn from the Laplace approximation at the MAP, a burn-in, then
     production rounds (``n_steps``, then ``extend_steps`` each); after each round the ensembles are checked together by
     ``converged_fn(chain)`` (default: R-hat/ESS of the parameters and of the quantities
-    ``derived_fn(chain)`` returns, e.g. capacity; and length ≥ tau_factor·τ)
+    ``derived_fn(chain)`` returns, e.g. capacity; and length ≥ tau_factor·τ; then, with
+    ``reported_fn(chain)`` (every quantity the result gives an interval for), the Monte Carlo
+    error of the 95 % interval ends against ``settings.end_mcse_target``)
     and extended while it fails, up to ``max_rounds``. The ensembles run in ``n_jobs`` forked
     processes (default: one per core, at most one per ensemble; ``BAYESCAP_JOBS`` overrides);
     the numbers do not depend on ``n_jobs``.
@@ -1196,7 +1202,7 @@ def run_ensembles(model: PTCModel, *, settings: SamplerSettings = SamplerSetting
             chain = np.stack([np.concatenate(c, axis=0) for c in chunks])[:, discard:]  # (E, S, W, D)
             cache = {}
             ok = (converged_fn(chain, settings) if converged_fn is not None
-                  else _default_converged(chain, settings, cache, derived_fn, pool))
+                  else _default_converged(chain, settings, cache, derived_fn, pool, reported_fn))
             if ok or rounds >= settings.max_rounds:
                 break
             n_done = chain.shape[1]
@@ -1226,6 +1232,7 @@ def run_ensembles(model: PTCModel, *, settings: SamplerSettings = SamplerSetting
             pbar.close()
     lp = np.stack([np.concatenate(c, axis=0) for c in lps])[:, discard:]
     acc = accepted / n_prod
+    end_mcse = cache.pop("end_mcse", None)       # of the final chain: the last check's
     tau = integrated_time(chain)
     return ChainResult(chain=chain, log_prob=lp, acceptance=acc, tau=tau, x_map=x_map, lp_map=lp_map,
                        settings=settings, wall_s=time.perf_counter() - t0, n_rounds=rounds,
@@ -1233,7 +1240,9 @@ def run_ensembles(model: PTCModel, *, settings: SamplerSettings = SamplerSetting
                               # production steps discarded as burn-in after a time-split R-hat failure
                               "burn_in_extended": int(discard), "drift": drift,
                               # diagnostics of the final chain's parameters, when all were computed
-                              "param_diagnostics": cache if ok and converged_fn is None else None})
+                              "param_diagnostics": cache if ok and converged_fn is None else None,
+                              # {quantity: Monte Carlo error of its 95 % interval ends / width}
+                              "end_mcse": end_mcse})
 
 
 def _emcee_integrated_time(x, c=5):
@@ -1404,17 +1413,75 @@ def fast_diagnostics(x_esw):
     return {"rhat": rhat, "ess_bulk": ess_b, "ess_tail": ess_t}
 
 
+#: the probabilities of the ±1 sd points of a standard normal, as ArviZ's quantile MCSE uses them
+_ONE_SD_PROBS = (0.1586553, 0.8413447)
+
+
+def quantile_mcse(x_esw, probs=(0.025, 0.975), quantiles=None):
+    """Monte Carlo standard error of the quantiles ``probs`` of ensemble draws (E, S, W), in the
+    draws' units: Vehtari et al. (2021, §4.3) as ArviZ 0.x's ``mcse(method="quantile")`` computes
+    it, with the walkers as chains (as the tail ESS of :func:`fast_diagnostics`).
+
+    The ESS of the indicator 1{x ≤ q̂_p} over the split walker chains gives a Beta(ESS·p + 1,
+    ESS·(1 − p) + 1) distribution for the probability below the estimate q̂_p; its ±1 sd points
+    map to two order statistics of the draws, and the MCSE is half their distance.
+    ``quantiles``: the draws' ``probs`` quantiles if the caller has them. Returns an array like
+    ``probs`` (NaN where the draws are not all finite)."""
+    from scipy.special import betaincinv      # scipy.stats.beta.ppf's kernel, without its overhead
+
+    x = np.asarray(x_esw, float)
+    E, S, W = x.shape
+    probs = np.atleast_1d(np.asarray(probs, float))
+    if not np.all(np.isfinite(x)) or S < 4:
+        return np.full(probs.shape, np.nan)
+    by_walker = np.transpose(x, (0, 2, 1)).reshape(E * W, S)
+    flat = by_walker.ravel()
+    n = flat.size
+    qs = np.quantile(flat, probs) if quantiles is None else np.atleast_1d(quantiles)
+    idx = []
+    for p, q in zip(probs, qs):
+        ess = _ess_kernel(_split(by_walker <= q))
+        with np.errstate(invalid="ignore"):
+            a = betaincinv(ess * p + 1.0, ess * (1.0 - p) + 1.0, np.array(_ONE_SD_PROBS)) * n - 1.0
+        idx.append((int(np.floor(np.nanmax((a[0], 0)))), int(np.ceil(np.nanmin((a[1], n - 1))))))
+    ks = sorted({k for pair in idx for k in pair})
+    srt = np.partition(flat, ks)            # the order statistics needed, without a full sort
+    return np.array([0.5 * (srt[i2] - srt[i1]) for i1, i2 in idx])
+
+
+def interval_end_mcse_mcmc(x_esw):
+    """Monte Carlo error of the 95 % interval's ends of ensemble draws (E, S, W), as a fraction of
+    the interval's width: the larger of the two ends' :func:`quantile_mcse`. 0 for a constant
+    quantity; NaN when the draws are not all finite. The MCMC counterpart of
+    :func:`bayescap.fast.interval_end_mcse` (importance draws)."""
+    x = np.asarray(x_esw, float)
+    if not np.all(np.isfinite(x)):
+        return float("nan")
+    probs = (0.025, 0.975)
+    q = np.quantile(x, probs)
+    if not q[1] > q[0]:
+        return 0.0
+    return float(np.max(quantile_mcse(x, probs, q)) / (q[1] - q[0]))
+
+
+def _end_mcse_share(xs):
+    """:func:`interval_end_mcse_mcmc` of each (E, S, W) array of ``xs`` (a pool worker's share)."""
+    return [interval_end_mcse_mcmc(x) for x in xs]
+
+
 def _diagnostics_share(xs):
     """:func:`fast_diagnostics` of each (E, S, W) array of ``xs`` (a pool worker's share)."""
     return [fast_diagnostics(x) for x in xs]
 
 
-def _default_converged(chain, settings, cache=None, derived_fn=None, pool=None):
+def _default_converged(chain, settings, cache=None, derived_fn=None, pool=None, reported_fn=None):
     """R-hat/ESS of every parameter (then of the derived quantities ``derived_fn(chain)``
     returns, ``{name: (E, S, W) draws}``) and length ≥ tau_factor·τ; the first failure, in that
     order, decides. ``cache`` (a dict) receives the diagnostics up to it (keys: parameter index,
     derived name), so that :class:`bayescap.posterior.FitResult` need not recompute them for the
-    final chain.
+    final chain. When those pass and ``reported_fn`` is given: the Monte Carlo error of the 95 %
+    interval ends of every quantity ``reported_fn(chain)`` returns (:func:`interval_end_mcse_mcmc`,
+    in ``cache["end_mcse"]``), checked against ``settings.end_mcse_target`` when it is set.
 
     Without ``pool`` the quantities are checked one after the other, stopping at the first
     failure. With the ensembles' ``pool`` (idle between rounds) every quantity is diagnosed, shared
@@ -1455,13 +1522,41 @@ def _default_converged(chain, settings, cache=None, derived_fn=None, pool=None):
                     return False
     if cache is not None:
         cache.pop("_shortfall", None)
+    if reported_fn is not None:
+        end = _end_mcse_all(reported_fn(chain), pool)
+        if cache is not None:
+            cache["end_mcse"] = end
+        target = settings.end_mcse_target
+        if target is not None and end:
+            # NaN (draws not all finite) counts as the worst
+            worst = max(end, key=lambda k: end[k] if np.isfinite(end[k]) else np.inf)
+            if not end[worst] <= target:
+                if cache is not None:
+                    cache["_shortfall"] = ("mcse", end[worst], worst)
+                return False
     return True
+
+
+def _end_mcse_all(quantities, pool=None):
+    """{name: :func:`interval_end_mcse_mcmc`} of ``quantities`` ({name: (E, S, W) draws}), shared
+    out among the ``pool``'s processes when there is one."""
+    names = list(quantities)
+    if pool is None or len(names) < 2:
+        vals = [interval_end_mcse_mcmc(quantities[k]) for k in names]
+    else:
+        n = max(1, min(pool.n_processes, len(names)))
+        parts = pool.map(_end_mcse_share, [[quantities[k] for k in names[w::n]] for w in range(n)])
+        vals = [None] * len(names)
+        for w, part in enumerate(parts):
+            vals[w::n] = part
+    return {k: float(v) for k, v in zip(names, vals)}
 
 
 def _next_round_steps(n_done, settings, cache):
     """Steps of the next round: ``extend_steps``, or with ``adaptive_extend`` enough to close the
     shortfall of the check that failed (ESS grows about linearly with the steps: n·(target/ESS − 1)
-    + 10 %; a τ check: tau_factor·τ − n), at most 3 n + extend_steps. Even, so the shared-sort
+    + 10 %; a τ check: tau_factor·τ − n; an interval end's Monte Carlo error: n·((error/target)² − 1)
+    + 10 %), at most 3 n + extend_steps. Even, so the shared-sort
     diagnostics apply. Deterministic: depends only on the chain."""
     base = settings.extend_steps or settings.n_steps
     if not settings.adaptive_extend or not cache or "_shortfall" not in cache:
@@ -1469,6 +1564,8 @@ def _next_round_steps(n_done, settings, cache):
     kind, *v = cache["_shortfall"]
     if kind == "tau":
         need = v[0]
+    elif kind == "mcse":                   # the error falls as 1/√n
+        need = 1.1 * n_done * ((v[0] / settings.end_mcse_target) ** 2 - 1.0)
     elif v[1] >= settings.rhat_target:     # R-hat failed: no ESS-based guess
         need = base
     else:

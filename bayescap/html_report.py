@@ -366,6 +366,12 @@ def render_html(cmp: Comparison, *, title: str = "bayescap sensor comparison") -
                                f"{dg['n_rounds']} round(s), {dg['wall_s']:.1f} s, quality {dg['quality']}")],
                 ["model terms", _e(", ".join(rd["model_terms"]))],
                 ["MTF", _e(", ".join(cc.get("name", "") for cc in rd.get("mtf", {}).get("model", {}).get("components", [])))]]
+        if dg.get("interval_end_mcse_max") is not None:
+            tgt = dg.get("interval_end_mcse_target")
+            diag.append(["Monte Carlo error of the 95 % interval ends, of the width (target)",
+                         _e(f"{num('interval_end_mcse_max', '.3f')}"
+                            + (f" ({dg['interval_end_mcse_worst']})" if dg.get("interval_end_mcse_worst") else "")
+                            + (f" (≤ {tgt:g})" if tgt is not None else " (reported, not a check)"))])
         if dg.get("failed_checks"):
             diag.append(["failed checks", _e("; ".join(dg["failed_checks"]))])
         sec.append('<div class=grid><div><h3>Parameters</h3>' + _table(["parameter", "median [95 %]", "unit", "constrained"], prm)

@@ -14,7 +14,8 @@ import numpy as np
 from . import __version__
 from .capacity import (NoiseCoefficients, dynamic_range_db, mtf_loss_bits, snr_db, tonal_range,
                        N_GREY_LEVELS)
-from .fit import ChainResult, ConvergenceWarning, fast_diagnostics, stuck_threshold, stuck_walkers
+from .fit import (ChainResult, ConvergenceWarning, fast_diagnostics, interval_end_mcse_mcmc, stuck_threshold,
+                  stuck_walkers)
 from .model import PTCModel
 
 __all__ = ["FitResult", "Scene", "summarize", "DERIVED_INFO"]
@@ -58,6 +59,17 @@ class Scene:
 
 _DERIVED_NOTE_PREFIXES = ("width_px/height_px unknown", "no row reaches saturation", "the MTF reaches zero",
                           "noise stays below one")
+
+
+def _mcmc_description(st) -> str:
+    """The moves the ensembles ran (``bayescap.fit._moves``): the standard and accurate presets
+    mix the IndependenceMove in (before, this said DEMove + StretchMove for every preset)."""
+    moves = []
+    if getattr(st, "independence_fraction", 0.0) > 0:
+        moves.append(f"IndependenceMove (Student-t ν={st.independence_nu:g}) up to "
+                     f"{100 * st.independence_fraction:.0f} % of steps")
+    moves.append("DEMove" if st.de_fraction >= 1 else "DEMove + StretchMove")
+    return "emcee ensembles (" + ", ".join(moves) + "), Gamma likelihood with discrepancy"
 
 
 def _q(x, qs):
@@ -126,6 +138,32 @@ class FitResult:
             return {n: tmp.derived[n].reshape(E, S, W)
                     for n in ("capacity_bits", "capacity_bits_per_pixel", "tonal_range_bits") if n in tmp.derived}
         return fn
+
+    @classmethod
+    def reported_draws_fn(cls, model: PTCModel, *, metadata, scene, mtf, seed):
+        """``fn(chain) -> {name: (E, S, W) draws}`` of every quantity the result gives an interval
+        for (physical parameters and derived quantities, constants left out), whose interval ends'
+        Monte Carlo error :func:`bayescap.fit.run_ensembles` computes once its other checks pass
+        (and checks against ``end_mcse_target``)."""
+        def fn(chain):
+            E, S, W, D = chain.shape
+            tmp = cls(model=model, chains=None, metadata=metadata, scene=scene, mtf=mtf, seed=seed,
+                      quality="")
+            tmp.draws = model.physical(chain.reshape(E * S * W, D))
+            tmp._derive()
+            return tmp._reported_draws((E, S, W))
+        return fn
+
+    def _reported_draws(self, shape):
+        """{name: draws reshaped (E, S, W)} of the physical parameters and derived quantities
+        that vary (a constant has no Monte Carlo error)."""
+        n = int(np.prod(shape))
+        out = {}
+        for name, v in list(self.draws.items()) + list(self.derived.items()):
+            v = np.asarray(v, float)
+            if v.size == n and np.ptp(v) > 0:
+                out[name] = v.reshape(shape)
+        return out
 
     @property
     def shape_esw(self):
@@ -253,6 +291,7 @@ class FitResult:
             worst = max(mcse, key=mcse.get)
             self.diag["interval_end_mcse"] = {k: float(v) for k, v in mcse.items()}
             self.diag["interval_end_mcse_max"] = float(mcse[worst])
+            self.diag["interval_end_mcse_worst"] = worst
             gate = x.get("end_mcse_max")
             self.diag["interval_end_mcse_target"] = gate
             self.diag["n_topup"] = int(x.get("n_topup", 0))
@@ -298,6 +337,17 @@ class FitResult:
                           f"({tau_max:.1f} steps)")
         if not np.all(c.acceptance > 0.05):
             failed.append(f"acceptance fraction {c.acceptance.min():.3f} < 0.05 in an ensemble")
+        # Monte Carlo error of every reported 95 % interval end (fit.interval_end_mcse_mcmc), as
+        # run_ensembles computed it on the final chain, or here
+        end = c.extra.get("end_mcse")
+        if end is None:
+            end = {n: interval_end_mcse_mcmc(x) for n, x in self._reported_draws((E, S, W)).items()}
+        end = {n: float(v) for n, v in end.items()}
+        end_target = getattr(st, "end_mcse_target", None)
+        end_worst = max(end, key=lambda n: end[n] if np.isfinite(end[n]) else np.inf) if end else None
+        if end_target is not None and end_worst is not None and not end[end_worst] <= end_target:
+            failed.append(f"Monte Carlo error of a 95 % interval end {end[end_worst]:.3f} of the width "
+                          f"({end_worst}) > {end_target:g}")
         # walkers stranded far below the mode (fit.stuck_walkers): their draws are not posterior draws
         lp_w = np.transpose(c.log_prob, (1, 0, 2)).reshape(S, E * W)
         n_stuck = int(np.sum(stuck_walkers(lp_w, D)))
@@ -307,7 +357,7 @@ class FitResult:
         converged = not failed
         self.diag = {
             "method": "emcee",
-            "method_description": "emcee ensembles (DEMove + StretchMove), Gamma likelihood with discrepancy",
+            "method_description": _mcmc_description(st),
             "quality": self.quality,
             "converged": converged,
             "failed_checks": failed,
@@ -333,6 +383,11 @@ class FitResult:
             "seed": self.seed,
             "per_quantity": per,
         }
+        if end_worst is not None:
+            self.diag["interval_end_mcse"] = end
+            self.diag["interval_end_mcse_max"] = end[end_worst]
+            self.diag["interval_end_mcse_target"] = end_target
+            self.diag["interval_end_mcse_worst"] = end_worst
         if self.diag["burn_in_extended_steps"]:
             ev = "; ".join(f"{e['quantity']} R-hat {e['rhat']:.3f} after round {e['round']}"
                            for e in self.diag["drift_events"])

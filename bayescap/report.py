@@ -80,6 +80,12 @@ def format_text(result: FitResult | dict) -> str:
                      f"quality {dg['quality']}, seed {dg['seed']}")
     if "fast_path" in dg:
         lines.append(f"  {dg['fast_path']}")
+    if dg.get("method") != "laplace-is" and dg.get("interval_end_mcse_max") is not None:
+        # the chains' own Monte Carlo error of the interval ends (fit.interval_end_mcse_mcmc)
+        tgt = dg.get("interval_end_mcse_target")
+        lines.append(f"  Monte Carlo error of the 95 % interval ends: up to {num('interval_end_mcse_max', '.3f')} "
+                     f"of the width ({dg.get('interval_end_mcse_worst', '?')}"
+                     + (f"; target ≤ {tgt:g}" if tgt is not None else "; reported, not a check") + ")")
     lines.append("")
     lines.append(f"  {'parameter':<28} {'median':>11}   68 % interval   95 % interval")
     params = d["parameters"]

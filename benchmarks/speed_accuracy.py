@@ -102,6 +102,22 @@ def errors_vs_ref(q, qref):
     return worst_end, who_end, worst_med, who_med
 
 
+def mcse_ratios(q, qref, own, ref):
+    """Per quantity: the observed error of its worse 95 % interval end against the reference,
+    |Δ end| / reference width, over the error both runs predict for themselves (each run's own
+    ``diagnostics.interval_end_mcse``, the worse end's, combined in quadrature). ~|N(0, 1)|-sized
+    (a little smaller: each prediction is the worse of the two ends') when the predictions are right."""
+    out = []
+    for n, r in qref.items():
+        w = r[2] - r[0]
+        if n not in q or not w > 0 or n not in own or n not in ref:
+            continue
+        pred = np.hypot(own[n], ref[n])
+        if pred > 0:
+            out.append(max(abs(q[n][0] - r[0]), abs(q[n][2] - r[2])) / w / pred)
+    return out
+
+
 def coverage(res, truth):
     if truth is None:
         return None, None
@@ -209,7 +225,9 @@ def run_presets(sensors, *, ref_quality, seed, presets=("standard", "accurate"))
             ref = bayescap.fit(d, seed=seed + 1000 + i, quality=ref_quality)
             ref_wall = time.perf_counter() - t
             qref = quantiles(ref)
-            row = {"name": name, "ref_wall": ref_wall, "ref_converged": ref.diag["converged"], "presets": {}}
+            ref_mcse = ref.diag.get("interval_end_mcse") or {}
+            row = {"name": name, "ref_wall": ref_wall, "ref_converged": ref.diag["converged"], "presets": {},
+                   "ref_mcse": ref.diag.get("interval_end_mcse_max")}
             # fast path, without fallback, so that its own accuracy is measured even when rejected
             t = time.perf_counter()
             fr = fast_fit(d, seed=seed + i, fallback=False)
@@ -217,8 +235,10 @@ def run_presets(sensors, *, ref_quality, seed, presets=("standard", "accurate"))
             e = errors_vs_ref(quantiles(fr), qref)
             cov = coverage(fr, truth)
             x = fr.chains.extra
+            own = fr.diag.get("interval_end_mcse") or {}
             row["presets"]["fast"] = dict(wall=wall, ess=x["ess_is"], accepted=x["accepted"], khat=x["khat"],
-                                          err=e, cov=cov)
+                                          err=e, cov=cov, mcse=fr.diag.get("interval_end_mcse_max"),
+                                          z=mcse_ratios(quantiles(fr), qref, own, ref_mcse))
             # the optimiser restarts: do they change the MAP?
             m = PTCModel(d)
             _, lp0 = find_map(m, n_restarts=0)
@@ -228,8 +248,11 @@ def run_presets(sensors, *, ref_quality, seed, presets=("standard", "accurate"))
                 t = time.perf_counter()
                 r = bayescap.fit(d, seed=seed + i, quality=PREVIOUS_STANDARD if q == "standard_before" else q)
                 wall = time.perf_counter() - t
+                own = r.diag.get("interval_end_mcse") or {}
                 row["presets"][q] = dict(wall=wall, ess=r.diag["ess_min"], converged=r.diag["converged"],
-                                         err=errors_vs_ref(quantiles(r), qref), cov=coverage(r, truth))
+                                         err=errors_vs_ref(quantiles(r), qref), cov=coverage(r, truth),
+                                         mcse=r.diag.get("interval_end_mcse_max"),
+                                         z=mcse_ratios(quantiles(r), qref, own, ref_mcse))
             bw, bess = naive_emcee(d, seed=seed + i)
             row["baseline"] = dict(wall=bw, ess=bess)
             fw, fess, frhat = naive_emcee_full(d, seed=seed + i)
@@ -311,10 +334,12 @@ def write_md(path, rows, timing, batch, *, args, load_before, load_after, wall_t
              "is part of them. Fast = Laplace–IS (`bayescap.fast.fast_fit`, no fallback, so that rejected "
              "cases are measured too; ✗ = its k̂/ESS check rejected it). Coverage = truths (K, read noise, "
              "clip charge, QE) inside the 95 % interval. ESS/s = min bulk/tail ESS (MCMC, every parameter "
-             "and capacity) or IS ESS (fast) per wall second.")
+             "and capacity) or IS ESS (fast) per wall second. Own MC err = the run's own prediction of the "
+             "Monte Carlo error of its 95 % interval ends, the worst over every parameter and derived "
+             "quantity (`diagnostics.interval_end_mcse_max`), as a fraction of the width.")
     L.append("")
-    L.append("| sensor | preset | wall s | ESS/s | end err | med err | worst quantity | coverage | notes |")
-    L.append("|---|---|---|---|---|---|---|---|---|")
+    L.append("| sensor | preset | wall s | ESS/s | end err | med err | worst quantity | own MC err | coverage | notes |")
+    L.append("|---|---|---|---|---|---|---|---|---|---|")
     qs = [q for q in ("fast", "standard", "standard_before", "accurate") if q in rows[0]["presets"]]
     for r in rows:
         for q in qs:
@@ -324,14 +349,15 @@ def write_md(path, rows, timing, batch, *, args, load_before, load_after, wall_t
                 note = f"k̂ {p['khat']:.2f}, IS ESS {p['ess']:.0f} " + ("✓" if p["accepted"] else "✗")
             else:
                 note = "converged" if p["converged"] else "NOT converged"
+            mc = "" if p.get("mcse") is None else f"{p['mcse']:.3f}"
             L.append(f"| {r['name']} | {q} | {p['wall']:.2f} | {p['ess'] / p['wall']:.0f} | {p['err'][0]:.3f} | "
-                     f"{p['err'][2]:.3f} | {p['err'][1]} | {cov} | {note} |")
+                     f"{p['err'][2]:.3f} | {p['err'][1]} | {mc} | {cov} | {note} |")
         b = r["baseline"]
-        L.append(f"| {r['name']} | naive emcee (2 params) | {b['wall']:.2f} | {b['ess'] / b['wall']:.0f} | | | | | "
+        L.append(f"| {r['name']} | naive emcee (2 params) | {b['wall']:.2f} | {b['ess'] / b['wall']:.0f} | | | | | | "
                  "vectorize=False, Gaussian σ from data, StretchMove |")
         if "baseline_full" in r:
             b = r["baseline_full"]
-            L.append(f"| {r['name']} | naive emcee (bayescap's model) | {b['wall']:.2f} | {b['ess'] / b['wall']:.1f} | | | | | "
+            L.append(f"| {r['name']} | naive emcee (bayescap's model) | {b['wall']:.2f} | {b['ess'] / b['wall']:.1f} | | | | | | "
                      f"vectorize=False, StretchMove, start at the initial guess; R-hat (4 walker groups) "
                      f"{b['rhat']:.3f} |")
     L.append("")
@@ -354,6 +380,21 @@ def write_md(path, rows, timing, batch, *, args, load_before, load_after, wall_t
             L.append(f"- **{q}**: median wall {np.median([p['wall'] for p in ps]):.1f} s, median ESS/s "
                      f"{np.median([p['ess'] / p['wall'] for p in ps]):.0f}, endpoint error max "
                      f"{max(p['err'][0] for p in ps):.3f}, converged {sum(p['converged'] for p in ps)}/{len(ps)}.")
+    for q in qs:
+        ps = [r["presets"][q] for r in rows]
+        own = [p["mcse"] for p in ps if p.get("mcse") is not None]
+        z = np.concatenate([p["z"] for p in ps if p.get("z")] or [np.zeros(0)])
+        if own:
+            L.append(f"- {q}: its own predicted Monte Carlo error of the interval ends, worst quantity, median "
+                     f"{np.median(own):.3f}, max {max(own):.3f} of the width"
+                     + (f" (the `accurate` preset extends its run until it is ≤ 0.01)" if q == "accurate" else "")
+                     + (f"; observed |Δ end| against the reference over the error both runs predict, per "
+                        f"quantity ({z.size}): median {np.median(z):.2f}, ≤ 2 on {np.mean(z <= 2):.0%} "
+                        f"(|N(0, 1)|: 0.67, 95 %)" if z.size else "") + ".")
+    refm = [r["ref_mcse"] for r in rows if r.get("ref_mcse") is not None]
+    if refm:
+        L.append(f"- the references' own predicted end error (worst quantity): median {np.median(refm):.4f}, "
+                 f"max {max(refm):.4f} of the width.")
     ks = [(r["presets"]["fast"]["khat"], r["presets"]["fast"]["err"][0]) for r in rows]
     L.append("- k̂ vs endpoint error (fast): " + ", ".join(f"{k:.2f}→{e:.3f}" for k, e in sorted(ks)) + ".")
     for q in qs:
