@@ -1507,11 +1507,7 @@ def _default_converged(chain, settings, cache=None, derived_fn=None, pool=None, 
         items = [(j, chain[..., j]) for j in range(D)]
         if derived_fn is not None:
             items += list(derived_fn(chain).items())
-        n = max(1, min(pool.n_processes, len(items)))
-        parts = pool.map(_diagnostics_share, [[x for _, x in items[w::n]] for w in range(n)])
-        diags = [None] * len(items)
-        for w, part in enumerate(parts):
-            diags[w::n] = part
+        diags = _shared_out(pool, _diagnostics_share, [x for _, x in items])
         for (key, _), d in zip(items, diags):
             if not ok(key, d):
                 return False
@@ -1547,12 +1543,18 @@ def _end_mcse_all(quantities, pool=None):
     if pool is None or len(names) < 2:
         vals = [interval_end_mcse_mcmc(quantities[k]) for k in names]
     else:
-        n = max(1, min(pool.n_processes, len(names)))
-        parts = pool.map(_end_mcse_share, [[quantities[k] for k in names[w::n]] for w in range(n)])
-        vals = [None] * len(names)
-        for w, part in enumerate(parts):
-            vals[w::n] = part
+        vals = _shared_out(pool, _end_mcse_share, [quantities[k] for k in names])
     return {k: float(v) for k, v in zip(names, vals)}
+
+
+def _shared_out(pool, share_fn, xs):
+    """``share_fn`` (a list -> a list of results) over ``xs`` shared out round-robin among the
+    pool's processes; the results in the order of ``xs``."""
+    n = max(1, min(pool.n_processes, len(xs)))
+    out = [None] * len(xs)
+    for w, part in enumerate(pool.map(share_fn, [xs[w::n] for w in range(n)])):
+        out[w::n] = part
+    return out
 
 
 def _next_round_steps(n_done, settings, cache):

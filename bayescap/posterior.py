@@ -130,14 +130,20 @@ class FitResult:
         :meth:`_diagnose` checks (capacity, tonal range), for :func:`bayescap.fit.run_ensembles`
         to check them after every round."""
         def fn(chain):
-            E, S, W, D = chain.shape
-            tmp = cls(model=model, chains=None, metadata=metadata, scene=scene, mtf=mtf, seed=seed,
-                      quality="")
-            tmp.draws = model.physical(chain.reshape(E * S * W, D))
-            tmp._derive()
-            return {n: tmp.derived[n].reshape(E, S, W)
+            tmp = cls._of_chain(model, chain, metadata=metadata, scene=scene, mtf=mtf, seed=seed)
+            return {n: tmp.derived[n].reshape(chain.shape[:3])
                     for n in ("capacity_bits", "capacity_bits_per_pixel", "tonal_range_bits") if n in tmp.derived}
         return fn
+
+    @classmethod
+    def _of_chain(cls, model, chain, *, metadata, scene, mtf, seed):
+        """A result without chains holding the physical draws and derived quantities of ``chain``
+        (E, S, W, D), for the checks :func:`bayescap.fit.run_ensembles` makes after each round."""
+        E, S, W, D = chain.shape
+        tmp = cls(model=model, chains=None, metadata=metadata, scene=scene, mtf=mtf, seed=seed, quality="")
+        tmp.draws = model.physical(chain.reshape(E * S * W, D))
+        tmp._derive()
+        return tmp
 
     @classmethod
     def reported_draws_fn(cls, model: PTCModel, *, metadata, scene, mtf, seed):
@@ -146,12 +152,8 @@ class FitResult:
         Monte Carlo error :func:`bayescap.fit.run_ensembles` computes once its other checks pass
         (and checks against ``end_mcse_target``)."""
         def fn(chain):
-            E, S, W, D = chain.shape
-            tmp = cls(model=model, chains=None, metadata=metadata, scene=scene, mtf=mtf, seed=seed,
-                      quality="")
-            tmp.draws = model.physical(chain.reshape(E * S * W, D))
-            tmp._derive()
-            return tmp._reported_draws((E, S, W))
+            tmp = cls._of_chain(model, chain, metadata=metadata, scene=scene, mtf=mtf, seed=seed)
+            return tmp._reported_draws(chain.shape[:3])
         return fn
 
     def _reported_draws(self, shape):
