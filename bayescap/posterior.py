@@ -61,6 +61,10 @@ _DERIVED_NOTE_PREFIXES = ("width_px/height_px unknown", "no row reaches saturati
                           "noise stays below one")
 
 
+#: the start of the failed check of an interval end's Monte Carlo error (FitResult._set_end_mcse)
+_END_MCSE_FAILURE = "Monte Carlo error of a 95 % interval end"
+
+
 def _mcmc_description(st) -> str:
     """The moves the ensembles ran (``bayescap.fit._moves``): the standard and accurate presets
     mix the IndependenceMove in (before, this said DEMove + StretchMove for every preset)."""
@@ -313,6 +317,21 @@ class FitResult:
                               + x["reason"] + "); do not use these intervals")
             warnings.warn(self.notes[0], ConvergenceWarning, stacklevel=4)
 
+    def _set_end_mcse(self, end, target):
+        """The diagnostics of the interval ends' Monte Carlo error ``end`` ({quantity: error /
+        width}): ``interval_end_mcse``, its ``_max`` and ``_worst`` (NaN, draws not all finite,
+        counts as the worst) and ``_target``. Returns the failed check's text when the worst
+        exceeds ``target``, else None."""
+        end = {n: float(v) for n, v in end.items()}
+        if not end:
+            return None
+        worst = max(end, key=lambda n: end[n] if np.isfinite(end[n]) else np.inf)
+        self.diag.update({"interval_end_mcse": end, "interval_end_mcse_max": end[worst],
+                          "interval_end_mcse_worst": worst, "interval_end_mcse_target": target})
+        if target is not None and not end[worst] <= target:
+            return f"{_END_MCSE_FAILURE} {end[worst]:.3f} of the width ({worst}) > {target:g}"
+        return None
+
     def _diagnose_mcmc(self):
         c = self.chains
         E, S, W, D = c.chain.shape
@@ -344,12 +363,6 @@ class FitResult:
         end = c.extra.get("end_mcse")
         if end is None:
             end = {n: interval_end_mcse_mcmc(x) for n, x in self._reported_draws((E, S, W)).items()}
-        end = {n: float(v) for n, v in end.items()}
-        end_target = getattr(st, "end_mcse_target", None)
-        end_worst = max(end, key=lambda n: end[n] if np.isfinite(end[n]) else np.inf) if end else None
-        if end_target is not None and end_worst is not None and not end[end_worst] <= end_target:
-            failed.append(f"Monte Carlo error of a 95 % interval end {end[end_worst]:.3f} of the width "
-                          f"({end_worst}) > {end_target:g}")
         # walkers stranded far below the mode (fit.stuck_walkers): their draws are not posterior draws
         lp_w = np.transpose(c.log_prob, (1, 0, 2)).reshape(S, E * W)
         n_stuck = int(np.sum(stuck_walkers(lp_w, D)))
@@ -385,11 +398,10 @@ class FitResult:
             "seed": self.seed,
             "per_quantity": per,
         }
-        if end_worst is not None:
-            self.diag["interval_end_mcse"] = end
-            self.diag["interval_end_mcse_max"] = end[end_worst]
-            self.diag["interval_end_mcse_target"] = end_target
-            self.diag["interval_end_mcse_worst"] = end_worst
+        failure = self._set_end_mcse(end, getattr(st, "end_mcse_target", None))
+        if failure:
+            failed.append(failure)
+            self.diag["converged"] = converged = False
         if self.diag["burn_in_extended_steps"]:
             ev = "; ".join(f"{e['quantity']} R-hat {e['rhat']:.3f} after round {e['round']}"
                            for e in self.diag["drift_events"])
@@ -470,6 +482,17 @@ class FitResult:
         new.diag = dict(self.diag)
         new.outliers = list(getattr(self, "outliers", []))
         new._derive()
+        if new.diag.get("method") == "emcee" and new.diag.get("interval_end_mcse"):
+            # the derived quantities moved with the scene, and so did their interval ends' error
+            end = {k: v for k, v in new.diag["interval_end_mcse"].items() if k not in new.derived}
+            end.update({n: interval_end_mcse_mcmc(x) for n, x in new._reported_draws(new.shape_esw).items()
+                        if n in new.derived})
+            failure = new._set_end_mcse(end, new.diag.get("interval_end_mcse_target"))
+            failed = [f for f in new.diag["failed_checks"] if not f.startswith(_END_MCSE_FAILURE)]
+            new.diag["failed_checks"] = failed + ([failure] if failure else [])
+            if failure and new.diag["converged"]:
+                new.diag["converged"] = False
+                new.notes.insert(0, "NOT CONVERGED at this scene: " + failure + ". Do not use these intervals")
         return new
 
     def noise_budget(self, fraction_of_range=0.5):

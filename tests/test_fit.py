@@ -582,3 +582,24 @@ def test_mcmc_result_reports_its_interval_ends_monte_carlo_error(basler_fit):
     assert f"Monte Carlo error of the 95 % interval ends: up to {dg['interval_end_mcse_max']:.3f}" in txt
     assert F.QUALITY_PRESETS["accurate"].end_mcse_target == 0.01
     assert "IndependenceMove" in dg["method_description"]
+    # at another scene the derived quantities move, and their errors are recomputed; the parameters' stay
+    from bayescap.posterior import Scene
+
+    other = basler_fit.at_scene(Scene(exposure_time_s=0.5))
+    end2 = other.diag["interval_end_mcse"]
+    assert set(end2) == set(end)
+    for n in basler_fit.draws:
+        if n in end:
+            assert end2[n] == end[n]
+    cap = other.derived["capacity_bits"].reshape(E, S, W)
+    assert end2["capacity_bits"] == F.interval_end_mcse_mcmc(cap) != end["capacity_bits"]
+    assert other.diag["interval_end_mcse_max"] == max(end2.values())
+    # with a target the new scene's errors miss, the result at that scene says NOT CONVERGED
+    import copy
+
+    strict = copy.copy(basler_fit)
+    strict.diag = dict(basler_fit.diag, interval_end_mcse_target=1e-6)
+    at = strict.at_scene(Scene(exposure_time_s=0.5))
+    assert not at.diag["converged"] and at.notes[0].startswith("NOT CONVERGED")
+    assert [f for f in at.diag["failed_checks"] if f.startswith("Monte Carlo error of a 95 % interval end")]
+    assert basler_fit.diag["converged"] and not basler_fit.diag["failed_checks"]      # the original untouched
