@@ -1467,6 +1467,12 @@ def interval_end_mcse_mcmc(x_esw):
     return float(np.max(quantile_mcse(x, probs, q)) / (q[1] - q[0]))
 
 
+def worst_end(end):
+    """The quantity of ``end`` ({name: interval-end error}) with the largest error; NaN (draws
+    not all finite) counts as the worst."""
+    return max(end, key=lambda k: end[k] if np.isfinite(end[k]) else np.inf)
+
+
 def _end_mcse_share(xs):
     """:func:`interval_end_mcse_mcmc` of each (E, S, W) array of ``xs`` (a pool worker's share)."""
     return [interval_end_mcse_mcmc(x) for x in xs]
@@ -1527,8 +1533,7 @@ def _default_converged(chain, settings, cache=None, derived_fn=None, pool=None, 
             cache["end_mcse"] = end
         target = settings.end_mcse_target
         if target is not None and end:
-            # NaN (draws not all finite) counts as the worst
-            worst = max(end, key=lambda k: end[k] if np.isfinite(end[k]) else np.inf)
+            worst = worst_end(end)
             if not end[worst] <= target:
                 if cache is not None:
                     cache["_shortfall"] = ("mcse", end[worst], worst)

@@ -15,7 +15,7 @@ from . import __version__
 from .capacity import (NoiseCoefficients, dynamic_range_db, mtf_loss_bits, snr_db, tonal_range,
                        N_GREY_LEVELS)
 from .fit import (ChainResult, ConvergenceWarning, fast_diagnostics, interval_end_mcse_mcmc, stuck_threshold,
-                  stuck_walkers)
+                  stuck_walkers, worst_end)
 from .model import PTCModel
 
 __all__ = ["FitResult", "Scene", "summarize", "DERIVED_INFO"]
@@ -325,7 +325,7 @@ class FitResult:
         end = {n: float(v) for n, v in end.items()}
         if not end:
             return None
-        worst = max(end, key=lambda n: end[n] if np.isfinite(end[n]) else np.inf)
+        worst = worst_end(end)
         self.diag.update({"interval_end_mcse": end, "interval_end_mcse_max": end[worst],
                           "interval_end_mcse_worst": worst, "interval_end_mcse_target": target})
         if target is not None and not end[worst] <= target:
