@@ -7,6 +7,8 @@
 """
 from __future__ import annotations
 
+import warnings
+
 import numpy as np
 
 from .fit import QUALITY_PRESETS, SamplerSettings, run_ensembles
@@ -131,9 +133,22 @@ def fit(data: PTCData | PTCModel | str, *, seed: int | None = None,
 
         fs = fast_settings or FastSettings()
         chains, fd = fast_result if fast_result is not None else fast_posterior(model, seed=seed, settings=fs)
-        if fd["accepted"] or not fallback:
+        res = None
+        if fd["accepted"] and fallback:
+            # the result can still fail: with a gate on the interval ends' Monte Carlo error
+            # (FastSettings.end_mcse_max), a derived quantity's error (capacity, TR) is checked here
+            with warnings.catch_warnings(record=True) as caught:
+                warnings.simplefilter("always")
+                res = FitResult.from_chains(model, chains, quality="fast", **kw)
+            if res.diag["converged"]:
+                for w in caught:
+                    warnings.warn_explicit(w.message, w.category, w.filename, w.lineno)
+            else:
+                fd = {**fd, "reason": "; ".join(res.diag["failed_checks"])}
+                res = None
+        elif not fallback:
             res = FitResult.from_chains(model, chains, quality="fast", **kw)
-        else:
+        if res is None:
             settings = QUALITY_PRESETS[fallback_quality]
             mc = run_ensembles(model, settings=settings, seed=seed, progress=progress, n_jobs=n_jobs,
                                derived_fn=FitResult.derived_draws_fn(model, **kw),

@@ -40,7 +40,8 @@ to MCMC (:func:`bayescap.fit` with ``quality="fast"`` does so, with a note). ``b
 the interval errors against long MCMC runs as a function of k̂. The diagnostics also carry each
 physical parameter's predicted Monte Carlo error of its 95 % interval ends
 (:func:`interval_end_mcse`, ``end_mcse``, counting the resampling to ``n_draws``), which the report
-prints: at the default 6 000 draws its median for the worst parameter was 0.028 of the width before
+prints (:class:`bayescap.posterior.FitResult` adds the derived quantities', capacity and TR among
+them, from the weighted draws the path leaves in ``extra["weighted_draws"]``): at the default 6 000 draws its median for the worst parameter was 0.028 of the width before
 the resampling term (``fast_tradeoff.md``, 11 sensors) and 0.033 with it (``fast_tradeoff_gate.md``,
 3 sensors), so the worst of ~20 interval ends is often more than 0.05 off by Monte Carlo
 error alone. ``FastSettings.end_mcse_max`` (off by default) makes it a check: below the target the
@@ -559,6 +560,9 @@ def _fast_once(model, seed, n_draws, settings, x_map, cov):
         chains.log_prob = chains.log_prob - z[:, wrapped.j].reshape(chains.log_prob.shape)
         chains.x_map = wrapped.to_x(chains.x_map)
         chains.lp_map = float(model.log_prob(chains.x_map[None])[0])
+        wd = chains.extra.get("weighted_draws")
+        if wd is not None:
+            wd["x"] = wrapped.to_x(wd["x"])
         chains.extra["coordinates"] = diag["coordinates"] = "log(clip_dn - lower bound)"
         return chains, diag
     t0 = time.perf_counter()
@@ -706,6 +710,11 @@ def _fast_once(model, seed, n_draws, settings, x_map, cov):
         extra={k: diag[k] for k in ("method", "khat", "ess_is", "n_proposals", "n_topup", "accepted", "reason",
                                     "khat_max", "min_ess_is", "nu", "end_mcse", "end_mcse_max", "tails")},
     )
+    # the weighted draws behind the resampled ones (those of non-negligible weight, as _end_mcse
+    # keeps them): FitResult computes the interval ends' Monte Carlo error of the derived
+    # quantities (capacity, TR, ...) from them, which need the scene and MTF this path has not got
+    keep = w > 1e-12 * np.max(w)
+    chains.extra["weighted_draws"] = {"x": x[keep], "w": w[keep], "n_resampled": n_draws}
     return chains, diag
 
 

@@ -291,16 +291,18 @@ class FitResult:
                           f"{x['n_proposals']} proposals (accept ≥ {x['min_ess_is']:g}); R-hat does not apply"),
             "per_quantity": {},
         }
-        mcse = x.get("end_mcse") or {}
+        # the importance draws' own Monte Carlo error of each 95 % interval end (fast.interval_end_mcse):
+        # the physical parameters' from the fast path, the derived quantities' computed here
+        mcse = {**(x.get("end_mcse") or {}), **self._derived_end_mcse_importance()}
         if mcse:
-            # the importance draws' own Monte Carlo error of each 95 % interval end (fast.interval_end_mcse)
-            worst = max(mcse, key=mcse.get)
-            self.diag["interval_end_mcse"] = {k: float(v) for k, v in mcse.items()}
-            self.diag["interval_end_mcse_max"] = float(mcse[worst])
-            self.diag["interval_end_mcse_worst"] = worst
             gate = x.get("end_mcse_max")
-            self.diag["interval_end_mcse_target"] = gate
+            failure = self._set_end_mcse(mcse, gate)
+            worst = self.diag["interval_end_mcse_worst"]
             self.diag["n_topup"] = int(x.get("n_topup", 0))
+            if failure:
+                # the fast path's gate covers the parameters; a derived quantity above it fails here
+                self.diag["failed_checks"].append(failure)
+                self.diag["converged"] = False
             self.diag["fast_path"] += (f"; Monte Carlo error of the 95 % interval ends up to "
                                        f"{mcse[worst]:.3f} of the width ({worst}"
                                        + (f"; accept ≤ {gate:g}" if gate is not None else "") + ")"
@@ -312,10 +314,31 @@ class FitResult:
             if tails:
                 self.diag["fast_path"] += ("; defensive draws for long tails: " + ", ".join(
                     f"{t['parameter']} {t['side']} ({t['reach_sd']:g} sd)" for t in tails))
-        if not x["accepted"]:
+        if not self.diag["converged"]:
             self.notes.insert(0, "NOT CONVERGED: the Laplace–IS fast path failed its own check ("
-                              + x["reason"] + "); do not use these intervals")
+                              + "; ".join(self.diag["failed_checks"]) + "); do not use these intervals")
             warnings.warn(self.notes[0], ConvergenceWarning, stacklevel=4)
+
+    def _derived_end_mcse_importance(self):
+        """{derived quantity: Monte Carlo error of its 95 % interval ends / width} for a fast-path
+        result: :func:`bayescap.fast.interval_end_mcse` of the quantity computed on the weighted
+        draws behind the resampled ones (``chains.extra["weighted_draws"]``), counting the
+        resampling, as the fast path does for the parameters; quantities that vary only. {} when
+        the chains carry no weighted draws."""
+        wd = self.chains.extra.get("weighted_draws")
+        if not wd:
+            return {}
+        from .fast import interval_end_mcse
+
+        xw = np.asarray(wd["x"], float)
+        tmp = FitResult._of_chain(self.model, xw.reshape(1, -1, 1, xw.shape[1]), metadata=self.metadata,
+                                  scene=self.scene, mtf=self.mtf, seed=self.seed)
+        out = {}
+        for n, v in tmp.derived.items():
+            v = np.asarray(v, float)
+            if v.size == xw.shape[0] and np.ptp(v) > 0:
+                out[n] = float(interval_end_mcse(v, wd["w"], n_resampled=wd["n_resampled"]))
+        return out
 
     def _set_end_mcse(self, end, target):
         """The diagnostics of the interval ends' Monte Carlo error ``end`` ({quantity: error /
@@ -482,11 +505,14 @@ class FitResult:
         new.diag = dict(self.diag)
         new.outliers = list(getattr(self, "outliers", []))
         new._derive()
-        if new.diag.get("method") == "emcee" and new.diag.get("interval_end_mcse"):
+        if new.diag.get("method") in ("emcee", "laplace-is") and new.diag.get("interval_end_mcse"):
             # the derived quantities moved with the scene, and so did their interval ends' error
             end = {k: v for k, v in new.diag["interval_end_mcse"].items() if k not in new.derived}
-            end.update({n: interval_end_mcse_mcmc(x) for n, x in new._reported_draws(new.shape_esw).items()
-                        if n in new.derived})
+            if new.diag["method"] == "emcee":
+                end.update({n: interval_end_mcse_mcmc(x) for n, x in new._reported_draws(new.shape_esw).items()
+                            if n in new.derived})
+            else:
+                end.update(new._derived_end_mcse_importance())
             failure = new._set_end_mcse(end, new.diag.get("interval_end_mcse_target"))
             failed = [f for f in new.diag["failed_checks"] if not f.startswith(_END_MCSE_FAILURE)]
             new.diag["failed_checks"] = failed + ([failure] if failure else [])

@@ -617,3 +617,66 @@ def test_pair_proposal_is_a_normalised_density_and_draws_from_it():
     assert np.all(q[u > 0.5 + 1e-9] == 0.0) and np.all(q[..., z > log_a + 1e-9] == 0.0)
     x, lq = draw(500, np.random.default_rng(5))
     assert np.all(x[:, 0] <= 0.5) and np.all(x[:, 2] <= log_a) and np.allclose(lq, logpdf(x))
+
+
+def test_fast_result_reports_the_derived_quantities_end_mcse(basler_csv):
+    """A fast-path result's interval-end Monte Carlo errors cover the derived quantities (capacity,
+    TR, DR, SNR) as well as the parameters: each is fast.interval_end_mcse of the quantity on the
+    weighted draws behind the resampled ones, counting the resampling; at_scene recomputes the
+    derived ones for the new scene and keeps the parameters'."""
+    from bayescap.fast import interval_end_mcse
+    from bayescap.model import PTCModel
+
+    model = PTCModel(bayescap.load(basler_csv))
+    chains, fd = fast_posterior(model, seed=3)
+    assert fd["accepted"], fd["reason"]
+    r = bayescap.fit(model, seed=3, quality="fast", fast_result=(chains, fd))
+    end = r.diag["interval_end_mcse"]
+    assert {"capacity_bits", "tonal_range_bits", "dynamic_range_db", "snr_max_db"} <= set(end)
+    for k, v in fd["end_mcse"].items():
+        assert end[k] == v
+    wd = chains.extra["weighted_draws"]
+    assert wd["n_resampled"] == chains.chain.shape[1]
+    assert wd["w"].sum() == pytest.approx(1.0, abs=1e-9)
+    tmp = FitResult._of_chain(model, wd["x"][None, :, None, :], metadata=r.metadata, scene=r.scene, mtf=r.mtf,
+                              seed=r.seed)
+    assert end["capacity_bits"] == interval_end_mcse(tmp.derived["capacity_bits"], wd["w"],
+                                                     n_resampled=wd["n_resampled"])
+    # the weighted draws' capacity reproduces the resampled draws' interval to a few of its MC errors
+    lo, hi = np.quantile(r.derived["capacity_bits"], [0.025, 0.975])
+    o = np.argsort(tmp.derived["capacity_bits"])
+    F = np.cumsum(wd["w"][o])
+    wlo, whi = np.interp([0.025, 0.975], F / F[-1], tmp.derived["capacity_bits"][o])
+    assert max(abs(wlo - lo), abs(whi - hi)) < 4 * end["capacity_bits"] * (hi - lo)
+    assert r.diag["interval_end_mcse_max"] == max(end.values())
+    # a longer exposure (more dark current) moves TR and capacity, and their errors with them
+    longer = r.at_scene(replace(r.scene, exposure_time_s=30 * r.scene.exposure_time_s))
+    end2 = longer.diag["interval_end_mcse"]
+    assert end2["capacity_bits"] != end["capacity_bits"]
+    assert end2["conversion_gain_e_per_dn"] == end["conversion_gain_e_per_dn"]
+    assert longer.diag["converged"]
+
+
+def test_fast_gate_failed_by_a_derived_quantity_falls_back(basler_csv):
+    """With a gate on the interval ends' Monte Carlo error (FastSettings.end_mcse_max), the fast
+    path checks the parameters; a derived quantity above the gate fails the result (NOT CONVERGED,
+    named), and bayescap.fit falls back to MCMC with that reason."""
+    from bayescap.model import PTCModel
+
+    model = PTCModel(bayescap.load(basler_csv))
+    chains, fd = fast_posterior(model, seed=3)
+    assert fd["accepted"]
+    r0 = bayescap.fit(model, seed=3, quality="fast", fast_result=(chains, fd))
+    gate = 0.5 * r0.diag["interval_end_mcse"]["capacity_bits"]
+    # the parameters' errors as if they had met the gate: only the derived ones can fail it
+    chains.extra = {**chains.extra, "end_mcse_max": gate, "end_mcse": {}}
+    with pytest.warns(ConvergenceWarning, match="Monte Carlo error of a 95 % interval end"):
+        r = bayescap.fit(model, seed=3, quality="fast", fast_result=(chains, fd), fallback=False)
+    assert not r.diag["converged"]
+    assert any("Monte Carlo error" in f for f in r.diag["failed_checks"])
+    assert r.diag["interval_end_mcse_worst"] in r.derived
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", ConvergenceWarning)
+        fb = bayescap.fit(model, seed=3, quality="fast", fast_result=(chains, fd), n_jobs=1)
+    assert fb.diag["method"] == "emcee" and fb.diag["fast_path_accepted"] is False
+    assert "Monte Carlo error of a 95 % interval end" in fb.diag["fallback_reason"]
