@@ -1499,8 +1499,12 @@ def _default_converged(chain, settings, cache=None, derived_fn=None, pool=None, 
     E, S, W, D = chain.shape
     tau = integrated_time(chain)
     if cache is not None:
-        cache["_shortfall"] = ("tau", float(np.nanmax(settings.tau_factor * tau) - S))
-    if np.any(S < settings.tau_factor * tau):
+        # an undefined τ (NaN: a walker that has not moved in the whole production, which the
+        # IndependenceMove allows at a point its proposal undervalues) fails too, and asks for a
+        # round of extend_steps (before 2026-11-24 NaN passed here and failed in FitResult's check)
+        need = settings.tau_factor * tau - S
+        cache["_shortfall"] = ("tau", float(np.max(need)) if np.all(np.isfinite(need)) else float("nan"))
+    if not np.all(S >= settings.tau_factor * tau):
         return False
 
     def ok(key, d):
@@ -1573,7 +1577,7 @@ def _next_round_steps(n_done, settings, cache):
         return base
     kind, *v = cache["_shortfall"]
     if kind == "tau":
-        need = v[0]
+        need = v[0] if np.isfinite(v[0]) else base    # NaN: undefined τ, a walker yet to move
     elif kind == "mcse":                   # the error falls as 1/√n
         need = 1.1 * n_done * ((v[0] / settings.end_mcse_target) ** 2 - 1.0)
     elif v[1] >= settings.rhat_target:     # R-hat failed: no ESS-based guess

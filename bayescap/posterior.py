@@ -376,7 +376,11 @@ class FitResult:
         if not ess_min >= st.ess_target:
             worst = min(per, key=lambda n: min(per[n]["ess_bulk"], per[n]["ess_tail"]))
             failed.append(f"ESS min {ess_min:.0f} ({worst}) < {st.ess_target:.0f}")
-        if not S >= st.tau_factor * tau_max:
+        if not np.all(np.isfinite(c.tau)):
+            bad = [self.model.names[j] for j in np.flatnonzero(~np.isfinite(c.tau))]
+            failed.append(f"autocorrelation time undefined ({', '.join(bad)}): a walker did not move in "
+                          f"the {S} production steps")
+        elif not S >= st.tau_factor * tau_max:
             failed.append(f"chain of {S} steps shorter than {st.tau_factor:g} autocorrelation times "
                           f"({tau_max:.1f} steps)")
         if not np.all(c.acceptance > 0.05):

@@ -522,6 +522,28 @@ def test_quantile_mcse_matches_the_spread_over_replications():
     assert observed == pytest.approx(predicted, rel=0.15)
 
 
+def test_a_walker_that_never_moved_fails_the_length_check_and_extends_the_run():
+    """A walker stuck at one point for the whole production (the IndependenceMove allows it where
+    its proposal undervalues the posterior) makes the autocorrelation time undefined (NaN). That
+    fails _default_converged, which asks for a round of extend_steps (before 2026-11-24 it passed
+    there and failed only in FitResult's check, so the run stopped NOT CONVERGED unextended)."""
+    import dataclasses
+    import importlib
+
+    F = importlib.import_module("bayescap.fit")
+    rng = np.random.default_rng(5)
+    chain = np.stack([_ar1_walkers(rng, 4, 100, 24, 0.3) for _ in range(3)], axis=-1)
+    settings = dataclasses.replace(F.QUALITY_PRESETS["standard"], adaptive_extend=True)
+    cache = {}
+    assert F._default_converged(chain, settings, cache)
+    chain[2, :, 7, :] = chain[2, 0, 7, :]            # walker 7 of ensemble 2 never moves
+    assert not np.all(np.isfinite(F.integrated_time(chain)))
+    cache = {}
+    assert not F._default_converged(chain, settings, cache)
+    assert cache["_shortfall"][0] == "tau" and np.isnan(cache["_shortfall"][1])
+    assert F._next_round_steps(100, settings, cache) == settings.extend_steps
+
+
 def test_end_mcse_target_extends_the_run_until_the_ends_are_accurate():
     """With SamplerSettings.end_mcse_target, _default_converged fails a chain whose R-hat and ESS
     pass while an interval end's Monte Carlo error exceeds the target, names the quantity, and sizes
