@@ -820,15 +820,19 @@ class PTCModel:
     #: "the draws of this call" are then per request, so a sensor's numbers do not depend on which
     #: other sensors share the call
     _request_ids = None
+    _request_segments = None
 
     def _request_reduce(self, ufunc, a):
         """``ufunc.reduce`` of ``a`` (n,) over the draws of one request: a scalar for a single
         model; per draw (n,) for a stacked view."""
         if self._request_ids is None:
             return ufunc.reduce(a)
-        ids = self._request_ids
-        starts = np.flatnonzero(np.r_[True, ids[1:] != ids[:-1]])
-        return np.repeat(ufunc.reduceat(a, starts), np.diff(np.r_[starts, ids.size]))
+        if self._request_segments is None:     # the requests' starts and sizes, once per view
+            ids = self._request_ids
+            starts = np.flatnonzero(np.concatenate(([True], ids[1:] != ids[:-1])))
+            self._request_segments = (starts, np.diff(np.append(starts, ids.size)))
+        starts, sizes = self._request_segments
+        return np.repeat(ufunc.reduceat(a, starts), sizes)
 
     @staticmethod
     def _per_draw(x):
@@ -1020,10 +1024,11 @@ class PTCModel:
             s_est = np.sqrt(self.v[..., cr] + self.s_obs[..., cr] / k_min)
             alpha_min = (c_min - self.m[..., cr]) / np.sqrt(s_est**2 + tau_max**2)
             need = alpha_min < 8.5
-            rows = cr[need if need.ndim == 1 else need.any(axis=0)]
+            needed = need if need.ndim == 1 else need.any(axis=0)
+            rows = cr[needed]
         if self.clip_rows.size and rows.size:
             # stacked sensors: a row one sensor needs is computed for all, kept where needed
-            keep = None if need.ndim == 1 else need[:, np.isin(cr, rows)]
+            keep = None if need.ndim == 1 else need[:, needed]
             keep = None if keep is None or keep.all() else keep
             put = (lambda new, old: new) if keep is None else (lambda new, old: np.where(keep, new, old))
             if self.terms.clip == "well":
@@ -1475,6 +1480,7 @@ class PTCModelStack:
             # only the choice of rows near the clip is per request. (With gathered (draws, rows)
             # copies a lockstep call of 2 × 48 draws took 6-7 % longer: benchmarks/ab_trees.py)
             v._request_ids = np.asarray(sensor if request is None else request)
+            v._request_segments = None
             return v
         v.__class__ = _StackView
         v._stack_rows, v._stack_sensor, v._gathered = self._rows, sensor, {}
@@ -1483,6 +1489,7 @@ class PTCModelStack:
         v.nu_pattern = self._nu_pattern[sensor][:, None]
         v.clip_bounds = None if self._clip_bounds is None else tuple(b[sensor] for b in self._clip_bounds)
         v._request_ids = np.asarray(sensor if request is None else request)
+        v._request_segments = None
         return v
 
     def log_prob(self, theta, sensor, request=None):
