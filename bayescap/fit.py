@@ -54,6 +54,7 @@ class SamplerSettings:
     map_restarts: int = 2           # extra optimiser starts in find_map (the Laplace start)
     adaptive_extend: bool = False   # size each further round from the ESS / τ shortfall (≥ extend_steps)
     importance_start: bool = True   # with the IndependenceMove: start from Laplace–IS draws when accepted
+    start_proposals: int = 6000     # importance draws of that start (FastSettings.n_proposals)
     # largest Monte Carlo error of a reported 95 % interval end, as a fraction of its width
     # (interval_end_mcse_mcmc; None: computed and reported, not checked)
     end_mcse_target: float | None = None
@@ -69,7 +70,9 @@ QUALITY_PRESETS = {
     # (an upper limit) takes ~100–200 steps to fill from any start (with 40 burn-in + 60 steps its 2.5 %
     # quantile came out 9–16 e⁻/s, reference 5.7, flipping the upper-limit flag); rounds after the first
     # are sized from the ESS/τ shortfall; one optimiser start (polish_map reaches the 2-restart MAP on
-    # 13 sensors). Measurements: docs/performance.md.
+    # 13 sensors). More walkers and fewer steps (10·D, 80 + 80) measured 11–13 % faster at the same
+    # interval-end errors over 88 benchmark fits, not adopted: the 30-sensor SBC test's read-noise rank
+    # statistic then fails (docs/performance.md, "2026-11-24, 02:34–"). Measurements: docs/performance.md.
     "standard": SamplerSettings(n_burn=100, n_steps=100, extend_steps=20, max_rounds=16, independence_fraction=0.7,
                                 independence_nu=4.0, independence_scale=1.3, adaptive_extend=True, map_restarts=0),
     # accurate: every reported interval end's Monte Carlo error ≤ 1 % of its width too (issue 7). Up to 12
@@ -786,7 +789,7 @@ def _moves(settings: SamplerSettings, x_map=None, cov=None, fraction=None):
     return out
 
 
-def _importance_start(model, x_map, cov, seed, coords=None):
+def _importance_start(model, x_map, cov, seed, coords=None, n_proposals=6000):
     """Distinct approximate posterior draws to start the walkers from, and their mean and
     covariance for the IndependenceMove's first proposal: the fast path's Laplace–IS
     (:func:`bayescap.fast.fast_posterior` at this MAP and covariance, default :class:`FastSettings`:
@@ -803,7 +806,8 @@ def _importance_start(model, x_map, cov, seed, coords=None):
     from .fast import FastSettings, fast_posterior
 
     target = model if coords is None else coords
-    chains, diag = fast_posterior(target, seed=seed, x_map=x_map, cov=cov, settings=FastSettings(n_draws=4000, floor_pair=False))
+    chains, diag = fast_posterior(target, seed=seed, x_map=x_map, cov=cov,
+                                  settings=FastSettings(n_draws=4000, floor_pair=False, n_proposals=n_proposals))
     if not diag["accepted"]:
         return None
     x = chains.chain.reshape(-1, model.ndim)
@@ -1209,8 +1213,9 @@ def run_ensembles(model: PTCModel, *, settings: SamplerSettings = SamplerSetting
     proposal = (x_map, cov)
     if settings.independence_fraction > 0 and settings.importance_start:
         is_seed = int(ss.spawn(1)[0].generate_state(1)[0])
-        is_start = (_importance_start(model, x_map, cov, is_seed) if coords is None else
-                    _importance_start(model, z_map, cov_z, is_seed, coords=coords))
+        n_is = settings.start_proposals
+        is_start = (_importance_start(model, x_map, cov, is_seed, n_proposals=n_is) if coords is None else
+                    _importance_start(model, z_map, cov_z, is_seed, coords=coords, n_proposals=n_is))
         if is_start is not None:
             proposal = (is_start[1], is_start[2])
     tasks = []

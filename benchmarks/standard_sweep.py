@@ -1,7 +1,8 @@
 """The standard preset on the benchmark sensors: wall time, convergence, ESS and length per fit.
 
     python benchmarks/standard_sweep.py [--n-sim 10] [--seeds 2] [--first-seed 1] [--burn 100] [--steps 100]
-                                        [--walkers-per-dim 8] [--ref-cache DIR] [--label NAME] [--out FILE]
+                                        [--walkers-per-dim 8] [--set KEY=VALUE]
+                                        [--ref-cache DIR] [--label NAME] [--out FILE]
 
 For the bundled Basler CCD and the first ``--n-sim`` simulated sensors of
 ``speed_accuracy.sensor_set``, ``bayescap.fit(quality="standard", seed=s)`` for seeds 1..``--seeds``:
@@ -40,6 +41,8 @@ def main(argv=None):
     ap.add_argument("--burn", type=int, default=None, help="n_burn (default: the preset's)")
     ap.add_argument("--steps", type=int, default=None, help="n_steps (default: the preset's)")
     ap.add_argument("--walkers-per-dim", type=int, default=None, help="walkers_per_dim (default: the preset's)")
+    ap.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
+                    help="another SamplerSettings field of the preset (repeatable), e.g. start_proposals=3000")
     ap.add_argument("--ref-cache", default=None)
     ap.add_argument("--label", default="")
     ap.add_argument("--out", default=str(OUT))
@@ -60,6 +63,9 @@ def main(argv=None):
                                   n_steps=preset.n_steps if a.steps is None else a.steps,
                                   walkers_per_dim=(preset.walkers_per_dim if a.walkers_per_dim is None
                                                    else a.walkers_per_dim))
+    for kv in a.set:
+        k, v = kv.split("=", 1)
+        quality = dataclasses.replace(quality, **{k: type(getattr(preset, k))(v)})
     load0 = os.getloadavg()
     rows, total = [], 0.0
     for i, (name, d, _) in enumerate(sa.sensor_set(a.n_sim)):
@@ -80,12 +86,14 @@ def main(argv=None):
          f"{f' --first-seed {a.first_seed}' if a.first_seed != 1 else ''}"
          f"{f' --burn {a.burn}' if a.burn is not None else ''}{f' --steps {a.steps}' if a.steps is not None else ''}"
          f"{f' --walkers-per-dim {a.walkers_per_dim}' if a.walkers_per_dim is not None else ''}"
+         f"{''.join(' --set ' + kv for kv in a.set)}"
          f"{' --ref-cache ' + a.ref_cache if a.ref_cache else ''}"
          f"{' --label ' + repr(a.label) if a.label else ''}` on {datetime.datetime.now().isoformat(timespec='minutes')} "
          f"with bayescap from `{Path(bayescap.__file__).resolve().parents[1]}`.",
          f"Machine: {describe_machine()}; load average before {load0[0]:.2f}, after {os.getloadavg()[0]:.2f}.", "",
          f"Preset: standard with burn-in {quality.n_burn} and first round {quality.n_steps} steps, "
-         f"{quality.walkers_per_dim} walkers per parameter. Error: the worst "
+         f"{quality.walkers_per_dim} walkers per parameter"
+         f"{''.join(', ' + kv for kv in a.set)}. Error: the worst "
          "|Δ| of a 95 % interval end over every parameter and capacity / the accurate reference's width; "
          "own MC error: the run's own largest predicted Monte Carlo error of an interval end "
          "(`diagnostics.interval_end_mcse_max`), same units.", "",
