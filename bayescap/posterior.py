@@ -299,8 +299,9 @@ class FitResult:
             failure = self._set_end_mcse(mcse, gate)
             worst = self.diag["interval_end_mcse_worst"]
             self.diag["n_topup"] = int(x.get("n_topup", 0))
-            if failure:
-                # the fast path's gate covers the parameters; a derived quantity above it fails here
+            if failure and worst in self.derived:
+                # the fast path's gate covers the parameters (a parameter above it is already in
+                # its reason); a derived quantity above it fails here
                 self.diag["failed_checks"].append(failure)
                 self.diag["converged"] = False
             self.diag["fast_path"] += (f"; Monte Carlo error of the 95 % interval ends up to "
