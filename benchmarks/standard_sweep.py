@@ -65,7 +65,10 @@ def main(argv=None):
                                                    else a.walkers_per_dim))
     for kv in a.set:
         k, v = kv.split("=", 1)
-        quality = dataclasses.replace(quality, **{k: type(getattr(preset, k))(v)})
+        cur = getattr(preset, k)
+        val = (v.lower() in ("1", "true", "yes") if isinstance(cur, bool)
+               else None if v.lower() == "none" else float(v) if cur is None else type(cur)(v))
+        quality = dataclasses.replace(quality, **{k: val})
     load0 = os.getloadavg()
     rows, total = [], 0.0
     for i, (name, d, _) in enumerate(sa.sensor_set(a.n_sim)):
