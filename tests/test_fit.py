@@ -625,3 +625,41 @@ def test_mcmc_result_reports_its_interval_ends_monte_carlo_error(basler_fit):
     assert not at.diag["converged"] and at.notes[0].startswith("NOT CONVERGED")
     assert [f for f in at.diag["failed_checks"] if f.startswith("Monte Carlo error of a 95 % interval end")]
     assert basler_fit.diag["converged"] and not basler_fit.diag["failed_checks"]      # the original untouched
+
+
+def test_sampler_subclass_gives_emcee_chains_across_rounds():
+    """fit._Sampler (log-probabilities taken as an array, the generator's state copied once per
+    run_mcmc) gives the chain of emcee's own EnsembleSampler bit for bit, also when a run is
+    continued by a new sampler from the returned state (as run_ensembles' rounds and burn-in halves
+    do), and returns the same random state; NaN log-probabilities are refused as emcee does."""
+    import importlib
+
+    import emcee
+
+    F = importlib.import_module("bayescap.fit")
+    cov = np.array([[1.0, 0.5, 0.0], [0.5, 2.0, 0.3], [0.0, 0.3, 0.5]])
+    prec = np.linalg.inv(cov)
+
+    def log_prob(x):
+        return -0.5 * np.einsum("ij,jk,ik->i", x, prec, x)
+
+    def run(cls):
+        rng = np.random.default_rng(3)
+        p0 = rng.standard_normal((16, 3))
+        rstate = np.random.RandomState(11).get_state()
+        chains = []
+        state = emcee.State(p0, random_state=rstate)
+        for _ in range(3):                   # three rounds, each a new sampler
+            moves = [(emcee.moves.DEMove(), 0.8), (emcee.moves.StretchMove(), 0.2)]
+            s = cls(16, 3, log_prob, vectorize=True, moves=moves)
+            state = s.run_mcmc(state, 25, progress=False)
+            chains.append(s.get_chain())
+        return np.concatenate(chains), state
+
+    a, sa_ = run(emcee.EnsembleSampler)
+    b, sb = run(F._Sampler)
+    assert np.array_equal(a, b)
+    assert all(np.array_equal(np.asarray(u), np.asarray(v)) for u, v in zip(sa_.random_state, sb.random_state))
+    s = F._Sampler(16, 3, lambda x: np.full(x.shape[0], np.nan), vectorize=True)
+    with pytest.raises(ValueError, match="NaN"):
+        s.run_mcmc(np.random.default_rng(0).standard_normal((16, 3)), 2, progress=False)
