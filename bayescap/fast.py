@@ -523,16 +523,22 @@ def interval_end_mcse(values, w, probs=(0.025, 0.975), n_resampled=None):
     return out
 
 
+def _weighted_kept(x, w):
+    """The weighted draws that count (weight above 1e-12 of the largest), and their weights."""
+    keep = w > 1e-12 * np.max(w)
+    return x[keep], w[keep]
+
+
 def _end_mcse(model, x, w, n_resampled=None):
     """{name: interval-end Monte Carlo error / width} of every physical parameter for weighted draws
     (and ``n_resampled`` draws resampled from them: :func:`interval_end_mcse`)."""
     phys = _physical_fn(model)
     if phys is None:
         return {}
-    keep = w > 1e-12 * np.max(w)
+    xk, wk = _weighted_kept(x, w)
     with np.errstate(all="ignore"):
-        p = phys(x[keep])
-    return {n: interval_end_mcse(v, w[keep], n_resampled=n_resampled) for n, v in p.items()
+        p = phys(xk)
+    return {n: interval_end_mcse(v, wk, n_resampled=n_resampled) for n, v in p.items()
             if np.all(np.isfinite(v)) and np.ptp(v) > 0}
 
 
@@ -713,8 +719,8 @@ def _fast_once(model, seed, n_draws, settings, x_map, cov):
     # the weighted draws behind the resampled ones (those of non-negligible weight, as _end_mcse
     # keeps them): FitResult computes the interval ends' Monte Carlo error of the derived
     # quantities (capacity, TR, ...) from them, which need the scene and MTF this path has not got
-    keep = w > 1e-12 * np.max(w)
-    chains.extra["weighted_draws"] = {"x": x[keep], "w": w[keep], "n_resampled": n_draws}
+    xk, wk = _weighted_kept(x, w)
+    chains.extra["weighted_draws"] = {"x": xk, "w": wk, "n_resampled": n_draws}
     return chains, diag
 
 
