@@ -35,7 +35,9 @@ every left-out term are recorded.
 from __future__ import annotations
 
 import copy
+import os
 from dataclasses import dataclass, field
+from pathlib import Path
 
 import numpy as np
 from scipy.special import erfcx, gammaln, ndtr, owens_t
@@ -476,24 +478,61 @@ def _quantized_pixel_moments(delta, s, so):
 
 _UNIFORM_TABLE = {}
 
+#: :func:`_uniform_offset_moments`'s table as shipped (built by :func:`_build_uniform_offset_table`;
+#: rebuild it with ``python -c "from bayescap.model import write_uniform_offset_table as w; w()"``
+#: after changing that function). Building it costs ~0.18 s, paid by the first fit in a process
+#: that needs it: a fast fit of sim05 of ``benchmarks/speed_accuracy.py`` took 411 ms in a new
+#: process against 216 ms after. Loading it costs ~1 ms; ``tests/test_calibration_terms.py``
+#: checks the file against a fresh build.
+UNIFORM_TABLE_FILE = Path(__file__).with_name("_uniform_offset_table.npz")
+
+
+def _build_uniform_offset_table():
+    """:func:`_uniform_offset_moments`'s table: 1 024 log-spaced s from 10⁻³ to 0.75 DN and, for
+    each, the logarithms of V and E4 as integrals over one period of the offset, centred on a DN
+    boundary, where the integrands live (256-point Gauss–Legendre over ±min(½, 12 s) DN)."""
+    ls = np.linspace(np.log(1e-3), np.log(0.75), 1024)
+    sg = np.exp(ls)
+    u, wu = np.polynomial.legendre.leggauss(256)
+    a = np.minimum(0.5, 12.0 * sg)[:, None]          # beyond ±12 s from the boundary v = 0
+    x = 0.5 + a * u                                   # offsets about the boundary at ½ DN
+    x = x - np.round(x)
+    _, v, m4 = _rounded_normal_moments(x, sg[:, None], J=5)
+    w = a * wu                                        # ∫ over one period of length 1
+    return {"ls": ls, "lv": np.log((w * v).sum(-1)), "le4": np.log((w * (m4 + v * v)).sum(-1))}
+
+
+def write_uniform_offset_table(path=None):
+    """Write :func:`_build_uniform_offset_table` to ``path`` (default :data:`UNIFORM_TABLE_FILE`)."""
+    path = Path(path) if path is not None else UNIFORM_TABLE_FILE
+    tmp = path.with_name(path.name + ".tmp.npz")
+    np.savez(tmp, **_build_uniform_offset_table())
+    os.replace(tmp, path)
+
+
+def _uniform_offset_table():
+    """The shipped table (:data:`UNIFORM_TABLE_FILE`), or a fresh build when the file is missing or
+    not the expected shape; cached for the process."""
+    if not _UNIFORM_TABLE:
+        table = None
+        try:
+            with np.load(UNIFORM_TABLE_FILE) as z:
+                table = {k: np.array(z[k], float) for k in ("ls", "lv", "le4")}
+            if any(v.shape != (1024,) or not np.all(np.isfinite(v)) for v in table.values()):
+                table = None
+        except (OSError, KeyError, ValueError):
+            table = None
+        _UNIFORM_TABLE.update(table if table is not None else _build_uniform_offset_table())
+    return _UNIFORM_TABLE
+
 
 def _uniform_offset_moments(s):
     """(V, E4, H) of :func:`_quantized_pixel_moments` for offsets uniform modulo 1 DN (σ_o > 0.7):
-    functions of s alone, tabulated once (1 024 points, log-spaced s from 10⁻³ to 0.75 DN; each an
-    integral over one period centred on a DN boundary, where the integrands live: 256-point
-    Gauss–Legendre over ±min(½, 12 s) DN; linear interpolation in log s, relative error < 2e-5) —
-    H = s² + 1/12 − V (Sheppard's total variance, split into the temporal part and the means')."""
-    if not _UNIFORM_TABLE:
-        ls = np.linspace(np.log(1e-3), np.log(0.75), 1024)
-        sg = np.exp(ls)
-        u, wu = np.polynomial.legendre.leggauss(256)
-        a = np.minimum(0.5, 12.0 * sg)[:, None]          # beyond ±12 s from the boundary v = 0
-        x = 0.5 + a * u                                   # offsets about the boundary at ½ DN
-        x = x - np.round(x)
-        _, v, m4 = _rounded_normal_moments(x, sg[:, None], J=5)
-        w = a * wu                                        # ∫ over one period of length 1
-        _UNIFORM_TABLE.update(ls=ls, lv=np.log((w * v).sum(-1)), le4=np.log((w * (m4 + v * v)).sum(-1)))
-    t = _UNIFORM_TABLE
+    functions of s alone, tabulated once (:func:`_build_uniform_offset_table`, shipped as
+    :data:`UNIFORM_TABLE_FILE`: 1 024 points, log-spaced s from 10⁻³ to 0.75 DN; linear
+    interpolation in log s, relative error < 2e-5) — H = s² + 1/12 − V (Sheppard's total variance,
+    split into the temporal part and the means')."""
+    t = _uniform_offset_table()
     ls = np.log(np.clip(s, 1e-3, 0.75))
     V = np.exp(np.interp(ls, t["ls"], t["lv"]))
     E4 = np.exp(np.interp(ls, t["ls"], t["le4"]))

@@ -122,6 +122,34 @@ def test_sheppard_fails_for_the_temporal_variance_below_its_threshold():
     assert H2[0] == pytest.approx(0.04 + 1 / 12 - V2[0])
 
 
+def test_shipped_uniform_offset_table_is_a_fresh_build(monkeypatch, tmp_path):
+    """The table shipped with the package (bayescap/_uniform_offset_table.npz, so that no fit pays
+    the ~0.18 s build) is what _build_uniform_offset_table computes now, and a missing or damaged
+    file falls back to that build."""
+    import bayescap.model as M
+
+    fresh = M._build_uniform_offset_table()
+    with np.load(M.UNIFORM_TABLE_FILE) as z:
+        for k in ("ls", "lv", "le4"):
+            assert z[k].shape == (1024,)
+            np.testing.assert_allclose(z[k], fresh[k], rtol=1e-12, atol=1e-14)
+    for content in (None, b"not an npz file"):
+        bad = tmp_path / "table.npz"
+        if content is not None:
+            bad.write_bytes(content)
+        monkeypatch.setattr(M, "UNIFORM_TABLE_FILE", bad)
+        monkeypatch.setattr(M, "_UNIFORM_TABLE", {})
+        V, E4, H = M._uniform_offset_moments(np.array([0.05, 0.3]))
+        assert np.all(np.isfinite(V)) and M._UNIFORM_TABLE["lv"].shape == (1024,)
+        np.testing.assert_array_equal(M._UNIFORM_TABLE["lv"], fresh["lv"])
+    # write_uniform_offset_table writes what the loader reads
+    out = tmp_path / "written.npz"
+    M.write_uniform_offset_table(out)
+    monkeypatch.setattr(M, "UNIFORM_TABLE_FILE", out)
+    monkeypatch.setattr(M, "_UNIFORM_TABLE", {})
+    np.testing.assert_array_equal(M._uniform_offset_table()["le4"], fresh["le4"])
+
+
 def test_pattern_below_the_quantization_floor_at_the_truth():
     """σ_read/K = 0.15 DN with a DSNU of 0.8 DN: the pixels' offsets spread over the DN grid, so
     Sheppard's s² + 1/12 overstates each pixel's temporal variance and the means' spatial variance
