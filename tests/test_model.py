@@ -239,3 +239,73 @@ def test_clip_moments_far_below_the_clip_is_the_temporal_variance():
     ref_mean, ref_slope = PTCModel._clip_mean(mu, s, tau, c)
     np.testing.assert_array_equal(mean, ref_mean)
     np.testing.assert_array_equal(slope, ref_slope)
+
+
+def _split_case():
+    _, d = _sim(spatial_frames=8, spatial_every=5)
+    m = PTCModel(d)
+    x = m.initial_guess()
+    from bayescap.model import SPLIT_MIN_DRAWS
+    X = x + 0.05 * np.random.default_rng(3).standard_normal((SPLIT_MIN_DRAWS + 101, m.ndim))
+    return m, X
+
+
+def test_large_log_prob_calls_split_into_halves_the_same_on_one_or_two_threads(monkeypatch):
+    """A call on SPLIT_MIN_DRAWS draws or more is two half calls (the second on a thread): the same
+    numbers bit for bit whatever BAYESCAP_THREADS says, equal to the halves evaluated apart."""
+    import bayescap.model as M
+
+    m, X = _split_case()
+    k = X.shape[0] // 2
+    halves = np.concatenate([M._log_posterior(X[:k], lambda g: m), M._log_posterior(X[k:], lambda g: m)])
+    out = {}
+    for n in ("1", "2"):
+        monkeypatch.setenv("BAYESCAP_THREADS", n)
+        assert M.n_threads() == int(n)
+        out[n] = m.log_prob(X)
+    np.testing.assert_array_equal(out["1"], out["2"])
+    np.testing.assert_array_equal(out["2"], halves)
+    assert np.all(np.isfinite(out["2"]))
+
+
+def test_split_log_prob_thread_keeps_the_callers_errstate(monkeypatch):
+    """Draws whose prior overflows (log read noise 800) in the half evaluated on the worker thread:
+    under the caller's np.errstate(all="ignore") no warning is raised there either (numpy's
+    errstate is a context variable; the thread runs in a copy of the caller's context)."""
+    m, X = _split_case()
+    X = X.copy()
+    X[-5:, m.idx["log_read"]] = 800.0
+    monkeypatch.setenv("BAYESCAP_THREADS", "2")
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        with np.errstate(all="ignore"):
+            lp = m.log_prob(X)
+    assert np.all(lp[-5:] == -np.inf) and np.all(np.isfinite(lp[:-5]))
+
+
+def _child_split(args):
+    import bayescap.model as M
+    m, X = args
+    return M.n_threads(), m.log_prob(X)
+
+
+def test_pool_workers_use_one_thread_and_a_forked_child_rebuilds_the_pool(monkeypatch):
+    """In a process started by multiprocessing (a pool worker) n_threads() is 1 unless
+    BAYESCAP_THREADS says otherwise; a child forked after the parent made its thread pool builds
+    its own (a pool inherited through fork has no thread: a submit to it would never run)."""
+    import multiprocessing as mp
+
+    m, X = _split_case()
+    monkeypatch.delenv("BAYESCAP_THREADS", raising=False)
+    ctx = mp.get_context("fork")
+    with ctx.Pool(1) as pool:
+        n, lp = pool.apply(_child_split, ((m, X),))
+    assert n == 1
+    monkeypatch.setenv("BAYESCAP_THREADS", "2")
+    ref = m.log_prob(X)              # the parent's pool exists now
+    with ctx.Pool(1) as pool:
+        res = pool.apply_async(_child_split, ((m, X),))
+        n2, lp2 = res.get(timeout=60)
+    assert n2 == 2
+    np.testing.assert_array_equal(lp, ref)
+    np.testing.assert_array_equal(lp2, ref)
