@@ -501,8 +501,11 @@ def interval_end_mcse(values, w, probs=(0.025, 0.975), n_resampled=None):
     quantile is read off that many draws resampled from the N weighted ones, which adds
     p(1 − p)(1/n − 1/N) to the variance (sampling n of N without replacement; systematic
     resampling in the draws' random order does no better for a single parameter). Returns the
-    largest over ``probs``, divided by Q(0.975) − Q(0.025) (0 when the width is 0)."""
+    largest over ``probs``, divided by Q(0.975) − Q(0.025) (0 when the width is 0; NaN when the
+    values are not all finite, as :func:`bayescap.fit.interval_end_mcse_mcmc`)."""
     v = np.asarray(values, float)
+    if not np.all(np.isfinite(v)):
+        return float("nan")
     o = np.argsort(v)
     v, ws = v[o], w[o]
     F = np.cumsum(ws)
@@ -530,16 +533,31 @@ def _weighted_kept(x, w):
 
 
 def _end_mcse(model, x, w, n_resampled=None):
-    """{name: interval-end Monte Carlo error / width} of every physical parameter for weighted draws
-    (and ``n_resampled`` draws resampled from them: :func:`interval_end_mcse`)."""
+    """{name: interval-end Monte Carlo error / width} of every physical parameter that varies, for
+    weighted draws (and ``n_resampled`` draws resampled from them: :func:`interval_end_mcse`); NaN
+    for a parameter whose draws are not all finite (reported as the worst, :func:`_worst_end_mcse`)."""
     phys = _physical_fn(model)
     if phys is None:
         return {}
     xk, wk = _weighted_kept(x, w)
     with np.errstate(all="ignore"):
         p = phys(xk)
-    return {n: interval_end_mcse(v, wk, n_resampled=n_resampled) for n, v in p.items()
-            if np.all(np.isfinite(v)) and np.ptp(v) > 0}
+    return {n: interval_end_mcse(v, wk, n_resampled=n_resampled) for n, v in p.items() if _varies(v)}
+
+
+def _varies(v):
+    """Whether draws ``v`` are not all one value (non-finite draws count as varying: their error is
+    NaN, not left out)."""
+    v = np.asarray(v, float)
+    return bool(v.size) and (not np.all(np.isfinite(v)) or np.ptp(v) > 0)
+
+
+def _worst_end_mcse(mcse):
+    """The largest of ``mcse``'s values; NaN (draws not all finite) is the largest, 0 for none."""
+    vals = list(mcse.values())
+    if any(not np.isfinite(v) for v in vals):
+        return float("nan")
+    return max(vals, default=0.0)
 
 
 def _fast_once(model, seed, n_draws, settings, x_map, cov):
@@ -640,7 +658,7 @@ def _fast_once(model, seed, n_draws, settings, x_map, cov):
     khat, ess = float(khat), float(ess)
     mcse = _end_mcse(model, x, w, n_resampled=n_draws)
     target = settings.end_mcse_max
-    worst = max(mcse.values(), default=0.0)
+    worst = _worst_end_mcse(mcse)
     n_topup, n_out = 0, n_draws
     # top up: more moment-matched draws until every interval end's predicted Monte Carlo error is
     # below the target (its variance falls as 1/N), at most max_proposals in all; not when k̂
@@ -657,7 +675,7 @@ def _fast_once(model, seed, n_draws, settings, x_map, cov):
         # the resampling does not undo the gain: twice the IS ESS, at most every draw
         n_out = n_draws if not default_n else int(min(max(n_draws, 2.0 * ess), x.shape[0]))
         mcse = _end_mcse(model, x, w, n_resampled=n_out)
-        worst = max(mcse.values(), default=0.0)
+        worst = _worst_end_mcse(mcse)
     n_draws = n_out
     n_outside = int(np.sum(~np.isfinite(logp)))
     t_is = time.perf_counter()
@@ -675,9 +693,10 @@ def _fast_once(model, seed, n_draws, settings, x_map, cov):
     # a proposal that passes but whose draws are too few for the interval ends: not a failed
     # optimiser, so fast_posterior does not retry it with restarts
     mcse_only = not reasons
-    if target is not None and worst > target:
+    if target is not None and not worst <= target:
         reasons.append(f"interval-end Monte Carlo error {worst:.3f} of the width > {target:g} "
-                       f"after {x.shape[0]} draws")
+                       f"after {x.shape[0]} draws" if np.isfinite(worst) else
+                       "interval-end Monte Carlo error undefined: a parameter's draws are not all finite")
     wall = time.perf_counter() - t0
     diag = {
         "method": METHOD,

@@ -1329,12 +1329,21 @@ class PTCModel:
 
     def log_prob(self, theta):
         """log prior + log likelihood of draws ``theta`` (n, ndim) or one draw (ndim,): (n,).
-        Calls on :data:`SPLIT_MIN_DRAWS` draws or more are evaluated in two halves, on two threads
-        where :func:`n_threads` allows (:func:`_split_rows`)."""
+        Calls of :data:`SPLIT_MIN_ELEMENTS` (draws × observations) or more are evaluated in two
+        halves, on two threads where :func:`n_threads` allows (:func:`_split_rows`)."""
         th = np.atleast_2d(np.asarray(theta, float))
-        if th.shape[0] >= SPLIT_MIN_DRAWS:
+        if th.shape[0] >= 1000 and th.shape[0] * self._observations() >= SPLIT_MIN_ELEMENTS:
             return _split_rows(lambda part: _log_posterior(part, lambda good: self), th)
         return _log_posterior(th, lambda good: self)
+
+    def _observations(self) -> int:
+        """Observations per draw (the likelihood blocks' columns), counted once from one draw."""
+        n = getattr(self, "_n_observations", None)
+        if n is None:
+            with np.errstate(all="ignore"):
+                pred = self.predict(np.atleast_2d(self.initial_guess()))
+            n = self._n_observations = int(sum(np.shape(v[1])[-1] for v in pred.values()))
+        return n
 
     # ------------------------------------------------------------------ start point
     def initial_guess(self) -> np.ndarray:
@@ -1441,11 +1450,13 @@ class PTCModel:
         return x
 
 
-#: a :meth:`PTCModel.log_prob` call on this many draws or more is evaluated in two halves,
-#: one of them on a second thread (numpy's ufuncs release the GIL). Measured on the Basler CCD
-#: (2 cores): 4 000 draws 29.5 → 18.1 ms, 2 000 14.8 → 11.8, 1 000 8.0 → 7.4, 500 4.5 → 5.8
-#: (the thread's hand-over costs more than it saves below ~1 000).
-SPLIT_MIN_DRAWS = 1500
+#: a :meth:`PTCModel.log_prob` call of this many draws × observations or more (and ≥ 1 000 draws)
+#: is evaluated in two halves, one of them on a second thread (numpy's ufuncs release the GIL).
+#: Measured on this 2-core VM, whose two threads share much of one core's throughput: Basler CCD
+#: (133 observations a draw) 4 000 draws 29.0 → 18.2 ms, 2 000 15.7 → 12.5, 1 500 12.2 → 9.5,
+#: 933 7.4 → 7.1, 500 4.4 → 5.7; a simulated Gpixel ROI (90) 2 000 draws 7.2 → 8.3 ms, slower: the
+#: hand-over costs ~1 ms (benchmarks/results/ab_trees_b9fb93f.md).
+SPLIT_MIN_ELEMENTS = 200_000
 
 _SPLIT_POOL = {}
 
@@ -1474,7 +1485,8 @@ def n_threads() -> int:
 def _split_rows(fn, th):
     """``fn(th)`` for row-wise ``fn``, as ``fn`` of the first and of the second half of the rows,
     concatenated: the second half on a worker thread when :func:`n_threads` > 1, else after the
-    first. The halves are the same whatever the thread count, so the numbers are too (a call's
+    first. The halves are the same whatever the thread count (and the number of cores), so the
+    numbers are too (a call's
     rows are not quite independent: :meth:`PTCModel.predict` skips clip rows that no draw of the
     call needs, which changes a value in its last bits)."""
     k = th.shape[0] // 2

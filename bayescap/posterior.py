@@ -324,12 +324,12 @@ class FitResult:
         """{derived quantity: Monte Carlo error of its 95 % interval ends / width} for a fast-path
         result: :func:`bayescap.fast.interval_end_mcse` of the quantity computed on the weighted
         draws behind the resampled ones (``chains.extra["weighted_draws"]``), counting the
-        resampling, as the fast path does for the parameters; quantities that vary only. {} when
-        the chains carry no weighted draws."""
+        resampling, as the fast path does for the parameters; quantities that vary only (NaN where
+        a quantity's draws are not all finite). {} when the chains carry no weighted draws."""
         wd = self.chains.extra.get("weighted_draws")
         if not wd:
             return {}
-        from .fast import interval_end_mcse
+        from .fast import _varies, interval_end_mcse
 
         xw = np.asarray(wd["x"], float)
         tmp = FitResult._of_chain(self.model, xw.reshape(1, -1, 1, xw.shape[1]), metadata=self.metadata,
@@ -337,7 +337,7 @@ class FitResult:
         out = {}
         for n, v in tmp.derived.items():
             v = np.asarray(v, float)
-            if v.size == xw.shape[0] and np.ptp(v) > 0:
+            if v.size == xw.shape[0] and _varies(v):
                 out[n] = float(interval_end_mcse(v, wd["w"], n_resampled=wd["n_resampled"]))
         return out
 

@@ -680,3 +680,30 @@ def test_fast_gate_failed_by_a_derived_quantity_falls_back(basler_csv):
         fb = bayescap.fit(model, seed=3, quality="fast", fast_result=(chains, fd), n_jobs=1)
     assert fb.diag["method"] == "emcee" and fb.diag["fast_path_accepted"] is False
     assert "Monte Carlo error of a 95 % interval end" in fb.diag["fallback_reason"]
+
+
+def test_end_mcse_of_non_finite_draws_is_nan_and_the_worst():
+    """A parameter with a non-finite draw gets NaN for its interval-end error, as the MCMC side
+    (fit.interval_end_mcse_mcmc) does, instead of being left out of the report and the gate; NaN
+    is the worst; a constant parameter is still left out (no interval)."""
+    from bayescap.fast import _end_mcse, _worst_end_mcse, interval_end_mcse
+    from bayescap.fit import interval_end_mcse_mcmc
+
+    rng = np.random.default_rng(0)
+    x = rng.standard_normal((500, 3))
+    w = np.full(500, 1.0 / 500)
+
+    class Phys:
+        @staticmethod
+        def physical(xx):
+            bad = xx[:, 1].copy()
+            bad[7] = np.inf
+            return {"ok": xx[:, 0], "bad": bad, "constant": np.ones(len(xx))}
+
+    got = _end_mcse(Phys(), x, w, n_resampled=500)
+    assert set(got) == {"ok", "bad"}
+    assert np.isfinite(got["ok"]) and 0 < got["ok"] < 0.2
+    assert np.isnan(got["bad"])
+    assert np.isnan(_worst_end_mcse(got)) and _worst_end_mcse({"ok": 0.01, "b": 0.02}) == 0.02
+    assert np.isnan(interval_end_mcse(np.r_[x[:, 0], np.nan], np.r_[w, 0.001]))
+    assert np.isnan(interval_end_mcse_mcmc(np.r_[x[:, 0], np.nan].reshape(1, -1, 1)))

@@ -245,13 +245,15 @@ def _split_case():
     _, d = _sim(spatial_frames=8, spatial_every=5)
     m = PTCModel(d)
     x = m.initial_guess()
-    from bayescap.model import SPLIT_MIN_DRAWS
-    X = x + 0.05 * np.random.default_rng(3).standard_normal((SPLIT_MIN_DRAWS + 101, m.ndim))
+    from bayescap.model import SPLIT_MIN_ELEMENTS
+    n = SPLIT_MIN_ELEMENTS // m._observations() + 101
+    assert n >= 1000
+    X = x + 0.01 * np.random.default_rng(3).standard_normal((n, m.ndim))
     return m, X
 
 
 def test_large_log_prob_calls_split_into_halves_the_same_on_one_or_two_threads(monkeypatch):
-    """A call on SPLIT_MIN_DRAWS draws or more is two half calls (the second on a thread): the same
+    """A call of SPLIT_MIN_ELEMENTS draws × observations or more is two half calls (the second on a thread): the same
     numbers bit for bit whatever BAYESCAP_THREADS says, equal to the halves evaluated apart."""
     import bayescap.model as M
 
