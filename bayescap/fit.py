@@ -15,9 +15,7 @@ import time
 import warnings
 from dataclasses import dataclass, field
 
-import emcee
 import numpy as np
-from scipy import optimize
 from scipy.special import ndtri
 
 from .model import PTCModel
@@ -26,6 +24,16 @@ __all__ = ["SamplerSettings", "QUALITY_PRESETS", "find_map", "find_map_scaled", 
            "newton_map", "NewtonOptimum", "refine_covariance", "polish_map", "run_ensembles",
            "diagnostics", "fast_diagnostics", "ConvergenceWarning", "stuck_walkers", "stuck_threshold",
            "LogClipCoordinates", "mcmc_start"]
+
+
+def __getattr__(name):
+    # the emcee-based classes live in bayescap._emcee_moves, imported on first use: emcee imports
+    # scipy.stats (its KDE move), ~0.75 s of the 0.9 s that `import bayescap` took, which the fast
+    # path and the CLI's fast preset never need
+    if name in ("IndependenceMove", "_Sampler"):
+        from . import _emcee_moves
+        return getattr(_emcee_moves, name)
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
 
 
 class ConvergenceWarning(UserWarning):
@@ -129,6 +137,8 @@ def _bfgs(fun, x0):
 
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
+        from scipy import optimize      # here: it takes ~0.1 s to import, and Newton is the default
+
         try:
             res = optimize.minimize(watched, x0, jac=True, method="BFGS", options=dict(maxiter=2000, gtol=1e-6))
         except _Stalled:
@@ -726,53 +736,11 @@ def _laplace_start_newton(model, n_restarts, multi_start, coords, polish_both):
     return best.x, best.lp, best.cov, time.perf_counter() - t0
 
 
-class IndependenceMove(emcee.moves.MHMove):
-    """Independence Metropolis–Hastings for every walker at once: proposals from a fixed
-    multivariate Student-t ``t_ν(mean, scale²·cov)`` (here the Laplace approximation at the MAP),
-    accepted with probability ``min(1, p(x′) q(x) / (p(x) q(x′)))``.
-
-    The proposal does not depend on the current position, so the move leaves the target invariant
-    whatever ``mean`` and ``cov`` are (a poor approximation only lowers the acceptance); when the
-    approximation is good, successive states are nearly independent. One ``log_prob`` call per step
-    for the whole ensemble (emcee's red-blue moves need two). Mixed with DE/stretch moves, which
-    cover what the t misses (skewed upper limits, bounds). Calibration on known targets:
-    ``benchmarks/check_moves.py``."""
-
-    def __init__(self, mean, cov, *, nu: float = 6.0, scale: float = 1.0):
-        self.mean = np.asarray(mean, float)
-        self.nu = float(nu)
-        c = _proposal_cov(np.asarray(cov, float), scale)
-        try:
-            self.L = np.linalg.cholesky(c)
-        except np.linalg.LinAlgError:   # eigenvalue floor at 1e-14 of the largest can still fail: jitter
-            self.L = np.linalg.cholesky(c + 1e-10 * np.max(np.diag(c)) * np.eye(c.shape[0]))
-        self.n_proposed = 0
-        self.n_accepted = 0
-        super().__init__(self._get_proposal, ndim=self.mean.size)
-
-    def log_q(self, x):
-        """log proposal density up to a constant (the constant cancels in the ratio)."""
-        z = np.linalg.solve(self.L, (np.atleast_2d(x) - self.mean).T)
-        maha = np.einsum("ij,ij->j", z, z)
-        return -0.5 * (self.nu + self.mean.size) * np.log1p(maha / self.nu)
-
-    def propose(self, model, state):
-        state, accepted = super().propose(model, state)
-        self.n_proposed += accepted.size
-        self.n_accepted += int(np.sum(accepted))
-        return state, accepted
-
-    def _get_proposal(self, coords, random):
-        n, d = coords.shape
-        z = random.standard_normal((n, d))
-        u = random.chisquare(self.nu, size=n) / self.nu
-        q = self.mean + (z @ self.L.T) / np.sqrt(u)[:, None]
-        log_q_new = -0.5 * (self.nu + d) * np.log1p(np.einsum("ij,ij->i", z, z) / u / self.nu)
-        # MHMove adds this to log p(x') − log p(x): log q(x) − log q(x')
-        return q, self.log_q(coords) - log_q_new
-
-
 def _moves(settings: SamplerSettings, x_map=None, cov=None, fraction=None):
+    import emcee
+
+    from ._emcee_moves import IndependenceMove
+
     de = settings.de_fraction
     ind = (settings.independence_fraction if fraction is None else fraction) if x_map is not None else 0.0
     out = []
@@ -945,46 +913,9 @@ _WORKER_MODEL = None  # the model, inherited by forked workers (copy-on-write)
 _RANDOM_STATE_LATER = "random state: taken when run_mcmc returns"
 
 
-class _Sampler(emcee.EnsembleSampler):
-    """emcee's ``EnsembleSampler`` with two per-step costs removed, the chains unchanged:
-
-    - it takes a vectorised ``log_prob``'s (n,) array as it is: emcee converts each walker's value
-      in a Python call (``_scalar``) after probing for blobs, ~0.1 ms a call on 96 walkers, ~4 % of
-      a standard fit. bayescap uses no blobs and no named parameters; the checks (infinite or NaN
-      positions, NaN log-probabilities) and the values are emcee's;
-    - ``sample`` copies the generator's state (``RandomState.get_state``, 42 µs) into the state
-      of every step; bayescap uses only the state ``run_mcmc`` returns, so the copy is taken
-      there, once (the intermediate states carry ``_RANDOM_STATE_LATER``, and setting it is a
-      no-op, as emcee's setter ignores a state it cannot set)."""
-
-    @property
-    def random_state(self):
-        return _RANDOM_STATE_LATER
-
-    @random_state.setter
-    def random_state(self, state):
-        if not (isinstance(state, str) and state == _RANDOM_STATE_LATER):
-            emcee.EnsembleSampler.random_state.fset(self, state)
-
-    def run_mcmc(self, initial_state, nsteps, **kwargs):
-        state = super().run_mcmc(initial_state, nsteps, **kwargs)
-        state.random_state = self._random.get_state()
-        return state
-
-    def compute_log_prob(self, coords):
-        if np.any(np.isinf(coords)):
-            raise ValueError("At least one parameter value was infinite")
-        if np.any(np.isnan(coords)):
-            raise ValueError("At least one parameter value was NaN")
-        log_prob = np.asarray(self.log_prob_fn(coords), dtype=float)
-        if log_prob.shape != (coords.shape[0],):
-            raise ValueError(f"log_prob returned shape {log_prob.shape}, expected ({coords.shape[0]},)")
-        if np.any(np.isnan(log_prob)):
-            raise ValueError("Probability function returned NaN")
-        return log_prob, None
-
-
 def _sampler(model, nw, settings, proposal):
+    from ._emcee_moves import _Sampler
+
     return _Sampler(nw, model.ndim, model.log_prob, vectorize=True, moves=_moves(settings, *proposal))
 
 
@@ -1001,6 +932,8 @@ def _adapted_proposal(sampler, ndim, proposal, settings):
     the new ones are not usable."""
     mean, cov = proposal[0], proposal[1]
     frac = proposal[2] if len(proposal) > 2 else settings.independence_fraction
+    from ._emcee_moves import IndependenceMove
+
     mv = [m for m in sampler._moves if isinstance(m, IndependenceMove)]
     if mv and mv[0].n_proposed:
         a = mv[0].n_accepted / mv[0].n_proposed
@@ -1059,6 +992,8 @@ def _run_segment(task, model=None):
     nw = coords.shape[0]
     adapt = settings.independence_fraction > 0 and proposal[0] is not None
     s = _sampler(model, nw, settings, proposal)
+    import emcee
+
     state = emcee.State(coords, log_prob=log_prob, random_state=rstate)
     n_reset = 0
     if n_burn:
@@ -1128,6 +1063,8 @@ def _reset_stuck_walkers(sampler, state, ndim):
     lp = np.array(state.log_prob, copy=True)
     coords[stuck] = chain_b[ti, wi]
     lp[stuck] = lp_b[half:][ti, wi]
+    import emcee
+
     return emcee.State(coords, log_prob=lp, random_state=rs.get_state()), n
 
 
@@ -1197,6 +1134,11 @@ def run_ensembles(model: PTCModel, *, settings: SamplerSettings = SamplerSetting
     the numbers do not depend on ``n_jobs``.
     """
     global _WORKER_MODEL
+    # emcee, imported here and not with the package (see __getattr__ above): before the workers are
+    # forked, so that they inherit it instead of each importing it again (~0.75 s), and before the
+    # fit's clock starts, as when it came with `import bayescap`
+    from . import _emcee_moves  # noqa: F401
+
     t0 = time.perf_counter()
     x_map, lp_map, cov, coords, z_map, cov_z = mcmc_start(model, n_restarts=settings.map_restarts)
     ss = np.random.SeedSequence(seed)

@@ -1,0 +1,97 @@
+"""The emcee-based classes of :mod:`bayescap.fit` (also reachable as ``bayescap.fit.IndependenceMove``
+and ``bayescap.fit._Sampler``), in a module of their own so that ``import bayescap`` does not
+import emcee: emcee's moves import scipy.stats, ~0.75 s of the ~0.9 s the package took to import
+(``python -X importtime -c "import bayescap.cli"``), which a fast-preset fit never needs."""
+from __future__ import annotations
+
+import emcee
+import numpy as np
+
+from .fit import _RANDOM_STATE_LATER, _proposal_cov
+
+__all__ = ["IndependenceMove"]
+
+
+class IndependenceMove(emcee.moves.MHMove):
+    """Independence Metropolis–Hastings for every walker at once: proposals from a fixed
+    multivariate Student-t ``t_ν(mean, scale²·cov)`` (here the Laplace approximation at the MAP),
+    accepted with probability ``min(1, p(x′) q(x) / (p(x) q(x′)))``.
+
+    The proposal does not depend on the current position, so the move leaves the target invariant
+    whatever ``mean`` and ``cov`` are (a poor approximation only lowers the acceptance); when the
+    approximation is good, successive states are nearly independent. One ``log_prob`` call per step
+    for the whole ensemble (emcee's red-blue moves need two). Mixed with DE/stretch moves, which
+    cover what the t misses (skewed upper limits, bounds). Calibration on known targets:
+    ``benchmarks/check_moves.py``."""
+
+    def __init__(self, mean, cov, *, nu: float = 6.0, scale: float = 1.0):
+        self.mean = np.asarray(mean, float)
+        self.nu = float(nu)
+        c = _proposal_cov(np.asarray(cov, float), scale)
+        try:
+            self.L = np.linalg.cholesky(c)
+        except np.linalg.LinAlgError:   # eigenvalue floor at 1e-14 of the largest can still fail: jitter
+            self.L = np.linalg.cholesky(c + 1e-10 * np.max(np.diag(c)) * np.eye(c.shape[0]))
+        self.n_proposed = 0
+        self.n_accepted = 0
+        super().__init__(self._get_proposal, ndim=self.mean.size)
+
+    def log_q(self, x):
+        """log proposal density up to a constant (the constant cancels in the ratio)."""
+        z = np.linalg.solve(self.L, (np.atleast_2d(x) - self.mean).T)
+        maha = np.einsum("ij,ij->j", z, z)
+        return -0.5 * (self.nu + self.mean.size) * np.log1p(maha / self.nu)
+
+    def propose(self, model, state):
+        state, accepted = super().propose(model, state)
+        self.n_proposed += accepted.size
+        self.n_accepted += int(np.sum(accepted))
+        return state, accepted
+
+    def _get_proposal(self, coords, random):
+        n, d = coords.shape
+        z = random.standard_normal((n, d))
+        u = random.chisquare(self.nu, size=n) / self.nu
+        q = self.mean + (z @ self.L.T) / np.sqrt(u)[:, None]
+        log_q_new = -0.5 * (self.nu + d) * np.log1p(np.einsum("ij,ij->i", z, z) / u / self.nu)
+        # MHMove adds this to log p(x') − log p(x): log q(x) − log q(x')
+        return q, self.log_q(coords) - log_q_new
+
+
+class _Sampler(emcee.EnsembleSampler):
+    """emcee's ``EnsembleSampler`` with two per-step costs removed, the chains unchanged:
+
+    - it takes a vectorised ``log_prob``'s (n,) array as it is: emcee converts each walker's value
+      in a Python call (``_scalar``) after probing for blobs, ~0.1 ms a call on 96 walkers, ~4 % of
+      a standard fit. bayescap uses no blobs and no named parameters; the checks (infinite or NaN
+      positions, NaN log-probabilities) and the values are emcee's;
+    - ``sample`` copies the generator's state (``RandomState.get_state``, 42 µs) into the state
+      of every step; bayescap uses only the state ``run_mcmc`` returns, so the copy is taken
+      there, once (the intermediate states carry ``_RANDOM_STATE_LATER``, and setting it is a
+      no-op, as emcee's setter ignores a state it cannot set)."""
+
+    @property
+    def random_state(self):
+        return _RANDOM_STATE_LATER
+
+    @random_state.setter
+    def random_state(self, state):
+        if not (isinstance(state, str) and state == _RANDOM_STATE_LATER):
+            emcee.EnsembleSampler.random_state.fset(self, state)
+
+    def run_mcmc(self, initial_state, nsteps, **kwargs):
+        state = super().run_mcmc(initial_state, nsteps, **kwargs)
+        state.random_state = self._random.get_state()
+        return state
+
+    def compute_log_prob(self, coords):
+        if np.any(np.isinf(coords)):
+            raise ValueError("At least one parameter value was infinite")
+        if np.any(np.isnan(coords)):
+            raise ValueError("At least one parameter value was NaN")
+        log_prob = np.asarray(self.log_prob_fn(coords), dtype=float)
+        if log_prob.shape != (coords.shape[0],):
+            raise ValueError(f"log_prob returned shape {log_prob.shape}, expected ({coords.shape[0]},)")
+        if np.any(np.isnan(log_prob)):
+            raise ValueError("Probability function returned NaN")
+        return log_prob, None
