@@ -930,10 +930,10 @@ def _adapted_proposal(sampler, ndim, proposal, settings):
     the stretch, so that where the t fits the posterior badly (a ridge, several modes: acceptance
     ≈ 0) the DE/stretch moves get the steps back. The previous mean and covariance are kept when
     the new ones are not usable."""
-    mean, cov = proposal[0], proposal[1]
-    frac = proposal[2] if len(proposal) > 2 else settings.independence_fraction
     from ._emcee_moves import IndependenceMove
 
+    mean, cov = proposal[0], proposal[1]
+    frac = proposal[2] if len(proposal) > 2 else settings.independence_fraction
     mv = [m for m in sampler._moves if isinstance(m, IndependenceMove)]
     if mv and mv[0].n_proposed:
         a = mv[0].n_accepted / mv[0].n_proposed
@@ -986,14 +986,14 @@ def _run_segment(task, model=None):
     refitted to that half's draws and its share of the steps to its acceptance there
     (:func:`_adapted_proposal`; burn-in only: in production the moves are fixed, so production is a
     valid Markov chain), and the final proposal is returned for the next round."""
+    import emcee
+
     idx, coords, log_prob, rstate, n_burn, n_steps, settings = task[:7]
     proposal = task[7] if len(task) > 7 else (None, None)
     model = _WORKER_MODEL if model is None else model
     nw = coords.shape[0]
     adapt = settings.independence_fraction > 0 and proposal[0] is not None
     s = _sampler(model, nw, settings, proposal)
-    import emcee
-
     state = emcee.State(coords, log_prob=log_prob, random_state=rstate)
     n_reset = 0
     if n_burn:
@@ -1047,6 +1047,8 @@ def _reset_stuck_walkers(sampler, state, ndim):
     differences between walkers, rarely bring them back. Done during burn-in only, so the
     production chain stays a valid Markov chain; the ensemble's own random stream picks the
     positions, so the result stays reproducible."""
+    import emcee
+
     lp_b = sampler.get_log_prob()
     half = lp_b.shape[0] // 2
     stuck = stuck_walkers(lp_b[half:], ndim)
@@ -1063,8 +1065,6 @@ def _reset_stuck_walkers(sampler, state, ndim):
     lp = np.array(state.log_prob, copy=True)
     coords[stuck] = chain_b[ti, wi]
     lp[stuck] = lp_b[half:][ti, wi]
-    import emcee
-
     return emcee.State(coords, log_prob=lp, random_state=rs.get_state()), n
 
 
