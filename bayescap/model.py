@@ -1452,8 +1452,7 @@ class PTCModel:
 
 #: a :meth:`PTCModel.log_prob` call of this many draws × observations or more (and ≥ 1 000 draws)
 #: is evaluated in two halves, one of them on a second thread (numpy's ufuncs release the GIL).
-#: Measured on this 2-core VM, whose two threads share much of one core's throughput: Basler CCD
-#: (133 observations a draw) 4 000 draws 29.0 → 18.2 ms, 2 000 15.7 → 12.5, 1 500 12.2 → 9.5,
+#: Measured on this project's 2-core VM, the halves alone: Basler CCD (133 observations a draw) 4 000 draws 29.0 → 18.2 ms, 2 000 15.7 → 12.5, 1 500 12.2 → 9.5,
 #: 933 7.4 → 7.1, 500 4.4 → 5.7; a simulated Gpixel ROI (90) 2 000 draws 7.2 → 8.3 ms, slower: the
 #: hand-over costs ~1 ms (benchmarks/results/ab_trees_b9fb93f.md).
 SPLIT_MIN_ELEMENTS = 200_000
@@ -1486,9 +1485,9 @@ def _split_rows(fn, th):
     """``fn(th)`` for row-wise ``fn``, as ``fn`` of the first and of the second half of the rows,
     concatenated: the second half on a worker thread when :func:`n_threads` > 1, else after the
     first. The halves are the same whatever the thread count (and the number of cores), so the
-    numbers are too (a call's
-    rows are not quite independent: :meth:`PTCModel.predict` skips clip rows that no draw of the
-    call needs, which changes a value in its last bits)."""
+    numbers are too. (A call's rows are not quite independent: :meth:`PTCModel.predict` skips clip
+    rows that no draw of the call needs, which changes a value in its last bits; so a split call can
+    differ from an unsplit one there, never from another split one.)"""
     k = th.shape[0] // 2
     if n_threads() < 2:
         return np.concatenate([fn(th[:k]), fn(th[k:])])
