@@ -1452,9 +1452,11 @@ class PTCModel:
 
 #: a :meth:`PTCModel.log_prob` call of this many draws × observations or more (and ≥ 1 000 draws)
 #: is evaluated in two halves, one of them on a second thread (numpy's ufuncs release the GIL).
-#: Measured on this project's 2-core VM, the halves alone: Basler CCD (133 observations a draw) 4 000 draws 29.0 → 18.2 ms, 2 000 15.7 → 12.5, 1 500 12.2 → 9.5,
-#: 933 7.4 → 7.1, 500 4.4 → 5.7; a simulated Gpixel ROI (90) 2 000 draws 7.2 → 8.3 ms, slower: the
-#: hand-over costs ~1 ms (benchmarks/results/ab_trees_b9fb93f.md).
+#: Measured on this project's 2-core VM, a call alone: Basler CCD (133 observations a draw) 4 000
+#: draws 29.0 → 18.2 ms, 2 000 15.7 → 12.5, 1 500 12.2 → 9.5, 933 7.4 → 7.1, 500 4.4 → 5.7; a
+#: simulated Gpixel ROI (90) 2 000 draws 7.2 → 8.3 ms, slower: the hand-over costs ~1 ms
+#: (benchmarks/results/ab_trees_b9fb93f.md). Inside a fast fit the Basler's calls gained nothing
+#: (docs/performance.md, "Large log_prob calls on two threads").
 SPLIT_MIN_ELEMENTS = 200_000
 
 _SPLIT_POOL = {}
