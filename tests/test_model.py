@@ -253,8 +253,9 @@ def _split_case():
 
 
 def test_large_log_prob_calls_split_into_halves_the_same_on_one_or_two_threads(monkeypatch):
-    """A call of SPLIT_MIN_ELEMENTS draws × observations or more is two half calls (the second on a thread): the same
-    numbers bit for bit whatever BAYESCAP_THREADS says, equal to the halves evaluated apart."""
+    """A call of SPLIT_MIN_ELEMENTS draws × observations or more is two half calls (the second on
+    a thread): the same numbers bit for bit whatever BAYESCAP_THREADS says, equal to the halves
+    evaluated apart."""
     import bayescap.model as M
 
     m, X = _split_case()
