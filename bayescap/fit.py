@@ -18,7 +18,7 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy.special import ndtri
 
-from .model import PTCModel
+from .model import PTCModel, _env_count
 
 __all__ = ["SamplerSettings", "QUALITY_PRESETS", "find_map", "find_map_scaled", "laplace_covariance", "laplace_start",
            "newton_map", "NewtonOptimum", "refine_covariance", "polish_map", "run_ensembles",
@@ -1069,12 +1069,9 @@ def _reset_stuck_walkers(sampler, state, ndim):
 
 
 def _default_jobs(n_ensembles):
-    env = os.environ.get("BAYESCAP_JOBS")
-    if env:
-        try:
-            return max(1, int(env))
-        except ValueError:
-            pass
+    env = _env_count("BAYESCAP_JOBS")
+    if env is not None:
+        return env
     return max(1, min(n_ensembles, os.cpu_count() or 1))
 
 

@@ -1462,16 +1462,24 @@ SPLIT_MIN_ELEMENTS = 200_000
 _SPLIT_POOL = {}
 
 
-def n_threads() -> int:
-    """Threads a large ``log_prob`` call may use: ``BAYESCAP_THREADS`` if set; else 1 in a process
-    started by :mod:`multiprocessing` (a pool worker: its siblings have the other cores), else 2
-    where this process may run on two cores or more."""
-    env = os.environ.get("BAYESCAP_THREADS")
+def _env_count(name):
+    """The environment variable ``name`` as a count ≥ 1, or None when unset or not an integer."""
+    env = os.environ.get(name)
     if env:
         try:
             return max(1, int(env))
         except ValueError:
             pass
+    return None
+
+
+def n_threads() -> int:
+    """Threads a large ``log_prob`` call may use: ``BAYESCAP_THREADS`` if set; else 1 in a process
+    started by :mod:`multiprocessing` (a pool worker: its siblings have the other cores), else 2
+    where this process may run on two cores or more."""
+    env = _env_count("BAYESCAP_THREADS")
+    if env is not None:
+        return env
     import multiprocessing as mp
 
     if mp.parent_process() is not None:
