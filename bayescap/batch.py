@@ -31,6 +31,7 @@ from pathlib import Path
 
 import numpy as np
 
+from ._blas import one_blas_thread
 from .fast import FastSettings
 
 __all__ = ["fit_many", "Lockstep", "stack_groups", "gpixel_truths", "gpixel_sensors", "GPIXEL_CSV"]
@@ -235,6 +236,7 @@ def _fit_groups(args):
     return out
 
 
+@one_blas_thread
 def fit_many(datas, *, quality: str = "fast", seed, n_jobs: int = 1, fallback: bool = True,
              settings: FastSettings = FastSettings(), summary_only: bool = False, stack_size: int = 64):
     """Fit many sensors with the Laplace–IS fast path (MCMC fallback per sensor if ``fallback``),

@@ -67,6 +67,7 @@ from dataclasses import asdict, dataclass, replace
 import numpy as np
 from scipy.special import gammaln
 
+from ._blas import one_blas_thread
 from .fit import (QUALITY_PRESETS, ChainResult, LogClipCoordinates, _clip_coordinates, _proposal_cov, find_map,
                   laplace_covariance, laplace_start, polish_map, refine_covariance)
 
@@ -743,6 +744,7 @@ def _fast_once(model, seed, n_draws, settings, x_map, cov):
     return chains, diag
 
 
+@one_blas_thread
 def fast_posterior(model, *, seed, n_draws: int | None = None,
                    settings: FastSettings = FastSettings(), x_map=None, cov=None):
     """Laplace–IS posterior draws for ``model`` (module docstring).

@@ -18,6 +18,7 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy.special import ndtri
 
+from ._blas import one_blas_thread
 from .model import PTCModel, _env_count
 
 __all__ = ["SamplerSettings", "QUALITY_PRESETS", "find_map", "find_map_scaled", "laplace_covariance", "laplace_start",
@@ -1115,6 +1116,7 @@ def _map_segments(tasks, pool, pbar=None):
     return sorted(out, key=lambda r: r[0])
 
 
+@one_blas_thread
 def run_ensembles(model: PTCModel, *, settings: SamplerSettings = SamplerSettings(), seed=None,
                   progress: bool = False, converged_fn=None, n_jobs: int | None = None,
                   derived_fn=None, reported_fn=None) -> ChainResult:
