@@ -79,6 +79,13 @@ def measured_mtf(path, *, seed: int = 0, n_boot: int = 200):
     return TabulatedMTF(freq_cy_per_px=r.freq_cy_per_px, mtf=r.mtf, samples=samples, name=f"measured:{p.name}")
 
 
+def _result_kw(data: PTCData, *, mtf, scene: Scene | None, seed):
+    """What :class:`~bayescap.posterior.FitResult` computes the derived quantities with: the
+    metadata with its defaults, the scene (:func:`default_scene` if None), the MTF and the seed."""
+    return dict(metadata={**METADATA_DEFAULTS, **data.metadata}, scene=scene or default_scene(data), mtf=mtf,
+                seed=seed)
+
+
 def fit(data: PTCData | PTCModel | str, *, seed: int | None = None,
         quality: str | SamplerSettings = "standard", mtf=None, scene: Scene | None = None,
         progress: bool = False, terms=None, n_jobs: int | None = None, fast_settings=None,
@@ -120,19 +127,21 @@ def fit(data: PTCData | PTCModel | str, *, seed: int | None = None,
             data = load(data)
         model = PTCModel(data, terms=terms or select_terms(data), prior=prior)
     notes: list = []
-    md = {**METADATA_DEFAULTS, **data.metadata}
     defaults_used = sorted(k for k in METADATA_DEFAULTS if k not in data.metadata)
     if mtf is None:
         mtf = mtf_from_metadata(data.metadata, notes)
-    scene = scene or default_scene(data)
-    kw = dict(metadata=md, scene=scene, mtf=mtf, seed=seed)
+    kw = _result_kw(data, mtf=mtf, scene=scene, seed=seed)
     if isinstance(quality, str) and quality not in QUALITY_PRESETS:
         raise ValueError(f"unknown quality {quality!r}: use one of {', '.join(QUALITY_PRESETS)}")
     if quality == "fast":
         from .fast import FastSettings, fast_posterior
 
         fs = fast_settings or FastSettings()
-        chains, fd = fast_result if fast_result is not None else fast_posterior(model, seed=seed, settings=fs)
+        # with a gate on the interval ends' Monte Carlo error, the top-up covers the derived
+        # quantities too (else one above the gate would send the fit to MCMC below)
+        derived_fn = None if fs.end_mcse_max is None else FitResult.derived_values_fn(model, **kw)
+        chains, fd = (fast_result if fast_result is not None
+                      else fast_posterior(model, seed=seed, settings=fs, derived_fn=derived_fn))
         res = None
         if fd["accepted"] and fallback:
             # the result can still fail: with a gate on the interval ends' Monte Carlo error

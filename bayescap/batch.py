@@ -177,16 +177,18 @@ def _with_log_prob(model, log_prob):
     return proxy
 
 
-def _fast_paths(models, seeds, settings, stack_size: int = 64):
+def _fast_paths(models, seeds, settings, stack_size: int = 64, derived_fns=None):
     """Fast-path results ``(ChainResult, diagnostics)`` (or an exception) of stackable models, at
     most ``stack_size`` in lockstep. Wall times are the whole run's divided by the number of
-    sensors (amortised)."""
+    sensors (amortised). ``derived_fns``: each model's ``fast_posterior`` ``derived_fn`` (None: none)."""
     from .fast import fast_posterior
     from .model import PTCModelStack
 
     ls = Lockstep(PTCModelStack(models))
-    fns = [(lambda lp, m=m, s=s: fast_posterior(_with_log_prob(m, lp), seed=s, settings=settings))
-           for m, s in zip(models, seeds)]
+    dfs = derived_fns or [None] * len(models)
+    fns = [(lambda lp, m=m, s=s, df=df: fast_posterior(_with_log_prob(m, lp), seed=s, settings=settings,
+                                                        derived_fn=df))
+           for m, s, df in zip(models, seeds, dfs)]
     t0 = time.perf_counter()
     out = ls.run(fns, concurrency=stack_size)
     wall = (time.perf_counter() - t0) / len(models)
@@ -214,20 +216,35 @@ def stack_groups(models, n_parts: int = 1):
 
 def _fit_groups(args):
     models, seeds, groups, settings, fallback, summary_only, stack_size = args
-    from .api import fit, mtf_from_metadata
+    from .api import _result_kw, fit, mtf_from_metadata
+    from .posterior import FitResult
 
     mtfs, out = {}, {}
+
+    def mtf_of(m):
+        key = _mtf_key(m.data.metadata)
+        if key not in mtfs:
+            mtfs[key] = mtf_from_metadata(m.data.metadata)
+        return mtfs[key]
+
     for ix in groups:
-        fast = _fast_paths([models[i] for i in ix], [seeds[i] for i in ix], settings, stack_size)
+        dfs = None
+        if settings.end_mcse_max is not None:
+            # the gate's top-up covers the derived quantities, as bayescap.fit's fast path does
+            dfs = []
+            for i in ix:
+                try:
+                    dfs.append(FitResult.derived_values_fn(models[i], **_result_kw(
+                        models[i].data, mtf=mtf_of(models[i]), scene=None, seed=seeds[i])))
+                except Exception:      # reported by fit() below, as without the gate
+                    dfs.append(None)
+        fast = _fast_paths([models[i] for i in ix], [seeds[i] for i in ix], settings, stack_size, dfs)
         for i, fr in zip(ix, fast):
             m = models[i]
             try:
                 if isinstance(fr, BaseException):
                     raise fr
-                key = _mtf_key(m.data.metadata)
-                if key not in mtfs:
-                    mtfs[key] = mtf_from_metadata(m.data.metadata)
-                r = fit(m, seed=seeds[i], quality="fast", fast_settings=settings, mtf=mtfs[key],
+                r = fit(m, seed=seeds[i], quality="fast", fast_settings=settings, mtf=mtf_of(m),
                         fallback=fallback, fast_result=fr)
             except Exception as e:  # one bad sensor must not stop a batch: report it
                 out[i] = {"error": f"{type(e).__name__}: {e}"} if summary_only else e

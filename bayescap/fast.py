@@ -533,16 +533,21 @@ def _weighted_kept(x, w):
     return x[keep], w[keep]
 
 
-def _end_mcse(model, x, w, n_resampled=None):
+def _end_mcse(model, x, w, n_resampled=None, derived_fn=None):
     """{name: interval-end Monte Carlo error / width} of every physical parameter that varies, for
     weighted draws (and ``n_resampled`` draws resampled from them: :func:`interval_end_mcse`); NaN
-    for a parameter whose draws are not all finite (reported as the worst, :func:`_worst_end_mcse`)."""
+    for a parameter whose draws are not all finite (reported as the worst, :func:`_worst_end_mcse`).
+    With ``derived_fn`` (draws in ``model``'s coordinates -> {name: values}), the quantities it
+    returns too (capacity, TR, ...: what :class:`bayescap.posterior.FitResult` computes from the same
+    weighted draws afterwards)."""
     phys = _physical_fn(model)
     if phys is None:
         return {}
     xk, wk = _weighted_kept(x, w)
     with np.errstate(all="ignore"):
         p = phys(xk)
+        if derived_fn is not None:
+            p = {**p, **{n: v for n, v in derived_fn(xk).items() if np.size(v) == xk.shape[0]}}
     return {n: interval_end_mcse(v, wk, n_resampled=n_resampled) for n, v in p.items() if _varies(v)}
 
 
@@ -561,7 +566,7 @@ def _worst_end_mcse(mcse):
     return max(vals, default=0.0)
 
 
-def _fast_once(model, seed, n_draws, settings, x_map, cov):
+def _fast_once(model, seed, n_draws, settings, x_map, cov, derived_fn=None):
     """One attempt of the fast path (:func:`fast_posterior`); ``n_draws`` None: ``settings.n_draws``,
     more after a top-up."""
     wrapped = _clip_coordinates(model) if x_map is None and cov is None else None
@@ -574,7 +579,8 @@ def _fast_once(model, seed, n_draws, settings, x_map, cov):
         z0, _, cz, _ = laplace_start(model, n_restarts=settings.n_restarts, refine_iter=settings.refine_iter,
                                      polish=settings.polish, coords=wrapped, polish_both=settings.polish_both)
         t_start = time.perf_counter() - t0
-        chains, diag = _fast_once(wrapped, seed, n_draws, settings, z0, cz)
+        d_fn = None if derived_fn is None else (lambda z: derived_fn(wrapped.to_x(z)))
+        chains, diag = _fast_once(wrapped, seed, n_draws, settings, z0, cz, d_fn)
         diag["wall_map_s"] += t_start
         diag["wall_s"] += t_start
         chains.wall_s += t_start
@@ -657,7 +663,7 @@ def _fast_once(model, seed, n_draws, settings, x_map, cov):
         x, logp, logq, comps = x1, lp1, student_t_logpdf(x1, x_map, c1, nu), None
     w, khat, ess = psis_weights(logp - logq)
     khat, ess = float(khat), float(ess)
-    mcse = _end_mcse(model, x, w, n_resampled=n_draws)
+    mcse = _end_mcse(model, x, w, n_resampled=n_draws, derived_fn=derived_fn)
     target = settings.end_mcse_max
     worst = _worst_end_mcse(mcse)
     n_topup, n_out = 0, n_draws
@@ -675,7 +681,7 @@ def _fast_once(model, seed, n_draws, settings, x_map, cov):
         # more draws are resampled after a top-up (n_draws unless the caller set it), so that
         # the resampling does not undo the gain: twice the IS ESS, at most every draw
         n_out = n_draws if not default_n else int(min(max(n_draws, 2.0 * ess), x.shape[0]))
-        mcse = _end_mcse(model, x, w, n_resampled=n_out)
+        mcse = _end_mcse(model, x, w, n_resampled=n_out, derived_fn=derived_fn)
         worst = _worst_end_mcse(mcse)
     n_draws = n_out
     n_outside = int(np.sum(~np.isfinite(logp)))
@@ -746,7 +752,7 @@ def _fast_once(model, seed, n_draws, settings, x_map, cov):
 
 @one_blas_thread
 def fast_posterior(model, *, seed, n_draws: int | None = None,
-                   settings: FastSettings = FastSettings(), x_map=None, cov=None):
+                   settings: FastSettings = FastSettings(), x_map=None, cov=None, derived_fn=None):
     """Laplace–IS posterior draws for ``model`` (module docstring).
 
     Parameters
@@ -758,6 +764,11 @@ def fast_posterior(model, *, seed, n_draws: int | None = None,
     settings : :class:`FastSettings`.
     x_map, cov : a MAP and covariance already computed (used as given: no retry with restarts);
         computed here when not given.
+    derived_fn : ``x (n, ndim) -> {name: values (n,)}``, quantities computed from the parameters
+        (capacity, TR, ...; :meth:`bayescap.posterior.FitResult.derived_values_fn`): their interval
+        ends' Monte Carlo error joins the parameters' in ``end_mcse``, so that the top-up towards
+        ``settings.end_mcse_max`` covers them too (without it, a derived quantity above the gate is
+        found only by the result's own check, and ``bayescap.fit`` falls back to MCMC).
 
     Returns
     -------
@@ -765,14 +776,14 @@ def fast_posterior(model, *, seed, n_draws: int | None = None,
     diagnostics ``{"accepted", "khat", "ess_is", "n_proposals", "khat_max", "min_ess_is",
     "reason", "wall_s", ...}``. ``accepted`` is False when the caller must fall back to MCMC.
     """
-    chains, diag = _fast_once(model, seed, n_draws, settings, x_map, cov)
+    chains, diag = _fast_once(model, seed, n_draws, settings, x_map, cov, derived_fn)
     diag["retried_with_restarts"] = False
     if (not diag["accepted"] and not diag["rejected_for_mcse_only"] and x_map is None
             and settings.retry_restarts > settings.n_restarts):
         # a single optimiser start can stop at the initial guess (measured on small-frame
         # sensors): retry with restarts before declaring failure
         retry = replace(settings, n_restarts=settings.retry_restarts, polish_both=True)
-        c2, d2 = _fast_once(model, seed, n_draws, retry, None, None)
+        c2, d2 = _fast_once(model, seed, n_draws, retry, None, None, derived_fn)
         first = {k: diag[k] for k in ("khat", "ess_is", "reason")}
         wall = d2["wall_s"] + diag["wall_s"]
         if d2["accepted"] or d2["khat"] < diag["khat"]:   # keep the better of the two attempts

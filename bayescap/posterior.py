@@ -140,6 +140,19 @@ class FitResult:
         return fn
 
     @classmethod
+    def derived_values_fn(cls, model: PTCModel, *, metadata, scene, mtf, seed):
+        """``fn(x) -> {name: values (n,)}``: every derived quantity (capacity, TR, DR, SNR, ...) of
+        draws ``x`` (n, ndim), as the result computes them; for the fast path's top-up towards its
+        gate on the interval ends' Monte Carlo error (:func:`bayescap.fast.fast_posterior`'s
+        ``derived_fn``) and the result's own check of the same errors."""
+        def fn(x):
+            x = np.asarray(x, float)
+            tmp = cls._of_chain(model, x.reshape(1, -1, 1, x.shape[-1]), metadata=metadata, scene=scene,
+                                mtf=mtf, seed=seed)
+            return {n: np.asarray(v, float) for n, v in tmp.derived.items() if np.size(v) == x.shape[0]}
+        return fn
+
+    @classmethod
     def _of_chain(cls, model, chain, *, metadata, scene, mtf, seed):
         """A result without chains holding the physical draws and derived quantities of ``chain``
         (E, S, W, D), for the checks :func:`bayescap.fit.run_ensembles` makes after each round."""
@@ -331,15 +344,10 @@ class FitResult:
             return {}
         from .fast import _varies, interval_end_mcse
 
-        xw = np.asarray(wd["x"], float)
-        tmp = FitResult._of_chain(self.model, xw.reshape(1, -1, 1, xw.shape[1]), metadata=self.metadata,
-                                  scene=self.scene, mtf=self.mtf, seed=self.seed)
-        out = {}
-        for n, v in tmp.derived.items():
-            v = np.asarray(v, float)
-            if v.size == xw.shape[0] and _varies(v):
-                out[n] = float(interval_end_mcse(v, wd["w"], n_resampled=wd["n_resampled"]))
-        return out
+        fn = FitResult.derived_values_fn(self.model, metadata=self.metadata, scene=self.scene, mtf=self.mtf,
+                                         seed=self.seed)
+        return {n: float(interval_end_mcse(v, wd["w"], n_resampled=wd["n_resampled"]))
+                for n, v in fn(wd["x"]).items() if _varies(v)}
 
     def _set_end_mcse(self, end, target):
         """The diagnostics of the interval ends' Monte Carlo error ``end`` ({quantity: error /

@@ -658,9 +658,10 @@ def test_fast_result_reports_the_derived_quantities_end_mcse(basler_csv):
 
 
 def test_fast_gate_failed_by_a_derived_quantity_falls_back(basler_csv):
-    """With a gate on the interval ends' Monte Carlo error (FastSettings.end_mcse_max), the fast
-    path checks the parameters; a derived quantity above the gate fails the result (NOT CONVERGED,
-    named), and bayescap.fit falls back to MCMC with that reason."""
+    """With a gate on the interval ends' Monte Carlo error (FastSettings.end_mcse_max), a fast
+    result whose top-up saw the parameters only (``fast_result`` made without ``derived_fn``): a
+    derived quantity above the gate fails the result (NOT CONVERGED, named), and bayescap.fit falls
+    back to MCMC with that reason."""
     from bayescap.model import PTCModel
 
     model = PTCModel(bayescap.load(basler_csv))
@@ -681,6 +682,50 @@ def test_fast_gate_failed_by_a_derived_quantity_falls_back(basler_csv):
     assert fb.diag["method"] == "emcee" and fb.diag["fast_path_accepted"] is False
     assert "Monte Carlo error of a 95 % interval end" in fb.diag["fallback_reason"]
 
+
+
+def test_gate_top_up_covers_the_derived_quantities(monkeypatch, basler_csv):
+    """``fast_posterior(derived_fn=...)``: the derived quantities' interval-end errors join the
+    parameters' in ``end_mcse`` and drive the top-up towards ``end_mcse_max``. A stand-in derived
+    quantity whose error falls as 1/√N from 0.08 at the default 6 000 draws needs ~11 000 for a
+    0.06 gate, which the parameters alone (≤ 0.04 on the Basler) do not ask for; and
+    ``bayescap.fit`` with a gate hands the fast path the result's own derived quantities."""
+    import bayescap.fast as fast_mod
+    from bayescap.model import PTCModel
+
+    model = PTCModel(bayescap.load(basler_csv))
+    real = fast_mod.interval_end_mcse
+
+    def stand_in(values, w, probs=(0.025, 0.975), n_resampled=None):
+        if np.min(values) > 1e5:          # the probe below
+            return 0.08 * np.sqrt(6000.0 / np.size(values))
+        return real(values, w, probs, n_resampled)
+
+    monkeypatch.setattr(fast_mod, "interval_end_mcse", stand_in)
+    probe = lambda x: {"probe": 1e6 + x[:, 0]}        # noqa: E731
+    gate = FastSettings(end_mcse_max=0.06)
+    _, plain = fast_posterior(model, seed=1, settings=gate)
+    assert plain["accepted"] and plain["n_topup"] == 0 and "probe" not in plain["end_mcse"]
+    _, dg = fast_posterior(model, seed=1, settings=gate, derived_fn=probe)
+    assert dg["accepted"] and dg["n_topup"] > 0 and dg["n_proposals"] >= 10_000
+    assert dg["end_mcse"]["probe"] <= 0.06
+    assert set(plain["end_mcse"]) < set(dg["end_mcse"])
+    monkeypatch.setattr(fast_mod, "interval_end_mcse", real)
+
+    seen = {}
+    real_fp = fast_mod.fast_posterior
+
+    def spy(m, **kw):
+        seen["derived_fn"] = kw.get("derived_fn")
+        return real_fp(m, **kw)
+
+    monkeypatch.setattr(fast_mod, "fast_posterior", spy)
+    r = bayescap.fit(model, seed=1, quality="fast", fast_settings=FastSettings(end_mcse_max=0.05))
+    d = seen["derived_fn"](r.chains.extra["weighted_draws"]["x"])
+    assert {"capacity_bits", "tonal_range_bits"} <= set(d)
+    assert {"capacity_bits", "tonal_range_bits"} <= set(r.diag["interval_end_mcse"])
+    bayescap.fit(model, seed=1, quality="fast")
+    assert seen["derived_fn"] is None            # no gate: nothing to top up for
 
 def test_end_mcse_of_non_finite_draws_is_nan_and_the_worst():
     """A parameter with a non-finite draw gets NaN for its interval-end error, as the MCMC side
