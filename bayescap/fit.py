@@ -765,7 +765,8 @@ def _importance_start(model, x_map, cov, seed, coords=None, n_proposals=6000):
     (:func:`bayescap.fast.fast_posterior` at this MAP and covariance, default :class:`FastSettings`:
     6 000 importance draws in two ``log_prob`` calls) resampled. Closer to the posterior than the
     Laplace ball where the posterior is skewed; it does not remove the slow filling of the Basler dark
-    current's lower tail (docs/performance.md), which is why the standard burn-in stays 100 steps.
+    current's lower tail (docs/performance.md), which is why the standard burn-in is not cut below 80
+    steps (of 10·D walkers; 100 of 8·D before 2026-11-24).
     The draws reach the long one-sided tails the fast path's probe finds (fewer extra rounds: 7 → 5
     of 22 benchmark fits), but not the clip floor's pair with a tail (``floor_pair=False``): walkers
     started in that corner needed more steps, sim09's 140 and 180 → 290 and 404
