@@ -11,7 +11,9 @@ so a second BLAS thread never pays for itself here.
 
 :func:`one_blas_thread` is a decorator that limits the BLAS libraries threadpoolctl finds to one
 thread for the duration of a call (restoring the caller's setting afterwards; nested calls are
-cheap, ~20 µs). Without threadpoolctl it does nothing.
+cheap, ~20 µs). Without threadpoolctl it does nothing. The setting is the process's, not the
+thread's: two fits started concurrently from two threads of one process can restore each other's
+saved value in the wrong order and leave BLAS at one thread afterwards (speed only, never numbers).
 """
 from __future__ import annotations
 
