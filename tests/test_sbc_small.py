@@ -11,8 +11,8 @@ L → ∞ limit of the SBC rank among L draws, Talts et al. 2018).
 Why u and not the rank among L = 99 thinned draws (this test's statistic until 2026-11-24): the
 rank adds binomial noise to each sensor's u (sd ≈ √(u(1 − u)/99), ~5 ranks), so the test's verdict
 re-rolled with any change of the sampler at an unchanged posterior. On the 200-sensor SBC run with
-two samplers (``benchmarks/results/sbc_w10_b80_s80/``, docs/performance.md) u and the 95 % coverage
-agreed to the third digit while the rank p-values moved by an order of magnitude both ways (K
+two samplers (``benchmarks/results/sbc_w10_b80_s80/``, docs/performance.md) the mean of u and the 95 %
+coverage agreed to the third digit while the rank p-values moved by an order of magnitude both ways (K
 0.063 → 0.76, DSNU 0.099 → 0.007); on these 30 sensors the read noise's rank p was 0.060 with one
 sampler and 0.0024 with the other, its u counts [6, 3, 15, 6] with both. u's own Monte Carlo
 error (sd ≈ √(u(1 − u)/ESS) ≤ 0.016 at the standard preset's ESS ≥ 1 000) moves a sensor to
