@@ -7,9 +7,12 @@ from __future__ import annotations
 import emcee
 import numpy as np
 
-from .fit import _RANDOM_STATE_LATER, _proposal_cov
+from .fit import _proposal_cov
 
 __all__ = ["IndependenceMove"]
+
+#: what :class:`_Sampler` puts in the states ``sample`` yields between steps (see there)
+_RANDOM_STATE_LATER = "random state: taken when run_mcmc returns"
 
 
 class IndependenceMove(emcee.moves.MHMove):

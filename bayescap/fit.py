@@ -912,10 +912,6 @@ class ChainResult:
 _WORKER_MODEL = None  # the model, inherited by forked workers (copy-on-write)
 
 
-#: what :class:`_Sampler` puts in the states ``sample`` yields between steps (see there)
-_RANDOM_STATE_LATER = "random state: taken when run_mcmc returns"
-
-
 def _sampler(model, nw, settings, proposal):
     from ._emcee_moves import _Sampler
 

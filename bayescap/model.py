@@ -1456,7 +1456,8 @@ class PTCModel:
 #: draws 29.0 → 18.2 ms, 2 000 15.7 → 12.5, 1 500 12.2 → 9.5, 933 7.4 → 7.1, 500 4.4 → 5.7; a
 #: simulated Gpixel ROI (90) 2 000 draws 7.2 → 8.3 ms, slower: the hand-over costs ~1 ms
 #: (benchmarks/results/ab_trees_b9fb93f.md). Inside a fast fit the Basler's calls gained nothing
-#: (docs/performance.md, "Large log_prob calls on two threads").
+#: until OpenBLAS's spinning worker was held off (bayescap/_blas.py); since, two halves on two threads
+#: against one: 1 000 draws 0.85, 2 000 0.73, 4 000 0.64 (docs/performance.md, "OpenBLAS threads").
 SPLIT_MIN_ELEMENTS = 200_000
 
 _SPLIT_POOL = {}
