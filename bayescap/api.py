@@ -159,9 +159,9 @@ def fit(data: PTCData | PTCModel | str, *, seed: int | None = None,
             res = FitResult.from_chains(model, chains, quality="fast", **kw)
         if res is None:
             settings = QUALITY_PRESETS[fallback_quality]
+            check_derived, check_reported = FitResult.chain_check_fns(model, **kw)
             mc = run_ensembles(model, settings=settings, seed=seed, progress=progress, n_jobs=n_jobs,
-                               derived_fn=FitResult.derived_draws_fn(model, **kw),
-                               reported_fn=FitResult.reported_draws_fn(model, **kw))
+                               derived_fn=check_derived, reported_fn=check_reported)
             mc.wall_s += fd["wall_s"]          # the rejected attempt is part of the cost
             res = FitResult.from_chains(model, mc, quality="fast", **kw)
             res.diag.update({
@@ -180,9 +180,9 @@ def fit(data: PTCData | PTCModel | str, *, seed: int | None = None,
     else:
         settings = QUALITY_PRESETS[quality] if isinstance(quality, str) else quality
         qname = quality if isinstance(quality, str) else "custom"
+        check_derived, check_reported = FitResult.chain_check_fns(model, **kw)
         chains = run_ensembles(model, settings=settings, seed=seed, progress=progress, n_jobs=n_jobs,
-                               derived_fn=FitResult.derived_draws_fn(model, **kw),
-                               reported_fn=FitResult.reported_draws_fn(model, **kw))
+                               derived_fn=check_derived, reported_fn=check_reported)
         res = FitResult.from_chains(model, chains, quality=qname, **kw)
     res.notes.extend(notes)
     if defaults_used:

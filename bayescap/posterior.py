@@ -129,15 +129,30 @@ class FitResult:
         return self
 
     @classmethod
-    def derived_draws_fn(cls, model: PTCModel, *, metadata, scene, mtf, seed):
-        """``fn(chain) -> {name: (E, S, W) draws}`` of the derived quantities whose convergence
-        :meth:`_diagnose` checks (capacity, tonal range), for :func:`bayescap.fit.run_ensembles`
-        to check them after every round."""
-        def fn(chain):
-            tmp = cls._of_chain(model, chain, metadata=metadata, scene=scene, mtf=mtf, seed=seed)
+    def chain_check_fns(cls, model: PTCModel, *, metadata, scene, mtf, seed):
+        """``(derived_fn, reported_fn)`` for :func:`bayescap.fit.run_ensembles`'s checks after each
+        round, each ``fn(chain) -> {name: (E, S, W) draws}``: ``derived_fn`` the derived quantities
+        whose convergence :meth:`_diagnose` checks (capacity, tonal range); ``reported_fn`` every
+        quantity the result gives an interval for (physical parameters and derived quantities,
+        constants left out), whose interval ends' Monte Carlo error the checks compute once the
+        others pass. The two share the derived draws of the last chain they were given: a round's
+        checks call both on the same chain, and each computation costs ~5–11 ms (capacity, TR, ...)."""
+        last = [None, None]
+
+        def of(chain):
+            if last[0] is not chain:
+                last[:] = [chain, cls._of_chain(model, chain, metadata=metadata, scene=scene, mtf=mtf, seed=seed)]
+            return last[1]
+
+        def derived_fn(chain):
+            tmp = of(chain)
             return {n: tmp.derived[n].reshape(chain.shape[:3])
                     for n in ("capacity_bits", "capacity_bits_per_pixel", "tonal_range_bits") if n in tmp.derived}
-        return fn
+
+        def reported_fn(chain):
+            return of(chain)._reported_draws(chain.shape[:3])
+
+        return derived_fn, reported_fn
 
     @classmethod
     def derived_values_fn(cls, model: PTCModel, *, metadata, scene, mtf, seed):
@@ -161,17 +176,6 @@ class FitResult:
         tmp.draws = model.physical(chain.reshape(E * S * W, D))
         tmp._derive()
         return tmp
-
-    @classmethod
-    def reported_draws_fn(cls, model: PTCModel, *, metadata, scene, mtf, seed):
-        """``fn(chain) -> {name: (E, S, W) draws}`` of every quantity the result gives an interval
-        for (physical parameters and derived quantities, constants left out), whose interval ends'
-        Monte Carlo error :func:`bayescap.fit.run_ensembles` computes once its other checks pass
-        (and checks against ``end_mcse_target``)."""
-        def fn(chain):
-            tmp = cls._of_chain(model, chain, metadata=metadata, scene=scene, mtf=mtf, seed=seed)
-            return tmp._reported_draws(chain.shape[:3])
-        return fn
 
     def _reported_draws(self, shape):
         """{name: draws reshaped (E, S, W)} of the physical parameters and derived quantities

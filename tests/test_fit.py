@@ -666,3 +666,27 @@ def test_sampler_subclass_gives_emcee_chains_across_rounds():
     s = F._Sampler(16, 3, lambda x: np.full(x.shape[0], np.nan), vectorize=True)
     with pytest.raises(ValueError, match="NaN"):
         s.run_mcmc(np.random.default_rng(0).standard_normal((16, 3)), 2, progress=False)
+
+
+def test_round_checks_compute_the_derived_draws_once_per_chain(monkeypatch, basler_fit):
+    """``FitResult.chain_check_fns``: the convergence check and the interval-end check of a round
+    are given the same chain; its derived quantities (capacity, TR, ...) are computed once for both,
+    and again for a new chain. The values are those of a fresh computation."""
+    from bayescap.posterior import FitResult
+
+    r = basler_fit
+    kw = dict(metadata=r.metadata, scene=r.scene, mtf=r.mtf, seed=r.seed)
+    calls = []
+    orig = FitResult._of_chain.__func__
+    monkeypatch.setattr(FitResult, "_of_chain",
+                        classmethod(lambda cls, *a, **k: calls.append(1) or orig(cls, *a, **k)))
+    derived_fn, reported_fn = FitResult.chain_check_fns(r.model, **kw)
+    chain = r.chains.chain[:, -20:]
+    d, rep = derived_fn(chain), reported_fn(chain)
+    assert len(calls) == 1
+    assert set(d) <= set(rep) and "capacity_bits" in d
+    fresh = orig(FitResult, r.model, chain, **kw)
+    np.testing.assert_array_equal(rep["capacity_bits"].ravel(), fresh.derived["capacity_bits"])
+    np.testing.assert_array_equal(d["tonal_range_bits"].ravel(), fresh.derived["tonal_range_bits"])
+    derived_fn(chain[:, -10:])
+    assert len(calls) == 2          # a new chain: computed again
