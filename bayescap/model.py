@@ -194,34 +194,61 @@ _QUANT_EXACT_S2 = 0.5
 #: :func:`_rounded_normal_moments_fourier` (harmonics 1-4; the 5th is e^{−50π²s²} < 1e-19), as
 #: :func:`_rounded_offset` does from :data:`_RO_FOURIER_S`
 _RN_FOURIER_S = 0.3
+#: below it, more harmonics: K from s ≥ 1.5/(K + 1) (the first one left out, ω = 2π(K + 1), has
+#: (ωs)² e^{−(ωs)²/2} < 1e-17 relative to s⁴, as the 5th at s = 0.3); below the last, the sums
+_RN_FOURIER_K = ((0.3, 4), (1.5 / 9, 8), (1.5 / 17, 16), (1.5 / 33, 32))
+
+
+def _rn_harmonics(s):
+    """Harmonics the Fourier series of :func:`_rounded_normal_moments` needs at ``s`` (0: the direct
+    sums), elementwise (NaN: 0)."""
+    k = np.zeros(np.shape(s), dtype=np.intp)
+    for s_min, K in reversed(_RN_FOURIER_K):
+        k[s >= s_min] = K
+    return k
 
 
 def _rounded_normal_moments(delta, s, J=6):
     """Mean, variance and central 4th moment of round(N(δ, s²)) (δ relative to an integer DN).
 
-    Where s ≥ :data:`_RN_FOURIER_S` (0.3 DN): the Fourier series of
-    :func:`_rounded_normal_moments_fourier`; below, direct sums over the integers j = −J..J (the
-    tails beyond are < 1e-12 for s < 0.75 DN, |δ| ≤ ½). With the sums, these moments and the offset
-    solver took most of a fast fit of a 12-bit sensor whose dark noise is half a DN (sim05 of
-    ``benchmarks/speed_accuracy.py``; docs/performance.md, "2026-11-23, 19:40–22:40").
+    Where s ≥ 1.5/33 ≈ 0.045 DN: the Fourier series of :func:`_rounded_normal_moments_fourier`,
+    with 4 harmonics from s = 0.3 DN, 8, 16 or 32 below (:data:`_RN_FOURIER_K`); below 0.045 DN,
+    direct sums over the integers j = −J..J (the tails beyond are < 1e-12 for s < 0.75 DN, |δ| ≤ ½).
+    With the sums, these moments and the offset solver took most of a fast fit of a 12-bit sensor
+    whose dark noise is half a DN (sim05 of ``benchmarks/speed_accuracy.py``; docs/performance.md,
+    "2026-11-23, 19:40–22:40"); the sums on the 32-point offset grid of
+    :func:`_quantized_pixel_moments` (320 normal CDFs an element) took most of a ``log_prob`` call
+    of a sensor with a spatial stack and 0.2 DN of read noise until the series replaced them from
+    0.045 DN (2026-11-24, "11:25–" in docs/performance.md).
     ``delta`` and ``s`` broadcast; an ``s`` that is constant along trailing axes may be given with
-    length-1 axes there.
+    length-1 axes there (a 1-D ``delta`` with ``s`` of shape (n, 1): the grid's harmonics are
+    computed once). Each element's numbers depend on its own δ and s only.
     """
     delta = np.asarray(delta, float)
     s = np.asarray(s, float)
-    four = s >= _RN_FOURIER_S
-    if np.all(four):
-        return _rounded_normal_moments_fourier(delta, s)
-    if not np.any(four):
-        return _rounded_normal_moments_sums(delta, s, J)
+    kk = _rn_harmonics(s)
+    ks = np.unique(kk)
+
+    def one(d, sv, K):
+        return _rounded_normal_moments_fourier(d, sv, K) if K else _rounded_normal_moments_sums(d, sv, J)
+
+    if ks.size == 1:
+        return one(delta, s, int(ks[0]))
     shape = np.broadcast_shapes(delta.shape, s.shape)
+    out = [np.empty(shape) for _ in range(3)]
+    if delta.ndim == 1 and s.shape == (shape[0], 1):
+        # a grid of offsets sharing one s per row (_quantized_pixel_moments): split by rows
+        for K in ks:
+            rows = kk[:, 0] == K
+            for o, v in zip(out, one(delta, s[rows], int(K))):
+                o[rows] = v
+        return tuple(out)
     d = np.broadcast_to(delta, shape)
     sb = np.broadcast_to(s, shape)
-    four = np.broadcast_to(four, shape)
-    out = [np.empty(shape) for _ in range(3)]
-    for sel, r in ((four, _rounded_normal_moments_fourier(d[four], sb[four])),
-                   (~four, _rounded_normal_moments_sums(d[~four], sb[~four], J))):
-        for o, v in zip(out, r):
+    kb = np.broadcast_to(kk, shape)
+    for K in ks:
+        sel = kb == K
+        for o, v in zip(out, one(d[sel], sb[sel], int(K))):
             o[sel] = v
     return tuple(out)
 
@@ -256,21 +283,55 @@ def _gaussian_harmonics(s, K):
 # ω = 2πk and the Fourier coefficients of the sawtooth's powers wⁿ (w(y) = y on [−½, ½), period
 # 1): n odd i(−1)^k αₙ, n even (−1)^k γₙ; the columns of the matrices below are the sums over k that
 # _rounded_normal_moments_fourier needs (each term times q_k = 2(−1)^k e^{−ω²s²/2})
-_RN_W = 2.0 * np.pi * np.arange(1.0, 5.0)
-_RN_SIN = np.stack([1.0 / _RN_W,                               # α₁
-                    0.25 / _RN_W - 6.0 / _RN_W**3,             # α₃
-                    2.0 / _RN_W,                               # ω γ₂
-                    _RN_W], axis=1)                            # ω² α₁
-_RN_COS = np.stack([np.ones(4),                                # ω α₁
-                    2.0 / _RN_W**2,                            # γ₂
-                    1.0 / _RN_W**2 - 24.0 / _RN_W**4,          # γ₄
-                    0.25 - 6.0 / _RN_W**2,                     # ω α₃
-                    _RN_W**2], axis=1)                         # ω³ α₁
-_RN_SIGN = 2.0 * np.array([-1.0, 1.0, -1.0, 1.0])              # 2 (−1)^k
+def _rn_matrices(K):
+    w = 2.0 * np.pi * np.arange(1.0, K + 1.0)
+    sin = np.stack([1.0 / w,                                   # α₁
+                    0.25 / w - 6.0 / w**3,                     # α₃
+                    2.0 / w,                                   # ω γ₂
+                    w], axis=1)                                # ω² α₁
+    cos = np.stack([np.ones(K),                                # ω α₁
+                    2.0 / w**2,                                # γ₂
+                    1.0 / w**2 - 24.0 / w**4,                  # γ₄
+                    0.25 - 6.0 / w**2,                         # ω α₃
+                    w**2], axis=1)                             # ω³ α₁
+    sign = 2.0 * np.where(np.arange(1, K + 1) % 2 == 1, -1.0, 1.0)   # 2 (−1)^k
+    return sin, cos, sign
 
 
-def _rounded_normal_moments_fourier(delta, s):
-    """:func:`_rounded_normal_moments` by Fourier series, for s ≥ 0.3 DN.
+_RN_MATRICES = {K: _rn_matrices(K) for _, K in _RN_FOURIER_K}
+
+
+#: rows per block of :func:`_rows_matmul` (a multiple of BLAS's register tiles)
+_GRID_BLOCK = 128
+
+
+def _rows_matmul(left, right):
+    """``left @ right`` for ``left`` (rows, K) and ``right`` (K, M), as products of blocks of
+    :data:`_GRID_BLOCK` rows (the last one padded with zeros).
+
+    The blocks make every product the same shape whatever the number of rows: OpenBLAS takes
+    other kernels for small products, whose sums differ in the last bit (measured: a row computed
+    alone or among 7 differed from the same row among 500), and a row's numbers must not depend
+    on the other rows of the call (:class:`PTCModelStack`, ``tests/test_calibration_terms.py``)."""
+    n, K = left.shape
+    nb = -(-n // _GRID_BLOCK)
+    pad = np.zeros((nb * _GRID_BLOCK, K))
+    pad[:n] = left
+    return (pad.reshape(nb, _GRID_BLOCK, K) @ right).reshape(nb * _GRID_BLOCK, -1)[:n]
+
+
+def _grid_product(coef, q, h):
+    """P[c, r, x] = Σ_k coef[k, c] q[k, r] h[k, x] for ``coef`` (K, c), ``q`` (K, rows), ``h`` (K, M),
+    by :func:`_rows_matmul` (no (K, rows, M) temporaries)."""
+    K, n = q.shape
+    nc = coef.shape[1]
+    left = (coef.T[None, :, :] * q.T[:, None, :]).reshape(n * nc, K)
+    return _rows_matmul(left, h).reshape(n, nc, -1).transpose(1, 0, 2)
+
+
+def _rounded_normal_moments_fourier(delta, s, K=4):
+    """:func:`_rounded_normal_moments` by Fourier series to ``K`` harmonics (4 for s ≥ 0.3 DN;
+    :data:`_RN_FOURIER_K` for smaller s).
 
     With X = δ + Y, Y ~ N(0, s²), the rounding error is e = round(X) − X = −w(X), w the sawtooth,
     and round(X) − E[round X] = Y + e − ē. Its moments need E[Yᵐ eⁿ] (m ≤ 3, n ≤ 4), which follow
@@ -282,13 +343,22 @@ def _rounded_normal_moments_fourier(delta, s):
     shape = np.broadcast_shapes(delta.shape, s.shape)
     # harmonics of δ and of s each on their own (flat) elements, then broadcast: a grid of offsets
     # sharing one s per row (_quantized_pixel_moments) computes each exponential once
-    S, C = _harmonics(delta.reshape(-1), 4)
-    S, C = S.reshape((4,) + delta.shape), C.reshape((4,) + delta.shape)
-    q = (_RN_SIGN[:, None] * _gaussian_harmonics(s.reshape(-1), 4)).reshape((4,) + s.shape)
-    QS = np.broadcast_to(q * S, (4,) + shape).reshape(4, -1)
-    QC = np.broadcast_to(q * C, (4,) + shape).reshape(4, -1)
-    A1, A3, A2, A4 = (_RN_SIN.T @ QS).reshape((4,) + shape)
-    B0, B2, B4, B3, B5 = (_RN_COS.T @ QC).reshape((5,) + shape)
+    rn_sin, rn_cos, rn_sign = _RN_MATRICES[K] if K in _RN_MATRICES else _rn_matrices(K)
+    S, C = _harmonics(delta.reshape(-1), K)
+    pad_d = (1,) * (len(shape) - delta.ndim)            # leading axes of the broadcast shape
+    S, C = S.reshape((K,) + pad_d + delta.shape), C.reshape((K,) + pad_d + delta.shape)
+    q = (rn_sign[:, None] * _gaussian_harmonics(s.reshape(-1), K)).reshape((K,) + (1,) * (len(shape) - s.ndim) + s.shape)
+    if delta.ndim == 1 and s.shape == (shape[0], 1):
+        # a grid of offsets sharing one s per row: Σ_k coef[k, c] q[k, row] S[k, x] as one product
+        # of (columns·rows, K) by the grid's (K, M), without the (K, rows, M) products
+        qr = q.reshape(K, -1)
+        A1, A3, A2, A4 = _grid_product(rn_sin, qr, S.reshape(K, -1))
+        B0, B2, B4, B3, B5 = _grid_product(rn_cos, qr, C.reshape(K, -1))
+    else:
+        QS = np.broadcast_to(q * S, (K,) + shape).reshape(K, -1)
+        QC = np.broadcast_to(q * C, (K,) + shape).reshape(K, -1)
+        A1, A3, A2, A4 = _rows_matmul(QS.T, rn_sin).T.reshape((4,) + shape)
+        B0, B2, B4, B3, B5 = _rows_matmul(QC.T, rn_cos).T.reshape((5,) + shape)
     v2 = s * s
     v4 = v2 * v2
     e1 = A1                                    # E[e]
@@ -424,7 +494,41 @@ _QUANT_TEMPORAL_S2 = 0.2
 #: s ≥ 0.03 DN; below, the temporal variance is ≲ 1e-3 DN² and floored)
 _QG_M = 32
 _QG_X = (np.arange(_QG_M) + 0.5) / _QG_M - 0.5
-_QG_J = np.arange(-6, 6)  # wrapped-normal images j: enough for σ_o ≤ 0.7 (beyond, uniform)
+_QG_J = np.arange(-6, 6)  # DN boundaries j + ½ of the Stein term (the wrapped normal's images until 2026-11-24)
+#: :func:`_wrapped_normal_grid`: below this σ_o (DN) the images j = −1, 0, 1 (the next ones are
+#: ≥ 1 DN away: e^{−½(1/0.1)²} ≈ 2e-22 of the peak); from it up the Fourier series to
+#: :data:`_WN_K` harmonics (the next one's factor e^{−2π²·15²·0.1²} ≈ 9e-20)
+_WN_FOURIER_SO = 0.1
+_WN_K = 14
+_WN_CS = np.concatenate([np.cos(2.0 * np.pi * np.arange(1, _WN_K + 1)[:, None] * _QG_X),
+                         np.sin(2.0 * np.pi * np.arange(1, _WN_K + 1)[:, None] * _QG_X)])   # (2K, M)
+
+
+def _wrapped_normal_grid(delta, so):
+    """Weights (n, M) of the midpoint grid :data:`_QG_X` under the wrapped normal N(δ, σ_o²) modulo
+    1 DN (1-D ``delta`` and ``so``, 1/M ≤ σ_o ≤ 0.7), normalised to sum 1.
+
+    Below :data:`_WN_FOURIER_SO` (0.1 DN) the density's three nearest images; from it, its Fourier
+    series 1 + 2 Σ_k e^{−2π²k²σ_o²} cos 2πk(x − δ), k ≤ :data:`_WN_K`, whose cosines are the grid's
+    (constants) combined with δ's harmonics (:func:`_harmonics`: one sin and one cos per element)
+    in one matrix product: no exponential per grid point. Until 2026-11-24 the sum of twelve
+    images at every grid point (384 exponentials an element) took half of a ``log_prob`` call of a
+    sensor with a spatial stack whose read noise is below 0.5 DN (docs/performance.md,
+    "2026-11-24, 11:25–"). Both forms agree with the sum of ±40 images to 1e-15
+    (``tests/test_calibration_terms.py``)."""
+    delta = np.asarray(delta, float)
+    so = np.asarray(so, float)
+    w = np.empty(delta.shape + (_QG_M,))
+    four = so >= _WN_FOURIER_SO
+    if np.any(~four):
+        d = (_QG_X[:, None] - delta[~four, None, None] + np.arange(-1.0, 2.0)) / so[~four, None, None]
+        w[~four] = np.exp(-0.5 * d * d).sum(-1)
+    if np.any(four):
+        S, C = _harmonics(delta[four], _WN_K)                           # (K, n)
+        q = 2.0 * _gaussian_harmonics(so[four], _WN_K)                   # (K, n)
+        A = np.concatenate([(q * C).T, (q * S).T], axis=1)              # (n, 2K)
+        w[four] = 1.0 + _rows_matmul(A, _WN_CS)
+    return w / w.sum(-1, keepdims=True)
 
 
 def _quantized_pixel_moments(delta, s, so):
@@ -469,12 +573,10 @@ def _quantized_pixel_moments(delta, s, so):
         V[wide], E4[wide], H[wide] = _uniform_offset_moments(s[wide])
     if np.any(grid):
         dl, sg, sog = delta[grid], s[grid], so[grid]
-        x = np.broadcast_to(_QG_X, dl.shape + (_QG_M,))
-        m, v, m4 = _rounded_normal_moments(x, sg[:, None], J=5)
-        h = m - x                                       # rounding bias of a pixel's mean
-        d = (x[..., None] - dl[:, None, None] + _QG_J) / sog[:, None, None]
-        w = np.exp(-0.5 * d * d).sum(-1)                # wrapped normal on the grid
-        w = w / w.sum(-1, keepdims=True)
+        # the moments at the grid's offsets (the grid's harmonics computed once, not per element)
+        m, v, m4 = _rounded_normal_moments(_QG_X, sg[:, None], J=5)
+        h = m - _QG_X                                   # rounding bias of a pixel's mean
+        w = _wrapped_normal_grid(dl, sog)               # wrapped normal on the grid
         V[grid] = (w * v).sum(-1)
         E4[grid] = (w * (m4 + v * v)).sum(-1)
         eh = (w * h).sum(-1)
