@@ -335,10 +335,10 @@ def _rounded_normal_moments_fourier(delta, s, K=4):
     # harmonics of δ and of s each on their own (flat) elements, then broadcast: a grid of offsets
     # sharing one s per row (_quantized_pixel_moments) computes each exponential once
     rn_sin, rn_cos, rn_sign = _RN_MATRICES[K] if K in _RN_MATRICES else _rn_matrices(K)
-    if delta is _QG_X:                                  # the offset grid's harmonics: computed once
-        if K not in _QG_HARMONICS:
-            _QG_HARMONICS[K] = _harmonics(_QG_X, K)
-        S, C = _QG_HARMONICS[K]
+    if delta is _QG_GRIDS.get(delta.size):              # an offset grid's harmonics: computed once
+        if (delta.size, K) not in _QG_HARMONICS:
+            _QG_HARMONICS[delta.size, K] = _harmonics(delta, K)
+        S, C = _QG_HARMONICS[delta.size, K]
     else:
         S, C = _harmonics(delta.reshape(-1), K)
     pad_d = (1,) * (len(shape) - delta.ndim)            # leading axes of the broadcast shape
@@ -494,25 +494,46 @@ def _rounded_offset_boundaries(frac_obs, s_tot, n_iter=12, n_boundaries=6):
 #: variance about its own mean is smaller by Q(s) = Σₖ e^{−4π²k²s²}/(2π²k²) (the rounding bias of
 #: its mean, h below, averaged): Q < 2e-5 DN² (relative < 1e-4) only for s² ≥ 0.2 DN²
 _QUANT_TEMPORAL_S2 = 0.2
-#: midpoint grid over a pixel mean's offset within one DN: the integrands are periodic with
-#: harmonics damped as e^{−2π²k²s²}, so M = 32 points are exact to ~e^{−2π²(Ms)²} (< 1e-8 for
-#: s ≥ 0.03 DN; below, the temporal variance is ≲ 1e-3 DN² and floored)
-_QG_M = 32
-_QG_X = (np.arange(_QG_M) + 0.5) / _QG_M - 0.5
-_QG_HARMONICS = {}        # K -> (sin, cos) of 2πk·_QG_X, k = 1..K (_rounded_normal_moments_fourier)
+#: midpoint grids over a pixel mean's offset within one DN (:func:`_quantized_pixel_moments`).
+#: The M-point rule's error is the aliasing of the product of the wrapped normal (harmonics
+#: e^{−2π²k²σ_o²}) and the moments (harmonics down to ~e^{−π²n²s²/2}, the 4th moment's products):
+#: at most ~e^{−c}, c = M²·ab/(a + b), a = 2π²σ_o², b = π²s²/2. Each element takes the smallest M
+#: of :data:`_QG_SIZES` with c ≥ :data:`_QG_C` (measured against 256 points: max error 6e-12 at
+#: c ≥ 23 over s 0.02-0.75 DN, σ_o 1/32-0.7 DN), 128 where none does (s < 0.02 DN with σ_o near
+#: 1/32). Until 2026-11-24 every element took M = 32, whose error reached 1.8e-3 DN² where s and
+#: σ_o are both below ~0.05 DN and which was 2-4× more points than needed where they are not.
+_QG_M = 32                # below σ_o = 1/_QG_M: Gauss–Hermite nodes instead of a grid
+_QG_SIZES = (8, 16, 32, 64, 128)
+_QG_C = 25.0
+_QG_GRIDS = {M: (np.arange(M) + 0.5) / M - 0.5 for M in _QG_SIZES}
+_QG_X = _QG_GRIDS[_QG_M]
+_QG_HARMONICS = {}        # (M, K) -> (sin, cos) of 2πk·x on grid M, k = 1..K (_rounded_normal_moments_fourier)
 _QG_J = np.arange(-6, 6)  # DN boundaries j + ½ of the Stein term (the wrapped normal's images until 2026-11-24)
 #: :func:`_wrapped_normal_grid`: below this σ_o (DN) the images j = −1, 0, 1 (the next ones are
 #: ≥ 1 DN away: e^{−½(1/0.1)²} ≈ 2e-22 of the peak); from it up the Fourier series to
 #: :data:`_WN_K` harmonics (the next one's factor e^{−2π²·15²·0.1²} ≈ 9e-20)
 _WN_FOURIER_SO = 0.1
 _WN_K = 14
-_WN_CS = np.concatenate([np.cos(2.0 * np.pi * np.arange(1, _WN_K + 1)[:, None] * _QG_X),
-                         np.sin(2.0 * np.pi * np.arange(1, _WN_K + 1)[:, None] * _QG_X)])   # (2K, M)
+_WN_CS = {M: np.concatenate([np.cos(2.0 * np.pi * np.arange(1, _WN_K + 1)[:, None] * x),
+                             np.sin(2.0 * np.pi * np.arange(1, _WN_K + 1)[:, None] * x)])   # (2K, M)
+          for M, x in _QG_GRIDS.items()}
 
 
-def _wrapped_normal_grid(delta, so):
-    """Weights (n, M) of the midpoint grid :data:`_QG_X` under the wrapped normal N(δ, σ_o²) modulo
-    1 DN (1-D ``delta`` and ``so``, 1/M ≤ σ_o ≤ 0.7), normalised to sum 1.
+def _grid_size(s, so):
+    """Points of the offset grid for each element (:data:`_QG_SIZES`, :data:`_QG_C`)."""
+    a = 2.0 * np.pi**2 * so * so
+    b = 0.5 * np.pi**2 * s * s
+    with np.errstate(all="ignore"):
+        c1 = a * b / (a + b)                     # c for M = 1
+    M = np.full(np.shape(s), _QG_SIZES[-1], dtype=np.intp)
+    for size in reversed(_QG_SIZES[:-1]):
+        M[c1 * size * size >= _QG_C] = size
+    return M
+
+
+def _wrapped_normal_grid(delta, so, M=_QG_M):
+    """Weights (n, M) of the M-point midpoint grid (:data:`_QG_GRIDS`) under the wrapped normal
+    N(δ, σ_o²) modulo 1 DN (1-D ``delta`` and ``so``, 1/32 ≤ σ_o ≤ 0.7), normalised to sum 1.
 
     Below :data:`_WN_FOURIER_SO` (0.1 DN) the density's three nearest images; from it, its Fourier
     series 1 + 2 Σ_k e^{−2π²k²σ_o²} cos 2πk(x − δ), k ≤ :data:`_WN_K`, whose cosines are the grid's
@@ -524,16 +545,17 @@ def _wrapped_normal_grid(delta, so):
     (``tests/test_calibration_terms.py``)."""
     delta = np.asarray(delta, float)
     so = np.asarray(so, float)
-    w = np.empty(delta.shape + (_QG_M,))
+    x = _QG_GRIDS[M]
+    w = np.empty(delta.shape + (M,))
     four = so >= _WN_FOURIER_SO
     if np.any(~four):
-        d = (_QG_X[:, None] - delta[~four, None, None] + np.arange(-1.0, 2.0)) / so[~four, None, None]
+        d = (x[:, None] - delta[~four, None, None] + np.arange(-1.0, 2.0)) / so[~four, None, None]
         w[~four] = np.exp(-0.5 * d * d).sum(-1)
     if np.any(four):
         S, C = _harmonics(delta[four], _WN_K)                           # (K, n)
         q = 2.0 * _gaussian_harmonics(so[four], _WN_K)                   # (K, n)
         A = np.concatenate([(q * C).T, (q * S).T], axis=1)              # (n, 2K)
-        w[four] = 1.0 + _rows_matmul(A, _WN_CS)
+        w[four] = 1.0 + _rows_matmul(A, _WN_CS[M])
     return w / w.sum(-1, keepdims=True)
 
 
@@ -549,8 +571,9 @@ def _quantized_pixel_moments(delta, s, so):
       pixel means (up to 1/12 DN² for s → 0: a pattern whose pixels sit still is quantized too).
 
     The offsets' distribution modulo 1 DN is the wrapped normal, integrated on a periodic midpoint
-    grid (uniform for σ_o > 0.7 DN, where its harmonics are < e^{−2π²·0.49} ≈ 6e-5, and then
-    tabulated in s); for σ_o < 1/M, Gauss–Hermite nodes about δ; for σ_o = 0, the point δ.
+    grid of 8-128 points chosen per element from s and σ_o (:func:`_grid_size`; uniform for
+    σ_o > 0.7 DN, where its harmonics are < e^{−2π²·0.49} ≈ 6e-5, and then tabulated in s); for
+    σ_o < 1/32, Gauss–Hermite nodes about δ; for σ_o = 0, the point δ.
     cov(o, h(o)) comes from Stein's lemma in closed form:
     σ_o²·(Σ_b N(b; δ, s² + σ_o²) − 1), b the half-integer DN boundaries."""
     delta = np.asarray(delta, float)
@@ -578,21 +601,26 @@ def _quantized_pixel_moments(delta, s, so):
     if np.any(wide):    # offsets uniform modulo 1 DN: functions of s alone (tabulated)
         V[wide], E4[wide], H[wide] = _uniform_offset_moments(s[wide])
     if np.any(grid):
-        dl, sg, sog = delta[grid], s[grid], so[grid]
-        # the moments at the grid's offsets (the grid's harmonics computed once, not per element)
-        m, v, m4 = _rounded_normal_moments(_QG_X, sg[:, None], J=5)
-        h = m - _QG_X                                   # rounding bias of a pixel's mean
-        w = _wrapped_normal_grid(dl, sog)               # wrapped normal on the grid
-        V[grid] = (w * v).sum(-1)
-        E4[grid] = (w * (m4 + v * v)).sum(-1)
-        eh = (w * h).sum(-1)
-        var_h = np.maximum((w * h * h).sum(-1) - eh * eh, 0.0)
-        # Stein: cov(o, h(o)) = σ_o² E[h'(o)], E[h'] = Σ_b N(b; δ, τ²) − 1 (τ² = s² + σ_o²)
-        tau = np.sqrt(sg * sg + sog * sog)
-        zz = (_QG_J + 0.5 - dl[:, None]) / tau[:, None]
-        dens = np.exp(-0.5 * zz * zz).sum(-1) / (tau * np.sqrt(2.0 * np.pi))
-        dens = np.where(tau > 1.0, 1.0, dens)           # |Σ − 1| < 3e-9 beyond
-        H[grid] = var_h + 2.0 * sog * sog * (dens - 1.0)
+        gi = np.flatnonzero(grid)
+        sizes = _grid_size(s[gi], so[gi])
+        for M in np.unique(sizes):
+            at = gi[sizes == M]
+            dl, sg, sog = delta[at], s[at], so[at]
+            x = _QG_GRIDS[int(M)]
+            # the moments at the grid's offsets (the grid's harmonics computed once, not per element)
+            m, v, m4 = _rounded_normal_moments(x, sg[:, None], J=5)
+            h = m - x                                   # rounding bias of a pixel's mean
+            w = _wrapped_normal_grid(dl, sog, int(M))   # wrapped normal on the grid
+            V[at] = (w * v).sum(-1)
+            E4[at] = (w * (m4 + v * v)).sum(-1)
+            eh = (w * h).sum(-1)
+            var_h = np.maximum((w * h * h).sum(-1) - eh * eh, 0.0)
+            # Stein: cov(o, h(o)) = σ_o² E[h'(o)], E[h'] = Σ_b N(b; δ, τ²) − 1 (τ² = s² + σ_o²)
+            tau = np.sqrt(sg * sg + sog * sog)
+            zz = (_QG_J + 0.5 - dl[:, None]) / tau[:, None]
+            dens = np.exp(-0.5 * zz * zz).sum(-1) / (tau * np.sqrt(2.0 * np.pi))
+            dens = np.where(tau > 1.0, 1.0, dens)       # |Σ − 1| < 3e-9 beyond
+            H[at] = var_h + 2.0 * sog * sog * (dens - 1.0)
     return V, E4, H
 
 

@@ -92,8 +92,11 @@ def main(argv=None):
 
     pkg = Path(bayescap.__file__).resolve().parents[1]
     bayescap.fit(bayescap.load(str(ROOT / "data" / "emva1288_basler_ccd12.csv")), seed=1)   # imports, pools
+    import datetime
+
     lines = [f"# Quantization-regime fit times ({describe_machine()}; bayescap at {_describe(pkg)}; "
-             f"load average before the run {os.getloadavg()[0]:.2f})", "",
+             f"load average before the run {os.getloadavg()[0]:.2f}; "
+             f"{datetime.datetime.now().isoformat(timespec='minutes')})", "",
              "`python benchmarks/quantization_regime.py` (module docstring: sensors and method).", "",
              "| sensor | read noise (DN) | spatial stack | log_prob, 40 draws (ms) | standard (s) | rounds | "
              "converged | fast (s) | fast accepted |",

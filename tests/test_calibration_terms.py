@@ -168,6 +168,42 @@ def test_wrapped_normal_grid_equals_the_sum_of_its_images():
         assert all(np.array_equal(a[idx], b) for a, b in zip(full, _quantized_pixel_moments(dl[idx], s[idx], so_all[idx])))
 
 
+def test_quantized_pixel_moments_grid_matches_a_256_point_grid():
+    """The offset grid's size per element (model._grid_size: 8-128 points from s and σ_o): V, E4
+    and H within 2e-12 DN² (DN⁴) of the same integrals on 256 points (sums over ±12 DN, ±12 images)
+    for s from 0.02 to 0.75 DN and σ_o from 1/32 to 0.7 DN. The fixed 32 points used until
+    2026-11-24 were off by up to 1.8e-3 where s and σ_o are both small (checked here too, so the
+    reference resolves what the old grid did not)."""
+    from bayescap.model import _QG_J
+
+    def on_grid(dl, sg, sog, M):
+        x = np.broadcast_to((np.arange(M) + 0.5) / M - 0.5, (dl.size, M))
+        m, v, m4 = _rounded_normal_moments_sums(x, np.broadcast_to(sg[:, None], x.shape), J=12)
+        h = m - x
+        d = (x[..., None] - dl[:, None, None] + np.arange(-12, 13)) / sog[:, None, None]
+        w = np.exp(-0.5 * d * d).sum(-1)
+        w /= w.sum(-1, keepdims=True)
+        eh = (w * h).sum(-1)
+        return (w * v).sum(-1), (w * (m4 + v * v)).sum(-1), (w * h * h).sum(-1) - eh * eh
+
+    rng = np.random.default_rng(7)
+    n = 2000
+    dl = rng.uniform(-0.5, 0.5, n)
+    sg = np.exp(rng.uniform(np.log(0.02), np.log(0.75), n))
+    sog = np.exp(rng.uniform(np.log(1 / 32), np.log(0.7), n))
+    V_ref, E4_ref, varh_ref = on_grid(dl, sg, sog, 256)
+    tau = np.sqrt(sg * sg + sog * sog)
+    zz = (_QG_J + 0.5 - dl[:, None]) / tau[:, None]
+    dens = np.where(tau > 1.0, 1.0, np.exp(-0.5 * zz * zz).sum(-1) / (tau * np.sqrt(2.0 * np.pi)))
+    H_ref = varh_ref + 2.0 * sog * sog * (dens - 1.0)      # the Stein term, as the model adds it
+    V, E4, H = _quantized_pixel_moments(dl, sg, sog)
+    assert np.max(np.abs(V - V_ref)) < 2e-12
+    assert np.max(np.abs(E4 - E4_ref)) < 2e-12
+    assert np.max(np.abs(H - H_ref)) < 2e-12
+    old = on_grid(dl, sg, sog, 32)
+    assert max(np.max(np.abs(a - b)) for a, b in zip(old, (V_ref, E4_ref, varh_ref))) > 1e-4
+
+
 def test_sheppard_fails_for_the_temporal_variance_below_its_threshold():
     """Sheppard's s² + 1/12 is the variance over all offsets; a pixel's temporal variance about its
     own mean is smaller by the mean-square rounding bias of the pixel means (the uniform-offset H):
