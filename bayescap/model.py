@@ -213,7 +213,8 @@ def _rounded_normal_moments(delta, s, J=6):
 
     Where s ≥ 1.5/33 ≈ 0.045 DN: the Fourier series of :func:`_rounded_normal_moments_fourier`,
     with 4 harmonics from s = 0.3 DN, 8, 16 or 32 below (:data:`_RN_FOURIER_K`); below 0.045 DN,
-    direct sums over the integers j = −J..J (the tails beyond are < 1e-12 for s < 0.75 DN, |δ| ≤ ½).
+    direct sums over the integers j = −J..J with J at most 2 (the DN boundaries beyond ±3/2 are ≥ 11 s
+    away for |δ| ≤ 1; ``J`` matters only for :func:`_rounded_normal_moments_sums` called directly).
     With the sums, these moments and the offset solver took most of a fast fit of a 12-bit sensor
     whose dark noise is half a DN (sim05 of ``benchmarks/speed_accuracy.py``; docs/performance.md,
     "2026-11-23, 19:40–22:40"); the sums on the 32-point offset grid of
@@ -230,7 +231,8 @@ def _rounded_normal_moments(delta, s, J=6):
     ks = np.unique(kk)
 
     def one(d, sv, K):
-        return _rounded_normal_moments_fourier(d, sv, K) if K else _rounded_normal_moments_sums(d, sv, J)
+        # below 0.045 DN the DN boundaries beyond ±3/2 are ≥ 11 s away for |δ| ≤ 1: J = 2 suffices
+        return _rounded_normal_moments_fourier(d, sv, K) if K else _rounded_normal_moments_sums(d, sv, min(J, 2))
 
     if ks.size == 1:
         return one(delta, s, int(ks[0]))
@@ -499,11 +501,15 @@ _QUANT_TEMPORAL_S2 = 0.2
 #: e^{−2π²k²σ_o²}) and the moments (harmonics down to ~e^{−π²n²s²/2}, the 4th moment's products):
 #: at most ~e^{−c}, c = M²·ab/(a + b), a = 2π²σ_o², b = π²s²/2. Each element takes the smallest M
 #: of :data:`_QG_SIZES` with c ≥ :data:`_QG_C` (measured against 256 points: max error 6e-12 at
-#: c ≥ 23 over s 0.02-0.75 DN, σ_o 1/32-0.7 DN), 128 where none does (s < 0.02 DN with σ_o near
-#: 1/32). Until 2026-11-24 every element took M = 32, whose error reached 1.8e-3 DN² where s and
-#: σ_o are both below ~0.05 DN and which was 2-4× more points than needed where they are not.
-_QG_M = 32                # below σ_o = 1/_QG_M: Gauss–Hermite nodes instead of a grid
-_QG_SIZES = (8, 16, 32, 64, 128)
+#: c ≥ 23 over s 0.02-0.75 DN, σ_o 1/32-0.7 DN), 1 024 where none does (s below ~0.005 DN). Until
+#: 2026-11-24 every element took M = 32, whose error reached 1.8e-3 DN² where s and σ_o are both
+#: below ~0.05 DN and which was 2-4× more points than needed where they are not.
+_QG_M = 32                # below σ_o = 1/_QG_M (and σ_o < s/4): Gauss–Hermite nodes instead of a grid
+#: the Gauss–Hermite nodes need the integrands smooth on the scale of σ_o: σ_o < s/4 (error ≤ 1.5e-13
+#: against a 4 096-point quadrature over s 0.005-0.75 DN; with σ_o between s/2 and 2s they had been
+#: off by up to 1e-3 DN², 4 % of V, measured 2026-11-24), else the grid
+_GH_SO_OVER_S = 0.25
+_QG_SIZES = (8, 16, 32, 64, 128, 256, 512, 1024)
 _QG_C = 25.0
 _QG_GRIDS = {M: (np.arange(M) + 0.5) / M - 0.5 for M in _QG_SIZES}
 _QG_X = _QG_GRIDS[_QG_M]
@@ -571,9 +577,9 @@ def _quantized_pixel_moments(delta, s, so):
       pixel means (up to 1/12 DN² for s → 0: a pattern whose pixels sit still is quantized too).
 
     The offsets' distribution modulo 1 DN is the wrapped normal, integrated on a periodic midpoint
-    grid of 8-128 points chosen per element from s and σ_o (:func:`_grid_size`; uniform for
+    grid of 8-1 024 points chosen per element from s and σ_o (:func:`_grid_size`; uniform for
     σ_o > 0.7 DN, where its harmonics are < e^{−2π²·0.49} ≈ 6e-5, and then tabulated in s); for
-    σ_o < 1/32, Gauss–Hermite nodes about δ; for σ_o = 0, the point δ.
+    σ_o < 1/32 and σ_o < s/4, Gauss–Hermite nodes about δ; for σ_o = 0, the point δ.
     cov(o, h(o)) comes from Stein's lemma in closed form:
     σ_o²·(Σ_b N(b; δ, s² + σ_o²) − 1), b the half-integer DN boundaries."""
     delta = np.asarray(delta, float)
@@ -583,7 +589,7 @@ def _quantized_pixel_moments(delta, s, so):
     E4 = np.empty_like(delta)
     H = np.empty_like(delta)
     point = so < 1e-6
-    narrow = ~point & (so < 1.0 / _QG_M)
+    narrow = ~point & (so < 1.0 / _QG_M) & (so < _GH_SO_OVER_S * s)
     wide = so > 0.7
     grid = ~(point | narrow | wide)
     if np.any(point):   # no pattern: the pixels share one offset

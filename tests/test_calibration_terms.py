@@ -204,6 +204,31 @@ def test_quantized_pixel_moments_grid_matches_a_256_point_grid():
     assert max(np.max(np.abs(a - b)) for a, b in zip(old, (V_ref, E4_ref, varh_ref))) > 1e-4
 
 
+def test_quantized_pixel_moments_narrow_spreads_match_a_fine_quadrature():
+    """Pattern spreads below 1/32 DN: Gauss–Hermite nodes where σ_o < s/4, the grid otherwise.
+    V, E4 and H within 1e-12 of a 4 096-point quadrature of the unwrapped normal for s from 0.005
+    to 0.75 DN and σ_o from 1e-4 to 1/32 DN (nine nodes for every σ_o < 1/32, until 2026-11-24,
+    were off by up to 1e-3 DN², 4 % of V, where σ_o was between s/2 and 2s)."""
+    rng = np.random.default_rng(3)
+    n = 300
+    dl = rng.uniform(-0.5, 0.5, n)
+    sg = np.exp(rng.uniform(np.log(0.005), np.log(0.75), n))
+    sog = np.exp(rng.uniform(np.log(1e-4), np.log(1 / 32), n))
+    ref = []
+    for d, s, so in zip(dl, sg, sog):
+        o = d + so * np.linspace(-8.0, 8.0, 4096)
+        w = np.exp(-0.5 * ((o - d) / so) ** 2)
+        w /= w.sum()
+        m, v, m4 = _rounded_normal_moments_sums(o, np.full(o.size, s), J=12)
+        em = (w * m).sum()
+        ref.append(((w * v).sum(), (w * (m4 + v * v)).sum(),
+                    (w * m * m).sum() - em * em - ((w * o * o).sum() - (w * o).sum() ** 2)))
+    ref = np.array(ref).T
+    got = np.array(_quantized_pixel_moments(dl, sg, sog))
+    assert np.max(np.abs(got - ref)) < 1e-12
+    assert np.sum((sog > 0.5 * sg) & (sog < 2.0 * sg)) >= 20      # the formerly wrong band is sampled
+
+
 def test_sheppard_fails_for_the_temporal_variance_below_its_threshold():
     """Sheppard's s² + 1/12 is the variance over all offsets; a pixel's temporal variance about its
     own mean is smaller by the mean-square rounding bias of the pixel means (the uniform-offset H):
