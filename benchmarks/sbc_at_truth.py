@@ -53,9 +53,16 @@ def at_truth(seed, i, spatial_fraction):
         b = fp.dsnu.var(ddof=1)
         realised = b / truth.dsnu_e**2 - 1.0
         if "z_roi_prnu" in m.idx:
-            th[m.idx["z_roi_dsnu"]] = _wh_inverse(b / truth.dsnu_e**2 * nu / (nu - 1), nu - 1)
-            th[m.idx["z_roi_cross"]] = 0.0
-            th[m.idx["z_roi_prnu"]] = _wh_inverse((fp.prnu - 1).var(ddof=1) / truth.prnu_frac**2, nu)
+            # Bartlett's latents of the realised maps (model._pattern_moments inverted): var_s(p) = a
+            # gives z₁, cov_s(p, d) = c gives z₃ = c·√ν/(DSNU·√a), var_s(d) = b then gives z₂ (until
+            # 2026-11-24 z₃ was 0: the maps' cross-covariance left out)
+            pm = (fp.prnu - 1.0).ravel()
+            a = pm.var(ddof=1)
+            c = float(np.cov(pm, fp.dsnu.ravel(), ddof=1)[0, 1])
+            z3 = c * np.sqrt(nu) / (truth.dsnu_e * np.sqrt(a))
+            th[m.idx["z_roi_prnu"]] = _wh_inverse(a / truth.prnu_frac**2, nu)
+            th[m.idx["z_roi_cross"]] = z3
+            th[m.idx["z_roi_dsnu"]] = _wh_inverse((b * nu / truth.dsnu_e**2 - z3 * z3) / (nu - 1), nu - 1)
         else:
             th[m.idx["z_roi_dsnu"]] = _wh_inverse(b / truth.dsnu_e**2, nu)
     with warnings.catch_warnings():
