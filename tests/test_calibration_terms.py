@@ -434,6 +434,12 @@ def test_rounded_offset_boundary_solver_converges_within_three_steps():
     assert np.max(np.abs(m - fo)) < 1e-9
     assert np.all(np.abs(d3) <= 0.5)
     np.testing.assert_array_equal(_rounded_offset_boundaries(fo, s), d3)
+    # as _rounded_offset calls it (the boundaries within 10 s): the same tolerance, elementwise
+    d = _rounded_offset(fo, s, n_iter=3)
+    m, _, _ = _rounded_normal_moments_sums(d, s, J=40)
+    assert np.max(np.abs(m - fo)) < 1e-9
+    idx = np.sort(rng.choice(fo.size, 777, replace=False))
+    np.testing.assert_array_equal(_rounded_offset(fo[idx], s[idx]), _rounded_offset(fo, s)[idx])
 
 
 def test_rounded_offset_branches_match_the_exact_mean():
