@@ -462,7 +462,7 @@ def _rounded_offset_boundaries(frac_obs, s_tot, n_iter=12, n_boundaries=6):
     evaluations of 6.
 
     Newton starts from the inverse of the nearest boundary's term alone, δ₀ = sign(f)·max(½ +
-    s·Φ⁻¹(|f|), 0): every element then meets the 1e-9 DN tolerance within 3 steps (20 000 random
+    s·Φ⁻¹(|f|), 0): every element then meets the 1e-9 DN tolerance within 3 steps (40 000 random
     offsets and s from 0.01 to 0.3 DN; ``tests/test_calibration_terms.py``). Started from δ₀ = f, as
     before 2026-11-24, small offsets needed up to 22 steps (the mean is exponentially flat near 0 at
     small s), more than the 12 allowed, and the solver took 70 % of a ``log_prob`` call of a sensor
@@ -531,7 +531,8 @@ def _grid_size(s, so):
     b = 0.5 * np.pi**2 * s * s
     with np.errstate(all="ignore"):
         c1 = a * b / (a + b)                     # c for M = 1
-    M = np.full(np.shape(s), _QG_SIZES[-1], dtype=np.intp)
+    # NaN (a draw whose variance is not finite: its moments are NaN whatever the grid): the smallest
+    M = np.where(np.isnan(c1), _QG_SIZES[0], _QG_SIZES[-1]).astype(np.intp)
     for size in reversed(_QG_SIZES[:-1]):
         M[c1 * size * size >= _QG_C] = size
     return M
@@ -539,7 +540,7 @@ def _grid_size(s, so):
 
 def _wrapped_normal_grid(delta, so, M=_QG_M):
     """Weights (n, M) of the M-point midpoint grid (:data:`_QG_GRIDS`) under the wrapped normal
-    N(δ, σ_o²) modulo 1 DN (1-D ``delta`` and ``so``, 1/32 ≤ σ_o ≤ 0.7), normalised to sum 1.
+    N(δ, σ_o²) modulo 1 DN (1-D ``delta`` and ``so``, 0 < σ_o ≤ 0.7), normalised to sum 1.
 
     Below :data:`_WN_FOURIER_SO` (0.1 DN) the density's three nearest images; from it, its Fourier
     series 1 + 2 Σ_k e^{−2π²k²σ_o²} cos 2πk(x − δ), k ≤ :data:`_WN_K`, whose cosines are the grid's
