@@ -27,6 +27,9 @@ def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--sensors", default="29,33,87,191,193,131,4")
     ap.add_argument("--out", default=None)
+    ap.add_argument("--modes", default="clip_dn,log(clip − lo)", help="comma-separated: clip_dn, log(clip − lo)")
+    ap.add_argument("--no-reset", action="store_true",
+                    help="switch off the stuck-walker reset in burn-in (fit._reset_stuck_walkers), for this run only")
     a = ap.parse_args(argv)
     import importlib
 
@@ -37,9 +40,13 @@ def main(argv=None):
     from bayescap.simulate import simulate_ptc
     F = importlib.import_module("bayescap.fit")
     warnings.simplefilter("ignore")
+    if a.no_reset:
+        F._reset_stuck_walkers = lambda sampler, state, ndim: (state, 0)   # inherited by the forked workers
     seeds = sbc.sensor_seeds(3, 200)
     lines = [f"# The MCMC with the clip level in log coordinates ({describe_machine()})", "",
-             f"`python benchmarks/clip_coordinates_mcmc.py --sensors {a.sensors}`", "",
+             f"`python benchmarks/clip_coordinates_mcmc.py --sensors {a.sensors}`"
+             + (f" --modes '{a.modes}'" if a.modes != "clip_dn,log(clip − lo)" else "")
+             + (" --no-reset (the stuck-walker reset switched off)" if a.no_reset else ""), "",
              "| sensor | coordinates | converged | rounds | steps | walker resets in burn-in (2 checks × 4 ensembles × W walkers) | wall (s) | log K 95 % | clip_dn 95 % | log τ 95 % | log f 95 % |",
              "|---|---|---|---|---|---|---|---|---|---|---|"]
     for i in map(int, a.sensors.split(",")):
@@ -52,7 +59,7 @@ def main(argv=None):
         if not F.LogClipCoordinates.applies(m):
             print(f"sensor {i}: no free clip level, skipped", flush=True)
             continue
-        for mode in ("clip_dn", "log(clip − lo)"):
+        for mode in a.modes.split(","):
             t0 = time.perf_counter()
             if mode == "clip_dn":
                 ch = F.run_ensembles(m, settings=F.QUALITY_PRESETS["standard"], seed=fs, n_jobs=2)
