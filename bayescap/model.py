@@ -227,6 +227,8 @@ def _rounded_normal_moments(delta, s, J=6):
     """
     delta = np.asarray(delta, float)
     s = np.asarray(s, float)
+    if np.all(s >= _RN_FOURIER_S):                      # the common case (NaN: not), without the split
+        return _rounded_normal_moments_fourier(delta, s, 4)
     kk = _rn_harmonics(s)
     ks = np.unique(kk)
 
@@ -375,8 +377,14 @@ def _rounded_normal_moments_fourier(delta, s, K=4):
     else:
         QS = np.broadcast_to(q * S, (K,) + shape).reshape(K, -1)
         QC = np.broadcast_to(q * C, (K,) + shape).reshape(K, -1)
-        A1, A3, A2, A4 = _rows_matmul(QS.T, rn_sin).T.reshape((4,) + shape)
-        B0, B2, B4, B3, B5 = _rows_matmul(QC.T, rn_cos).T.reshape((5,) + shape)
+        if K == 4:
+            # (4, 4) by (4, N) as before 2026-11-24: a row's sums do not depend on N here (tested
+            # with sub-arrays of every size), and the blocked product costs ~5 % of a call on sim05
+            A1, A3, A2, A4 = (rn_sin.T @ QS).reshape((4,) + shape)
+            B0, B2, B4, B3, B5 = (rn_cos.T @ QC).reshape((5,) + shape)
+        else:
+            A1, A3, A2, A4 = _rows_matmul(QS.T, rn_sin).T.reshape((4,) + shape)
+            B0, B2, B4, B3, B5 = _rows_matmul(QC.T, rn_cos).T.reshape((5,) + shape)
         V_c = 2.0 * v2 * B0 + B2
         L_c = B4 + 4.0 * v2 * B3 + 6.0 * v2 * B2 - 4.0 * v4 * v2 * B5
         P_s = 12.0 * v4 * A4 + 12.0 * v2 * A2 - 4.0 * A3
