@@ -37,7 +37,6 @@ def main(argv=None):
     from _machine import describe_machine, emit
 
     from bayescap.model import PTCModel
-    from bayescap.simulate import simulate_ptc
     F = importlib.import_module("bayescap.fit")
     warnings.simplefilter("ignore")
     if a.no_reset:
@@ -52,9 +51,7 @@ def main(argv=None):
     for i in map(int, a.sensors.split(",")):
         ts, ss, fs = seeds[i]
         truth, sim, extra = sbc.draw_sensor_prior(np.random.default_rng(ts), sbc.SBC_LEVELS, 1.0)
-        data = simulate_ptc(truth, seed=ss, **sim)
-        data = sbc.inject_discrepancies(data, extra["variance_discrepancy"], extra["mean_discrepancy"],
-                                        np.random.default_rng(ss + 7))
+        data = sbc.simulate_prior_sensor(truth, sim, extra, ss)
         m = PTCModel(data, prior=sbc.SBC_PRIOR)
         if not F.LogClipCoordinates.applies(m):
             print(f"sensor {i}: no free clip level, skipped", flush=True)

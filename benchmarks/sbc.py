@@ -152,6 +152,17 @@ def draw_sensor_prior(rng, n_levels=SBC_LEVELS, spatial_fraction=0.4):
     return truth, sim, {"variance_discrepancy": f, "mean_discrepancy": g}
 
 
+def simulate_prior_sensor(truth, sim, extra, sim_seed):
+    """The classic SBC's data set of a sensor drawn by :func:`draw_sensor_prior`: simulated with
+    ``sim_seed``, the discrepancies ``extra`` injected with the stream ``sim_seed + 7``
+    (:func:`run_one`; ``benchmarks/clip_coordinates_mcmc.py`` rebuilds the SBC's data sets with it)."""
+    from bayescap.simulate import simulate_ptc
+
+    data = simulate_ptc(truth, seed=sim_seed, **sim)
+    return inject_discrepancies(data, extra["variance_discrepancy"], extra["mean_discrepancy"],
+                                np.random.default_rng(sim_seed + 7))
+
+
 def inject_discrepancies(data, f, g, rng):
     """The model's discrepancy terms applied to simulated data, as the likelihood describes them.
 
@@ -317,10 +328,10 @@ def run_one(args):
     else:
         truth, sim = draw_sensor(rng)
     t0 = time.perf_counter()
-    data = simulate_ptc(truth, seed=sim_seed, **sim)
     if truths == "prior":
-        data = inject_discrepancies(data, extra["variance_discrepancy"], extra["mean_discrepancy"],
-                                    np.random.default_rng(sim_seed + 7))
+        data = simulate_prior_sensor(truth, sim, extra, sim_seed)
+    else:
+        data = simulate_ptc(truth, seed=sim_seed, **sim)
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
         # one process per fit: the sensors are the parallel units (forked pool workers are
