@@ -96,12 +96,15 @@ class FastSettings:
     polish_both: bool = False     # clip coordinates: optimise in the model's coordinates first (the retry does)
     adapt_rounds: int = 3         # moment-matching rounds sharing the adapt_fraction draws (1 before 2026-11-23 late day)
     clip_floor_fraction: float = 0.1  # clip coordinates: share of the first draws from _clip_floor_proposal (0 before 2026-11-23 afternoon)
-    end_mcse_max: float | None = None  # accept only when every interval end's predicted Monte Carlo error ≤ this × width (None: report only)
+    end_mcse_max: float | None = 0.035  # accept only when every interval end's predicted Monte Carlo error ≤ this × width (None: report only, the default before 2026-11-24 afternoon)
     max_proposals: int = 24000    # draws in all, topping up towards end_mcse_max (n_proposals: no top-up)
     tail_fraction: float = 0.05   # share of the draws from each long one-sided tail the probe finds (_tail_probe; 0: no probe)
     tail_max_fraction: float = 0.2  # at most this share for all tail (and pair) components together
     floor_pair: bool = True       # with the clip floor and a tail: tail_fraction more draws from both at once (_pair_proposal)
     adapt_nu: float | None = None  # degrees of freedom of the moment-matched rounds' t (None: nu)
+    topup: str = "targeted"       # end_mcse_max's top-up: "targeted" (_end_components) or "global" (moment-matched t, before 2026-11-24 afternoon)
+    topup_components: int = 4     # targeted top-up: at most this many interval ends aimed at per round
+    topup_draws: int | None = None  # targeted top-up: draws per round at least (a quarter of those so far if more; None: n_proposals/4)
 
 
 def student_t_draws(mean, cov, nu, n, rng):
@@ -432,21 +435,41 @@ def _pair_proposal(x_map, c1, nu, axis, floor):
     return draw, logpdf
 
 
-def _adaptive_rounds(model, settings, rng, comps, n2):
+class _DensityCache:
+    """Each proposal's log density on each batch of draws, computed once over the calls of
+    :func:`_adaptive_rounds` and :func:`_add_components` in one fast-path attempt (the top-up adds
+    proposals and batches; without the cache every call re-evaluated them all on all draws)."""
+
+    def __init__(self):
+        self._d = {}
+
+    def get(self, f, xb):
+        key = (id(f), id(xb))
+        hit = self._d.get(key)
+        if hit is None:
+            hit = self._d[key] = (f, xb, f(xb))     # f and xb kept alive: their ids stay theirs
+        return hit[2]
+
+    def put(self, f, xb, values):
+        self._d[(id(f), id(xb))] = (f, xb, values)
+
+
+def _adaptive_rounds(model, settings, rng, comps, n2, cache=None):
     """``settings.adapt_rounds`` moment-matching rounds sharing ``n2`` draws: every round's t sits at
     the PSIS-weighted moments of all draws so far, weighted against the mixture of the proposals so
     far (the balance heuristic). ``comps``: the first proposals, ``[(logpdf, draws, log p, t
     location and scale or None), ...]``, the Laplace t first (one batch of draws each: a list
     returned by an earlier call continues it). Each proposal's density on each batch of draws is
-    computed once. Returns (draws, log p, log q of the final mixture, the components in the format
-    of ``comps``)."""
+    computed once (``cache``: a :class:`_DensityCache` kept over calls). Returns (draws, log p, log q of
+    the final mixture, the components in the format of ``comps``)."""
+    cache = _DensityCache() if cache is None else cache
     nu = settings.nu if settings.adapt_nu is None else float(settings.adapt_nu)
     R = max(1, int(settings.adapt_rounds))
     sizes = [n2 // R + (1 if r < n2 % R else 0) for r in range(R)]
     pdfs = [c[0] for c in comps]
     counts = [len(c[1]) for c in comps]
     xs, lps = [c[1] for c in comps], [c[2] for c in comps]
-    dens = [[f(xb) for xb in xs] for f in pdfs]      # dens[k][b]: proposal k on batch b
+    dens = [[cache.get(f, xb) for xb in xs] for f in pdfs]      # dens[k][b]: proposal k on batch b
     moments = []                                     # (location, scale) of each new t proposal
 
     def mix_logq():
@@ -469,9 +492,10 @@ def _adaptive_rounds(model, settings, rng, comps, n2):
         with np.errstate(all="ignore"):
             lpr = model.log_prob(xr)
         for k, f in enumerate(pdfs):                 # the earlier proposals on the new batch
-            dens[k].append(f(xr))
+            dens[k].append(cache.get(f, xr))
         t_new = _t_logpdf(mu, c, nu)
-        dens.append([t_new(xb) for xb in xs] + [lq_own])   # the new one on all
+        cache.put(t_new, xr, lq_own)
+        dens.append([cache.get(t_new, xb) for xb in xs] + [lq_own])   # the new one on all
         pdfs.append(t_new)
         moments.append((mu, c))
         counts.append(n_r)
@@ -499,14 +523,25 @@ def interval_end_mcse(values, w, probs=(0.025, 0.975), n_resampled=None):
     ≈ Σ w_i² (1{v_i ≤ q} − p)² (the delta method; Owen 2013, "Monte Carlo theory, methods and
     examples", §9.2); its standard error ``se`` in probability maps to the quantile as
     (Q(p + se) − Q(p − se))/2, with Q the weighted quantile function. With ``n_resampled``, the
-    quantile is read off that many draws resampled from the N weighted ones, which adds
-    p(1 − p)(1/n − 1/N) to the variance (sampling n of N without replacement; systematic
-    resampling in the draws' random order does no better for a single parameter). Returns the
+    quantile is read off that many draws resampled from the N weighted ones, which adds the variance
+    of the resampled count below the end: systematic resampling gives draw i ⌊n w_i⌋ copies and one
+    more with probability f_i = frac(n w_i), so that count varies as a sum of Bernoullis given
+    their total, S_A·S_B/(S_A + S_B)/n² with S = Σ f_i(1 − f_i) below (A) and above (B) the end.
+    For equal weights that is p(1 − p)(1/n − 1/N), sampling n of N without replacement (the term
+    used before 2026-11-24 afternoon, which left out that unequal weights add to it: at n = N it
+    said 0). Returns the
     largest over ``probs``, divided by Q(0.975) − Q(0.025) (0 when the width is 0; NaN when the
     values are not all finite, as :func:`bayescap.fit.interval_end_mcse_mcmc`)."""
+    errs = _end_errors(values, w, probs, n_resampled)
+    return float("nan") if errs is None else max(errs, default=0.0)
+
+
+def _end_errors(values, w, probs=(0.025, 0.975), n_resampled=None):
+    """Per end of ``probs``: :func:`interval_end_mcse`'s error as a fraction of the width (a list;
+    None when the values are not all finite, zeros when the width is 0)."""
     v = np.asarray(values, float)
     if not np.all(np.isfinite(v)):
-        return float("nan")
+        return None
     o = np.argsort(v)
     v, ws = v[o], w[o]
     F = np.cumsum(ws)
@@ -514,16 +549,22 @@ def interval_end_mcse(values, w, probs=(0.025, 0.975), n_resampled=None):
     Q = lambda p: np.interp(p, F, v)      # noqa: E731
     width = Q(0.975) - Q(0.025)
     if not width > 0:
-        return 0.0
-    out = 0.0
+        return [0.0 for _ in probs]
+    if n_resampled:
+        # systematic resampling gives draw i floor(n w_i) copies and one more with probability
+        # frac(n w_i); the count below q varies as a sum of those Bernoullis given the total n
+        fr = np.mod(n_resampled * (ws / np.sum(ws)), 1.0)
+        bern = np.cumsum(fr * (1.0 - fr))
+    out = []
     for p in probs:
         q = Q(p)
         ind = (v <= q).astype(float)
         var = np.sum(ws * ws * (ind - p) ** 2)
-        if n_resampled:
-            var += p * (1.0 - p) * max(1.0 / n_resampled - 1.0 / v.size, 0.0)
+        if n_resampled and bern[-1] > 0:
+            s_a = bern[np.searchsorted(v, q, side="right") - 1] if v[0] <= q else 0.0
+            var += s_a * (bern[-1] - s_a) / bern[-1] / float(n_resampled) ** 2
         se = float(np.sqrt(var))
-        out = max(out, 0.5 * (Q(min(p + se, 1.0)) - Q(max(p - se, 0.0))) / width)
+        out.append(float(0.5 * (Q(min(p + se, 1.0)) - Q(max(p - se, 0.0))) / width))
     return out
 
 
@@ -540,15 +581,115 @@ def _end_mcse(model, x, w, n_resampled=None, derived_fn=None):
     With ``derived_fn`` (draws in ``model``'s coordinates -> {name: values}), the quantities it
     returns too (capacity, TR, ...: what :class:`bayescap.posterior.FitResult` computes from the same
     weighted draws afterwards)."""
+    xk, wk, vals = _end_values(model, x, w, derived_fn)
+    return {n: interval_end_mcse(v, wk, n_resampled=n_resampled) for n, v in vals.items()}
+
+
+def _end_values(model, x, w, derived_fn=None, names=None):
+    """(kept draws, their weights, {name: values on them}) of the quantities :func:`_end_mcse`
+    looks at (those that vary); ``names``: only those (the derived quantities computed only when
+    one of them is among them)."""
     phys = _physical_fn(model)
     if phys is None:
-        return {}
+        return x[:0], w[:0], {}
     xk, wk = _weighted_kept(x, w)
     with np.errstate(all="ignore"):
         p = phys(xk)
-        if derived_fn is not None:
+        if derived_fn is not None and (names is None or any(n not in p for n in names)):
             p = {**p, **{n: v for n, v in derived_fn(xk).items() if np.size(v) == xk.shape[0]}}
-    return {n: interval_end_mcse(v, wk, n_resampled=n_resampled) for n, v in p.items() if _varies(v)}
+    return xk, wk, {n: v for n, v in p.items() if (names is None or n in names) and _varies(v)}
+
+
+_END_PROBS = (0.025, 0.975)
+
+
+def _end_components(xk, wk, vals, mcse, target, n_resampled, inflation, max_components):
+    """Proposals aimed at the interval ends whose predicted Monte Carlo error is above ``target``
+    (the targeted top-up of :class:`FastSettings`, ``topup="targeted"``).
+
+    The importance density that estimates P(v ≤ q) best is ∝ p(x)·|1{v ≤ q} − P| (Owen 2013,
+    §9.2): half of it lies beyond the end. A moment-matched t over the whole posterior puts only
+    ~2.5 % of its draws there, so topping up with it cuts an end's error as 1/√N; this puts a t at
+    the weighted moments of the draws beyond the quantile at twice the end's tail probability (so
+    that the end itself is inside), for the worst ends first, at most ``max_components`` of them,
+    one per region (an end whose region shares half its weight with a chosen one is left to that
+    one: capacity's lower end and TR's are often the same draws). Regions with an importance ESS
+    below D + 2 get none. ``mcse``: {name: worst end's error} of ``vals`` (:func:`interval_end_mcse`),
+    to look at those above ``target`` only. Returns [(location, scale), ...] (worst end first)."""
+    D = xk.shape[1]
+    cands = []
+    for name, v in vals.items():
+        if not mcse.get(name, 0.0) > target:
+            continue
+        errs = _end_errors(v, wk, _END_PROBS, n_resampled)
+        if errs is None:
+            continue
+        cands += [(e, name, p) for e, p in zip(errs, _END_PROBS) if e > target]
+    cands.sort(key=lambda c: -c[0])
+    out, masks = [], []
+    for _, name, p in cands:
+        v = np.asarray(vals[name], float)
+        o = np.argsort(v)
+        F = np.cumsum(wk[o])
+        F /= F[-1]
+        if p < 0.5:
+            mask = v <= np.interp(2.0 * p, F, v[o])
+        else:
+            mask = v >= np.interp(1.0 - 2.0 * (1.0 - p), F, v[o])
+        wm = wk[mask]
+        tot = wm.sum()
+        if not tot > 0 or any(np.sum(wk[mask & m]) >= 0.5 * tot for m in masks):
+            continue
+        wm = wm / tot
+        if 1.0 / np.sum(wm * wm) < D + 2:
+            continue
+        mc = _moment_matched(xk[mask], wm, None, inflation)
+        if mc is None:
+            continue
+        out.append(mc)
+        masks.append(mask)
+        if len(out) >= max_components:
+            break
+    return out
+
+
+def _add_components(model, settings, rng, comps, new, cache=None):
+    """Draw from each new proposal ``new = [(location, scale, n), ...]`` (t, ``adapt_nu`` or ``nu``
+    degrees of freedom) in one ``log_prob`` call and join them to the mixture ``comps`` (the format
+    of :func:`_adaptive_rounds`; ``cache`` its density cache). Returns what :func:`_adaptive_rounds`
+    returns."""
+    cache = _DensityCache() if cache is None else cache
+    nu = settings.nu if settings.adapt_nu is None else float(settings.adapt_nu)
+    pdfs = [c[0] for c in comps]
+    counts = [len(c[1]) for c in comps]
+    xs, lps = [c[1] for c in comps], [c[2] for c in comps]
+    new_x, new_lq, new_pdf = [], [], []
+    for mu, c, n in new:
+        xr, lq = student_t_draws(mu, c, nu, int(n), rng)
+        new_x.append(xr)
+        new_lq.append(lq)
+        new_pdf.append(_t_logpdf(mu, c, nu))
+    xb = np.vstack(new_x)
+    with np.errstate(all="ignore"):
+        lpb = model.log_prob(xb)
+    at = np.cumsum([0] + [len(xr) for xr in new_x])
+    out = list(comps)
+    for k, (xr, (mu, c, _), f) in enumerate(zip(new_x, new, new_pdf)):
+        out.append((f, xr, lpb[at[k]:at[k + 1]], (mu, c)))
+    allx = xs + new_x
+    allpdf = pdfs + new_pdf
+    counts = counts + [len(xr) for xr in new_x]
+    n_all = float(sum(counts))
+    x = np.vstack(allx)
+    for f, xr, lq in zip(new_pdf, new_x, new_lq):
+        cache.put(f, xr, lq)
+    terms = np.stack([np.log(n / n_all) + np.concatenate([cache.get(f, xb) for xb in allx])
+                      for f, n in zip(allpdf, counts)])
+    top = np.max(terms, axis=0)
+    top = np.where(np.isfinite(top), top, 0.0)
+    with np.errstate(under="ignore", divide="ignore", invalid="ignore"):
+        logq = top + np.log(np.sum(np.exp(terms - top), axis=0))
+    return x, np.concatenate(lps + [lpb]), logq, out
 
 
 def _varies(v):
@@ -652,21 +793,23 @@ def _fast_once(model, seed, n_draws, settings, x_map, cov, derived_fn=None):
     x1 = np.vstack([x1] + [xe for _, xe in extra])    # one log_prob call for all
     with np.errstate(all="ignore"):
         lp1 = model.log_prob(x1)
+    cache = _DensityCache()
     if n1 > 0 and n2 > 0:
         comps = [(_t_logpdf(x_map, c1, nu), x1[:n_t], lp1[:n_t], (x_map, c1))]
         at = n_t
         for pdf_e, xe in extra:
             comps.append((pdf_e, x1[at:at + len(xe)], lp1[at:at + len(xe)], None))
             at += len(xe)
-        x, logp, logq, comps = _adaptive_rounds(model, settings, rng, comps, n2)
+        x, logp, logq, comps = _adaptive_rounds(model, settings, rng, comps, n2, cache)
     else:
         x, logp, logq, comps = x1, lp1, student_t_logpdf(x1, x_map, c1, nu), None
     w, khat, ess = psis_weights(logp - logq)
     khat, ess = float(khat), float(ess)
-    mcse = _end_mcse(model, x, w, n_resampled=n_draws, derived_fn=derived_fn)
+    xk, wk, vals = _end_values(model, x, w, derived_fn)
+    mcse = {n: interval_end_mcse(v, wk, n_resampled=n_draws) for n, v in vals.items()}
     target = settings.end_mcse_max
     worst = _worst_end_mcse(mcse)
-    n_topup, n_out = 0, n_draws
+    n_topup, n_out, partial = 0, n_draws, False
     # top up: more moment-matched draws until every interval end's predicted Monte Carlo error is
     # below the target (its variance falls as 1/N), at most max_proposals in all; not when k̂
     # already rejects the proposal (more of the same draws would not help)
@@ -674,13 +817,44 @@ def _fast_once(model, seed, n_draws, settings, x_map, cov, derived_fn=None):
            and x.shape[0] < settings.max_proposals):
         want = x.shape[0] * (1.1 * (worst / target) ** 2 - 1.0)
         n_more = int(min(max(want, settings.n_proposals / 3), settings.max_proposals - x.shape[0]))
-        x, logp, logq, comps = _adaptive_rounds(model, replace(settings, adapt_rounds=1), rng, comps, n_more)
+        aimed = []
+        if settings.topup == "targeted":
+            # draws aimed at the offending ends (their error falls faster than 1/√N there)
+            # rounds of topup_draws while few are missing, growing with the draws so far (at most
+            # ~8 rounds from 4 000 to max_proposals) where many are
+            base = settings.n_proposals / 4 if settings.topup_draws is None else settings.topup_draws
+            n_more = int(min(max(base, x.shape[0] / 4), settings.max_proposals - x.shape[0]))
+            aimed = _end_components(xk, wk, vals, mcse, target, n_out, settings.adapt_inflation,
+                                    settings.topup_components)
+        if aimed and n_more >= len(aimed):
+            each = [n_more // len(aimed) + (1 if i < n_more % len(aimed) else 0) for i in range(len(aimed))]
+            x, logp, logq, comps = _add_components(model, settings, rng, comps,
+                                                   [(mu, c, n) for (mu, c), n in zip(aimed, each)], cache)
+        else:
+            x, logp, logq, comps = _adaptive_rounds(model, replace(settings, adapt_rounds=1), rng, comps, n_more,
+                                                    cache)
         n_topup += n_more
         w, khat, ess = psis_weights(logp - logq)
         khat, ess = float(khat), float(ess)
         # more draws are resampled after a top-up (n_draws unless the caller set it), so that
-        # the resampling does not undo the gain: twice the IS ESS, at most every draw
-        n_out = n_draws if not default_n else int(min(max(n_draws, 2.0 * ess), x.shape[0]))
+        # the resampling does not undo the gain: as many as there are weighted draws (twice the
+        # IS ESS before 2026-11-24 afternoon, when interval_end_mcse's resampling term left out
+        # what unequal weights add: with it, 2·ESS draws undid much of the gain)
+        n_out = n_draws if not default_n else int(max(n_draws, x.shape[0]))
+        # between rounds only the quantities near or above the target are looked at again (the
+        # sorting of every quantity each round was ~12 % of a gated batch fit); once they are
+        # below it, all of them, and the rounds go on if another one is above
+        watch = None if settings.topup != "targeted" else {
+            n for n, e in mcse.items() if not e <= 0.8 * target}
+        xk, wk, vals = _end_values(model, x, w, derived_fn, names=watch)
+        part = {n: interval_end_mcse(v, wk, n_resampled=n_out) for n, v in vals.items()}
+        partial = watch is not None and not _worst_end_mcse(part) <= target
+        if watch is not None and not partial:
+            xk, wk, vals = _end_values(model, x, w, derived_fn)
+            part = {n: interval_end_mcse(v, wk, n_resampled=n_out) for n, v in vals.items()}
+        mcse = part if not partial else {**{n: e for n, e in mcse.items() if n not in watch}, **part}
+        worst = _worst_end_mcse(mcse)
+    if n_topup and partial:     # the rounds stopped above the target: every quantity's error, as reported
         mcse = _end_mcse(model, x, w, n_resampled=n_out, derived_fn=derived_fn)
         worst = _worst_end_mcse(mcse)
     n_draws = n_out

@@ -2,7 +2,7 @@
 
     python benchmarks/fast_tradeoff.py [--n-sim 4] [--seeds 4] [--sizes 1500,3000,6000,12000] [--rounds 1,3]
                                        [--floor 0.1] [--gate none,0.02] [--tails 0,0.05] [--floor-pair 0,1] [--ref-cache DIR]
-                                       [--adapt-nu none,10] [--inflation 1.2,1.0] [--out FILE]
+                                       [--adapt-nu none,10] [--inflation 1.2,1.0] [--topup global,targeted] [--out FILE]
 
 Issue 7 asks the fast path for both ≤ 50 ms per sensor and 95 % interval ends within 5 % of a long
 reference run's (as a fraction of the reference's width). After the Newton start
@@ -23,7 +23,9 @@ of draws given to each long one-sided tail the fast path's probe finds (``FastSe
 0: no probe, as before commit 89fd939) and with ``--floor-pair`` whether the clip floor and the
 farthest-reaching tail also get draws together (``FastSettings.floor_pair``), and with ``--adapt-nu``
 and ``--inflation`` the moment-matched rounds' t degrees of freedom (``FastSettings.adapt_nu``; none:
-the Laplace t's ``nu``) and sd multiplier (``FastSettings.adapt_inflation``). ``--ref-cache DIR`` keeps each reference's quantiles in DIR
+the Laplace t's ``nu``) and sd multiplier (``FastSettings.adapt_inflation``), and with ``--topup``
+how a gate tops up (``FastSettings.topup``: "global", more moment-matched draws; "targeted", draws
+aimed at the offending interval ends). ``--ref-cache DIR`` keeps each reference's quantiles in DIR
 (computed on first use, by the same call; a reference takes 40–120 s here). Writes
 benchmarks/results/fast_tradeoff.md (``--out``).
 """
@@ -57,6 +59,7 @@ def main(argv=None):
     ap.add_argument("--floor-pair", default="1", help="FastSettings.floor_pair values (0/1)")
     ap.add_argument("--adapt-nu", default="none", help="FastSettings.adapt_nu values, 'none' for nu")
     ap.add_argument("--inflation", default="1.2", help="FastSettings.adapt_inflation values")
+    ap.add_argument("--topup", default="global", help="FastSettings.topup values (global, targeted)")
     ap.add_argument("--ref-cache", default=None, help="directory keeping the references' quantiles")
     ap.add_argument("--out", default=str(OUT))
     a = ap.parse_args(argv)
@@ -69,8 +72,8 @@ def main(argv=None):
 
     gates = [None if g.strip().lower() == "none" else float(g) for g in a.gate.split(",")]
     nus = [None if v.strip().lower() == "none" else float(v) for v in a.adapt_nu.split(",")]
-    sizes = [(int(n), int(r), float(f), g, float(tf), bool(int(fp)), an, float(inf))
-             for inf in a.inflation.split(",") for an in nus for fp in a.floor_pair.split(",")
+    sizes = [(int(n), int(r), float(f), g, float(tf), bool(int(fp)), an, float(inf), tu.strip())
+             for tu in a.topup.split(",") for inf in a.inflation.split(",") for an in nus for fp in a.floor_pair.split(",")
              for tf in a.tails.split(",") for g in gates for f in a.floor.split(",") for r in a.rounds.split(",")
              for n in a.sizes.split(",")]
     t_all = time.perf_counter()
@@ -82,10 +85,10 @@ def main(argv=None):
         qref = _reference(d, i, name, a.ref_cache, bayescap, sa)
         m = PTCModel(d)
         for key in sizes:
-            n, rounds, floor, gate, tails, pair, anu, infl = key
+            n, rounds, floor, gate, tails, pair, anu, infl, topup = key
             fs = replace(FastSettings(), n_proposals=n, adapt_rounds=rounds, clip_floor_fraction=floor,
                          end_mcse_max=gate, tail_fraction=tails, floor_pair=pair, adapt_nu=anu,
-                         adapt_inflation=infl)
+                         adapt_inflation=infl, topup=topup)
             # one attempt (no retry with restarts after a rejection, which would double the time)
             wall = min(fast_posterior(m, seed=1, settings=replace(fs, retry_restarts=0))[1]["wall_s"]
                        for _ in range(3))
@@ -108,6 +111,7 @@ def main(argv=None):
          f"--rounds {a.rounds} --floor {a.floor} --gate {a.gate} --tails {a.tails} --floor-pair {a.floor_pair}"
          f"{' --adapt-nu ' + a.adapt_nu if a.adapt_nu != 'none' else ''}"
          f"{' --inflation ' + a.inflation if a.inflation != '1.2' else ''}"
+         f"{' --topup ' + a.topup if a.topup != 'global' else ''}"
          f"{' --ref-cache ' + a.ref_cache if a.ref_cache else ''}` on "
          f"{datetime.datetime.now().isoformat(timespec='minutes')} in {time.perf_counter() - t_all:.0f} s.",
          f"Machine: {describe_machine()}; load average before {load0[0]:.2f}, after {os.getloadavg()[0]:.2f}.", "",
@@ -129,12 +133,12 @@ def main(argv=None):
                          f"{sum(r[3] for r in runs)}/{len(runs)}")
         L.append(f"| {name} | " + " | ".join(cells) + " |")
     L += ["", "Over all sensors and seeds, runs the fast path's own check accepted:", "",
-          "| draws | rounds | clip floor | gate | tails | floor pair | adapt ν | inflation | median time (ms) | accepted | "
+          "| draws | rounds | clip floor | gate | tails | floor pair | adapt ν | inflation | top-up | median time (ms) | accepted | "
           "draws used by accepted runs: median (max) | k̂: median (max) | IS ESS: median | worst end error: median | "
           "within 0.05 | own predicted end MC error (max over parameters): median |",
-          "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|"]
+          "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|"]
     for key in sizes:
-        n, r, f, g, tf, fp, anu, infl = key
+        n, r, f, g, tf, fp, anu, infl, tu = key
         walls = [w for _, w, _ in res[key]]
         acc = [x for _, _, runs in res[key] for x in runs if x[3]]
         tot = sum(len(runs) for _, _, runs in res[key])
@@ -143,7 +147,7 @@ def main(argv=None):
         kh = [x[2] for _, _, runs in res[key] for x in runs]
         ess = [x[6] for _, _, runs in res[key] for x in runs]
         L.append(f"| {n} | {r} | {f:g} | {g if g is not None else 'none'} | {tf:g} | {int(fp)} | "
-                 f"{'ν' if anu is None else f'{anu:g}'} | {infl:g} | {np.median(walls) * 1e3:.0f} | {len(acc)}/{tot} | "
+                 f"{'ν' if anu is None else f'{anu:g}'} | {infl:g} | {tu} | {np.median(walls) * 1e3:.0f} | {len(acc)}/{tot} | "
                  f"{f'{np.median(used):.0f} ({max(used)})' if used else '–'} | {np.median(kh):.2f} ({max(kh):.2f}) | "
                  f"{np.median(ess):.0f} | "
                  f"{np.median(e) if e else float('nan'):.3f} | {sum(x <= 0.05 for x in e)}/{len(e)} | "
@@ -153,9 +157,10 @@ def main(argv=None):
 
 
 def _label(key):
-    n, r, f, g, tf, fp, anu, infl = key
+    n, r, f, g, tf, fp, anu, infl, tu = key
     return (f"{n} draws, {r} round{'s' if r > 1 else ''}, floor {f:g}, gate {g if g is not None else 'none'}, "
-            f"tails {tf:g}, floor pair {int(fp)}, adapt ν {'ν' if anu is None else f'{anu:g}'}, inflation {infl:g}")
+            f"tails {tf:g}, floor pair {int(fp)}, adapt ν {'ν' if anu is None else f'{anu:g}'}, inflation {infl:g}, "
+            f"top-up {tu}")
 
 
 def _reference(d, i, name, cache, bayescap, sa):
