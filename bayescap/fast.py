@@ -545,25 +545,30 @@ def _end_errors(values, w, probs=(0.025, 0.975), n_resampled=None):
     o = np.argsort(v)
     v, ws = v[o], w[o]
     F = np.cumsum(ws)
-    F /= F[-1]
+    F_tot = F[-1]
+    F /= F_tot
     Q = lambda p: np.interp(p, F, v)      # noqa: E731
     width = Q(0.975) - Q(0.025)
     if not width > 0:
         return [0.0 for _ in probs]
+    # Σ w_i² (1{v_i ≤ q} − p)² from the cumulative sum of w² up to q (one pass for both ends)
+    c2 = np.cumsum(ws * ws)
     if n_resampled:
         # systematic resampling gives draw i floor(n w_i) copies and one more with probability
         # frac(n w_i); the count below q varies as a sum of those Bernoullis given the total n
-        fr = np.mod(n_resampled * (ws / np.sum(ws)), 1.0)
+        fr = n_resampled * (ws / F_tot)
+        fr -= np.floor(fr)                  # frac(n w_i): np.mod is ~5x slower here
         bern = np.cumsum(fr * (1.0 - fr))
     out = []
     for p in probs:
         q = Q(p)
-        ind = (v <= q).astype(float)
-        var = np.sum(ws * ws * (ind - p) ** 2)
+        k = int(np.searchsorted(v, q, side="right")) - 1      # the last draw at or below q
+        below = c2[k] if k >= 0 else 0.0
+        var = (1.0 - p) ** 2 * below + p * p * (c2[-1] - below)
         if n_resampled and bern[-1] > 0:
-            s_a = bern[np.searchsorted(v, q, side="right") - 1] if v[0] <= q else 0.0
+            s_a = bern[k] if k >= 0 else 0.0
             var += s_a * (bern[-1] - s_a) / bern[-1] / float(n_resampled) ** 2
-        se = float(np.sqrt(var))
+        se = float(np.sqrt(max(var, 0.0)))
         out.append(float(0.5 * (Q(min(p + se, 1.0)) - Q(max(p - se, 0.0))) / width))
     return out
 
