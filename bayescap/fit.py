@@ -777,8 +777,11 @@ def _importance_start(model, x_map, cov, seed, coords=None, n_proposals=6000):
     from .fast import FastSettings, fast_posterior
 
     target = model if coords is None else coords
+    # no gate on the interval ends' Monte Carlo error (the fast preset's default since 2026-11-24
+    # afternoon): these draws only start the walkers, and a top-up or a rejection would change them
     chains, diag = fast_posterior(target, seed=seed, x_map=x_map, cov=cov,
-                                  settings=FastSettings(n_draws=4000, floor_pair=False, n_proposals=n_proposals))
+                                  settings=FastSettings(n_draws=4000, floor_pair=False, n_proposals=n_proposals,
+                                                        end_mcse_max=None))
     if not diag["accepted"]:
         return None
     x = chains.chain.reshape(-1, model.ndim)
