@@ -47,7 +47,7 @@ import numpy as np
 from .capacity import N_GREY_LEVELS, NoiseCoefficients, snr_db, tonal_range
 from .optics import OPTICAL_FORMATS
 from .photometry import photons_per_lux_s_um2
-from .posterior import FitResult, summarize
+from .posterior import FitResult, rerun_advice, summarize
 
 __all__ = [
     "OPTICAL_FORMATS",
@@ -397,9 +397,8 @@ def _sensor(name, path, result: FitResult, seed, *, area, h0_lux_s, mid_grey, n_
         info["simulated"] = str(md["simulated"])
     if not result.diag.get("converged"):
         failed = "; ".join(result.diag.get("failed_checks", []))
-        better = {"fast": "--quality standard or accurate", "standard": "--quality accurate"}.get(
-            result.quality, "a longer run (more steps or ensembles)")
-        notes.append(f"the sampler did not converge ({failed}): rerun with {better} before trusting the intervals")
+        notes.append(f"the sampler did not converge ({failed}): rerun with {rerun_advice(result.quality)} "
+                     "before trusting the intervals")
     if result.flags.get("capacity_lower_bound"):
         notes.append("no row reaches saturation: TR and capacity are lower bounds")
     basis = "full_range"

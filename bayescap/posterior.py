@@ -97,6 +97,15 @@ def _json_float(x):
     return x if math.isfinite(x) else None
 
 
+def rerun_advice(quality) -> str:
+    """What to rerun an unconverged MCMC fit of preset ``quality`` with (a preset name, or anything
+    else for custom settings): the next preset up; for ``accurate`` (already the longest preset) a
+    longer run, which the command line has no flag for."""
+    return {"fast": "--quality standard or accurate", "standard": "--quality accurate"}.get(
+        quality, "a longer run (from Python: bayescap.fit(..., quality=replace(QUALITY_PRESETS['accurate'], "
+                 "max_rounds=40)), with dataclasses.replace and bayescap.fit.QUALITY_PRESETS)")
+
+
 @dataclass
 class FitResult:
     """Posterior of one sensor's noise model and everything derived from it."""
@@ -450,7 +459,7 @@ class FitResult:
                               "discarded as burn-in and the intervals come from the steps after them")
         if not converged:
             self.notes.insert(0, "NOT CONVERGED: " + "; ".join(failed) + ". Do not use these intervals; "
-                              "rerun with --quality accurate")
+                              f"rerun with {rerun_advice(self.quality)}")
             warnings.warn(self.notes[0], ConvergenceWarning, stacklevel=4)
 
     # ----------------------------------------------------------------- data checks

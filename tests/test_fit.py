@@ -136,6 +136,15 @@ def test_stranded_walker_is_reported_not_averaged_in(basler_fit):
     assert not r.diag["converged"] and r.diag["walkers_stuck"] == 1
     assert any("stuck" in f for f in r.diag["failed_checks"])
     assert basler_fit.diag["walkers_stuck"] == 0
+    # the note says what to rerun with: the next preset up, and for `accurate` (the longest preset;
+    # "rerun with --quality accurate" until 2026-11-24 evening) a longer run
+    assert r.notes[0].startswith("NOT CONVERGED") and r.notes[0].endswith("rerun with --quality accurate")
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        ra = FitResult.from_chains(basler_fit.model, bad, metadata=basler_fit.metadata, scene=basler_fit.scene,
+                                   mtf=basler_fit.mtf, seed=11, quality="accurate")
+    assert not ra.diag["converged"] and "--quality accurate" not in ra.notes[0]
+    assert "max_rounds=" in ra.notes[0]
 
 
 def test_walkers_stranded_in_burn_in_are_moved():
