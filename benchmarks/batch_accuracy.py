@@ -103,8 +103,9 @@ def main(argv=None):
             e, wn, rat = worst_end(fast, refs, names, full[i].diag.get("interval_end_mcse") or {})
             pred = full[i].diag.get("interval_end_mcse_max", float("nan"))
             draws = int(full[i].chains.extra["n_proposals"])
-            rows.append(f"| {i} | {kind} | {draws} | {pred:.3f} | {e:.3f} | {wn} | {np.median(rat):.2f} / {max(rat):.2f} "
-                        f"| {n_conv}/{a.refs} |")
+            khat = float(full[i].chains.extra["khat"])
+            rows.append(f"| {i} | {kind} | {draws} | {khat:.2f} | {pred:.3f} | {e:.3f} | {wn} | "
+                        f"{np.median(rat):.2f} / {max(rat):.2f} | {n_conv}/{a.refs} |")
             print(rows[-1], flush=True)
             if n_conv == a.refs:
                 errs.append(e)
@@ -136,8 +137,8 @@ def main(argv=None):
                      f"{100 * np.mean(np.asarray(rat) <= 2):.0f} % of {len(rat)} |")
         else:
             L.append(f"| {kind} | {n} | {n - bad} | – | – | – |")
-    L += ["", "| ROI | kind | draws | predicted worst end error | observed worst end error | quantity | ratio: median / max "
-          "| references converged |", "|---|---|---|---|---|---|---|---|"] + rows
+    L += ["", "| ROI | kind | draws | k̂ | predicted worst end error | observed worst end error | quantity | "
+          "ratio: median / max | references converged |", "|---|---|---|---|---|---|---|---|---|"] + rows
     emit(L, a.out)
 
 
