@@ -69,7 +69,7 @@ import warnings
 from dataclasses import asdict, dataclass, replace
 
 import numpy as np
-from scipy.special import gammaln
+from scipy.special import erfc, gammaln
 
 from ._blas import one_blas_thread
 from .fit import (QUALITY_PRESETS, ChainResult, LogClipCoordinates, _clip_coordinates, _proposal_cov, find_map,
@@ -107,8 +107,10 @@ class FastSettings:
     floor_pair: bool = True       # with the clip floor and a tail: tail_fraction more draws from both at once (_pair_proposal)
     adapt_nu: float | None = None  # degrees of freedom of the moment-matched rounds' t (None: nu)
     topup: str = "targeted"       # end_mcse_max's top-up: "targeted" (_end_components) or "global" (moment-matched t, before 2026-11-24 afternoon)
-    topup_components: int = 4     # targeted top-up: at most this many interval ends aimed at per round
+    topup_components: int = 8     # targeted top-up: at most this many interval ends aimed at per round (4 before 2026-11-24 evening)
     topup_draws: int | None = None  # targeted top-up: draws per round at least (a quarter of those so far if more; None: n_proposals/4)
+    end_tolerance: float = 0.05   # with end_confidence: the error (× width) every interval end should stay within ...
+    end_confidence: float | None = 0.9  # ... with at least this predicted probability, all ends at once (None: per end only, before 2026-11-24 evening)
 
 
 def student_t_draws(mean, cov, nu, n, rng):
@@ -708,6 +710,54 @@ def _varies(v):
     return bool(v.size) and (not np.all(np.isfinite(v)) or np.ptp(v) > 0)
 
 
+def _within_logprob(errs, tol):
+    """log P(every |error| ≤ ``tol``) for independent normal errors of sd ``errs`` (the interval
+    ends' predicted Monte Carlo errors, as fractions of the width): Σ log(1 − erfc(tol/(s√2)));
+    −inf when an error is not finite."""
+    s = np.asarray(errs, float)
+    if not np.all(np.isfinite(s)):
+        return float("-inf")
+    s = s[s > 0]
+    with np.errstate(divide="ignore"):
+        return float(np.sum(np.log1p(-erfc(tol / (s * np.sqrt(2.0))))))
+
+
+def _joint_target(errs, tol, confidence, cap):
+    """The per-end error the top-up aims at: the largest g ≤ ``cap`` such that, with every end
+    above g brought down to g, all of ``errs`` are within ``tol`` with probability ≥ ``confidence``
+    (:func:`_within_logprob`). One end at the gate may keep an error of tol/1.64 (0.030 of the
+    width for tol 0.05, conf 0.9); twenty at once need tol/2.8 each (0.018): the benchmark asks
+    for the worst of ~20 ends within 5 %, which a per-end gate of 0.035 leaves ~0.07 on small ROIs
+    (benchmarks/results/batch_accuracy*.md). ``cap`` when ``confidence`` is None or it holds there."""
+    if confidence is None or cap is None:
+        return cap
+    s = np.asarray(errs, float)
+    s = s[np.isfinite(s)]
+    level = float(np.log(confidence))
+    if _within_logprob(np.minimum(s, cap), tol) >= level:
+        return float(cap)
+    lo, hi = 0.0, float(cap)
+    for _ in range(40):             # the probability falls as g grows: bisection to ~1e-12 of cap
+        g = 0.5 * (lo + hi)
+        lo, hi = (g, hi) if _within_logprob(np.minimum(s, g), tol) >= level else (lo, g)
+    return lo
+
+
+def _end_table(vals, wk, n_resampled):
+    """({name: worst end's error}, {name: [error of each end]}) of ``vals`` on weights ``wk``
+    (:func:`_end_errors`; NaN where a quantity's draws are not all finite)."""
+    mcse, ends = {}, {}
+    for n, v in vals.items():
+        errs = _end_errors(v, wk, _END_PROBS, n_resampled)
+        ends[n] = [float("nan")] * len(_END_PROBS) if errs is None else errs
+        mcse[n] = float("nan") if errs is None else max(errs, default=0.0)
+    return mcse, ends
+
+
+def _all_ends(ends):
+    return [e for v in ends.values() for e in v]
+
+
 def _worst_end_mcse(mcse):
     """The largest of ``mcse``'s values; NaN (draws not all finite) is the largest, 0 for none."""
     vals = list(mcse.values())
@@ -815,13 +865,15 @@ def _fast_once(model, seed, n_draws, settings, x_map, cov, derived_fn=None):
     w, khat, ess = psis_weights(logp - logq)
     khat, ess = float(khat), float(ess)
     xk, wk, vals = _end_values(model, x, w, derived_fn)
-    mcse = {n: interval_end_mcse(v, wk, n_resampled=n_draws) for n, v in vals.items()}
-    target = settings.end_mcse_max
+    mcse, ends = _end_table(vals, wk, n_draws)
+    gate, tol, conf = settings.end_mcse_max, settings.end_tolerance, settings.end_confidence
+    target = _joint_target(_all_ends(ends), tol, conf, gate)
     worst = _worst_end_mcse(mcse)
     n_topup, n_out, partial = 0, n_draws, False
-    # top up: more moment-matched draws until every interval end's predicted Monte Carlo error is
-    # below the target (its variance falls as 1/N), at most max_proposals in all; not when k̂
-    # already rejects the proposal (more of the same draws would not help)
+    # top up: more draws until every interval end's predicted Monte Carlo error is below the target
+    # (its variance falls as 1/N; the target: end_mcse_max, lower where many ends near it would
+    # leave the worst of them outside end_tolerance, _joint_target), at most max_proposals in all;
+    # not when k̂ already rejects the proposal (more of the same draws would not help)
     while (target is not None and comps is not None and worst > target and khat < settings.khat_max
            and x.shape[0] < settings.max_proposals):
         want = x.shape[0] * (1.1 * (worst / target) ** 2 - 1.0)
@@ -852,20 +904,27 @@ def _fast_once(model, seed, n_draws, settings, x_map, cov, derived_fn=None):
         n_out = n_draws if not default_n else int(max(n_draws, x.shape[0]))
         # between rounds only the quantities near or above the target are looked at again (the
         # sorting of every quantity each round was ~12 % of a gated batch fit); once they are
-        # below it, all of them, and the rounds go on if another one is above
+        # below it, all of them (and the target again), and the rounds go on if one is above
         watch = None if settings.topup != "targeted" else {
             n for n, e in mcse.items() if not e <= 0.8 * target}
         xk, wk, vals = _end_values(model, x, w, derived_fn, names=watch)
-        part = {n: interval_end_mcse(v, wk, n_resampled=n_out) for n, v in vals.items()}
+        part, part_ends = _end_table(vals, wk, n_out)
         partial = watch is not None and not _worst_end_mcse(part) <= target
         if watch is not None and not partial:
             xk, wk, vals = _end_values(model, x, w, derived_fn)
-            part = {n: interval_end_mcse(v, wk, n_resampled=n_out) for n, v in vals.items()}
-        mcse = part if not partial else {**{n: e for n, e in mcse.items() if n not in watch}, **part}
+            part, part_ends = _end_table(vals, wk, n_out)
+        if partial:
+            part = {**{n: e for n, e in mcse.items() if n not in watch}, **part}
+            part_ends = {**{n: e for n, e in ends.items() if n not in watch}, **part_ends}
+        mcse, ends = part, part_ends
         worst = _worst_end_mcse(mcse)
+        target = _joint_target(_all_ends(ends), tol, conf, gate)
     if n_topup and partial:     # the rounds stopped above the target: every quantity's error, as reported
-        mcse = _end_mcse(model, x, w, n_resampled=n_out, derived_fn=derived_fn)
+        _, wk, vals = _end_values(model, x, w, derived_fn)
+        mcse, ends = _end_table(vals, wk, n_out)
         worst = _worst_end_mcse(mcse)
+        target = _joint_target(_all_ends(ends), tol, conf, gate)
+    p_within = float(np.exp(_within_logprob(_all_ends(ends), tol)))
     n_draws = n_out
     n_outside = int(np.sum(~np.isfinite(logp)))
     t_is = time.perf_counter()
@@ -884,9 +943,14 @@ def _fast_once(model, seed, n_draws, settings, x_map, cov, derived_fn=None):
     # optimiser, so fast_posterior does not retry it with restarts
     mcse_only = not reasons
     if target is not None and not worst <= target:
-        reasons.append(f"interval-end Monte Carlo error {worst:.3f} of the width > {target:g} "
-                       f"after {x.shape[0]} draws" if np.isfinite(worst) else
-                       "interval-end Monte Carlo error undefined: a parameter's draws are not all finite")
+        if not np.isfinite(worst):
+            reasons.append("interval-end Monte Carlo error undefined: a parameter's draws are not all finite")
+        elif not worst <= gate:
+            reasons.append(f"interval-end Monte Carlo error {worst:.3f} of the width > {gate:g} "
+                           f"after {x.shape[0]} draws")
+        else:
+            reasons.append(f"predicted probability that every interval end is within {tol:g} of the width "
+                           f"{p_within:.2f} < {conf:g} (worst end {worst:.3f}) after {x.shape[0]} draws")
     wall = time.perf_counter() - t0
     diag = {
         "method": METHOD,
@@ -896,7 +960,10 @@ def _fast_once(model, seed, n_draws, settings, x_map, cov, derived_fn=None):
         "ess_is": ess,
         "n_proposals": int(x.shape[0]),
         "n_topup": int(n_topup),
-        "end_mcse_max": target,
+        "end_mcse_max": gate,
+        "end_tolerance": tol,
+        "end_confidence": conf,
+        "end_within_probability": p_within,
         "rejected_for_mcse_only": bool(reasons) and mcse_only,
         "n_draws": n_draws,
         "n_outside_support": n_outside,
@@ -923,7 +990,8 @@ def _fast_once(model, seed, n_draws, settings, x_map, cov, derived_fn=None):
         settings=QUALITY_PRESETS["fast"],
         wall_s=wall, n_rounds=0,
         extra={k: diag[k] for k in ("method", "khat", "ess_is", "n_proposals", "n_topup", "accepted", "reason",
-                                    "khat_max", "min_ess_is", "nu", "end_mcse", "end_mcse_max", "tails")},
+                                    "khat_max", "min_ess_is", "nu", "end_mcse", "end_mcse_max", "end_tolerance",
+                                    "end_confidence", "end_within_probability", "tails")},
     )
     # the weighted draws behind the resampled ones (those of non-negligible weight, as _end_mcse
     # keeps them): FitResult computes the interval ends' Monte Carlo error of the derived

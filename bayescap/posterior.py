@@ -334,6 +334,16 @@ class FitResult:
                                        f"{mcse[worst]:.3f} of the width ({worst}"
                                        + (f"; accept ≤ {gate:g}" if gate is not None else "") + ")"
                                        + (f", after {x['n_topup']} more draws" if x.get("n_topup") else ""))
+            p_within = x.get("end_within_probability")
+            if p_within is not None:
+                # all ends at once (fast._joint_target): the chance that none is off by more than
+                # end_tolerance of its width, if the predicted errors are right
+                conf = x.get("end_confidence")
+                self.diag["interval_end_within_probability"] = float(p_within)
+                self.diag["fast_path"] += (f"; predicted probability that every end is within "
+                                           f"{x['end_tolerance']:g} of its width {p_within:.2f}"
+                                           + (f" (accept ≥ {conf:g})" if conf is not None and gate is not None
+                                              else ""))
         tails = x.get("tails")
         if tails is not None:
             # long one-sided tails the probe found, each given defensive draws (fast._tail_probe)

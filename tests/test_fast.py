@@ -525,6 +525,57 @@ def test_targeted_top_up_needs_fewer_draws_and_aims_beyond_the_ends():
     assert locs[0] < q05 and locs[1] > q95
 
 
+def test_joint_target_keeps_every_end_within_the_tolerance_with_the_confidence():
+    """_joint_target: the per-end error at which all ends at once stay within the tolerance with the
+    given probability, for independent normal errors: tol/1.645 for one end at conf 0.9 (when that is
+    below the cap), tol/z with P(|Z| < z)^20 = 0.9 for twenty; ends already small leave the others
+    more room; the cap when the probability holds there; NaN errors are left to the caller."""
+    from scipy.special import ndtri
+
+    from bayescap.fast import _joint_target, _within_logprob
+
+    tol = 0.05
+    assert _joint_target([0.04], tol, 0.9, 1.0) == pytest.approx(tol / ndtri(0.95), rel=1e-9)
+    z20 = ndtri(0.5 * (1 + 0.9 ** (1 / 20)))
+    assert _joint_target([0.04] * 20, tol, 0.9, 1.0) == pytest.approx(tol / z20, rel=1e-9)
+    assert _joint_target([0.001] * 19 + [0.04], tol, 0.9, 1.0) == pytest.approx(tol / ndtri(0.95), rel=1e-6)
+    assert _joint_target([0.01, 0.02], tol, 0.9, 0.035) == 0.035          # holds at the cap
+    assert _joint_target([0.04] * 20, tol, None, 0.035) == 0.035          # no joint criterion
+    g = _joint_target([0.03, 0.02, 0.01, 0.04], tol, 0.95, 0.035)
+    assert np.exp(_within_logprob(np.minimum([0.03, 0.02, 0.01, 0.04], g), tol)) == pytest.approx(0.95, abs=1e-9)
+    assert _within_logprob([0.0, 0.0], tol) == 0.0 and _within_logprob([np.nan], tol) == -np.inf
+
+
+def test_joint_end_criterion_tops_up_until_all_ends_are_likely_within_tolerance():
+    """FastSettings.end_confidence: with a per-end gate that does not bind, the top-up goes on until
+    the predicted probability that all 6 ends of the Gaussian target are within end_tolerance of the
+    width reaches the confidence, reports it, and the ends are then within 2 tolerances of the exact
+    quantiles (seeds 1-3: each end's predicted error is ≤ tol/2.6 there, so 2 tol is > 5 sd). Out of
+    reach within max_proposals, it rejects and says why."""
+    from bayescap.fast import _within_logprob
+
+    model = _gaussian_target()
+    base = FastSettings(retry_restarts=0, end_mcse_max=None)
+    sd = np.sqrt(np.diag(model.cov))
+    for seed in (1, 2, 3):
+        _, d0 = fast_posterior(model, seed=seed, settings=base)
+        tol = 1.5 * max(d0["end_mcse"].values())       # six ends near 1.5 sd of it: P ~ 0.5 at first
+        assert np.exp(_within_logprob(list(d0["end_mcse"].values()), tol)) < 0.9    # the worse ends alone
+        st = replace(base, end_mcse_max=1.0, end_tolerance=tol, end_confidence=0.9)
+        ch, dg = fast_posterior(model, seed=seed, settings=st)
+        assert dg["accepted"], dg["reason"]
+        assert dg["n_topup"] > 0 and dg["end_within_probability"] >= 0.9
+        x = ch.chain.reshape(-1, 3)
+        for j in range(3):
+            lo, hi = np.quantile(x[:, j], [0.025, 0.975])
+            width = 2 * 1.959964 * sd[j]
+            assert abs(lo - (model.mu[j] - 1.959964 * sd[j])) < 2 * tol * width, (seed, j)
+            assert abs(hi - (model.mu[j] + 1.959964 * sd[j])) < 2 * tol * width, (seed, j)
+    _, dg = fast_posterior(model, seed=1, settings=replace(st, end_tolerance=0.005, max_proposals=9000))
+    assert not dg["accepted"] and dg["rejected_for_mcse_only"]
+    assert "predicted probability that every interval end is within 0.005 of the width" in dg["reason"]
+
+
 def test_end_mcse_gate_out_of_reach_rejects_without_an_optimiser_retry():
     """A target the draws cannot reach within max_proposals: rejected, with the reason, and not
     retried with optimiser restarts (the MAP was not the problem)."""
@@ -732,23 +783,23 @@ def test_gate_top_up_covers_the_derived_quantities(monkeypatch, basler_csv):
     from bayescap.model import PTCModel
 
     model = PTCModel(bayescap.load(basler_csv))
-    real = fast_mod.interval_end_mcse
+    real = fast_mod._end_errors
 
     def stand_in(values, w, probs=(0.025, 0.975), n_resampled=None):
         if np.min(values) > 1e5:          # the probe below
-            return 0.08 * np.sqrt(6000.0 / np.size(values))
+            return [0.08 * np.sqrt(6000.0 / np.size(values))] * len(probs)
         return real(values, w, probs, n_resampled)
 
-    monkeypatch.setattr(fast_mod, "interval_end_mcse", stand_in)
+    monkeypatch.setattr(fast_mod, "_end_errors", stand_in)
     probe = lambda x: {"probe": 1e6 + x[:, 0]}        # noqa: E731
-    gate = FastSettings(end_mcse_max=0.06)
+    gate = FastSettings(end_mcse_max=0.06, end_confidence=None)     # the per-end gate alone
     _, plain = fast_posterior(model, seed=1, settings=gate)
     assert plain["accepted"] and plain["n_topup"] == 0 and "probe" not in plain["end_mcse"]
     _, dg = fast_posterior(model, seed=1, settings=gate, derived_fn=probe)
     assert dg["accepted"] and dg["n_topup"] > 0 and dg["n_proposals"] >= 10_000
     assert dg["end_mcse"]["probe"] <= 0.06
     assert set(plain["end_mcse"]) < set(dg["end_mcse"])
-    monkeypatch.setattr(fast_mod, "interval_end_mcse", real)
+    monkeypatch.setattr(fast_mod, "_end_errors", real)
 
     seen = {}
     real_fp = fast_mod.fast_posterior
