@@ -167,7 +167,9 @@ def main(argv=None):
         cap = {"topped up": a.topped_up, "plain": a.plain, "rejected": a.rejected}[kind]
         if (i < a.first) if a.first is not None else len(picks[kind]) < cap:
             picks[kind].append(i)
-    ref_all = references(sorted(i for v in picks.values() for i in v), a.n, a.refs, a.ref_cache)
+    chosen = sorted(i for v in picks.values() for i in v)
+    n_cached = sum((Path(a.ref_cache) / f"roi{i}_n{a.n}_refs{a.refs}.json").exists() for i in chosen) if a.ref_cache else 0
+    ref_all = references(chosen, a.n, a.refs, a.ref_cache)
     picks_all = [bool(r.diag.get("fast_path_accepted", r.diag.get("converged"))) for r in full]
     rows, summary = [], {}
     for kind, idx in picks.items():
@@ -196,7 +198,9 @@ def main(argv=None):
          f"{'' if a.confidence is None else f' --confidence {a.confidence}'}"
          f"{''.join(f' --set {kv}' for kv in a.set)}` on "
          f"{datetime.datetime.now().isoformat(timespec='minutes')} "
-         f"in {time.perf_counter() - t_all:.0f} s.",
+         f"in {time.perf_counter() - t_all:.0f} s"
+         + (f" (with `--ref-cache`: {n_cached} of the {len(ref_all)} ROIs' references from earlier runs)"
+            if a.ref_cache else "") + ".",
          f"Machine: {describe_machine()}.", "",
          f"ROIs of `gpixel_sensors(n_max={a.n}, seed=1)` with `fit_many(seed=1)`'s seeds (fast settings: gate "
          f"{fs.end_mcse_max:g}, joint confidence {fs.end_confidence} within {fs.end_tolerance:g}, targeted top-up, at most {fs.max_proposals} draws; the {a.n} fast paths "
