@@ -122,6 +122,8 @@ class FastSettings:
     topup: str = "targeted"       # end_mcse_max's top-up: "targeted" (_end_components) or "global" (moment-matched t, before 2026-11-24 afternoon)
     topup_components: int = 8     # targeted top-up: at most this many interval ends aimed at per round (4 before 2026-11-24 evening)
     topup_draws: int | None = None  # targeted top-up: draws per round at least (a quarter of those so far if more; None: n_proposals/4)
+    wide_fraction: float = 0.1    # share of the draws from a defensive t at the MAP, wide_scale × the Laplace sd (0: none, before 2026-11-24 evening)
+    wide_scale: float = 3.0
     end_tolerance: float = 0.05   # with end_confidence: the error (× width) every interval end should stay within ...
     end_confidence: float | None = 0.9  # ... with at least this predicted probability, all ends at once (None: per end only, before 2026-11-24 evening)
 
@@ -851,7 +853,16 @@ def _fast_once(model, seed, n_draws, settings, x_map, cov, derived_fn=None):
         if n_each <= 0:
             tails, pairs = [], []
         n2 -= n_each * (len(tails) + len(pairs))        # the same number of draws in all
+    # a defensive t, wide_scale × wider than the Laplace t (Hesterberg 1995): it bounds the weights
+    # where the posterior reaches further than the Laplace and the moment-matched rounds, whose
+    # weighted moments cannot see draws they never made (on small Gpixel ROIs the heaviest weights
+    # sat 2–3 Laplace sds out, found only with 60 000 draws; docs/performance.md, "2026-11-24, 20:10–")
+    n_wide = int(round(settings.wide_fraction * settings.n_proposals)) if n1 > 0 and n2 > 0 else 0
+    n2 -= n_wide
     x1, _ = student_t_draws(x_map, c1, nu, (n1 - n_floor) if n1 > 0 else n2, rng)
+    if n_wide:
+        c_w = c1 * float(settings.wide_scale) ** 2
+        extra.append((_t_logpdf(x_map, c_w, nu), student_t_draws(x_map, c_w, nu, n_wide, rng)[0]))
     if n_floor:
         draw_f, pdf_f = _clip_floor_proposal(model, x_map, c1, nu)
         extra.append((pdf_f, draw_f(n_floor, rng)[0]))

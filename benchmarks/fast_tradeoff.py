@@ -2,7 +2,8 @@
 
     python benchmarks/fast_tradeoff.py [--n-sim 4] [--seeds 4] [--sizes 1500,3000,6000,12000] [--rounds 1,3]
                                        [--floor 0.1] [--gate none,0.02] [--tails 0,0.05] [--floor-pair 0,1] [--ref-cache DIR]
-                                       [--adapt-nu none,10] [--inflation 1.2,1.0] [--topup global,targeted] [--out FILE]
+                                       [--adapt-nu none,10] [--inflation 1.2,1.0] [--topup global,targeted]
+                                       [--set FIELD=VALUE ...] [--out FILE]
 
 Issue 7 asks the fast path for both ≤ 50 ms per sensor and 95 % interval ends within 5 % of a long
 reference run's (as a fraction of the reference's width). After the Newton start
@@ -61,6 +62,8 @@ def main(argv=None):
     ap.add_argument("--inflation", default="1.2", help="FastSettings.adapt_inflation values")
     ap.add_argument("--topup", default="global", help="FastSettings.topup values (global, targeted)")
     ap.add_argument("--ref-cache", default=None, help="directory keeping the references' quantiles")
+    ap.add_argument("--set", action="append", default=[], metavar="FIELD=VALUE",
+                    help="another FastSettings field for every run (int, float or 'none'), repeatable")
     ap.add_argument("--out", default=str(OUT))
     a = ap.parse_args(argv)
     warnings.simplefilter("ignore")
@@ -76,6 +79,10 @@ def main(argv=None):
              for tu in a.topup.split(",") for inf in a.inflation.split(",") for an in nus for fp in a.floor_pair.split(",")
              for tf in a.tails.split(",") for g in gates for f in a.floor.split(",") for r in a.rounds.split(",")
              for n in a.sizes.split(",")]
+    base = FastSettings()
+    for kv in a.set:
+        k, v = kv.split("=", 1)
+        base = replace(base, **{k: None if v == "none" else type(getattr(FastSettings(), k) or 0.0)(v)})
     t_all = time.perf_counter()
     load0 = os.getloadavg()
     sensors = sa.sensor_set(a.n_sim)
@@ -86,7 +93,7 @@ def main(argv=None):
         m = PTCModel(d)
         for key in sizes:
             n, rounds, floor, gate, tails, pair, anu, infl, topup = key
-            fs = replace(FastSettings(), n_proposals=n, adapt_rounds=rounds, clip_floor_fraction=floor,
+            fs = replace(base, n_proposals=n, adapt_rounds=rounds, clip_floor_fraction=floor,
                          end_mcse_max=gate, tail_fraction=tails, floor_pair=pair, adapt_nu=anu,
                          adapt_inflation=infl, topup=topup)
             # one attempt (no retry with restarts after a rejection, which would double the time)
@@ -112,7 +119,8 @@ def main(argv=None):
          f"{' --adapt-nu ' + a.adapt_nu if a.adapt_nu != 'none' else ''}"
          f"{' --inflation ' + a.inflation if a.inflation != '1.2' else ''}"
          f"{' --topup ' + a.topup if a.topup != 'global' else ''}"
-         f"{' --ref-cache ' + a.ref_cache if a.ref_cache else ''}` on "
+         f"{' --ref-cache ' + a.ref_cache if a.ref_cache else ''}"
+         f"{''.join(f' --set {kv}' for kv in a.set)}` on "
          f"{datetime.datetime.now().isoformat(timespec='minutes')} in {time.perf_counter() - t_all:.0f} s.",
          f"Machine: {describe_machine()}; load average before {load0[0]:.2f}, after {os.getloadavg()[0]:.2f}.", "",
          "Time: one attempt of `fast_posterior` (the Newton start, the importance draws, PSIS, resampling; "

@@ -104,12 +104,17 @@ class BananaModel:
 def test_adaptive_rounds_on_a_banana():
     """Three moment-matching rounds (FastSettings.adapt_rounds) against one, same 6 000 draws, 5 seeds:
     a higher median IS ESS (measured: 1 302 vs 921), and every accepted 3-round run has E[c] within
-    4 Monte Carlo sd (from its IS ESS) of 0 (one round's runs were off by up to 0.22)."""
+    4 Monte Carlo sd (from its IS ESS) of 0 (one round's runs were off by up to 0.22). The rounds
+    alone, without the wide defensive component (FastSettings.wide_fraction, 2026-11-24 evening),
+    as measured then. (Over 30 seeds the 3-round runs' E[c] is biased low, z = −2.1 in the mean and
+    up to 7.5 in size, with the wide component −2.4 and 6.7: the arm's tail is under-sampled either
+    way, and the IS ESS overstates what the draws know; docs/performance.md, "2026-11-24, 20:10–".)"""
     model = BananaModel()
     ess = {1: [], 3: []}
     for seed in range(5):
         for rounds in (1, 3):
-            ch, dg = fast_posterior(model, seed=seed, settings=FastSettings(adapt_rounds=rounds, retry_restarts=0))
+            ch, dg = fast_posterior(model, seed=seed, settings=FastSettings(adapt_rounds=rounds, retry_restarts=0,
+                                                                            wide_fraction=0.0))
             ess[rounds].append(dg["ess_is"])
             if rounds == 3 and dg["accepted"]:
                 c = ch.chain.reshape(-1, 3)[:, 1]
@@ -415,10 +420,15 @@ def test_clip_floor_proposal_reaches_the_shelf_below_the_clip_mode():
     for seed in (1, 2, 3):
         # (tail_fraction 0 too: the tail probe finds the shelf as well, and its uniform ray alone puts
         # 1.6-1.9 % of the draws below the quantile on these seeds, short of the floor's 2.5 %)
+        # (and wide_fraction 0: the wide defensive t's draws reach the shelf too, so that k̂ then
+        # rejects all three runs instead of accepting them short)
         ch, dg = fast_posterior(model, seed=seed, settings=FastSettings(clip_floor_fraction=0.0, tail_fraction=0.0,
-                                                                       retry_restarts=0))
+                                                                       wide_fraction=0.0, retry_restarts=0))
         if dg["accepted"]:
             accepted_without.append(np.mean(ch.chain[..., 1] < q025))
+        _, dw = fast_posterior(model, seed=seed, settings=FastSettings(clip_floor_fraction=0.0, tail_fraction=0.0,
+                                                                       retry_restarts=0))
+        assert not dw["accepted"]
         ch, dg = fast_posterior(model, seed=seed)
         assert dg["accepted"] and dg["coordinates"] == "log(clip_dn - lower bound)"
         share = np.mean(ch.chain[..., 1] < q025)
@@ -576,6 +586,30 @@ def test_joint_end_criterion_tops_up_until_all_ends_are_likely_within_tolerance(
     assert "predicted probability that every interval end is within 0.005 of the width" in dg["reason"]
 
 
+def test_wide_defensive_component_keeps_the_draw_count_and_the_answer():
+    """FastSettings.wide_fraction: a share of the draws from a t wide_scale × wider than the Laplace
+    one, taken from the adaptive rounds' share (the draws in all unchanged), weighted as part of the
+    mixture, so that the Gaussian target's ends stay within 4 predicted errors of the exact ones with
+    or without it (seeds 1-3), and the draws differ (it is used)."""
+    model = _gaussian_target()
+    sd = np.sqrt(np.diag(model.cov))
+    base = FastSettings(retry_restarts=0, end_mcse_max=None)
+    for seed in (1, 2, 3):
+        outs = {}
+        for wf in (0.0, 0.1):
+            ch, dg = fast_posterior(model, seed=seed, settings=replace(base, wide_fraction=wf, wide_scale=3.0))
+            assert dg["accepted"] and dg["n_proposals"] == base.n_proposals
+            x = ch.chain.reshape(-1, 3)
+            outs[wf] = x
+            for j in range(3):
+                lo, hi = np.quantile(x[:, j], [0.025, 0.975])
+                width = 2 * 1.959964 * sd[j]
+                tol = 4 * dg["end_mcse"][f"p{j}"] * width
+                assert abs(lo - (model.mu[j] - 1.959964 * sd[j])) < tol, (seed, wf, j)
+                assert abs(hi - (model.mu[j] + 1.959964 * sd[j])) < tol, (seed, wf, j)
+        assert not np.array_equal(outs[0.0], outs[0.1])
+
+
 def test_end_mcse_gate_out_of_reach_rejects_without_an_optimiser_retry():
     """A target the draws cannot reach within max_proposals: rejected, with the reason, and not
     retried with optimiser restarts (the MAP was not the problem)."""
@@ -651,7 +685,9 @@ def test_tail_probe_finds_the_long_one_sided_tail_and_its_draws_cover_it():
     q025 = float(np.interp(0.025, cdf / cdf[-1], g))
     rejected_without = 0
     for seed in (1, 2, 3):
-        _, d0 = fast_posterior(model, seed=seed, settings=FastSettings(tail_fraction=0.0, retry_restarts=0))
+        # (wide_fraction 0 too: the wide defensive t alone reaches the tail as well)
+        _, d0 = fast_posterior(model, seed=seed, settings=FastSettings(tail_fraction=0.0, wide_fraction=0.0,
+                                                                       retry_restarts=0))
         rejected_without += not d0["accepted"]
         ch, dg = fast_posterior(model, seed=seed, settings=FastSettings(retry_restarts=0))
         assert [(t["parameter"], t["side"]) for t in dg["tails"]] == [("log_s", "lower")]
