@@ -78,6 +78,29 @@ def worst_end(fast, ref, names, fast_mcse):
     return worst, wn, ratios
 
 
+def apply_sets(fs, sets):
+    """``fs`` (FastSettings) with each "FIELD=VALUE" of ``sets``: 'none' for None, else the
+    field's default's type (a bool from 0/1/true/false; a float where the default is None)."""
+    from dataclasses import fields, replace
+
+    defaults = {f.name: f.default for f in fields(fs)}
+    for kv in sets:
+        k, v = kv.split("=", 1)
+        if k not in defaults:
+            raise SystemExit(f"--set {kv}: FastSettings has no field {k!r}")
+        d = defaults[k]
+        if v.lower() == "none":
+            val = None
+        elif isinstance(d, bool):
+            val = v.lower() in ("1", "true", "yes")
+        elif isinstance(d, (int, float, str)):
+            val = type(d)(v)
+        else:
+            val = float(v)
+        fs = replace(fs, **{k: val})
+    return fs
+
+
 _WORKER = {}
 
 
@@ -154,9 +177,7 @@ def main(argv=None):
     fs = FastSettings() if a.gate is None else replace(FastSettings(), end_mcse_max=a.gate)
     if a.confidence is not None:
         fs = replace(fs, end_confidence=None if a.confidence == "none" else float(a.confidence))
-    for kv in a.set:
-        k, v = kv.split("=", 1)
-        fs = replace(fs, **{k: None if v == "none" else type(getattr(FastSettings(), k) or 0.0)(v)})
+    fs = apply_sets(fs, a.set)
     t = time.perf_counter()
     full = fit_many(datas, seed=1, n_jobs=2, fallback=False, settings=fs)   # FitResults: their diagnostics
     t_fast = time.perf_counter() - t

@@ -79,10 +79,9 @@ def main(argv=None):
              for tu in a.topup.split(",") for inf in a.inflation.split(",") for an in nus for fp in a.floor_pair.split(",")
              for tf in a.tails.split(",") for g in gates for f in a.floor.split(",") for r in a.rounds.split(",")
              for n in a.sizes.split(",")]
-    base = FastSettings()
-    for kv in a.set:
-        k, v = kv.split("=", 1)
-        base = replace(base, **{k: None if v == "none" else type(getattr(FastSettings(), k) or 0.0)(v)})
+    from batch_accuracy import apply_sets
+
+    base = apply_sets(FastSettings(), a.set)
     t_all = time.perf_counter()
     load0 = os.getloadavg()
     sensors = sa.sensor_set(a.n_sim)
