@@ -474,6 +474,17 @@ def _gaussian_target():
     return NamedGaussianModel([1.0, -2.0, 0.5], [[1.0, 0.6, 0.0], [0.6, 2.0, -0.3], [0.0, -0.3, 0.5]])
 
 
+def _assert_ends_near_exact(model, x, tol, label):
+    """Every coordinate's 95 % interval ends of draws ``x`` within ``tol(j)`` × the width of the
+    Gaussian ``model``'s exact ends."""
+    sd = np.sqrt(np.diag(model.cov))
+    for j in range(x.shape[1]):
+        lo, hi = np.quantile(x[:, j], [0.025, 0.975])
+        width = 2 * 1.959964 * sd[j]
+        assert abs(lo - (model.mu[j] - 1.959964 * sd[j])) < tol(j) * width, (label, j)
+        assert abs(hi - (model.mu[j] + 1.959964 * sd[j])) < tol(j) * width, (label, j)
+
+
 @pytest.mark.parametrize("topup", ["targeted", "global"])
 def test_end_mcse_gate_tops_up_the_draws_until_the_ends_are_accurate(topup):
     """FastSettings.end_mcse_max: below the default draws' predicted error, the fast path draws more
@@ -483,7 +494,6 @@ def test_end_mcse_gate_tops_up_the_draws_until_the_ends_are_accurate(topup):
     1-3). Without a target nothing is topped up."""
     model = _gaussian_target()
     base = FastSettings(retry_restarts=0, end_mcse_max=None, topup=topup)
-    sd = np.sqrt(np.diag(model.cov))
     for seed in (1, 2, 3):
         _, d0 = fast_posterior(model, seed=seed, settings=base)
         assert d0["n_topup"] == 0 and d0["n_proposals"] == base.n_proposals and d0["n_draws"] == base.n_draws
@@ -493,12 +503,7 @@ def test_end_mcse_gate_tops_up_the_draws_until_the_ends_are_accurate(topup):
         assert dg["n_topup"] > 0 and dg["n_proposals"] == base.n_proposals + dg["n_topup"] <= base.max_proposals
         assert max(dg["end_mcse"].values()) <= target
         assert dg["n_draws"] > base.n_draws
-        x = ch.chain.reshape(-1, 3)
-        for j in range(3):
-            lo, hi = np.quantile(x[:, j], [0.025, 0.975])
-            width = 2 * 1.959964 * sd[j]
-            assert abs(lo - (model.mu[j] - 1.959964 * sd[j])) < 4 * target * width, (seed, j)
-            assert abs(hi - (model.mu[j] + 1.959964 * sd[j])) < 4 * target * width, (seed, j)
+        _assert_ends_near_exact(model, ch.chain.reshape(-1, 3), lambda j: 4 * target, seed)
 
 
 def test_targeted_top_up_needs_fewer_draws_and_aims_beyond_the_ends():
@@ -566,7 +571,6 @@ def test_joint_end_criterion_tops_up_until_all_ends_are_likely_within_tolerance(
 
     model = _gaussian_target()
     base = FastSettings(retry_restarts=0, end_mcse_max=None)
-    sd = np.sqrt(np.diag(model.cov))
     for seed in (1, 2, 3):
         _, d0 = fast_posterior(model, seed=seed, settings=base)
         tol = 1.5 * max(d0["end_mcse"].values())       # six ends near 1.5 sd of it: P ~ 0.5 at first
@@ -575,12 +579,7 @@ def test_joint_end_criterion_tops_up_until_all_ends_are_likely_within_tolerance(
         ch, dg = fast_posterior(model, seed=seed, settings=st)
         assert dg["accepted"], dg["reason"]
         assert dg["n_topup"] > 0 and dg["end_within_probability"] >= 0.9
-        x = ch.chain.reshape(-1, 3)
-        for j in range(3):
-            lo, hi = np.quantile(x[:, j], [0.025, 0.975])
-            width = 2 * 1.959964 * sd[j]
-            assert abs(lo - (model.mu[j] - 1.959964 * sd[j])) < 2 * tol * width, (seed, j)
-            assert abs(hi - (model.mu[j] + 1.959964 * sd[j])) < 2 * tol * width, (seed, j)
+        _assert_ends_near_exact(model, ch.chain.reshape(-1, 3), lambda j: 2 * tol, seed)
     _, dg = fast_posterior(model, seed=1, settings=replace(st, end_tolerance=0.005, max_proposals=9000))
     assert not dg["accepted"] and dg["rejected_for_mcse_only"]
     assert "predicted probability that every interval end is within 0.005 of the width" in dg["reason"]
@@ -592,21 +591,14 @@ def test_wide_defensive_component_keeps_the_draw_count_and_the_answer():
     mixture, so that the Gaussian target's ends stay within 4 predicted errors of the exact ones with
     or without it (seeds 1-3), and the draws differ (it is used)."""
     model = _gaussian_target()
-    sd = np.sqrt(np.diag(model.cov))
     base = FastSettings(retry_restarts=0, end_mcse_max=None)
     for seed in (1, 2, 3):
         outs = {}
         for wf in (0.0, 0.1):
             ch, dg = fast_posterior(model, seed=seed, settings=replace(base, wide_fraction=wf, wide_scale=3.0))
             assert dg["accepted"] and dg["n_proposals"] == base.n_proposals
-            x = ch.chain.reshape(-1, 3)
-            outs[wf] = x
-            for j in range(3):
-                lo, hi = np.quantile(x[:, j], [0.025, 0.975])
-                width = 2 * 1.959964 * sd[j]
-                tol = 4 * dg["end_mcse"][f"p{j}"] * width
-                assert abs(lo - (model.mu[j] - 1.959964 * sd[j])) < tol, (seed, wf, j)
-                assert abs(hi - (model.mu[j] + 1.959964 * sd[j])) < tol, (seed, wf, j)
+            outs[wf] = x = ch.chain.reshape(-1, 3)
+            _assert_ends_near_exact(model, x, lambda j: 4 * dg["end_mcse"][f"p{j}"], (seed, wf))
         assert not np.array_equal(outs[0.0], outs[0.1])
 
 
