@@ -860,8 +860,8 @@ def _fast_once(model, seed, n_draws, settings, x_map, cov, derived_fn=None):
     # where the posterior reaches further than the Laplace and the moment-matched rounds, whose
     # weighted moments cannot see draws they never made (on small Gpixel ROIs the heaviest weights
     # sat 2–3 Laplace sds out, found only with 60 000 draws; docs/performance.md, "2026-11-24, 20:10–")
-    n_wide = int(round(settings.wide_fraction * settings.n_proposals)) if n1 > 0 and n2 > 0 else 0
-    n2 -= n_wide
+    n_wide = min(int(round(settings.wide_fraction * settings.n_proposals)), n2 // 2) if n1 > 0 and n2 > 0 else 0
+    n2 -= n_wide                                        # (at most half of what the rounds have left)
     x1, _ = student_t_draws(x_map, c1, nu, (n1 - n_floor) if n1 > 0 else n2, rng)
     if n_wide:
         c_w = c1 * float(settings.wide_scale) ** 2
