@@ -2,7 +2,8 @@
 simulated Gpixel ROIs.
 
     python benchmarks/batch_accuracy.py [--n 300] [--topped-up 30] [--plain 30] [--refs 4] [--out FILE]
-    python benchmarks/batch_accuracy.py --first 60 --refs 16 --ref-cache DIR [--gate G] [--out FILE]
+    python benchmarks/batch_accuracy.py --first 120 --refs 16 --ref-cache DIR [--gate G] [--confidence C|none]
+                                        [--set FIELD=VALUE ...] [--out FILE]
 
 Issue 7 wants the fast preset's 95 % interval ends within 5 % of a reference run's (relative to the
 width) whenever its own check accepts. ``speed_accuracy.py`` and ``fast_tradeoff.py`` check that on
@@ -18,11 +19,12 @@ runs (each end's Monte Carlo error ~0.025 of the width alone, ~half that pooled 
 that did not converge are counted apart. Writes benchmarks/results/batch_accuracy.md (``--out``).
 
 With ``--first M`` it takes every one of the first M ROIs instead, whatever the fast path did (an
-unbiased sample of the accepted ones, for comparing gates on the same ROIs), runs the references in
-2 processes, and with ``--ref-cache DIR`` keeps each ROI's pooled reference ends there (a JSON file
+unbiased sample of the accepted ones, for comparing settings on the same ROIs), and with
+``--ref-cache DIR`` keeps each ROI's pooled reference ends there (a JSON file
 per ROI and reference count), so that another gate is measured against the same references. Over
 ~20 ends a reference's own error adds to the worst one: 4 pooled runs (~0.0125 of the width an end)
-put ~0.03 into it alone, 16 (~0.006) ~0.015.
+put ~0.03 into it alone, 16 (~0.006) ~0.015. ``--confidence`` and ``--set`` change the fast path's
+``FastSettings`` (``--set wide_fraction=0``: without the wide defensive component).
 """
 from __future__ import annotations
 
