@@ -511,7 +511,7 @@ def test_targeted_top_up_needs_fewer_draws_and_aims_beyond_the_ends():
     miss with fewer draws than more moment-matched ones (seeds 1-3, the same first 6 000 draws), and
     its proposals sit beyond the ends they aim at: the lower end's component at a location below the
     weighted 5 % quantile of its quantity, the upper end's above the 95 % one."""
-    from bayescap.fast import _end_components, _end_values, interval_end_mcse, psis_weights
+    from bayescap.fast import _end_components, _end_table, _end_values, interval_end_mcse, psis_weights
 
     model = _gaussian_target()
     base = FastSettings(retry_restarts=0, end_mcse_max=None)
@@ -538,6 +538,39 @@ def test_targeted_top_up_needs_fewer_draws_and_aims_beyond_the_ends():
     q05, q95 = np.interp([0.05, 0.95], F, xk[o, 0])
     locs = sorted(c[0][0] for c in comps)
     assert locs[0] < q05 and locs[1] > q95
+    # the end table the top-up already has gives the same components as recomputing it
+    _, ends = _end_table({"p0": vals["p0"]}, wk, None)
+    again = _end_components(xk, wk, {"p0": vals["p0"]}, mcse, 0.0, None, 1.2, 4, ends)
+    assert all(np.array_equal(a[0], b[0]) and np.array_equal(a[1], b[1]) for a, b in zip(comps, again))
+
+
+def test_density_cache_evaluates_each_proposal_once_on_the_batches_it_has_not_seen():
+    """_DensityCache.fill: one call per density over all the batches it lacks (stacked), the same
+    values as a call per batch, and nothing evaluated twice."""
+    from bayescap.fast import _DensityCache, _t_logpdf
+
+    rng = np.random.default_rng(5)
+    calls = []
+
+    def counted(f):
+        def g(x):
+            calls.append(len(x))
+            return f(x)
+        return g
+
+    fs = [counted(_t_logpdf(rng.standard_normal(3), np.eye(3) * (1 + i), 4.0)) for i in range(3)]
+    batches = [rng.standard_normal((n, 3)) for n in (5, 7, 11)]
+    cache = _DensityCache()
+    cache.put(fs[0], batches[0], fs[0](batches[0]))
+    calls.clear()
+    cache.fill(fs, batches)
+    assert sorted(calls) == [18, 23, 23]                # fs[0] lacked two batches, the others three
+    for f in fs:
+        for xb in batches:
+            assert np.allclose(cache.get(f, xb), f(xb), rtol=1e-13, atol=0)
+    calls.clear()
+    cache.fill(fs, batches)
+    assert calls == []
 
 
 def test_joint_target_keeps_every_end_within_the_tolerance_with_the_confidence():
