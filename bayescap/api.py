@@ -174,6 +174,7 @@ def fit(data: PTCData | PTCModel | str, *, seed: int | None = None,
                 "fast_path_khat": fd["khat"],
                 "fast_path_ess_is": fd["ess_is"],
                 "fast_path_wall_s": fd["wall_s"],
+                "fast_settings": dict(fd["settings"]) if fd.get("settings") is not None else None,
             })
             res.notes.append(f"the Laplace–IS fast path was rejected ({fd['reason']}): the result comes "
                              f"from the MCMC '{fallback_quality}' preset")

@@ -63,6 +63,13 @@ def build_parser() -> argparse.ArgumentParser:
                                                "(several CSVs: into DIR/<csv name>/)")
     p.add_argument("--quality", choices=("fast", "standard", "accurate"), default="standard",
                    help="speed/accuracy preset (README, 'Quality presets'); default standard")
+    p.add_argument("--fast-tolerance", type=float, default=None, metavar="FRAC",
+                   help="--quality fast: the error, as a fraction of each 95 %% interval's width, every "
+                        "interval end should stay within (default 0.05; the per-end Monte Carlo error "
+                        "gate is 0.7 x this). Larger is faster and looser (README, 'Quality presets')")
+    p.add_argument("--fast-confidence", default=None, metavar="P",
+                   help="--quality fast: accept when every end is predicted within --fast-tolerance with "
+                        "at least this probability (default 0.9; 'none': each end on its own gate only)")
     p.add_argument("--scene", default=None, metavar="KEY=VALUE,...",
                    help="evaluate TR and capacity for a scene: exposure_s=<s>, temperature_c=<°C> "
                         "(dark current doubles every 6 °C from the CSV's temperature_c); e.g. "
@@ -173,14 +180,49 @@ def _cmd_mtf(args) -> int:
     return 0
 
 
+def _fast_settings(args):
+    """The :class:`~bayescap.fast.FastSettings` of ``--fast-tolerance``/``--fast-confidence`` (None
+    when neither is given); a clear error for values out of range or without ``--quality fast``."""
+    tol, conf = args.fast_tolerance, args.fast_confidence
+    if tol is None and conf is None:
+        return None
+    if args.quality != "fast":
+        raise InputError("--fast-tolerance and --fast-confidence apply to --quality fast only "
+                         f"(got --quality {args.quality})")
+    from dataclasses import replace
+
+    from .fast import FastSettings
+
+    fs = FastSettings()
+    if tol is not None:
+        if not 0.0 < tol < 1.0:
+            raise InputError(f"--fast-tolerance must be a fraction of the interval width in (0, 1), got {tol:g}")
+        # the per-end gate keeps its default ratio to the tolerance (0.035 for 0.05)
+        fs = replace(fs, end_tolerance=float(tol),
+                     end_mcse_max=float(tol) * FastSettings.end_mcse_max / FastSettings.end_tolerance)
+    if conf is not None:
+        if str(conf).strip().lower() == "none":
+            fs = replace(fs, end_confidence=None)
+        else:
+            try:
+                c = float(conf)
+            except ValueError:
+                c = float("nan")
+            if not 0.0 < c < 1.0:
+                raise InputError(f"--fast-confidence must be a probability in (0, 1) or 'none', got {conf!r}")
+            fs = replace(fs, end_confidence=c)
+    return fs
+
+
 def _cmd_fit(args) -> int:
     from .api import fit, load
     from .ptc import PTCInputError
     from .report import format_text, to_json, write_outputs
 
     overrides = {k: getattr(args, k) for k in _OVERRIDE_KEYS if getattr(args, k, None) is not None}
+    fast_settings = _fast_settings(args)
     if len(args.csv) > 1:
-        return _cmd_fit_many(args, overrides)
+        return _cmd_fit_many(args, overrides, fast_settings)
     try:
         data = load(args.csv[0], **overrides)
     except PTCInputError as e:
@@ -200,16 +242,17 @@ def _cmd_fit(args) -> int:
         from .selection import select_model
 
         result, _ = select_model(data, seed=args.seed, quality=args.quality, progress=progress, scene=scene,
-                                 mtf=mtf)
+                                 mtf=mtf, fast_settings=fast_settings)
     else:
-        result = fit(data, seed=args.seed, quality=args.quality, scene=scene, progress=progress, mtf=mtf)
+        result = fit(data, seed=args.seed, quality=args.quality, scene=scene, progress=progress, mtf=mtf,
+                     fast_settings=fast_settings)
     if args.out:
         write_outputs(result, args.out)
     sys.stdout.write(to_json(result) if args.json else format_text(result))
     return 0
 
 
-def _cmd_fit_many(args, overrides) -> int:
+def _cmd_fit_many(args, overrides, fast_settings=None) -> int:
     """``bayescap fit a.csv b.csv ...``: every CSV checked first (a bad one stops the run before
     anything is fitted or written), then :func:`bayescap.batch.fit_many`."""
     from .api import load
@@ -230,7 +273,8 @@ def _cmd_fit_many(args, overrides) -> int:
             datas.append(load(path, **overrides))
         except PTCInputError as e:
             raise InputError(str(e)) from None
-    results = fit_many(datas, quality=args.quality, seed=args.seed, n_jobs=args.jobs)
+    kw = {} if fast_settings is None else {"settings": fast_settings}
+    results = fit_many(datas, quality=args.quality, seed=args.seed, n_jobs=args.jobs, **kw)
     failed = [(p, r) for p, r in zip(args.csv, results) if isinstance(r, BaseException)]
     if args.out:
         from pathlib import Path

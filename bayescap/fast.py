@@ -1038,7 +1038,7 @@ def _fast_once(model, seed, n_draws, settings, x_map, cov, derived_fn=None):
         wall_s=wall, n_rounds=0,
         extra={k: diag[k] for k in ("method", "khat", "ess_is", "n_proposals", "n_topup", "accepted", "reason",
                                     "khat_max", "min_ess_is", "nu", "end_mcse", "end_mcse_max", "end_tolerance",
-                                    "end_confidence", "end_within_probability", "tails")},
+                                    "end_confidence", "end_within_probability", "tails", "settings")},
     )
     # the weighted draws behind the resampled ones (those of non-negligible weight, as _end_mcse
     # keeps them): FitResult computes the interval ends' Monte Carlo error of the derived

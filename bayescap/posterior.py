@@ -344,6 +344,9 @@ class FitResult:
                                            f"{x['end_tolerance']:g} of its width {p_within:.2f}"
                                            + (f" (accept ≥ {conf:g})" if conf is not None and gate is not None
                                               else ""))
+        if x.get("settings") is not None:
+            # the knobs behind this result (FastSettings; the CLI's --fast-tolerance/--fast-confidence)
+            self.diag["fast_settings"] = dict(x["settings"])
         tails = x.get("tails")
         if tails is not None:
             # long one-sided tails the probe found, each given defensive draws (fast._tail_probe)

@@ -88,3 +88,40 @@ def test_fit_many_csvs_as_a_batch(tmp_path):
     assert not out2.exists()
     r = _run("fit", paths[0], paths[1], "--select-model")
     assert r.returncode == 2 and "one CSV at a time" in r.stderr
+
+
+def test_fast_tolerance_and_confidence_flags(tmp_path):
+    """``--fast-tolerance``/``--fast-confidence`` set the fast path's check (FastSettings), are recorded
+    in the result JSON, make it stop drawing no later than the default does (the same seed draws the
+    same first proposals; a looser target is met no later), reach the batch too, and are refused
+    with exit 2 outside ``--quality fast`` or out of range."""
+    basler = Path(__file__).resolve().parents[1] / "data" / "emva1288_basler_ccd12.csv"
+    runs = {}
+    for name, extra in (("default", ()), ("loose", ("--fast-tolerance", "0.1"))):
+        r = _run("fit", basler, "--quality", "fast", "--seed", "1", "--json", *extra)
+        assert r.returncode == 0, r.stderr
+        runs[name] = json.loads(r.stdout)["diagnostics"]
+    d, lo = runs["default"], runs["loose"]
+    assert d["fast_settings"]["end_tolerance"] == 0.05 and d["fast_settings"]["end_mcse_max"] == 0.035
+    assert lo["fast_settings"]["end_tolerance"] == 0.1
+    assert abs(lo["fast_settings"]["end_mcse_max"] - 0.07) < 1e-12
+    assert d["fast_path_accepted"] and lo["fast_path_accepted"]
+    assert lo["n_proposals"] <= d["n_proposals"]
+    assert "within 0.1 of its width" in lo["fast_path"]
+
+    from bayescap.batch import gpixel_sensors
+    from bayescap.ptc import write_ptc_csv
+
+    datas, _ = gpixel_sensors(n_max=2, seed=6)
+    paths = [tmp_path / f"roi{i}.csv" for i in range(2)]
+    for dd, p in zip(datas, paths):
+        write_ptc_csv(dd, p)
+    r = _run("fit", *paths, "--quality", "fast", "--seed", "3", "--json", "--fast-confidence", "none")
+    assert r.returncode == 0, r.stderr
+    assert all(doc["diagnostics"]["fast_settings"]["end_confidence"] is None for doc in json.loads(r.stdout))
+
+    for bad, msg in ((("--fast-tolerance", "0.1"), "apply to --quality fast only"),
+                     (("--quality", "fast", "--fast-tolerance", "1.5"), "--fast-tolerance must be"),
+                     (("--quality", "fast", "--fast-confidence", "high"), "--fast-confidence must be")):
+        r = _run("fit", basler, *bad)
+        assert r.returncode == 2 and msg in r.stderr and "Traceback" not in r.stderr, r.stderr
