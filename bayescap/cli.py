@@ -1,6 +1,7 @@
 """Command line: a thin layer over the Python API.
 
     bayescap fit sensor.csv [--json] [--seed N] [--out DIR] [--quality fast|standard|accurate]
+                            [--fast-tolerance FRAC] [--fast-confidence P|none]   (--quality fast)
 
 Bad input prints one line naming file, row and column, and exits with status 2.
 """
@@ -62,11 +63,13 @@ def build_parser() -> argparse.ArgumentParser:
                                                "(ArviZ InferenceData), ptc.png and corner.png into DIR "
                                                "(several CSVs: into DIR/<csv name>/)")
     p.add_argument("--quality", choices=("fast", "standard", "accurate"), default="standard",
-                   help="speed/accuracy preset (README, 'Quality presets'); default standard")
+                   help="speed/accuracy preset (README, 'Performance'; docs/performance.md, 'Presets and "
+                        "knobs'); default standard")
     p.add_argument("--fast-tolerance", type=float, default=None, metavar="FRAC",
                    help="--quality fast: the error, as a fraction of each 95 %% interval's width, every "
                         "interval end should stay within (default 0.05; the per-end Monte Carlo error "
-                        "gate is 0.7 x this). Larger is faster and looser (README, 'Quality presets')")
+                        "gate is 0.7 x this). Larger is faster and looser (README, Performance, 'The fast "
+                        "preset's knob')")
     p.add_argument("--fast-confidence", default=None, metavar="P",
                    help="--quality fast: accept when every end is predicted within --fast-tolerance with "
                         "at least this probability (default 0.9; 'none': each end on its own gate only)")

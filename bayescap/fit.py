@@ -43,7 +43,7 @@ class ConvergenceWarning(UserWarning):
 
 @dataclass(frozen=True)
 class SamplerSettings:
-    """Knobs of the sampler (see README, "Quality presets")."""
+    """Knobs of the sampler (docs/performance.md, "Presets and knobs")."""
 
     n_ensembles: int = 4
     walkers_per_dim: int = 8
