@@ -20,6 +20,19 @@ class InputError(Exception):
     """Any refusal of user input: printed on one line, exit status 2."""
 
 
+def add_fast_arguments(p):
+    """``--fast-tolerance``, ``--fast-confidence`` (``fit``, ``compare``, ``report``): the fast preset's
+    check, read back by :func:`fast_settings_from_args`."""
+    p.add_argument("--fast-tolerance", type=float, default=None, metavar="FRAC",
+                   help="--quality fast: the error, as a fraction of each 95 %% interval's width, every "
+                        "interval end should stay within (default 0.05; the per-end Monte Carlo error "
+                        "gate is 0.7 x this). Larger is faster and looser (README, Performance, 'The fast "
+                        "preset's knob')")
+    p.add_argument("--fast-confidence", default=None, metavar="P",
+                   help="--quality fast: accept when every end is predicted within --fast-tolerance with "
+                        "at least this probability (default 0.9; 'none': each end on its own gate only)")
+
+
 def _add_metadata_overrides(p):
     g = p.add_argument_group("sensor metadata (override the CSV's '# key: value' lines)")
     g.add_argument("--pixel-pitch-um", type=float, dest="pixel_pitch_um")
@@ -65,14 +78,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--quality", choices=("fast", "standard", "accurate"), default="standard",
                    help="speed/accuracy preset (README, 'Performance'; docs/performance.md, 'Presets and "
                         "knobs'); default standard")
-    p.add_argument("--fast-tolerance", type=float, default=None, metavar="FRAC",
-                   help="--quality fast: the error, as a fraction of each 95 %% interval's width, every "
-                        "interval end should stay within (default 0.05; the per-end Monte Carlo error "
-                        "gate is 0.7 x this). Larger is faster and looser (README, Performance, 'The fast "
-                        "preset's knob')")
-    p.add_argument("--fast-confidence", default=None, metavar="P",
-                   help="--quality fast: accept when every end is predicted within --fast-tolerance with "
-                        "at least this probability (default 0.9; 'none': each end on its own gate only)")
+    add_fast_arguments(p)
     p.add_argument("--scene", default=None, metavar="KEY=VALUE,...",
                    help="evaluate TR and capacity for a scene: exposure_s=<s>, temperature_c=<°C> "
                         "(dark current doubles every 6 °C from the CSV's temperature_c); e.g. "
@@ -183,9 +189,10 @@ def _cmd_mtf(args) -> int:
     return 0
 
 
-def _fast_settings(args):
+def fast_settings_from_args(args):
     """The :class:`~bayescap.fast.FastSettings` of ``--fast-tolerance``/``--fast-confidence`` (None
-    when neither is given); a clear error for values out of range or without ``--quality fast``."""
+    when neither is given); :class:`InputError` (exit 2) for values out of range or without
+    ``--quality fast``."""
     tol, conf = args.fast_tolerance, args.fast_confidence
     if tol is None and conf is None:
         return None
@@ -223,7 +230,7 @@ def _cmd_fit(args) -> int:
     from .report import format_text, to_json, write_outputs
 
     overrides = {k: getattr(args, k) for k in _OVERRIDE_KEYS if getattr(args, k, None) is not None}
-    fast_settings = _fast_settings(args)
+    fast_settings = fast_settings_from_args(args)
     if len(args.csv) > 1:
         return _cmd_fit_many(args, overrides, fast_settings)
     try:

@@ -393,6 +393,8 @@ def _sensor(name, path, result: FitResult, seed, *, area, h0_lux_s, mid_grey, n_
             "converged": bool(result.diag.get("converged")), "mtf": result.mtf_info,
             "scene_exposure_time_s": result.scene.exposure_time_s,
             "tonal_range_bits_full_range": summarize(b_full, "bits")}
+    if result.diag.get("fast_settings") is not None:
+        info["fast_settings"] = dict(result.diag["fast_settings"])    # the fast preset's check
     if md.get("simulated"):
         info["simulated"] = str(md["simulated"])
     if not result.diag.get("converged"):
@@ -618,21 +620,30 @@ def add_compare_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--quality", choices=("fast", "standard", "accurate"), default=DEFAULT_QUALITY,
                    help="sampler preset for every fit (default fast: several sensors are fitted; "
                         "use standard or accurate for final numbers)")
+    from .cli import add_fast_arguments
+
+    add_fast_arguments(p)
     p.add_argument("--json", action="store_true", help="print the comparison as JSON")
     p.add_argument("--out", metavar="DIR", help="also write compare.json and compare.txt into DIR")
 
 
 def run_compare(args) -> int:
     """``bayescap compare``: returns the exit status (2 with one line on bad input)."""
+    from .cli import InputError, fast_settings_from_args
     from .fit import ConvergenceWarning
     from .ptc import PTCInputError, atomic_write_text
 
+    try:
+        fs = fast_settings_from_args(args)
+    except InputError as e:    # handled here: under `python -m bayescap.cli` main's InputError is another class
+        print(f"bayescap: error: {e}", file=sys.stderr)
+        return 2
     try:
         with warnings.catch_warnings():
             warnings.filterwarnings("ignore", category=ConvergenceWarning)  # reported in the output
             warnings.filterwarnings("ignore", category=FutureWarning)
             cmp = compare(args.csv, area=args.area, h0_lux_s=args.h0, mid_grey=args.mid_grey, seed=args.seed,
-                          quality=args.quality)
+                          quality=args.quality, fit_kwargs=None if fs is None else {"fast_settings": fs})
     except (PTCInputError, CompareInputError) as e:
         print(f"bayescap: error: {e}", file=sys.stderr)
         return 2

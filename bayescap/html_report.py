@@ -413,19 +413,28 @@ def add_report_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--quality", choices=("fast", "standard", "accurate"), default=DEFAULT_QUALITY,
                    help="sampler preset (default fast)")
     p.add_argument("--title", default="bayescap sensor comparison")
+    from .cli import add_fast_arguments
+
+    add_fast_arguments(p)
 
 
 def run_report(args) -> int:
     """``bayescap report``: returns the exit status (2 with one line on bad input)."""
+    from .cli import InputError, fast_settings_from_args
     from .fit import ConvergenceWarning
     from .ptc import PTCInputError
 
+    try:
+        fs = fast_settings_from_args(args)
+    except InputError as e:    # handled here: under `python -m bayescap.cli` main's InputError is another class
+        print(f"bayescap: error: {e}", file=sys.stderr)
+        return 2
     try:
         with warnings.catch_warnings():
             warnings.filterwarnings("ignore", category=ConvergenceWarning)
             warnings.filterwarnings("ignore", category=FutureWarning)
             cmp = compare(args.csv, area=args.area, h0_lux_s=args.h0, mid_grey=args.mid_grey, seed=args.seed,
-                          quality=args.quality)
+                          quality=args.quality, fit_kwargs=None if fs is None else {"fast_settings": fs})
             out = write_report(cmp, args.output, title=args.title)
     except (PTCInputError, CompareInputError, OSError) as e:
         print(f"bayescap: error: {e}", file=sys.stderr)

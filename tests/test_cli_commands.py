@@ -120,6 +120,14 @@ def test_fast_tolerance_and_confidence_flags(tmp_path):
     assert r.returncode == 0, r.stderr
     assert all(doc["diagnostics"]["fast_settings"]["end_confidence"] is None for doc in json.loads(r.stdout))
 
+    # compare and report (fast by default) take them too
+    bench = sorted((Path(__file__).resolve().parents[1] / "data" / "benchmark").glob("*.csv"))[:2]
+    r = _run("compare", *bench, "--fast-tolerance", "0.1", "--json")
+    assert r.returncode == 0, r.stderr
+    assert [s["fast_settings"]["end_tolerance"] for s in json.loads(r.stdout)["sensors"]] == [0.1, 0.1]
+    r = _run("report", *bench, "--fast-confidence", "7", "-o", tmp_path / "r.html")
+    assert r.returncode == 2 and "--fast-confidence must be" in r.stderr and not (tmp_path / "r.html").exists()
+
     for bad, msg in ((("--fast-tolerance", "0.1"), "apply to --quality fast only"),
                      (("--quality", "fast", "--fast-tolerance", "1.5"), "--fast-tolerance must be"),
                      (("--quality", "fast", "--fast-confidence", "high"), "--fast-confidence must be")):
