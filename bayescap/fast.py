@@ -966,6 +966,17 @@ def _fast_once(model, seed, n_draws, settings, x_map, cov, derived_fn=None):
         mcse, ends = part, part_ends
         worst = _worst_end_mcse(mcse)
         target = _joint_target(_all_ends(ends), tol, conf, gate)
+        if partial and not worst > target:
+            # the watched quantities meet the new target, judged with the others' errors of an
+            # earlier round (other weights, fewer draws resampled): all of them again before the
+            # rounds stop. Without this, a table that the stale errors passed and the fresh ones
+            # failed was rejected below with draws to spare (15 of the 1 000 batch ROIs at
+            # 7 500–14 647 of 24 000 draws; docs/performance.md, "2026-11-24, 22:15–")
+            xk, wk, vals = _end_values(model, x, w, derived_fn)
+            mcse, ends = _end_table(vals, wk, n_out)
+            partial = False
+            worst = _worst_end_mcse(mcse)
+            target = _joint_target(_all_ends(ends), tol, conf, gate)
     if n_topup and partial:     # the rounds stopped above the target: every quantity's error, as reported
         _, wk, vals = _end_values(model, x, w, derived_fn)
         mcse, ends = _end_table(vals, wk, n_out)
