@@ -267,17 +267,19 @@ def run_presets(sensors, *, ref_quality, seed, presets=("standard", "accurate"))
     return rows
 
 
-def fast_timing(sensors, *, seed, repeat=3):
-    """Per-sensor fast-path wall time split into its stages (best of ``repeat``)."""
-    from bayescap.fast import fast_posterior
+def fast_timing(sensors, *, seed, repeat=3, settings=None):
+    """Per-sensor fast-path wall time split into its stages (best of ``repeat``); ``settings``:
+    FastSettings (default its defaults)."""
+    from bayescap.fast import FastSettings, fast_posterior
     from bayescap.model import PTCModel
 
+    settings = settings or FastSettings()
     out = []
     for i, (name, d, _) in enumerate(sensors):
         best = None
         for r in range(repeat):
             m = PTCModel(d)
-            _, dg = fast_posterior(m, seed=seed + i)
+            _, dg = fast_posterior(m, seed=seed + i, settings=settings)
             if best is None or dg["wall_s"] < best["wall_s"]:
                 best = dg
         out.append((name, best))
@@ -487,9 +489,28 @@ def main(argv=None):
     ap.add_argument("--batch-only", action="store_true",
                     help="only the batch throughput, written to results/batch_throughput.md")
     ap.add_argument("--set", action="append", default=[], metavar="FIELD=VALUE",
-                    help="batch: a FastSettings field for the batch's fast paths, e.g. end_tolerance=0.1 "
-                         "(repeatable; the CLI's --fast-tolerance 0.1 is end_tolerance=0.1 end_mcse_max=0.07)")
+                    help="--batch-only/--fast-only: a FastSettings field, e.g. end_tolerance=0.1 (repeatable; "
+                         "the CLI's --fast-tolerance 0.1 is end_tolerance=0.1 end_mcse_max=0.07)")
+    ap.add_argument("--fast-only", action="store_true",
+                    help="only the fast path's time per sensor (best of 3) and its draws, printed")
     a = ap.parse_args(argv)
+    if a.fast_only:
+        import arviz  # noqa: F401  (imports excluded from the timings)
+
+        from batch_accuracy import apply_sets
+        from bayescap.fast import FastSettings
+
+        sensors = sensor_set(1 if a.quick else a.n_sim)
+        timing = fast_timing(sensors, seed=a.seed, settings=apply_sets(FastSettings(), a.set))
+        ms = [dg["wall_s"] * 1e3 for _, dg in timing]
+        n = [dg["n_proposals"] for _, dg in timing]
+        print(f"# fast_posterior, best of 3, seed {a.seed} + i{''.join(f', {kv}' for kv in a.set)}; "
+              f"{datetime.datetime.now().isoformat(timespec='minutes')}; {machine()}")
+        for (name, dg), t in zip(timing, ms):
+            print(f"{name}: {t:.0f} ms, {dg['n_proposals']} draws, accepted {dg['accepted']}")
+        print(f"median {np.median(ms):.0f} ms ({min(ms):.0f}-{max(ms):.0f}), draws {min(n)}-{max(n)}, "
+              f"accepted {sum(dg['accepted'] for _, dg in timing)}/{len(timing)}")
+        return
     if a.batch_only:
         load_before = os.getloadavg()
         import arviz  # noqa: F401
