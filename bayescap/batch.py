@@ -44,6 +44,12 @@ def _summary(res):
     out = {"accepted": bool(dg.get("fast_path_accepted", dg.get("converged"))),   # the fast path's own check
            "converged": bool(dg.get("converged")),                                 # of the result returned
            "khat": dg.get("khat", dg.get("fast_path_khat")), "method": dg.get("method", "")}
+    if not out["accepted"]:
+        # why the fast path refused (its reason; with the fallback, the reason it fell back)
+        out["reason"] = dg.get("fallback_reason") or "; ".join(dg.get("failed_checks") or [])
+    n_prop = dg.get("n_proposals")
+    if n_prop is not None and dg.get("method") == "laplace-is":
+        out["n_proposals"] = int(n_prop)
     for n, x in res.draws.items():
         out[n] = tuple(float(v) for v in np.quantile(x, [0.025, 0.5, 0.975]))
     for n in ("capacity_bits", "capacity_bits_per_pixel"):

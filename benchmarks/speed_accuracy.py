@@ -311,8 +311,21 @@ def batch_throughput(n, *, seed, n_jobs, stack_size=64, fallback=False, sets=())
     # (q2.5, q50, q97.5): the 95 % interval is [0] .. [2] (this compared with the median, [1], before 2026-11-23)
     kin = sum(r["conversion_gain_e_per_dn"][0] <= tr.conversion_gain_e_per_dn <= r["conversion_gain_e_per_dn"][2]
               for r, tr in zip(res, truths) if r["accepted"])
+    # why the rejected ones were: k̂/ESS, or the interval-end checks at the draw cap, or (a defect
+    # since commit 1a4edf9: 15 of 1 000 before it) the interval-end checks with draws to spare
+    why = {"k̂ or IS ESS": 0, "interval ends, at the draw cap": 0, "other (below the cap, or a derived quantity's check)": 0}
+    for r in res:
+        if r.get("accepted") or "error" in r:
+            continue
+        reason = r.get("reason", "")
+        if "Pareto" in reason or "importance-sampling ESS" in reason:
+            why["k̂ or IS ESS"] += 1
+        elif f"after {fs.max_proposals} draws" in reason:
+            why["interval ends, at the draw cap"] += 1
+        else:
+            why["other (below the cap, or a derived quantity's check)"] += 1
     return dict(n=len(datas), t_sim=t_sim, t_fit=t_fit, accepted=acc, k_inside=kin, n_jobs=n_jobs,
-                stack_size=stack_size, fallback=fallback, converged=conv, sets=list(sets))
+                stack_size=stack_size, fallback=fallback, converged=conv, sets=list(sets), rejected_why=why)
 
 
 # ------------------------------------------------------------------------------ report
@@ -466,6 +479,10 @@ def batch_lines(batch):
                  + (f"(the others ran the MCMC fallback, its time included; converged in the end: "
                     f"{batch['converged']}/{batch['n']})." if batch.get("fallback")
                     else "(no MCMC fallback in this measurement)."))
+        if batch.get("rejected_why"):
+            L.append("")
+            L.append("Rejected by the fast path's check: " + ", ".join(
+                f"{k} {v}" for k, v in batch["rejected_why"].items()) + ".")
         L.append("")
     return L
 
