@@ -911,12 +911,17 @@ def _fast_once(model, seed, n_draws, settings, x_map, cov, derived_fn=None):
         x, logp, logq, comps = x1, lp1, student_t_logpdf(x1, x_map, c1, nu), None
     w, khat, ess = psis_weights(logp - logq)
     khat, ess = float(khat), float(ess)
-    xk, wk, vals = _end_values(model, x, w, derived_fn)
-    mcse, ends = _end_table(vals, wk, n_draws)
     gate, tol, conf = settings.end_mcse_max, settings.end_tolerance, settings.end_confidence
-    target = _joint_target(_all_ends(ends), tol, conf, gate)
-    worst = _worst_end_mcse(mcse)
     n_topup, n_out, partial = 0, n_draws, False
+
+    def full_table():
+        """Every quantity's interval-end errors on the current draws: (kept draws, weights, values,
+        {name: worst end}, {name: ends}, the worst, the per-end target)."""
+        xk_, wk_, vals_ = _end_values(model, x, w, derived_fn)
+        mcse_, ends_ = _end_table(vals_, wk_, n_out)
+        return xk_, wk_, vals_, mcse_, ends_, _worst_end_mcse(mcse_), _joint_target(_all_ends(ends_), tol, conf, gate)
+
+    xk, wk, vals, mcse, ends, worst, target = full_table()
     # top up: more draws until every interval end's predicted Monte Carlo error is below the target
     # (its variance falls as 1/N; the target: end_mcse_max, lower where many ends near it would
     # leave the worst of them outside end_tolerance, _joint_target), at most max_proposals in all;
@@ -954,34 +959,29 @@ def _fast_once(model, seed, n_draws, settings, x_map, cov, derived_fn=None):
         # below it, all of them (and the target again), and the rounds go on if one is above
         watch = None if settings.topup != "targeted" else {
             n for n, e in mcse.items() if not e <= 0.8 * target}
+        if watch is None:
+            xk, wk, vals, mcse, ends, worst, target = full_table()
+            continue
         xk, wk, vals = _end_values(model, x, w, derived_fn, names=watch)
         part, part_ends = _end_table(vals, wk, n_out)
-        partial = watch is not None and not _worst_end_mcse(part) <= target
-        if watch is not None and not partial:
-            xk, wk, vals = _end_values(model, x, w, derived_fn)
-            part, part_ends = _end_table(vals, wk, n_out)
-        if partial:
-            part = {**{n: e for n, e in mcse.items() if n not in watch}, **part}
-            part_ends = {**{n: e for n, e in ends.items() if n not in watch}, **part_ends}
-        mcse, ends = part, part_ends
+        partial = not _worst_end_mcse(part) <= target
+        if not partial:
+            xk, wk, vals, mcse, ends, worst, target = full_table()
+            continue
+        mcse = {**{n: e for n, e in mcse.items() if n not in watch}, **part}
+        ends = {**{n: e for n, e in ends.items() if n not in watch}, **part_ends}
         worst = _worst_end_mcse(mcse)
         target = _joint_target(_all_ends(ends), tol, conf, gate)
-        if partial and not worst > target:
+        if not worst > target:
             # the watched quantities meet the new target, judged with the others' errors of an
             # earlier round (other weights, fewer draws resampled): all of them again before the
             # rounds stop. Without this, a table that the stale errors passed and the fresh ones
             # failed was rejected below with draws to spare (15 of the 1 000 batch ROIs at
             # 7 500–14 647 of 24 000 draws; docs/performance.md, "2026-11-24, 22:15–")
-            xk, wk, vals = _end_values(model, x, w, derived_fn)
-            mcse, ends = _end_table(vals, wk, n_out)
+            xk, wk, vals, mcse, ends, worst, target = full_table()
             partial = False
-            worst = _worst_end_mcse(mcse)
-            target = _joint_target(_all_ends(ends), tol, conf, gate)
     if n_topup and partial:     # the rounds stopped above the target: every quantity's error, as reported
-        _, wk, vals = _end_values(model, x, w, derived_fn)
-        mcse, ends = _end_table(vals, wk, n_out)
-        worst = _worst_end_mcse(mcse)
-        target = _joint_target(_all_ends(ends), tol, conf, gate)
+        xk, wk, vals, mcse, ends, worst, target = full_table()
     p_within = float(np.exp(_within_logprob(_all_ends(ends), tol)))
     n_draws = n_out
     n_outside = int(np.sum(~np.isfinite(logp)))
