@@ -39,6 +39,12 @@ __all__ = ["fit_many", "Lockstep", "stack_groups", "gpixel_truths", "gpixel_sens
 GPIXEL_CSV = Path(__file__).resolve().parents[1] / "data" / "gpixel_gsprint4521" / "roi_results.csv"
 
 
+def sensor_seeds(seed, n):
+    """The seeds :func:`fit_many` gives ``n`` sensors: sensor ``i`` gets the ``i``-th child of
+    ``SeedSequence(seed)``, whatever the batch's size beyond ``i``, its order of fitting or processes."""
+    return [int(c.generate_state(1)[0]) for c in np.random.SeedSequence(seed).spawn(n)]
+
+
 def _summary(res):
     dg = res.diag
     out = {"accepted": bool(dg.get("fast_path_accepted", dg.get("converged"))),   # the fast path's own check
@@ -283,7 +289,7 @@ def fit_many(datas, *, quality: str = "fast", seed, n_jobs: int = 1, fallback: b
         exception object when not ``summary_only``) instead of stopping the batch.
     """
     datas = list(datas)
-    seeds = [int(c.generate_state(1)[0]) for c in np.random.SeedSequence(seed).spawn(len(datas))]
+    seeds = sensor_seeds(seed, len(datas))
     if quality != "fast":
         import bayescap
 

@@ -935,11 +935,11 @@ def test_joint_check_never_rejects_with_draws_to_spare():
     draws to spare: ROIs 89, 116 and 149 of the batch below were rejected at 7 500, 9 375 and 7 500
     of 24 000 draws (15 of 1 000 ROIs). A rejection for the joint check must come only at the draw
     cap (or with k̂ failing); ROI 89 is accepted since, after one more round."""
-    from bayescap.batch import gpixel_sensors
+    from bayescap.batch import gpixel_sensors, sensor_seeds
     from bayescap.model import PTCModel, select_terms
 
     datas, _ = gpixel_sensors(n_max=150, seed=1)
-    seeds = [int(c.generate_state(1)[0]) for c in np.random.SeedSequence(1).spawn(1000)]   # fit_many(seed=1)'s
+    seeds = sensor_seeds(1, 150)                         # fit_many(seed=1)'s
     fs = FastSettings()
     for i in (89, 116, 149):
         m = PTCModel(datas[i], terms=select_terms(datas[i]))
