@@ -26,9 +26,12 @@ call) and finds the long one-sided tails the t does not reach (a dark current, c
 the data cannot tell from zero); each gets ``tail_fraction`` (5 %) of the draws from
 :func:`_tail_proposal`, taken from the adaptive rounds' share, part of the mixture of step 3.
 
-Where the model has a free clip level (``clip_dn`` between data-derived bounds), Newton and steps
-2-4 run in :class:`LogClipCoordinates` (the clip as ``log(clip_dn − lower bound)``), and the draws
-come back in the model's coordinates. There ``clip_floor_fraction`` (10 %) of the first draws come
+Newton and steps 2-4 run in :class:`bayescap.fit.SamplerCoordinates`: the clip as
+``log(clip_dn − lower bound)`` where the model has a free clip level (``clip_dn`` between
+data-derived bounds), the QE as ``log(qe)`` where it has one (since 2026-11-25: the photon counts tie
+QE to K along a thin ridge that is straight in logs and curved in QE, whose ends the straight t
+proposals missed, narrowing the gain-linked intervals by ~1 % of the width a side on small ROIs);
+the draws come back in the model's coordinates. There ``clip_floor_fraction`` (10 %) of the first draws come
 from a defensive proposal with the clip uniform down to its lower bound
 (:func:`_clip_floor_proposal`), part of the mixture of step 3. The retry after a rejection runs
 Newton in the model's coordinates first and then in those (``FastSettings.polish_both``).
@@ -88,10 +91,11 @@ import numpy as np
 from scipy.special import erfc, gammaln
 
 from ._blas import one_blas_thread
-from .fit import (QUALITY_PRESETS, ChainResult, LogClipCoordinates, _clip_coordinates, _proposal_cov, find_map,
+from .fit import (QUALITY_PRESETS, ChainResult, LogClipCoordinates, SamplerCoordinates, _proposal_cov,
+                  _sampler_coordinates, find_map,
                   laplace_covariance, laplace_start, polish_map, refine_covariance)
 
-__all__ = ["FastSettings", "fast_posterior", "fast_fit", "student_t_draws", "LogClipCoordinates",
+__all__ = ["FastSettings", "fast_posterior", "fast_fit", "student_t_draws", "LogClipCoordinates", "SamplerCoordinates",
            "student_t_logpdf", "psis_weights", "interval_end_mcse", "refine_covariance", "polish_map", "METHOD"]
 
 METHOD = "laplace-is"
@@ -374,7 +378,9 @@ def _tail_probe(model, x_map, lp_map, cov, skip=()):
 def _coord_name(model, j):
     names = getattr(model, "names", None)
     n = names[j] if names is not None and j < len(names) else f"x{j}"
-    return "log(clip_dn - lower bound)" if isinstance(model, LogClipCoordinates) and j == model.j else n
+    if isinstance(model, SamplerCoordinates) and j == model.j:
+        return "log(clip_dn - lower bound)"
+    return "log(qe)" if isinstance(model, SamplerCoordinates) and j == model.q else n
 
 
 def _tail_entry(model, tail, n_draws, suffix=""):
@@ -807,7 +813,7 @@ def _worst_end_mcse(mcse):
 def _fast_once(model, seed, n_draws, settings, x_map, cov, derived_fn=None):
     """One attempt of the fast path (:func:`fast_posterior`); ``n_draws`` None: ``settings.n_draws``,
     more after a top-up."""
-    wrapped = _clip_coordinates(model) if x_map is None and cov is None else None
+    wrapped = _sampler_coordinates(model) if x_map is None and cov is None else None
     if wrapped is not None:
         # Newton from every start mapped into z (laplace_start's ``coords``). (BFGS run in z alone
         # had stopped 6 nats below the mode on a simulated ROI, so the BFGS route optimised in x and
@@ -826,13 +832,13 @@ def _fast_once(model, seed, n_draws, settings, x_map, cov, derived_fn=None):
         D = wrapped.ndim
         z = chains.chain.reshape(-1, D)
         chains.chain = wrapped.to_x(z).reshape(chains.chain.shape)
-        chains.log_prob = chains.log_prob - z[:, wrapped.j].reshape(chains.log_prob.shape)
+        chains.log_prob = chains.log_prob - wrapped.log_jacobian(z).reshape(chains.log_prob.shape)
         chains.x_map = wrapped.to_x(chains.x_map)
         chains.lp_map = float(model.log_prob(chains.x_map[None])[0])
         wd = chains.extra.get("weighted_draws")
         if wd is not None:
             wd["x"] = wrapped.to_x(wd["x"])
-        chains.extra["coordinates"] = diag["coordinates"] = "log(clip_dn - lower bound)"
+        chains.extra["coordinates"] = diag["coordinates"] = wrapped.describe()
         return chains, diag
     t0 = time.perf_counter()
     default_n = n_draws is None
@@ -858,7 +864,8 @@ def _fast_once(model, seed, n_draws, settings, x_map, cov, derived_fn=None):
     n1 = settings.n_proposals - n2
     c1 = _proposal_cov(cov, settings.scale)
     # adapt_fraction 1 leaves nothing to adapt from: then every draw comes from the Laplace t
-    floor = (isinstance(model, LogClipCoordinates) and settings.clip_floor_fraction > 0 and n1 > 0 and n2 > 0)
+    floor = (getattr(model, "j", None) is not None and isinstance(model, SamplerCoordinates)
+             and settings.clip_floor_fraction > 0 and n1 > 0 and n2 > 0)
     n_floor = int(round(settings.clip_floor_fraction * settings.n_proposals)) if floor else 0
     # defensive components: the clip floor, and each long one-sided tail the probe finds
     extra = []                                          # [(logpdf, draws)]

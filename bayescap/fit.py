@@ -24,7 +24,7 @@ from .model import PTCModel, _env_count
 __all__ = ["SamplerSettings", "QUALITY_PRESETS", "find_map", "find_map_scaled", "laplace_covariance", "laplace_start",
            "newton_map", "NewtonOptimum", "refine_covariance", "polish_map", "run_ensembles",
            "diagnostics", "fast_diagnostics", "ConvergenceWarning", "stuck_walkers", "stuck_threshold",
-           "LogClipCoordinates", "mcmc_start"]
+           "LogClipCoordinates", "SamplerCoordinates", "mcmc_start"]
 
 
 def __getattr__(name):
@@ -677,7 +677,7 @@ def laplace_start(model: PTCModel, *, n_restarts: int = 2, refine_iter: int = 6,
     :func:`find_map`).
 
     ``coords``: other coordinates for the refinement (an object with ``log_prob``, ``ndim`` and
-    ``start_from_x(x)``, e.g. :class:`LogClipCoordinates`). The optimisers still run
+    ``start_from_x(x)``, e.g. :class:`SamplerCoordinates`). The optimisers still run
     on ``model``; each optimum is mapped by ``start_from_x`` and the covariance, polish and the
     returned (point, log p, covariance) are in those coordinates, log p with their Jacobian. With
     ``polish_both`` each optimum is first refined and polished in the model's coordinates, then in
@@ -773,7 +773,7 @@ def _importance_start(model, x_map, cov, seed, coords=None, n_proposals=6000):
     of 22 benchmark fits), but not the clip floor's pair with a tail (``floor_pair=False``): walkers
     started in that corner needed more steps, sim09's 140 and 180 → 290 and 404
     (``benchmarks/standard_sweep.py``, docs/performance.md, "Long one-sided tails, probed").
-    With ``coords`` (:class:`LogClipCoordinates`), ``x_map`` and ``cov`` are in those
+    With ``coords`` (:class:`SamplerCoordinates`), ``x_map`` and ``cov`` are in those
     coordinates and the draws come back in the model's. None when the IS check rejects the draws
     (then: the Laplace ball)."""
     from .fast import FastSettings, fast_posterior
@@ -795,68 +795,116 @@ def _importance_start(model, x_map, cov, seed, coords=None, n_proposals=6000):
     return draws, x.mean(axis=0), np.cov(x.T)
 
 
-class LogClipCoordinates:
-    """The posterior of ``model`` with the clip level as ``z = log(clip_dn − lo)``, ``lo`` its
-    data-derived lower bound (the largest unclipped row mean), Jacobian included; every other
-    coordinate unchanged. The Laplace refinement of both the fast path (whose importance proposals
-    are drawn here too) and the MCMC start (:func:`mcmc_start`) work here; the MCMC itself samples
-    ``clip_dn``.
+class SamplerCoordinates:
+    """The posterior of ``model`` in the coordinates its optimiser, Laplace approximation, fast-path
+    proposals and MCMC start work in, Jacobian included: the clip level as ``z = log(clip_dn − lo)``
+    where it is free (``lo`` its data-derived lower bound, the largest unclipped row mean), the QE
+    as ``log(qe)`` where the model has one; every other coordinate unchanged. The MCMC itself
+    samples the model's coordinates. (``LogClipCoordinates``, its name until 2026-11-25, when it held
+    the clip alone, is the same class.)
 
-    Why: where the clip level's posterior piles up against ``lo`` (the well clips just above the
+    Why the clip: where its posterior piles up against ``lo`` (the well clips just above the
     last unclipped row), the MAP sits on the bound, the Hessian's stencil leaves the support and the
     Laplace covariance falls back to ``diag(1e-4)`` or comes out 1 000× too wide; the importance
     weights then fail (k̂ 87 and 28 on two simulated Gpixel ROIs). In ``z`` the density
     ``p(clip)·(clip − lo)`` vanishes at the bound and the mode is interior. On the 20 ROIs of
     ``benchmarks/local_optima.py`` the fast path is accepted on 17 instead of 15 (accuracy against
-    accurate MCMC references: ``benchmarks/fast_clip_coordinates.py``, docs/performance.md)."""
+    accurate MCMC references: ``benchmarks/fast_clip_coordinates.py``, docs/performance.md).
+
+    Why the QE: with photon counts the mean signal pins QE/K (``S = QE·μ_p/K``) to ~1e-4 where the
+    mean discrepancy is small, so the posterior is a thin ridge along ``QE ∝ K``, straight in
+    (log K, log QE) and curved in (log K, QE): on a small Gpixel ROI the curve leaves a straight
+    line by 3.4 of the ridge's widths 2.5 sds out, where the t proposals (straight) then draw too
+    rarely, and the fast path's intervals of K, the full well, QE, read noise and capacity came out
+    ~1 % of the width a side too narrow on average over 115 ROIs (+0.011 / −0.012; in log QE
+    −0.003 / +0.005, docs/performance.md, "2026-11-24, 23:28–")."""
 
     def __init__(self, model):
         self.model, self.names, self.ndim = model, list(model.names), model.ndim
-        self.j = self.names.index("clip_dn")
-        self.lo, self.hi = model.clip_bounds
+        clip = self._clip_free(model)
+        self.j = self.names.index("clip_dn") if clip else None
+        self.lo, self.hi = model.clip_bounds if clip else (None, None)
+        self.q = self.names.index("qe") if "qe" in self.names else None
 
     @staticmethod
-    def applies(model) -> bool:
+    def _clip_free(model) -> bool:
         names = list(getattr(model, "names", []))
         cb = getattr(model, "clip_bounds", None)
         return "clip_dn" in names and cb is not None and cb[1] > cb[0]
 
+    @classmethod
+    def applies(cls, model) -> bool:
+        return cls._clip_free(model) or "qe" in list(getattr(model, "names", []))
+
+    def describe(self) -> str:
+        """The transformed coordinates, as the diagnostics name them."""
+        return ", ".join(([] if self.j is None else ["log(clip_dn - lower bound)"])
+                         + ([] if self.q is None else ["log(qe)"]))
+
     def to_x(self, z):
         x = np.array(z, float, copy=True)
-        x[..., self.j] = self.lo + np.exp(x[..., self.j])
+        if self.j is not None:
+            x[..., self.j] = self.lo + np.exp(x[..., self.j])
+        if self.q is not None:
+            x[..., self.q] = np.exp(x[..., self.q])
         return x
 
     def to_z(self, x):
         z = np.array(x, float, copy=True)
-        z[..., self.j] = np.log(np.maximum(z[..., self.j] - self.lo, 1e-300))
+        if self.j is not None:
+            z[..., self.j] = np.log(np.maximum(z[..., self.j] - self.lo, 1e-300))
+        if self.q is not None:
+            z[..., self.q] = np.log(np.maximum(z[..., self.q], 1e-300))
         return z
+
+    def log_jacobian(self, z):
+        """``log |dx/dz|`` at the rows of ``z``: the sum of the transformed coordinates."""
+        z = np.atleast_2d(np.asarray(z, float))
+        out = np.zeros(z.shape[0])
+        for i in (self.j, self.q):
+            if i is not None:
+                out = out + z[:, i]
+        return out
+
+    def jacobian_diag(self, z):
+        """``dx/dz`` at one point ``z`` (a diagonal: each coordinate maps on its own)."""
+        J = np.ones(self.ndim)
+        for i in (self.j, self.q):
+            if i is not None:
+                J[i] = np.exp(z[i])
+        return J
 
     def log_prob(self, z):
         z = np.atleast_2d(np.asarray(z, float))
         with np.errstate(all="ignore"):
-            return self.model.log_prob(self.to_x(z)) + z[:, self.j]
+            return self.model.log_prob(self.to_x(z)) + self.log_jacobian(z)
 
     def start_from_x(self, x):
         """``to_z`` of a point of the model's coordinates, its clip moved off the bound (a MAP on
         the bound, clip_dn = lo, has z = −∞) to ``lo + 1e-9 (hi − lo)``."""
         x = np.array(x, float, copy=True)
-        x[self.j] = max(x[self.j], self.lo + 1e-9 * (self.hi - self.lo))
+        if self.j is not None:
+            x[self.j] = max(x[self.j], self.lo + 1e-9 * (self.hi - self.lo))
         return self.to_z(x)
 
     def initial_guess(self):
         x0 = np.array(self.model.initial_guess(), float)
-        x0[self.j] = max(x0[self.j], self.lo + 1e-3 * (self.hi - self.lo))
+        if self.j is not None:
+            x0[self.j] = max(x0[self.j], self.lo + 1e-3 * (self.hi - self.lo))
         return self.to_z(x0)
 
 
-def _clip_coordinates(model):
-    """:class:`LogClipCoordinates` of ``model`` where its clip level is free, else None."""
-    return LogClipCoordinates(model) if LogClipCoordinates.applies(model) else None
+LogClipCoordinates = SamplerCoordinates
+
+
+def _sampler_coordinates(model):
+    """:class:`SamplerCoordinates` of ``model`` where its clip level is free or it has a QE, else None."""
+    return SamplerCoordinates(model) if SamplerCoordinates.applies(model) else None
 
 
 def mcmc_start(model, *, n_restarts: int = 0):
-    """Where the walkers start: :func:`laplace_start`, in :class:`LogClipCoordinates` where the
-    clip level is free (as the fast path does).
+    """Where the walkers start: :func:`laplace_start`, in :class:`SamplerCoordinates` where the
+    clip level is free or the model has a QE (as the fast path does).
 
     A local optimiser in the model's coordinates can stop with the clip level on its lower bound,
     where the Hessian's stencil leaves the support (Newton stops there; :func:`polish_map`, of the
@@ -867,8 +915,8 @@ def mcmc_start(model, *, n_restarts: int = 0):
     the same mode on all 29 sensors of that benchmark, and this one ends ≤ 1 nat lower in x, the z
     mode). Returns
     (x_map, lp_map, cov, coords, z_map, cov_z): the point and covariance in the model's coordinates
-    (``cov`` by the delta method, ``∂clip/∂z = clip − lo``), and those of ``coords`` (None without)."""
-    coords = _clip_coordinates(model)
+    (``cov`` by the delta method, ``∂clip/∂z = clip − lo``, ``∂qe/∂z = qe``), and those of ``coords`` (None without)."""
+    coords = _sampler_coordinates(model)
     if coords is None:
         x_map, lp_map, cov, _ = laplace_start(model, n_restarts=n_restarts)
         return x_map, lp_map, cov, None, None, None
@@ -876,8 +924,7 @@ def mcmc_start(model, *, n_restarts: int = 0):
     x_map = coords.to_x(z_map)
     with np.errstate(all="ignore"):
         lp_map = float(model.log_prob(x_map[None])[0])
-    J = np.ones(model.ndim)
-    J[coords.j] = np.exp(z_map[coords.j])
+    J = coords.jacobian_diag(z_map)
     return x_map, lp_map, cz * np.outer(J, J), coords, z_map, cz
 
 

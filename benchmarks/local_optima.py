@@ -82,7 +82,7 @@ def main():
     higher = {"newton": 0, "bfgs": 0, "same": 0}
     for name, d in sensors():
         m = PTCModel(d)
-        coords = F._clip_coordinates(m)
+        coords = F._sampler_coordinates(m)
         tgt = coords if coords is not None else m
         r = {(o, ms): _start(F, m, coords, o, ms) for o in ("bfgs", "newton") for ms in (False, True)}
         b, n = r[("bfgs", True)], r[("newton", True)]

@@ -345,20 +345,37 @@ def test_psis_weights_equal_arviz_psislw():
         assert ess == pytest.approx(1.0 / np.sum(ref_w**2), rel=1e-10)
 
 
-def test_log_clip_coordinates_round_trip_and_jacobian():
-    """z = log(clip_dn − lo): x → z → x is the identity and log p_z(z) = log p(x) + z_clip."""
+def test_sampler_coordinates_round_trip_and_jacobian():
+    """z = log(clip_dn − lo) and log(qe): x → z → x is the identity and log p_z(z) = log p(x) +
+    z_clip + z_qe; on a model without a free clip (the bundled Basler) only the QE is transformed.
+    LogClipCoordinates, the class's old name, is the same class."""
     from bayescap.batch import gpixel_sensors
-    from bayescap.fast import LogClipCoordinates
+    from bayescap.fast import LogClipCoordinates, SamplerCoordinates
     from bayescap.model import PTCModel
+    from bayescap.ptc import read_ptc_csv
 
+    assert LogClipCoordinates is SamplerCoordinates
     m = PTCModel(gpixel_sensors(n_max=1, seed=1)[0][0])
-    assert LogClipCoordinates.applies(m)
-    w = LogClipCoordinates(m)
+    assert SamplerCoordinates.applies(m)
+    w = SamplerCoordinates(m)
+    assert (w.j, w.q) == (m.names.index("clip_dn"), m.names.index("qe"))
     x = np.tile(m.initial_guess(), (5, 1))
     x[:, w.j] = w.lo + np.array([1e-6, 1e-3, 0.1, 1.0, 10.0])
+    x[:, w.q] = np.array([0.05, 0.3, 0.5, 0.7, 0.95])
     z = w.to_z(x)
+    np.testing.assert_allclose(z[:, w.q], np.log(x[:, w.q]), rtol=1e-15)
     np.testing.assert_allclose(w.to_x(z), x, rtol=0, atol=1e-9)
-    np.testing.assert_allclose(w.log_prob(z), m.log_prob(x) + z[:, w.j], rtol=1e-12)
+    np.testing.assert_allclose(w.log_prob(z), m.log_prob(x) + z[:, w.j] + z[:, w.q], rtol=1e-12)
+    np.testing.assert_allclose(w.jacobian_diag(z[2])[[w.j, w.q]], [x[2, w.j] - w.lo, x[2, w.q]], rtol=1e-12)
+    assert w.describe() == "log(clip_dn - lower bound), log(qe)"
+
+    b = PTCModel(read_ptc_csv(Path(__file__).resolve().parents[1] / "data" / "emva1288_basler_ccd12.csv"))
+    wb = SamplerCoordinates(b)
+    assert wb.j is None and wb.q == b.names.index("qe") and wb.describe() == "log(qe)"
+    xb = np.tile(b.initial_guess(), (3, 1))
+    zb = wb.to_z(xb)
+    np.testing.assert_allclose(wb.to_x(zb), xb, rtol=1e-14)
+    np.testing.assert_allclose(wb.log_prob(zb), b.log_prob(xb) + zb[:, wb.q], rtol=1e-12)
 
 
 def test_fast_path_with_clip_at_its_bound_finds_the_mode():
@@ -375,7 +392,7 @@ def test_fast_path_with_clip_at_its_bound_finds_the_mode():
     d = gpixel_sensors(n_max=12, seed=1)[0][11]
     m = PTCModel(d)
     chains, diag = fast_posterior(m, seed=1)
-    assert diag["accepted"] and diag["coordinates"] == "log(clip_dn - lower bound)"
+    assert diag["accepted"] and diag["coordinates"] == "log(clip_dn - lower bound), log(qe)"
     assert chains.log_prob.max() > -159.5
     x = chains.chain.reshape(-1, m.ndim)
     np.testing.assert_allclose(m.log_prob(x[:100]), chains.log_prob.reshape(-1)[:100], rtol=1e-12)

@@ -234,7 +234,7 @@ def test_laplace_start_finds_the_higher_optimum():
 
     F = importlib.import_module("bayescap.fit")
     m = PTCModel(_sim00())
-    c = F._clip_coordinates(m)
+    c = F._sampler_coordinates(m)
 
     def lp_x(z):
         return float(m.log_prob(c.to_x(z)[None])[0])
