@@ -965,3 +965,37 @@ def test_joint_check_never_rejects_with_draws_to_spare():
             assert dg["n_proposals"] >= fs.max_proposals or dg["khat"] >= fs.khat_max, (i, dg["reason"])
         if i == 89:
             assert dg["accepted"] and dg["end_within_probability"] >= fs.end_confidence, dg["reason"]
+
+
+@pytest.mark.slow
+def test_fast_intervals_of_the_gain_are_not_narrow_on_small_rois():
+    """The photon counts tie QE to K along a ridge ~1e-4 wide, straight in (log K, log QE) and curved
+    in (log K, QE). Before the fast path worked in log QE (fit.SamplerCoordinates) its straight t
+    proposals missed the ridge's ends and K's 95 % interval came out narrow: over the first 115
+    accepted Gpixel ROIs, lower end +0.011 and upper −0.012 of the width against 16 pooled MCMC runs
+    (docs/performance.md, "2026-11-24, 23:28–"). Reference here: 60 000 plain importance draws, which
+    agreed with those MCMC runs to 0.000 / −0.001 ± 0.0015 on the same ROIs. The narrowing
+    d = (lower error) − (upper error) must not be positive beyond twice its standard error over the
+    first 48 ROIs: this code +0.003 ± 0.003, the code before log QE +0.015 ± 0.0065 (fails; with 24
+    ROIs it failed by a hair, 0.0206 against 2 × 0.0101). ~15 s."""
+    from bayescap.batch import gpixel_sensors
+    from bayescap.model import PTCModel, select_terms
+
+    datas, _ = gpixel_sensors(n_max=48, seed=1)
+    ref_settings = FastSettings(end_mcse_max=None, end_confidence=None, n_proposals=40000, n_draws=40000)
+    d = []
+    for i, data in enumerate(datas):
+        m = PTCModel(data, terms=select_terms(data))
+        chains, diag = fast_posterior(m, seed=i + 1)
+        if not diag["accepted"]:
+            continue
+        ref, rdiag = fast_posterior(m, seed=10_000 + i, settings=ref_settings)
+        k = m.physical(chains.chain.reshape(-1, m.ndim))["conversion_gain_e_per_dn"]
+        k_ref = m.physical(ref.chain.reshape(-1, m.ndim))["conversion_gain_e_per_dn"]
+        lo, hi = np.quantile(k, [0.025, 0.975])
+        rlo, rhi = np.quantile(k_ref, [0.025, 0.975])
+        d.append(((lo - rlo) - (hi - rhi)) / (rhi - rlo))
+    d = np.asarray(d)
+    assert d.size >= 40
+    se = d.std(ddof=1) / np.sqrt(d.size)
+    assert d.mean() < 2.0 * se, (d.mean(), se)
