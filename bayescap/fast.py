@@ -286,7 +286,7 @@ def _floor_top(x_map, c1, j):
 
 
 def _clip_floor_proposal(model, x_map, c1, nu):
-    """Defensive proposal for the clip level near its lower bound, in :class:`LogClipCoordinates`.
+    """Defensive proposal for the clip level near its lower bound, in :class:`SamplerCoordinates`.
 
     Where the clip's posterior density stays up down to its data-derived lower bound ``lo`` (the
     well clips just above the last unclipped row), ``z = log(clip − lo)`` has a long exponential
@@ -378,9 +378,9 @@ def _tail_probe(model, x_map, lp_map, cov, skip=()):
 def _coord_name(model, j):
     names = getattr(model, "names", None)
     n = names[j] if names is not None and j < len(names) else f"x{j}"
-    if isinstance(model, SamplerCoordinates) and j == model.j:
-        return "log(clip_dn - lower bound)"
-    return "log(qe)" if isinstance(model, SamplerCoordinates) and j == model.q else n
+    if isinstance(model, SamplerCoordinates):
+        n = {model.j: "log(clip_dn - lower bound)", model.q: "log(qe)"}.get(j, n)
+    return n
 
 
 def _tail_entry(model, tail, n_draws, suffix=""):
@@ -864,7 +864,7 @@ def _fast_once(model, seed, n_draws, settings, x_map, cov, derived_fn=None):
     n1 = settings.n_proposals - n2
     c1 = _proposal_cov(cov, settings.scale)
     # adapt_fraction 1 leaves nothing to adapt from: then every draw comes from the Laplace t
-    floor = (getattr(model, "j", None) is not None and isinstance(model, SamplerCoordinates)
+    floor = (isinstance(model, SamplerCoordinates) and model.j is not None
              and settings.clip_floor_fraction > 0 and n1 > 0 and n2 > 0)
     n_floor = int(round(settings.clip_floor_fraction * settings.n_proposals)) if floor else 0
     # defensive components: the clip floor, and each long one-sided tail the probe finds
