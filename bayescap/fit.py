@@ -70,8 +70,17 @@ class SamplerSettings:
 
 
 QUALITY_PRESETS = {
-    "fast": SamplerSettings(n_ensembles=2, n_burn=100, n_steps=150, extend_steps=None, max_rounds=3, ess_target=200,
-                            tau_factor=10, max_draws=4000),
+    # fast: the Laplace–IS fast path's fallback (bayescap.fit(quality="fast") runs this MCMC preset where
+    # the importance draws fail their check). The standard preset's sampler (IS start, IndependenceMove
+    # 70 %, rounds sized from the shortfall) with 2 ensembles and ESS ≥ 200. Until 2026-11-25 it was
+    # DE/stretch from a Laplace ball, 100 burn-in + 150 steps, ≤ 3 rounds: 1.8× slower (27.5 against
+    # 15.0 s over the README's 11 sensors × 3 seeds) at the same interval-end errors against the
+    # `accurate` references (median worst end 0.039 of the width both; > 0.1 in 4/33 against 2/33), and
+    # 29 against ~17 s over the 25 ROIs of the 1 000-ROI batch whose fast path was rejected
+    # (docs/performance.md, "2026-11-25, 01:09–")
+    "fast": SamplerSettings(n_ensembles=2, walkers_per_dim=10, n_burn=80, n_steps=60, extend_steps=20, max_rounds=8,
+                            ess_target=200, tau_factor=10, max_draws=4000, independence_fraction=0.7,
+                            independence_nu=4.0, independence_scale=1.3, adaptive_extend=True, map_restarts=0),
     # standard: the targets (R-hat < 1.01, ESS >= 1000 for every parameter and capacity).
     # 70 % of the steps are IndependenceMove proposals (t, ν 4, sd × 1.3) fitted to the burn-in (share
     # cut where they are rarely accepted), the rest DE 0.8 + stretch 0.2; walkers start from Laplace–IS
