@@ -1129,9 +1129,16 @@ def _reset_stuck_walkers(sampler, state, ndim):
 
 
 def _default_jobs(n_ensembles):
+    """Processes for the ensembles: ``BAYESCAP_JOBS`` if set; else 1 in a process started by
+    :mod:`multiprocessing` (a pool worker, e.g. one of ``bayescap.batch.fit_many``'s: its siblings
+    have the other cores, and the ensembles run in lockstep in it), else one per core, at most one
+    per ensemble. (Until 2026-11-25 a batch worker's MCMC fallback forked a pool of its own: four
+    busy processes on two cores, and a fork per fallback.)"""
     env = _env_count("BAYESCAP_JOBS")
     if env is not None:
         return env
+    if mp.parent_process() is not None:
+        return 1
     return max(1, min(n_ensembles, os.cpu_count() or 1))
 
 
