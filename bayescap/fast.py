@@ -1108,6 +1108,11 @@ def fast_posterior(model, *, seed, n_draws: int | None = None,
         diag["retried_with_restarts"] = True
         diag["first_attempt"] = first
     chains.extra["retried_with_restarts"] = diag["retried_with_restarts"]
+    wd = chains.extra.get("weighted_draws")
+    if derived_fn is not None and wd is not None:
+        # the function whose quantities' interval-end errors are in end_mcse (with its inputs, for
+        # FitResult to reuse them: FitResult._derived_end_mcse_importance)
+        wd["derived_fn"] = derived_fn
     return chains, diag
 
 

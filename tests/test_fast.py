@@ -188,6 +188,28 @@ def test_plain_fitresult_diagnoses_fast_chains(phone_fast):
     assert again.diag["khat"] == r.chains.extra["khat"] and again.diag["converged"]
 
 
+def test_result_reuses_the_fast_paths_derived_end_errors_only_for_the_same_inputs(phone_fast):
+    """FitResult takes the derived quantities' interval-end errors from the fast path's top-up when
+    its derived function had this result's inputs, and they equal a fresh computation bit for bit;
+    with another scene it computes them afresh."""
+    r = phone_fast
+    wd = r.chains.extra["weighted_draws"]
+    assert wd["derived_fn"].inputs[0] is r.model
+    reused = r._derived_end_mcse_importance()
+    fn = wd.pop("derived_fn")
+    try:
+        fresh = r._derived_end_mcse_importance()
+    finally:
+        wd["derived_fn"] = fn
+    assert reused and reused == fresh and "capacity_bits" in fresh
+    assert r.diag["interval_end_mcse"]["capacity_bits"] == fresh["capacity_bits"]
+    other = FitResult.from_chains(r.model, r.chains, metadata=r.metadata,
+                                  scene=replace(r.scene, exposure_time_s=2 * r.scene.exposure_time_s),
+                                  mtf=r.mtf, seed=2, quality="fast")
+    assert not other._same_derived_inputs(fn.inputs)
+    assert other.diag["interval_end_mcse"]["capacity_bits"] != fresh["capacity_bits"]
+
+
 def test_fast_fit_rejection_is_flagged_without_fallback(basler_csv):
     with pytest.warns(ConvergenceWarning):
         r = fast_fit(basler_csv, seed=2, fallback=False, settings=FastSettings(khat_max=-1.0))
