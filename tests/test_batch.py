@@ -151,6 +151,26 @@ def test_fit_many_gives_each_sensor_its_own_fit():
     assert max(groups) >= 2                          # some sensors were evaluated stacked
 
 
+def test_fit_many_fallbacks_shared_out_across_processes_are_each_sensors_own():
+    """With n_jobs > 1 the MCMC fallbacks run after every process's fast paths, shared out evenly:
+    each is still bayescap.fit's own fallback for that sensor and seed (here every fast path is
+    rejected: k̂ must be below −1)."""
+    from bayescap.fast import FastSettings
+
+    datas, _ = gpixel_sensors(n_max=3, seed=5)
+    seeds = [int(c.generate_state(1)[0]) for c in np.random.SeedSequence(9).spawn(len(datas))]
+    fs = FastSettings(khat_max=-1.0, retry_restarts=0)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        res = fit_many(datas, seed=9, n_jobs=2, summary_only=True, settings=fs)
+        for d, s, r in zip(datas, seeds, res):
+            own = bayescap.fit(d, seed=s, quality="fast", fast_settings=fs)
+            assert own.diag["method"] == "emcee" and r["method"] == "emcee" and not r["accepted"]
+            assert r["conversion_gain_e_per_dn"] == tuple(
+                float(v) for v in np.quantile(own.draws["conversion_gain_e_per_dn"], [0.025, 0.5, 0.975]))
+            assert r["converged"] == own.diag["converged"]
+
+
 def test_fit_many_mcmc_preset_reports_a_bad_sensor_instead_of_stopping():
     """quality="standard" fits one sensor at a time (MCMC); a refused input is reported in its
     place, as with the fast preset."""
