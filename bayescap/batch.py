@@ -55,6 +55,9 @@ def _summary(res):
     if not out["accepted"]:
         # why the fast path refused (its reason; with the fallback, the reason it fell back)
         out["reason"] = dg.get("fallback_reason") or "; ".join(dg.get("failed_checks") or [])
+    if res.flags.get("imprecise_interval_ends"):
+        # an MCMC result (the fallback) whose interval ends' Monte Carlo error is above 0.1 of the width
+        out["imprecise_interval_ends"] = dict(res.flags["imprecise_interval_ends"])
     n_prop = dg.get("n_proposals")
     if n_prop is not None and dg.get("method") == "laplace-is":
         out["n_proposals"] = int(n_prop)
@@ -322,7 +325,8 @@ def fit_many(datas, *, quality: str = "fast", seed, n_jobs: int = 1, fallback: b
     stack_size : at most this many sensors in lockstep (1: one at a time, no stacking).
     summary_only : return per-sensor dicts ``{name: (q2.5, q50, q97.5), "accepted", "converged",
         "khat", "method"}`` (``accepted``: the Laplace–IS check passed; ``converged``: the
-        returned result, MCMC after a fallback, passed its checks)
+        returned result, MCMC after a fallback, passed its checks; ``imprecise_interval_ends`` where the
+        result flags it, :data:`bayescap.posterior.IMPRECISE_END_MCSE`)
         instead of :class:`~bayescap.posterior.FitResult` objects (smaller to pass between
         processes). A sensor whose input is refused gives ``{"error": message}`` (or the
         exception object when not ``summary_only``) instead of stopping the batch.

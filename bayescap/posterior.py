@@ -64,6 +64,14 @@ _DERIVED_NOTE_PREFIXES = ("width_px/height_px unknown", "no row reaches saturati
 #: the start of the failed check of an interval end's Monte Carlo error (FitResult._set_end_mcse)
 _END_MCSE_FAILURE = "Monte Carlo error of a 95 % interval end"
 
+#: an MCMC result whose preset does not check its interval ends' Monte Carlo error (``standard``, the
+#: fast path's fallback) flags the quantities whose error is above this fraction of the width
+#: (``flags["imprecise_interval_ends"]`` and a note). Typical worst ends: ``standard`` 0.015–0.037 on the
+#: README's 11 sensors, the fallback (ESS ≥ 200) 0.03–0.09; on the clip-shelf ROIs of the batch whose fast
+#: path was rejected, 0.075–0.69 (docs/performance.md, "2026-11-25, 01:09–")
+IMPRECISE_END_MCSE = 0.1
+_IMPRECISE_NOTE = "imprecise interval ends:"
+
 
 def _mcmc_description(st) -> str:
     """The moves the ensembles ran (``bayescap.fit._moves``): the standard and accurate presets
@@ -411,6 +419,26 @@ class FitResult:
             return f"{_END_MCSE_FAILURE} {end[worst]:.3f} of the width ({worst}) > {target:g}"
         return None
 
+    def _flag_imprecise_ends(self):
+        """Where no check bounds the interval ends' Monte Carlo error (MCMC presets without
+        ``end_mcse_target``), flag the quantities whose ends' error is above
+        :data:`IMPRECISE_END_MCSE` of the width: a converged chain (R-hat, ESS) can still put an end
+        far from where a longer one would (a clip level's shelf; the fallback's ESS of 200)."""
+        self.flags.pop("imprecise_interval_ends", None)
+        self.notes = [n for n in self.notes if not n.startswith(_IMPRECISE_NOTE)]
+        end = self.diag.get("interval_end_mcse") or {}
+        if self.diag.get("method") != "emcee" or self.diag.get("interval_end_mcse_target") is not None:
+            return
+        bad = {n: round(float(v), 3) for n, v in end.items() if not v <= IMPRECISE_END_MCSE}
+        if not bad:
+            return
+        self.flags["imprecise_interval_ends"] = bad
+        worst = max(bad.values(), key=lambda v: v if np.isfinite(v) else np.inf)
+        self.notes.append(f"{_IMPRECISE_NOTE} the Monte Carlo error of the 95 % interval ends of "
+                          + ", ".join(sorted(bad)) + f" is above {IMPRECISE_END_MCSE:g} of the width (up to "
+                          f"{worst:.2f}): another seed can move those ends by that much. `--quality accurate` "
+                          "runs until every end's error is ≤ 0.01 of the width (and says when it cannot)")
+
     def _diagnose_mcmc(self):
         c = self.chains
         E, S, W, D = c.chain.shape
@@ -485,6 +513,7 @@ class FitResult:
         if failure:
             failed.append(failure)
             self.diag["converged"] = converged = False
+        self._flag_imprecise_ends()
         if self.diag["burn_in_extended_steps"]:
             ev = "; ".join(f"{e['quantity']} R-hat {e['rhat']:.3f} after round {e['round']}"
                            for e in self.diag["drift_events"])
@@ -579,6 +608,7 @@ class FitResult:
             if failure and new.diag["converged"]:
                 new.diag["converged"] = False
                 new.notes.insert(0, "NOT CONVERGED at this scene: " + failure + ". Do not use these intervals")
+            new._flag_imprecise_ends()
         return new
 
     def noise_budget(self, fraction_of_range=0.5):

@@ -639,6 +639,40 @@ def test_mcmc_result_reports_its_interval_ends_monte_carlo_error(basler_fit):
     assert basler_fit.diag["converged"] and not basler_fit.diag["failed_checks"]      # the original untouched
 
 
+def test_imprecise_interval_ends_are_flagged_where_no_check_bounds_them(basler_fit):
+    """An MCMC result without an end_mcse_target flags (and notes) the quantities whose interval
+    ends' Monte Carlo error is above IMPRECISE_END_MCSE of the width: none on the standard Basler fit
+    (worst ~0.02); with one parameter's error raised above it, that one, in the JSON flags, the notes
+    and the text report, and still at another scene (a parameter's error does not move with it); a
+    target (accurate's check) takes over from the flag. (A real case, a simulated ROI whose clip level
+    sits on a shelf: docs/performance.md, "2026-11-25, 01:09–".)"""
+    import copy
+
+    from bayescap.posterior import IMPRECISE_END_MCSE, Scene
+
+    assert "imprecise_interval_ends" not in basler_fit.flags
+    assert not [n for n in basler_fit.notes if n.startswith("imprecise interval ends")]
+    assert basler_fit.diag["interval_end_mcse_max"] < IMPRECISE_END_MCSE
+    r = copy.copy(basler_fit)
+    r.diag, r.flags, r.notes = dict(basler_fit.diag), dict(basler_fit.flags), list(basler_fit.notes)
+    r.diag["interval_end_mcse"] = dict(basler_fit.diag["interval_end_mcse"], read_noise_e=0.31)
+    r._flag_imprecise_ends()
+    assert r.flags["imprecise_interval_ends"] == {"read_noise_e": 0.31}
+    note = [n for n in r.notes if n.startswith("imprecise interval ends")]
+    assert len(note) == 1 and "read_noise_e" in note[0] and "0.31" in note[0]
+    assert note[0] in format_text(r) and r.to_dict()["flags"]["imprecise_interval_ends"] == {"read_noise_e": 0.31}
+    r._flag_imprecise_ends()                             # idempotent: one note
+    assert len([n for n in r.notes if n.startswith("imprecise interval ends")]) == 1
+    other = r.at_scene(Scene(exposure_time_s=0.5))
+    assert other.flags["imprecise_interval_ends"] == {"read_noise_e": 0.31}
+    assert len([n for n in other.notes if n.startswith("imprecise interval ends")]) == 1
+    r.diag["interval_end_mcse_target"] = 0.01
+    r._flag_imprecise_ends()
+    assert "imprecise_interval_ends" not in r.flags
+    assert not [n for n in r.notes if n.startswith("imprecise interval ends")]
+    assert "imprecise_interval_ends" not in basler_fit.flags                       # the original untouched
+
+
 def test_sampler_subclass_gives_emcee_chains_across_rounds():
     """fit._Sampler (log-probabilities taken as an array, the generator's state copied once per
     run_mcmc) gives the chain of emcee's own EnsembleSampler bit for bit, also when a run is
