@@ -434,9 +434,10 @@ class FitResult:
             return
         self.flags["imprecise_interval_ends"] = bad
         worst = max(bad.values(), key=lambda v: v if np.isfinite(v) else np.inf)
+        up_to = f"up to {worst:.2f}" if np.isfinite(worst) else "undefined where the draws are not all finite"
         self.notes.append(f"{_IMPRECISE_NOTE} the Monte Carlo error of the 95 % interval ends of "
-                          + ", ".join(sorted(bad)) + f" is above {IMPRECISE_END_MCSE:g} of the width (up to "
-                          f"{worst:.2f}): another seed can move those ends by that much. `--quality accurate` "
+                          + ", ".join(sorted(bad)) + f" is above {IMPRECISE_END_MCSE:g} of the width ({up_to}): "
+                          "another seed can move those ends by that much. `--quality accurate` "
                           "runs until every end's error is ≤ 0.01 of the width (and says when it cannot)")
 
     def _diagnose_mcmc(self):
