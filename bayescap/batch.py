@@ -384,7 +384,8 @@ def fit_many(datas, *, quality: str = "fast", seed, n_jobs: int = 1, fallback: b
                 fb_jobs = []
                 for w in range(min(n_jobs, len(deferred))):
                     mine = deferred[w::n_jobs]
-                    sub = [models[i] if i in set(mine) else None for i in range(len(models))]
+                    ids = set(mine)
+                    sub = [models[i] if i in ids else None for i in range(len(models))]
                     fb_jobs.append((sub, seeds, [(i, done[i].diag) for i in mine], settings, summary_only))
                 for part in ex.map(_fallback_fits, fb_jobs):
                     done.update(part)
