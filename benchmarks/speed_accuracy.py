@@ -324,8 +324,14 @@ def batch_throughput(n, *, seed, n_jobs, stack_size=64, fallback=False, sets=())
             why["interval ends, at the draw cap"] += 1
         else:
             why["other (below the cap, or a derived quantity's check)"] += 1
+    # results flagged with imprecise interval ends (an MCMC fallback whose ends' Monte Carlo error is above
+    # posterior.IMPRECISE_END_MCSE of the width), and the true K inside the fallbacks' intervals
+    imprecise = sum(bool(r.get("imprecise_interval_ends")) for r in res)
+    fb_kin = sum(r["conversion_gain_e_per_dn"][0] <= tr.conversion_gain_e_per_dn <= r["conversion_gain_e_per_dn"][2]
+                 for r, tr in zip(res, truths) if not r["accepted"] and "error" not in r and r.get("method") == "emcee")
     return dict(n=len(datas), t_sim=t_sim, t_fit=t_fit, accepted=acc, k_inside=kin, n_jobs=n_jobs,
-                stack_size=stack_size, fallback=fallback, converged=conv, sets=list(sets), rejected_why=why)
+                stack_size=stack_size, fallback=fallback, converged=conv, sets=list(sets), rejected_why=why,
+                imprecise=imprecise, fallback_k_inside=fb_kin)
 
 
 # ------------------------------------------------------------------------------ report
@@ -483,6 +489,12 @@ def batch_lines(batch):
             L.append("")
             L.append("Rejected by the fast path's check: " + ", ".join(
                 f"{k} {v}" for k, v in batch["rejected_why"].items()) + ".")
+        if batch.get("fallback"):
+            n_fb = batch["n"] - batch["accepted"]
+            L.append("")
+            L.append(f"MCMC fallbacks: true K inside the 95 % interval on {batch.get('fallback_k_inside', '?')}/{n_fb}; "
+                     f"results flagged `imprecise_interval_ends` (an interval end's Monte Carlo error above 0.1 of "
+                     f"the width): {batch.get('imprecise', '?')}/{batch['n']}.")
         L.append("")
     return L
 
