@@ -18,9 +18,9 @@ each group of stackable sensors out among processes.
 What else is shared across sensors: the imports, the MTF (one per distinct metadata), the cached
 Gauss–Legendre nodes. After the fast path, each sensor's result is built, and an MCMC fallback
 run where the fast path rejected its draws, one sensor at a time (:func:`bayescap.api.fit` with
-``fast_result``). With ``n_jobs > 1`` the fallbacks wait until every process has run its fast paths
-and are then shared out evenly: which sensors fall back is known only then (on the 1 000-ROI batch,
-9 of one process's 501 sensors and 16 of the other's 499).
+``fast_result``). With ``n_jobs > 1`` each fallback is a task of its own, handed to whichever process
+is free once the process that rejected it has run its fast paths: the rejections fall unevenly between
+the processes' shares (on the 1 000-ROI batch, 9 of one process's 501 sensors and 16 of the other's 499).
 """
 from __future__ import annotations
 
@@ -364,7 +364,7 @@ def fit_many(datas, *, quality: str = "fast", seed, n_jobs: int = 1, fallback: b
         done = _fit_groups((models, seeds, [ix for g in parts for ix in g], settings, fallback,
                             summary_only, stack_size))
     else:
-        from concurrent.futures import ProcessPoolExecutor
+        from concurrent.futures import ProcessPoolExecutor, as_completed
 
         # process w gets part w of every group, and only those models
         shares = [[g[w] for g in parts if w < len(g)] for w in range(n_jobs)]
@@ -375,20 +375,21 @@ def fit_many(datas, *, quality: str = "fast", seed, n_jobs: int = 1, fallback: b
             jobs.append((sub, seeds, share, settings, fallback, summary_only, stack_size, True))
         done = {}
         with ProcessPoolExecutor(max_workers=n_jobs) as ex:
-            for part in ex.map(_fit_groups, jobs):
+            # each fallback is a task of its own, submitted as soon as the process that rejected it
+            # returns: whichever process is free takes it (the fast paths' rejections fall unevenly
+            # between the processes' shares, and the first process done would otherwise idle)
+            firsts = [ex.submit(_fit_groups, j) for j in jobs]
+            fallbacks = []
+            for fut in as_completed(firsts):
+                part = fut.result()
                 done.update(part)
-            # the fallbacks, shared out evenly now that they are known (the fast paths' rejections
-            # fall unevenly between the processes' shares)
-            deferred = sorted(i for i, r in done.items() if isinstance(r, _Deferred))
-            if deferred:
-                fb_jobs = []
-                for w in range(min(n_jobs, len(deferred))):
-                    mine = deferred[w::n_jobs]
-                    ids = set(mine)
-                    sub = [models[i] if i in ids else None for i in range(len(models))]
-                    fb_jobs.append((sub, seeds, [(i, done[i].diag) for i in mine], settings, summary_only))
-                for part in ex.map(_fallback_fits, fb_jobs):
-                    done.update(part)
+                for i in sorted(i for i, r in part.items() if isinstance(r, _Deferred)):
+                    sub = [None] * len(models)
+                    sub[i] = models[i]
+                    fallbacks.append(ex.submit(_fallback_fits, (sub, seeds, [(i, part[i].diag)], settings,
+                                                                summary_only)))
+            for fut in fallbacks:
+                done.update(fut.result())
     for i, r in done.items():
         out[i] = r
     return out
