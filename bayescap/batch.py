@@ -252,28 +252,31 @@ def _mtf_cache():
     return mtf_of
 
 
-def _fallback_fits(args):
-    """The deferred MCMC fallbacks ``items`` [(index, fast-path diagnostics)] of one process."""
-    models, seeds, items, settings, summary_only = args
+def _finish(m, seed, settings, mtf, fallback, fast_result, summary_only):
+    """``bayescap.fit`` of one sensor from its fast path's result (the MCMC fallback where it was
+    rejected and ``fallback``): the result, its summary, or the error it raised (one bad sensor must
+    not stop a batch)."""
     from .api import fit
 
-    mtf_of, out = _mtf_cache(), {}
-    for i, fd in items:
-        m = models[i]
-        try:
-            r = fit(m, seed=seeds[i], quality="fast", fast_settings=settings, mtf=mtf_of(m), fallback=True,
-                    fast_result=(None, fd))
-        except Exception as e:  # one bad sensor must not stop a batch: report it
-            out[i] = {"error": f"{type(e).__name__}: {e}"} if summary_only else e
-            continue
-        out[i] = _summary(r) if summary_only else r
-    return out
+    try:
+        if isinstance(fast_result, BaseException):
+            raise fast_result
+        r = fit(m, seed=seed, quality="fast", fast_settings=settings, mtf=mtf, fallback=fallback,
+                fast_result=fast_result)
+    except Exception as e:
+        return {"error": f"{type(e).__name__}: {e}"} if summary_only else e
+    return _summary(r) if summary_only else r
+
+
+def _fallback_fit(args):
+    """A deferred MCMC fallback: (model, seed, the fast path's diagnostics, settings, summary_only)."""
+    m, seed, diag, settings, summary_only = args
+    return _finish(m, seed, settings, _mtf_cache()(m), True, (None, diag), summary_only)
 
 
 def _fit_groups(args):
-    models, seeds, groups, settings, fallback, summary_only, stack_size = args[:7]
-    defer = len(args) > 7 and args[7]
-    from .api import _result_kw, fit
+    models, seeds, groups, settings, fallback, summary_only, stack_size, defer = args
+    from .api import _result_kw
     from .posterior import FitResult
 
     mtf_of, out = _mtf_cache(), {}
@@ -291,19 +294,10 @@ def _fit_groups(args):
                     dfs.append(None)
         fast = _fast_paths([models[i] for i in ix], [seeds[i] for i in ix], settings, stack_size, dfs)
         for i, fr in zip(ix, fast):
-            m = models[i]
             if defer and fallback and isinstance(fr, tuple) and not fr[1]["accepted"]:
                 out[i] = _Deferred(fr[1])
-                continue
-            try:
-                if isinstance(fr, BaseException):
-                    raise fr
-                r = fit(m, seed=seeds[i], quality="fast", fast_settings=settings, mtf=mtf_of(m),
-                        fallback=fallback, fast_result=fr)
-            except Exception as e:  # one bad sensor must not stop a batch: report it
-                out[i] = {"error": f"{type(e).__name__}: {e}"} if summary_only else e
-                continue
-            out[i] = _summary(r) if summary_only else r
+            else:
+                out[i] = _finish(models[i], seeds[i], settings, mtf_of(models[i]), fallback, fr, summary_only)
     return out
 
 
@@ -362,7 +356,7 @@ def fit_many(datas, *, quality: str = "fast", seed, n_jobs: int = 1, fallback: b
     stack_size = max(1, int(stack_size))
     if n_jobs == 1 or sum(len(g) for g in parts) < 2:
         done = _fit_groups((models, seeds, [ix for g in parts for ix in g], settings, fallback,
-                            summary_only, stack_size))
+                            summary_only, stack_size, False))
     else:
         from concurrent.futures import ProcessPoolExecutor, as_completed
 
@@ -384,12 +378,10 @@ def fit_many(datas, *, quality: str = "fast", seed, n_jobs: int = 1, fallback: b
                 part = fut.result()
                 done.update(part)
                 for i in sorted(i for i, r in part.items() if isinstance(r, _Deferred)):
-                    sub = [None] * len(models)
-                    sub[i] = models[i]
-                    fallbacks.append(ex.submit(_fallback_fits, (sub, seeds, [(i, part[i].diag)], settings,
-                                                                summary_only)))
-            for fut in fallbacks:
-                done.update(fut.result())
+                    fallbacks.append((i, ex.submit(_fallback_fit, (models[i], seeds[i], part[i].diag, settings,
+                                                                   summary_only))))
+            for i, fut in fallbacks:
+                done[i] = fut.result()
     for i, r in done.items():
         out[i] = r
     return out
