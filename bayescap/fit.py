@@ -19,7 +19,7 @@ import numpy as np
 from scipy.special import ndtri
 
 from ._blas import one_blas_thread
-from .model import PTCModel, _env_count
+from .model import PTCModel, _allowed
 
 __all__ = ["SamplerSettings", "QUALITY_PRESETS", "find_map", "find_map_scaled", "laplace_covariance", "laplace_start",
            "newton_map", "NewtonOptimum", "refine_covariance", "polish_map", "run_ensembles",
@@ -1129,17 +1129,11 @@ def _reset_stuck_walkers(sampler, state, ndim):
 
 
 def _default_jobs(n_ensembles):
-    """Processes for the ensembles: ``BAYESCAP_JOBS`` if set; else 1 in a process started by
-    :mod:`multiprocessing` (a pool worker, e.g. one of ``bayescap.batch.fit_many``'s: its siblings
-    have the other cores, and the ensembles run in lockstep in it), else one per core, at most one
-    per ensemble. (Until 2026-11-25 a batch worker's MCMC fallback forked a pool of its own: four
-    busy processes on two cores, and a fork per fallback.)"""
-    env = _env_count("BAYESCAP_JOBS")
-    if env is not None:
-        return env
-    if mp.parent_process() is not None:
-        return 1
-    return max(1, min(n_ensembles, os.cpu_count() or 1))
+    """Processes for the ensembles (:func:`bayescap.model._allowed`, ``BAYESCAP_JOBS``): one per core,
+    at most one per ensemble; 1 in a multiprocessing worker, where the ensembles run in lockstep. (Until
+    2026-11-25 a batch worker's MCMC fallback forked a pool of its own: four busy processes on two
+    cores, and a fork per fallback.)"""
+    return _allowed("BAYESCAP_JOBS", lambda: max(1, min(n_ensembles, os.cpu_count() or 1)))
 
 
 class _Workers:

@@ -1658,22 +1658,30 @@ def _env_count(name):
     return None
 
 
-def n_threads() -> int:
-    """Threads a large ``log_prob`` call may use: ``BAYESCAP_THREADS`` if set; else 1 in a process
-    started by :mod:`multiprocessing` (a pool worker: its siblings have the other cores), else 2
-    where this process may run on two cores or more."""
-    env = _env_count("BAYESCAP_THREADS")
+def _allowed(env_name, default_fn) -> int:
+    """How many processes or threads a fit may use: the environment variable ``env_name`` if set;
+    else 1 in a process started by :mod:`multiprocessing` (a pool worker, e.g. one of
+    ``bayescap.batch.fit_many``'s: its siblings have the other cores); else ``default_fn()``."""
+    env = _env_count(env_name)
     if env is not None:
         return env
     import multiprocessing as mp
 
     if mp.parent_process() is not None:
         return 1
-    try:
-        cores = len(os.sched_getaffinity(0))
-    except AttributeError:        # not on Linux
-        cores = os.cpu_count() or 1
-    return 2 if cores >= 2 else 1
+    return default_fn()
+
+
+def n_threads() -> int:
+    """Threads a large ``log_prob`` call may use (:func:`_allowed`, ``BAYESCAP_THREADS``): 2 where this
+    process may run on two cores or more."""
+    def two_if_two_cores():
+        try:
+            cores = len(os.sched_getaffinity(0))
+        except AttributeError:        # not on Linux
+            cores = os.cpu_count() or 1
+        return 2 if cores >= 2 else 1
+    return _allowed("BAYESCAP_THREADS", two_if_two_cores)
 
 
 def _split_rows(fn, th):
