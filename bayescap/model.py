@@ -654,24 +654,39 @@ def _quantized_pixel_moments(delta, s, so):
         gi = np.flatnonzero(grid)
         sizes = _grid_size(s[gi], so[gi])
         for M in np.unique(sizes):
-            at = gi[sizes == M]
-            dl, sg, sog = delta[at], s[at], so[at]
-            x = _QG_GRIDS[int(M)]
-            # the moments at the grid's offsets (the grid's harmonics computed once, not per element)
-            m, v, m4 = _rounded_normal_moments(x, sg[:, None], J=5)
-            h = m - x                                   # rounding bias of a pixel's mean
-            w = _wrapped_normal_grid(dl, sog, int(M))   # wrapped normal on the grid
-            V[at] = (w * v).sum(-1)
-            E4[at] = (w * (m4 + v * v)).sum(-1)
-            eh = (w * h).sum(-1)
-            var_h = np.maximum((w * h * h).sum(-1) - eh * eh, 0.0)
-            # Stein: cov(o, h(o)) = σ_o² E[h'(o)], E[h'] = Σ_b N(b; δ, τ²) − 1 (τ² = s² + σ_o²)
-            tau = np.sqrt(sg * sg + sog * sog)
-            zz = (_QG_J + 0.5 - dl[:, None]) / tau[:, None]
-            dens = np.exp(-0.5 * zz * zz).sum(-1) / (tau * np.sqrt(2.0 * np.pi))
-            dens = np.where(tau > 1.0, 1.0, dens)       # |Σ − 1| < 3e-9 beyond
-            H[at] = var_h + 2.0 * sog * sog * (dens - 1.0)
+            at_M = gi[sizes == M]
+            step = max(1, _QG_CHUNK_POINTS // int(M))
+            for i0 in range(0, at_M.size, step):
+                _grid_moments(delta, s, so, at_M[i0:i0 + step], int(M), V, E4, H)
     return V, E4, H
+
+
+#: :func:`_quantized_pixel_moments` works on the grid's (elements, M) arrays in chunks of at most this
+#: many points (1 MB a float array): a fast path's 6 000 draws × 13 spatial-stack rows × 16 points
+#: had ~10 MB arrays, and the same work in chunks took 82 instead of 121 ms (sbc-s68 of
+#: benchmarks/quantization_regime.py, 2026-11-25); each element's numbers are its own either way
+_QG_CHUNK_POINTS = 131072
+
+
+def _grid_moments(delta, s, so, at, M, V, E4, H):
+    """The grid branch of :func:`_quantized_pixel_moments` for the elements ``at`` (grid size ``M``),
+    written into ``V``, ``E4``, ``H``."""
+    dl, sg, sog = delta[at], s[at], so[at]
+    x = _QG_GRIDS[M]
+    # the moments at the grid's offsets (the grid's harmonics computed once, not per element)
+    m, v, m4 = _rounded_normal_moments(x, sg[:, None], J=5)
+    h = m - x                                   # rounding bias of a pixel's mean
+    w = _wrapped_normal_grid(dl, sog, M)        # wrapped normal on the grid
+    V[at] = (w * v).sum(-1)
+    E4[at] = (w * (m4 + v * v)).sum(-1)
+    eh = (w * h).sum(-1)
+    var_h = np.maximum((w * h * h).sum(-1) - eh * eh, 0.0)
+    # Stein: cov(o, h(o)) = σ_o² E[h'(o)], E[h'] = Σ_b N(b; δ, τ²) − 1 (τ² = s² + σ_o²)
+    tau = np.sqrt(sg * sg + sog * sog)
+    zz = (_QG_J + 0.5 - dl[:, None]) / tau[:, None]
+    dens = np.exp(-0.5 * zz * zz).sum(-1) / (tau * np.sqrt(2.0 * np.pi))
+    dens = np.where(tau > 1.0, 1.0, dens)       # |Σ − 1| < 3e-9 beyond
+    H[at] = var_h + 2.0 * sog * sog * (dens - 1.0)
 
 
 _UNIFORM_TABLE = {}
