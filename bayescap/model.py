@@ -493,7 +493,7 @@ def _rounded_offset_boundaries(frac_obs, s_tot, n_iter=12, n_boundaries=6):
     hi = -lo
     # A start of ±0 (|f| ≤ Φ(−½/s): nearly every element of a sensor whose read noise is 0.2-0.3 DN)
     # has E[round X] = 0 exactly (ndtr(zp) − ndtr(zm) of equal arguments), so its first pass needs the
-    # slope's exponentials only: the same bits without two of every three passes' ndtr calls there
+    # slope's exponentials only: the same bits without the first of its (usually three) passes' ndtr calls
     zero = d == 0.0
     skip = None if not np.any(zero) else zero
     for _ in range(n_iter):

@@ -166,6 +166,15 @@ def test_wrapped_normal_grid_equals_the_sum_of_its_images():
     for m in (1, 7, 64, 129):
         idx = np.sort(rng.choice(n, m, replace=False))
         assert all(np.array_equal(a[idx], b) for a, b in zip(full, _quantized_pixel_moments(dl[idx], s[idx], so_all[idx])))
+    # the grid in chunks (model._QG_CHUNK_POINTS) of any size: the same numbers
+    import bayescap.model as bm
+    default = bm._QG_CHUNK_POINTS
+    try:
+        for points in (1, 100, 1000):
+            bm._QG_CHUNK_POINTS = points
+            assert all(np.array_equal(a, b) for a, b in zip(full, _quantized_pixel_moments(dl, s, so_all)))
+    finally:
+        bm._QG_CHUNK_POINTS = default
 
 
 def test_quantized_pixel_moments_grid_matches_a_256_point_grid():
@@ -434,6 +443,12 @@ def test_rounded_offset_boundary_solver_converges_within_three_steps():
     assert np.max(np.abs(m - fo)) < 1e-9
     assert np.all(np.abs(d3) <= 0.5)
     np.testing.assert_array_equal(_rounded_offset_boundaries(fo, s), d3)
+    # the starts at δ = 0 (|f| ≤ Φ(−½/s)) skip their first pass's ndtr calls: alone (every start at 0),
+    # among the others, and none of them, the same numbers
+    zero = np.abs(fo) <= stats.norm.cdf(-0.5 / s)
+    assert 0 < zero.sum() < zero.size
+    np.testing.assert_array_equal(_rounded_offset_boundaries(fo[zero], s[zero]), d3[zero])
+    np.testing.assert_array_equal(_rounded_offset_boundaries(fo[~zero], s[~zero]), d3[~zero])
     # as _rounded_offset calls it (the boundaries within 10 s): the same tolerance, elementwise
     d = _rounded_offset(fo, s, n_iter=3)
     m, _, _ = _rounded_normal_moments_sums(d, s, J=40)
