@@ -199,6 +199,13 @@ _RN_FOURIER_S = 0.3
 _RN_FOURIER_K = ((0.3, 4), (1.5 / 9, 8), (1.5 / 17, 16), (1.5 / 33, 32))
 
 
+def _small_unique(a):
+    """``np.unique`` of an array of small non-negative integers (harmonic counts, grid sizes), by
+    ``np.bincount``: ~10× faster on the 2 000-80 000 elements of a ``log_prob`` call (np.unique's
+    hashing was 1.5-2 % of a sub-half-DN sensor's fit)."""
+    return np.flatnonzero(np.bincount(np.asarray(a).ravel()))
+
+
 def _rn_harmonics(s):
     """Harmonics the Fourier series of :func:`_rounded_normal_moments` needs at ``s`` (0: the direct
     sums), elementwise (NaN: 0)."""
@@ -230,7 +237,7 @@ def _rounded_normal_moments(delta, s, J=6):
     if np.all(s >= _RN_FOURIER_S):                      # the common case (NaN: not), without the split
         return _rounded_normal_moments_fourier(delta, s, 4)
     kk = _rn_harmonics(s)
-    ks = np.unique(kk)
+    ks = _small_unique(kk)
 
     def one(d, sv, K):
         # below 0.045 DN the DN boundaries beyond ±3/2 are ≥ 11 s away for |δ| ≤ 1: J = 2 suffices
@@ -653,7 +660,7 @@ def _quantized_pixel_moments(delta, s, so):
     if np.any(grid):
         gi = np.flatnonzero(grid)
         sizes = _grid_size(s[gi], so[gi])
-        for M in np.unique(sizes):
+        for M in _small_unique(sizes):
             at_M = gi[sizes == M]
             step = max(1, _QG_CHUNK_POINTS // int(M))
             for i0 in range(0, at_M.size, step):
