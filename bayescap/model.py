@@ -670,8 +670,9 @@ def _quantized_pixel_moments(delta, s, so):
 
 #: :func:`_quantized_pixel_moments` works on the grid's (elements, M) arrays in chunks of at most this
 #: many points (1 MB a float array): a fast path's 6 000 draws × 13 spatial-stack rows × 16 points
-#: had ~10 MB arrays, and the same work in chunks took 82 instead of 121 ms (sbc-s68 of
-#: benchmarks/quantization_regime.py, 2026-11-25); each element's numbers are its own either way
+#: had ~10 MB arrays, and the same work in chunks took 76 instead of 111-114 ms (the largest recorded
+#: call of sbc-s68 of benchmarks/quantization_regime.py, 2026-11-25); each element's numbers are its
+#: own either way
 _QG_CHUNK_POINTS = 131072
 
 
@@ -1561,12 +1562,18 @@ class PTCModel:
 
     def _observations(self) -> int:
         """Observations per draw (the likelihood blocks' columns), counted once from one draw."""
-        memo = self.__dict__.setdefault("_memo", {})
-        if "observations" not in memo:
+        def count():
             with np.errstate(all="ignore"):
                 pred = self.predict(np.atleast_2d(self.initial_guess()))
-            memo["observations"] = int(sum(np.shape(v[1])[-1] for v in pred.values()))
-        return memo["observations"]
+            return int(sum(np.shape(v[1])[-1] for v in pred.values()))
+        return self._memoized("observations", count)
+
+    def _memoized(self, key, compute):
+        """``compute()``, once per model (:attr:`_memo`, shared by its shallow copies)."""
+        memo = self.__dict__.setdefault("_memo", {})      # (a model unpickled from before _memo)
+        if key not in memo:
+            memo[key] = compute()
+        return memo[key]
 
     # ------------------------------------------------------------------ start point
     def initial_guess(self) -> np.ndarray:
@@ -1575,10 +1582,7 @@ class PTCModel:
         Computed once per model (a copy returned each time): it costs ~1.3 ms with its scan of the
         clip spread, and a fast fit asks for it three times (the Newton start, the sampler
         coordinates, the observation count)."""
-        memo = self.__dict__.setdefault("_memo", {})
-        if "initial_guess" not in memo:
-            memo["initial_guess"] = self._initial_guess()
-        return memo["initial_guess"].copy()
+        return self._memoized("initial_guess", self._initial_guess).copy()
 
     def _initial_guess(self) -> np.ndarray:
         tm = self.terms
