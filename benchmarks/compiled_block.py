@@ -10,10 +10,19 @@ call) on 6 000 draws × 51 rows of synthetic inputs (ratios 0.9-1.1, gamma shape
 * a fused loop compiled by numba, when numba is importable (it is not a bayescap dependency: install
   it in another environment, e.g. ``python3 -m venv /tmp/nb && /tmp/nb/bin/pip install numba scipy``
   and run this script with that interpreter; ``numba -s`` says whether SVML is operational);
+* the same loop in C, compiled here with gcc when ``gcc`` is on the PATH, twice: with ``-ffast-math``
+  (which lets gcc call glibc's SIMD ``exp``/``log``/``log1p`` of libmvec, AVX-512 where the CPU has
+  it) and without (scalar libm calls, as numba makes them); loaded with ctypes from a temporary
+  directory, nothing kept. This is the most a hand-written compiled likelihood could gain on this
+  block, with the error ``-ffast-math`` costs;
 * numpy float32, with its error against float64 per element and on a 51-row sum.
 
 Best of 5 × 20 calls, one thread. Prints the figures (docs/performance.md, "2026-11-25, 03:06–")."""
+import ctypes
+import shutil
+import subprocess
 import sys
+import tempfile
 import time
 from math import exp, log, log1p
 from pathlib import Path
@@ -62,6 +71,66 @@ def fused_loop(obs, model, shape, out):
     return out
 
 
+C_SOURCE = r"""
+#include <math.h>
+void block(const double *obs, const double *model, const double *shape, double *out, long n, long m,
+           double l1r, double rel, double badc, double log2pi) {
+  for (long i = 0; i < n; i++) {
+    const double *mo = model + i * m, *sh = shape + i * m; double *o = out + i * m;
+    #pragma omp simd
+    for (long j = 0; j < m; j++) {
+      double k = sh[j], v = obs[j];
+      double d = v / mo[j] - 1.0;
+      double lr = log1p(d);
+      double inv = 1.0 / k;
+      double a = l1r + k * (lr - d) + 0.5 * log(k) - 0.5 * log2pi - inv * (1.0 / 12.0 - inv * inv * (1.0 / 360.0));
+      double bad = (-0.5 / (rel * rel)) * lr * lr + badc;
+      double top = a > bad ? a : bad;
+      double df = fabs(a - bad);
+      df = df < 50.0 ? df : 50.0;
+      o[j] = top + log(1.0 + exp(-df)) - log(v);
+    }
+  }
+}
+"""
+C_BUILDS = {   # label -> gcc flags
+    "-O3 -march=native -ffast-math (libmvec SIMD)":
+        ["-O3", "-march=native", "-mprefer-vector-width=512", "-ffast-math", "-fopenmp-simd"],
+    "-O3 -march=native (scalar libm)": ["-O3", "-march=native", "-fno-math-errno", "-fopenmp-simd"],
+}
+
+
+def c_blocks(tmp):
+    """{label: callable(obs, model, shape, out)} of the C loop built with each of C_BUILDS ({} without gcc)."""
+    gcc = shutil.which("gcc")
+    if gcc is None:
+        return {}
+    src = Path(tmp) / "block.c"
+    src.write_text(C_SOURCE)
+    P = ctypes.POINTER(ctypes.c_double)
+    out = {}
+    for i, (label, flags) in enumerate(C_BUILDS.items()):
+        lib_path = Path(tmp) / f"block{i}.so"
+        r = subprocess.run([gcc, *flags, "-shared", "-fPIC", str(src), "-o", str(lib_path), "-lm", "-lmvec"],
+                           capture_output=True, text=True)
+        if r.returncode != 0:
+            print(f"C {label}: gcc failed: {r.stderr.strip()[:200]}")
+            continue
+        lib = ctypes.CDLL(str(lib_path))
+        lib.block.argtypes = [P, P, P, P, ctypes.c_long, ctypes.c_long] + [ctypes.c_double] * 4
+        simd = sorted({ln.split("<")[1].split(">")[0] for ln in subprocess.run(
+            ["objdump", "-d", str(lib_path)], capture_output=True, text=True).stdout.splitlines()
+            if "call" in ln and "<_ZGV" in ln}) if shutil.which("objdump") else []
+
+        def fn(obs, model, shape, res, lib=lib):
+            n, m = model.shape
+            lib.block(*(a.ctypes.data_as(P) for a in (obs, model, shape, res)), n, m,
+                      float(np.log1p(-RATE)), REL, BADC, LOG_2PI)
+
+        out[label + (f" [calls {', '.join(s.split('@')[0] for s in simd)}]" if simd else "")] = fn
+    return out
+
+
 def best_ms(f, repeat=20):
     best = np.inf
     for _ in range(5):
@@ -93,6 +162,13 @@ def main():
             t = best_ms(lambda: fn(obs, model, shape, out))
             print(f"numba {numba.__version__} fused loop, fastmath={fm}: {t:.2f} ms ({t / ref.size * 1e6:.1f} ns), "
                   f"max |diff| {np.max(np.abs(out - ref)):.1e}")
+    with tempfile.TemporaryDirectory() as tmp:
+        for label, fn in c_blocks(tmp).items():
+            out = np.empty_like(ref)
+            fn(obs, model, shape, out)
+            t = best_ms(lambda: fn(obs, model, shape, out))
+            print(f"C {label}: {t:.2f} ms ({t / ref.size * 1e6:.1f} ns), max |diff| {np.max(np.abs(out - ref)):.1e} "
+                  f"(relative {np.max(np.abs(out - ref) / np.abs(ref)):.1e})")
     o32, m32, k32 = (a.astype(np.float32) for a in (obs, model, shape))
     r32 = numpy32_block(o32, m32, k32)
     t32 = best_ms(lambda: numpy32_block(o32, m32, k32))
