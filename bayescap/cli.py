@@ -248,14 +248,19 @@ def _cmd_fit(args) -> int:
         except MTFInputError as e:
             raise InputError(str(e)) from None
     progress = sys.stderr.isatty() if args.progress is None else args.progress
-    if args.select_model:
-        from .selection import select_model
+    try:
+        # a value the reader accepts but no parameter can explain (fit._no_finite_start) is refused
+        # here, naming its row and column
+        if args.select_model:
+            from .selection import select_model
 
-        result, _ = select_model(data, seed=args.seed, quality=args.quality, progress=progress, scene=scene,
-                                 mtf=mtf, fast_settings=fast_settings)
-    else:
-        result = fit(data, seed=args.seed, quality=args.quality, scene=scene, progress=progress, mtf=mtf,
-                     fast_settings=fast_settings)
+            result, _ = select_model(data, seed=args.seed, quality=args.quality, progress=progress, scene=scene,
+                                     mtf=mtf, fast_settings=fast_settings)
+        else:
+            result = fit(data, seed=args.seed, quality=args.quality, scene=scene, progress=progress, mtf=mtf,
+                         fast_settings=fast_settings)
+    except PTCInputError as e:
+        raise InputError(str(e)) from None
     if args.out:
         write_outputs(result, args.out)
     sys.stdout.write(to_json(result) if args.json else format_text(result))
@@ -364,6 +369,8 @@ def _scene_from_args(args, data):
     if not (t >= 0 and t < float("inf")):
         raise InputError(f"scene exposure time must be a finite number >= 0, got {t}")
     temp = spec.get("temperature_c")
+    if temp is not None and not (-273.15 <= temp < float("inf")):
+        raise InputError(f"scene temperature must be a finite number >= -273.15 °C, got {temp}")
     ref = data.metadata.get("temperature_c")
     if temp is not None and ref is None:
         raise InputError(f"{data.source}: a scene temperature needs the measurement's temperature: add "

@@ -182,8 +182,7 @@ def find_map(model: PTCModel, x0=None, *, n_restarts: int = 2):
         if best is None or v < best[1]:
             best = (x, v)
     if best is None:
-        raise RuntimeError("no finite starting point for the optimiser: the data may be inconsistent "
-                           "with the model (check the units of the columns)")
+        _no_finite_start(model, x0)
     return best[0], -best[1]
 
 
@@ -382,6 +381,33 @@ def _same_mode(a, b):
     return False
 
 
+def _no_finite_start(target, x0):
+    """Raise the error for an optimiser none of whose starts has a finite log posterior: a
+    :class:`~bayescap.ptc.PTCInputError` naming the file, row and column of the first observation
+    whose likelihood is not finite at ``x0`` when ``target`` is (or wraps) a :class:`PTCModel` that
+    finds one (a zero spatial variance, an exposure time of 1e308 s: values the reader accepts and no
+    parameter can explain); a RuntimeError otherwise."""
+    model = target if hasattr(target, "nonfinite_observations") else getattr(target, "model", None)
+    bad = []
+    if model is not None and hasattr(model, "nonfinite_observations"):
+        x = np.asarray(x0, float)
+        if model is not target and hasattr(target, "to_x"):
+            x = target.to_x(x)
+        bad = model.nonfinite_observations(x)
+    if not bad:
+        raise RuntimeError("no finite starting point for the optimiser: the data may be inconsistent "
+                           "with the model (check the units of the columns)")
+    from .ptc import PTCInputError
+
+    block, row, column, obs, mod = bad[0]
+    others = sorted({r for _, r, _, _, _ in bad[1:] if r != row})
+    more = (f"; rows {', '.join(map(str, others[:10]))}{' ...' if len(others) > 10 else ''} likewise"
+            if others else "")
+    raise PTCInputError(f"the model gives the value {obs:.6g} no finite likelihood at the optimiser's start "
+                        f"(its prediction there: {mod:.6g}), so nothing was fitted: check this row's values "
+                        f"and their units{more}", path=model.data.source, row=row, column=column)
+
+
 def newton_map(target, starts, *, max_iter: int = 60, h: float = NEWTON_H, alpha: float = NEWTON_ALPHA,
                raw_h: float = 1e-4, max_stalls: int = 3):
     """Maximise ``target.log_prob`` from several starts at once by Newton's method on
@@ -431,8 +457,7 @@ def newton_map(target, starts, *, max_iter: int = 60, h: float = NEWTON_H, alpha
     n_calls[0] += 1
     keep = [i for i in range(len(starts)) if np.isfinite(lp0[i])]
     if not keep:
-        raise RuntimeError("no finite starting point for the optimiser: the data may be inconsistent "
-                           "with the model (check the units of the columns)")
+        _no_finite_start(target, starts[0])
     states = [dict(i=i, x=starts[i], lp=float(lp0[i]), it=0, stalls=0, walls=0, done=False, reason="", conv=False,
                    spec=False)
               for i in keep]

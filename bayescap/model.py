@@ -1165,7 +1165,10 @@ class PTCModel:
                 z3 = th[:, self.idx["z_roi_cross"]][:, None]
                 q1 = _chi2_over_nu(z1, nu)
                 a = prnu**2 * q1
-                b = dsnu2 * ((nu - 1.0) * _chi2_over_nu(z2, nu - 1.0) + z3 * z3) / nu
+                # (χ²₀ = 0: with two pixels, ν = 1, the DSNU's sample variance is z₃² alone; ν is an
+                # array of one per sensor in a PTCModelStack)
+                rest = np.where(nu > 1.0, (nu - 1.0) * _chi2_over_nu(z2, np.maximum(nu - 1.0, 1.0)), 0.0)
+                b = dsnu2 * (rest + z3 * z3) / nu
                 c = prnu * np.sqrt(dsnu2) * np.sqrt(q1) * z3 / np.sqrt(nu)
             else:
                 b = dsnu2 * _chi2_over_nu(z2, nu)
@@ -1401,6 +1404,27 @@ class PTCModel:
     def loglik_terms(self, th):
         """Pointwise log-likelihood blocks (each (n_draws, n_obs))."""
         return {name: self._block_loglik(name, *blk) for name, blk in self.predict(th).items()}
+
+    #: the CSV column each likelihood block's observations come from
+    BLOCK_COLUMNS = {"dark_var": "dark_temporal_var_dn2", "bright_var": "temporal_var_dn2", "mean": "mean_dn",
+                     "clip_mean": "mean_dn", "plateau_var": "temporal_var_dn2", "spatial_var": "spatial_var_dn2",
+                     "dark_spatial_var": "dark_spatial_var_dn2"}
+
+    def nonfinite_observations(self, x):
+        """The observations whose log-likelihood is not finite at the point ``x`` (ndim,): a list of
+        ``(block, file row, CSV column, observed value, model value)``, in block and row order. Used
+        to name the offending rows when no optimiser start has a finite posterior."""
+        th = np.atleast_2d(np.asarray(x, float))[:1]
+        out = []
+        with np.errstate(all="ignore"):
+            for name, blk in self.predict(th).items():
+                rows = self.observation_rows(name)
+                ll = np.broadcast_to(self._block_loglik(name, *blk), (1, rows.size))[0]
+                obs = np.broadcast_to(blk[0], (1, rows.size))[0]
+                mod = np.broadcast_to(blk[1], (1, rows.size))[0]
+                for j in np.nonzero(~np.isfinite(ll))[0]:
+                    out.append((name, int(rows[j]), self.BLOCK_COLUMNS.get(name, name), float(obs[j]), float(mod[j])))
+        return out
 
     def pointwise_loglik(self, th):
         """Log-likelihood of every observation for draws ``th``: (n_draws, n_obs), and the
@@ -1769,7 +1793,9 @@ def _log_posterior(theta, model_for):
     is finite. ``model_for(good)`` gives the model to evaluate the draws ``good`` (a boolean mask;
     None: all draws) with: the model itself, or a :class:`PTCModelStack` view of those draws."""
     th = np.atleast_2d(np.asarray(theta, float))
-    lp = model_for(None).log_prior(th)
+    with np.errstate(over="ignore", invalid="ignore", divide="ignore"):
+        # far-out draws (a walker at log τ = 800) overflow exp() in the prior: −inf, as meant
+        lp = model_for(None).log_prior(th)
     good = np.isfinite(lp)
     out = np.full(th.shape[0], -np.inf)
     if np.any(good):

@@ -312,3 +312,26 @@ def test_pool_workers_use_one_thread_and_a_forked_child_rebuilds_the_pool(monkey
     assert n2 == 2
     np.testing.assert_array_equal(lp, ref)
     np.testing.assert_array_equal(lp2, ref)
+
+
+def test_two_pixel_rows_and_far_out_draws_evaluate_quietly(basler_csv):
+    """Found by corrupting the Basler CSV (2026-11-25): n_pixels = 2 (ν = 1, allowed by the contract)
+    divided by zero in the DSNU's χ²_{ν−1} (now χ²₀ = 0), and a draw far out in log τ overflowed exp()
+    in the prior with a RuntimeWarning on the command line (now −inf quietly, as the likelihood)."""
+    import dataclasses
+
+    from bayescap.ptc import read_ptc_csv
+
+    d = read_ptc_csv(basler_csv)
+    two = dataclasses.replace(d, n_pixels=np.full_like(d.n_pixels, 2.0))
+    m = PTCModel(two)
+    assert m.nu_pattern == 1.0 and "z_roi_cross" in m.names
+    x0 = m.initial_guess()
+    assert np.isfinite(m.log_prob(x0[None])[0])
+    m = PTCModel(d)
+    far = np.repeat(m.initial_guess()[None], 2, axis=0)
+    far[0, m.idx["log_tau"]] = 800.0
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        lp = m.log_prob(far)
+    assert lp[0] == -np.inf and np.isfinite(lp[1])
