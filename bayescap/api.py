@@ -15,7 +15,7 @@ from .fit import QUALITY_PRESETS, SamplerSettings, run_ensembles
 from .model import PTCModel, saturation_flags, select_terms
 from .optics import default_mtf
 from .posterior import FitResult, Scene
-from .ptc import PTCData, read_ptc_csv
+from .ptc import PTCData, PTCInputError, read_ptc_csv
 
 __all__ = ["load", "fit", "default_scene", "mtf_from_metadata", "measured_mtf"]
 
@@ -86,6 +86,24 @@ def _result_kw(data: PTCData, *, mtf, scene: Scene | None, seed):
                 seed=seed)
 
 
+def _check_mtf_passes(mtf, data: PTCData, given: bool):
+    """Refuse, before any fitting, an MTF that is zero at every frequency of the band (a crosstalk σ
+    of 10⁶ px, an all-zero MTF table): Δs would be −∞ and no capacity can be computed. A
+    :class:`PTCInputError` naming where the MTF came from."""
+    from .capacity import mtf_loss_bits
+
+    try:
+        mtf_loss_bits(mtf)
+    except ValueError as e:
+        if given:
+            src = "the MTF given"
+        else:
+            keys = ("crosstalk_sigma_px", "pixel_pitch_um", "f_number", "wavelength_nm", "fill_factor")
+            src = "the metadata's MTF (" + ", ".join(f"{k} {data.metadata[k]:g}" for k in keys
+                                                    if k in data.metadata) + ")"
+        raise PTCInputError(f"{e} with {src}: no capacity can be computed", path=data.source) from None
+
+
 def fit(data: PTCData | PTCModel | str, *, seed: int | None = None,
         quality: str | SamplerSettings = "standard", mtf=None, scene: Scene | None = None,
         progress: bool = False, terms=None, n_jobs: int | None = None, fast_settings=None,
@@ -128,8 +146,10 @@ def fit(data: PTCData | PTCModel | str, *, seed: int | None = None,
         model = PTCModel(data, terms=terms or select_terms(data), prior=prior)
     notes: list = []
     defaults_used = sorted(k for k in METADATA_DEFAULTS if k not in data.metadata)
+    mtf_given = mtf is not None
     if mtf is None:
         mtf = mtf_from_metadata(data.metadata, notes)
+    _check_mtf_passes(mtf, data, mtf_given)
     kw = _result_kw(data, mtf=mtf, scene=scene, seed=seed)
     if isinstance(quality, str) and quality not in QUALITY_PRESETS:
         raise ValueError(f"unknown quality {quality!r}: use one of {', '.join(QUALITY_PRESETS)}")

@@ -164,6 +164,9 @@ def _check_metadata(md, path):
     if "crosstalk_sigma_px" in md and not md["crosstalk_sigma_px"] >= 0:
         raise PTCInputError(f"metadata 'crosstalk_sigma_px' must be >= 0, got {md['crosstalk_sigma_px']}",
                             path=path)
+    if "temperature_c" in md and not md["temperature_c"] >= -273.15:
+        raise PTCInputError(f"metadata 'temperature_c' must be >= -273.15 (absolute zero), got {md['temperature_c']}",
+                            path=path)
     if "fill_factor" in md and not 0 < md["fill_factor"] <= 1:
         raise PTCInputError(f"metadata 'fill_factor' must be in (0, 1], got {md['fill_factor']}", path=path)
 
@@ -253,7 +256,15 @@ def read_ptc_csv(path, *, overrides: dict | None = None) -> PTCData:
     return data
 
 
+#: no column of a photon-transfer table comes near this (a variance of 32-bit DN values is below 2e19);
+#: a larger value is a unit or export error, and the model's products of it would overflow
+_MAX_ABS_VALUE = 1e30
+
+
 def _check_value(col, v, path, row):
+    if abs(v) > _MAX_ABS_VALUE:
+        raise PTCInputError(f"{v:g} is implausibly large (above {_MAX_ABS_VALUE:g}): check the column's units",
+                            path=path, row=row, column=col)
     nonneg = ("exposure_time_s", "temporal_var_dn2", "dark_temporal_var_dn2", "photons_per_pixel",
               "exposure_lux_s", "spatial_var_dn2", "dark_spatial_var_dn2")
     if col in nonneg and v < 0:
@@ -276,6 +287,19 @@ def _check_consistency(d: PTCData, path):
                 i = bad[0]
                 raise PTCInputError(f"{getattr(d, col)[i]:g} DN exceeds the ADC maximum {adc:g} "
                                     f"of adc_bits={d.metadata['adc_bits']}", path=path,
+                                    row=d.row_label(i), column=col)
+        # values within [0, ADC max] have a variance of at most ADC max²/4 (a frame pair's estimate
+        # at most ADC max²/2): above ADC max² a variance column is in other units or corrupt
+        for col in ("temporal_var_dn2", "dark_temporal_var_dn2", "spatial_var_dn2", "dark_spatial_var_dn2"):
+            v = getattr(d, col)
+            if v is None:
+                continue
+            bad = np.nonzero(v > adc * adc)[0]
+            if bad.size:
+                i = bad[0]
+                raise PTCInputError(f"{v[i]:g} DN² exceeds the square of the ADC maximum ({adc:g} DN of "
+                                    f"adc_bits={d.metadata['adc_bits']}): no variance of values within the "
+                                    "ADC's range is that large; check the column's units", path=path,
                                     row=d.row_label(i), column=col)
     if np.all(d.signal_dn <= 0):
         raise PTCInputError("no row has a bright mean above its dark mean: not a photon-transfer "

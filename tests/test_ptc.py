@@ -63,6 +63,15 @@ BAD = {
                            ["crosstalk_sigma_px", ">= 0"]),
     "mean above ADC max": ("# adc_bits: 8\n" + HEADER + "\n" + GOOD_ROWS[0] + "\n0.002,300,55,10,5,10000\n",
                            ["row 2", "mean_dn", "ADC maximum"]),
+    # found by corrupting the Basler CSV value by value (2026-11-25): these reached the optimiser,
+    # whose overflow ended in a traceback
+    "implausibly large value": (HEADER + "\n" + GOOD_ROWS[0] + "\n1e308,200,55,10,5,10000\n",
+                                ["row 2", "exposure_time_s", "implausibly large"]),
+    "variance beyond the ADC's range": ("# adc_bits: 8\n" + HEADER + "\n" + GOOD_ROWS[0]
+                                        + "\n0.002,200,70000,10,5,10000\n",
+                                        ["row 2", "temporal_var_dn2", "square of the ADC maximum"]),
+    "temperature below absolute zero": ("# temperature_c: -300\n" + HEADER + "\n" + "\n".join(GOOD_ROWS),
+                                        ["temperature_c", "absolute zero"]),
 }
 
 
@@ -104,3 +113,45 @@ def test_input_never_modified(tmp_path, basler_csv):
     before = basler_csv.read_bytes()
     read_ptc_csv(basler_csv)
     assert basler_csv.read_bytes() == before
+
+
+def _basler_variant(basler_csv, tmp_path, edit, meta=""):
+    """The bundled Basler CSV with ``edit(header, rows)`` applied to its data rows (lists of
+    strings) and ``meta`` lines added: the path, and the file row label of each data row."""
+    lines = basler_csv.read_text().splitlines()
+    k = next(i for i, ln in enumerate(lines) if not ln.startswith("#"))
+    header, rows = lines[k].split(","), [ln.split(",") for ln in lines[k + 1:] if ln.strip()]
+    edit(header, rows)
+    p = tmp_path / "variant.csv"
+    p.write_text("\n".join(lines[:k] + ([meta] if meta else []) + [",".join(header)]
+                           + [",".join(r) for r in rows]) + "\n")
+    return p
+
+
+def _cli_fit_refuses(p, tmp_path, fragments):
+    out = tmp_path / "out"
+    r = subprocess.run([sys.executable, "-m", "bayescap.cli", "fit", str(p), "--quality", "fast", "--seed", "1",
+                        "--out", str(out)], capture_output=True, text=True)
+    assert r.returncode == 2, r.stderr
+    assert r.stdout == "" and "Traceback" not in r.stderr and not out.exists()
+    lines = r.stderr.strip().splitlines()
+    assert len(lines) == 1 and lines[0].startswith("bayescap: error:"), r.stderr
+    for frag in fragments:
+        assert frag in lines[0], (frag, lines[0])
+
+
+def test_value_no_parameter_can_explain_is_refused_with_its_row(tmp_path, basler_csv):
+    """A spatial variance of 0 on an unsaturated row (the reader accepts it: a dark one can be 0)
+    has no finite likelihood anywhere; the optimiser had stopped with a RuntimeError and a
+    traceback. Now: exit 2, the file, the row and the column (fit._no_finite_start)."""
+    def zero_spatial(header, rows):
+        rows[17][header.index("spatial_var_dn2")] = "0"      # file row 18
+    p = _basler_variant(basler_csv, tmp_path, zero_spatial)
+    _cli_fit_refuses(p, tmp_path, [str(p), "row 18", "column 'spatial_var_dn2'", "no finite likelihood"])
+
+
+def test_mtf_zero_at_every_frequency_is_refused_before_fitting(tmp_path, basler_csv):
+    """A crosstalk σ of 10⁶ px makes the MTF zero across the band: Δs = −∞; a ValueError with a
+    traceback before, after the fit. Now refused up front with where the MTF came from."""
+    p = _basler_variant(basler_csv, tmp_path, lambda h, r: None, meta="# crosstalk_sigma_px: 1e6")
+    _cli_fit_refuses(p, tmp_path, [str(p), "MTF is zero at every frequency", "crosstalk_sigma_px"])
