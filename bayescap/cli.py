@@ -267,6 +267,14 @@ def _cmd_fit(args) -> int:
     return 0
 
 
+def _failure(path, err) -> str:
+    """One batch sensor's error, one line: an input error as it names itself (file, row, column),
+    anything else after the file with its type."""
+    from .ptc import PTCInputError
+
+    return str(err) if isinstance(err, PTCInputError) else f"{path}: {type(err).__name__}: {err}"
+
+
 def _cmd_fit_many(args, overrides, fast_settings=None) -> int:
     """``bayescap fit a.csv b.csv ...``: every CSV checked first (a bad one stops the run before
     anything is fitted or written), then :func:`bayescap.batch.fit_many`."""
@@ -312,11 +320,11 @@ def _cmd_fit_many(args, overrides, fast_settings=None) -> int:
         sys.stdout.write(json.dumps(docs, indent=2, ensure_ascii=False, allow_nan=False) + "\n")
     else:
         for p, r in zip(args.csv, results):
-            sys.stdout.write(f"bayescap: {p}: error: {type(r).__name__}: {r}\n\n" if isinstance(r, BaseException)
+            sys.stdout.write(f"bayescap: error: {_failure(p, r)}\n\n" if isinstance(r, BaseException)
                              else format_text(r) + "\n")
         sys.stdout.write(_batch_table(args.csv, results))
     for p, r in failed:
-        print(f"bayescap: error: {p}: {type(r).__name__}: {r}", file=sys.stderr)
+        print(f"bayescap: error: {_failure(p, r)}", file=sys.stderr)
     return 1 if failed else 0
 
 

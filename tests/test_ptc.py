@@ -155,3 +155,19 @@ def test_mtf_zero_at_every_frequency_is_refused_before_fitting(tmp_path, basler_
     traceback before, after the fit. Now refused up front with where the MTF came from."""
     p = _basler_variant(basler_csv, tmp_path, lambda h, r: None, meta="# crosstalk_sigma_px: 1e6")
     _cli_fit_refuses(p, tmp_path, [str(p), "MTF is zero at every frequency", "crosstalk_sigma_px"])
+
+
+def test_batch_names_an_input_error_once(tmp_path, basler_csv):
+    """``bayescap fit A.csv B.csv``: a sensor whose value no parameter can explain is reported as the
+    input error it is (file, row, column), once per line, and the batch exits 1."""
+    def zero_spatial(header, rows):
+        rows[17][header.index("spatial_var_dn2")] = "0"
+    p = _basler_variant(basler_csv, tmp_path, zero_spatial)
+    r = subprocess.run([sys.executable, "-m", "bayescap.cli", "fit", str(p), str(p), "--quality", "fast"],
+                       capture_output=True, text=True)
+    assert r.returncode == 1 and "Traceback" not in r.stderr
+    lines = r.stderr.strip().splitlines()
+    assert len(lines) == 2
+    for ln in lines:
+        assert ln.startswith(f"bayescap: error: {p}, row 18, column 'spatial_var_dn2'"), ln
+        assert ln.count(str(p)) == 1
