@@ -864,7 +864,8 @@ def select_terms(d: PTCData, *, force: dict | None = None) -> ModelTerms:
     reasons, how = {}, {}
     t = d.exposure_time_s
     t_pos = t[t > 0]
-    multi_t = t_pos.size >= 2 and (t_pos.max() / t_pos.min() >= 1.5)
+    with np.errstate(over="ignore"):     # a subnormal exposure time: the ratio is inf, still ≥ 1.5
+        multi_t = t_pos.size >= 2 and (t_pos.max() / t_pos.min() >= 1.5)
     if not multi_t:
         reasons["dark_current"] = ("all rows share one exposure time: only read² + D·t is "
                                    "identifiable (reported as dark_noise_e)")
