@@ -96,7 +96,8 @@ def _check_mtf_passes(mtf, data: PTCData, given: bool):
         mtf_loss_bits(mtf)
     except ValueError as e:
         if given:
-            src = "the MTF given"
+            name = getattr(mtf, "name", None)
+            src = f"the MTF given ({name})" if name else "the MTF given"
         else:
             keys = ("crosstalk_sigma_px", "pixel_pitch_um", "f_number", "wavelength_nm", "fill_factor")
             src = "the metadata's MTF (" + ", ".join(f"{k} {data.metadata[k]:g}" for k in keys

@@ -869,6 +869,11 @@ _FREQ_COL = "freq_cy_per_px"
 _CI_COLS = ("mtf_ci95_low", "mtf_ci95_high")
 
 
+#: the largest MTF value :func:`read_mtf_table` accepts (sharpening lifts a measured SFR above 1, by
+#: a factor of 1.2-2 in camera pipelines, never tenfold)
+_MTF_MAX = 10.0
+
+
 def read_mtf_table(path: str | Path, channel: str | None = None) -> SFRResult:
     """Read an MTF table (CSV) into an :class:`SFRResult` without bootstrap samples.
 
@@ -876,7 +881,8 @@ def read_mtf_table(path: str | Path, channel: str | None = None) -> SFRResult:
     mtf_ci95_high`` as written by :func:`write_mtf_table`, which are ignored), the sfrmat
     reference format ``freq_cy_per_px,sfr`` or multi-record ``freq_cy_per_px,sfr_R,sfr_G,
     sfr_B,sfr_Lum``.  Lines starting with ``#`` are comments.  Frequencies must be finite,
-    >= 0 and strictly increasing; MTF values finite and >= 0.  ``channel`` selects the
+    >= 0 and strictly increasing; MTF values finite, >= 0 and at most :data:`_MTF_MAX`, and 1 ± 0.05 at
+    0 cy/px where the table has that row.  ``channel`` selects the
     primary record of a multi-record table (default: ``Lum`` if present, else the first).
 
     Raises
@@ -935,6 +941,17 @@ def read_mtf_table(path: str | Path, channel: str | None = None) -> SFRResult:
         k = int(np.argmax(dif <= 0)) + 1
         raise MTFInputError(f"{path}: row {rows[k + 1][0]}, column 1 ({_FREQ_COL!r}): "
                             "frequencies must be strictly increasing")
+    # a system MTF is 1 at zero frequency; sharpening can lift it above 1 in the band, but not tenfold:
+    # a table far from that is in other units or not normalised, and its Δs (Eq. 9) would be meaningless
+    for j, name in data_cols:
+        v = values[:, j]
+        if freq[0] == 0.0 and abs(v[0] - 1.0) > 0.05:
+            raise MTFInputError(f"{path}: row {rows[1][0]}, column {j + 1} ({header[j]!r}): the MTF at 0 cy/px "
+                                f"is {v[0]:g}, not 1: normalise the table at zero frequency")
+        if np.any(v > _MTF_MAX):
+            k = int(np.argmax(v > _MTF_MAX))
+            raise MTFInputError(f"{path}: row {rows[k + 1][0]}, column {j + 1} ({header[j]!r}): MTF "
+                                f"{v[k]:g} is above {_MTF_MAX:g}: not an MTF normalised to 1 at zero frequency")
     by = {name: values[:, j].copy() for j, name in data_cols}
     names = list(by)
     if channel is None:

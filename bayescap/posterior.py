@@ -58,7 +58,7 @@ class Scene:
 
 
 _DERIVED_NOTE_PREFIXES = ("width_px/height_px unknown", "no row reaches saturation", "the MTF reaches zero",
-                          "noise stays below one")
+                          "noise stays below one", "the MTF exceeds 1")
 
 
 #: the start of the failed check of an interval end's Monte Carlo error (FitResult._set_end_mcse)
@@ -290,6 +290,14 @@ class FitResult:
             self.flags["mtf_band_cut"] = True
             self.notes.append(f"the MTF reaches zero at {ml.f_end_cy_per_px:.3f} cy/px, below Nyquist "
                               f"(0.5): the band is cut there, costing {ml.band_cut_bits:.2f} bits of Δs")
+        if float(np.median(ds)) > 0.0:
+            # Eq. 8/9 are for a low-pass MTF (Δs ≤ 0, the paper); above 1 over much of the band
+            # (sharpening in the pipeline, an MTF not normalised at zero frequency) s' exceeds the
+            # pixel count, which no capacity comparison should take at face value
+            self.flags["mtf_above_one"] = True
+            self.notes.append(f"the MTF exceeds 1 over much of the band (Δs = +{float(np.median(ds)):.2f} bits): "
+                              "Eq. 9 assumes a low-pass MTF (Δs ≤ 0), so the effective pixels exceed the pixel "
+                              "count; use an MTF measured without sharpening")
         if np.any(tr >= 0.999 * N_GREY_LEVELS * (1 - 1e-9)):
             self.notes.append("noise stays below one 8-bit grey level over part of the range: TR is "
                               "limited by the 8-bit-equivalent scale (the max(σ, 1) floor of Eq. 7)")
@@ -592,7 +600,7 @@ class FitResult:
         new = FitResult(model=self.model, chains=self.chains, metadata=self.metadata, scene=scene,
                         mtf=self.mtf, seed=self.seed, quality=self.quality, draws=self.draws)
         new.notes = [n for n in self.notes if not n.startswith(_DERIVED_NOTE_PREFIXES)]
-        new.flags = {k: v for k, v in self.flags.items() if k not in ("capacity_lower_bound", "mtf_band_cut")}
+        new.flags = {k: v for k, v in self.flags.items() if k not in ("capacity_lower_bound", "mtf_band_cut", "mtf_above_one")}
         new.diag = dict(self.diag)
         new.outliers = list(getattr(self, "outliers", []))
         new._derive()

@@ -260,6 +260,10 @@ def test_read_mtf_table_formats(tmp_path):
         ("freq_cy_per_px,mtf\n0,1\n0.25,nan\n0.5,0.3\n", r"row 3, column 2"),
         ("freq_cy_per_px,mtf\n0,1\n0.5,0.3\n0.4,0.2\n", r"row 4, column 1.*increasing"),
         ("freq_cy_per_px,mtf\n0,1\n0.5\n", r"row 3: 1 columns"),
+        # not normalised (found 2026-11-25: an MTF of 5 gave Δs = +2.9 bits and a capacity 11x the
+        # pixel count's; 1e308 overflowed): refused
+        ("freq_cy_per_px,mtf\n0,5\n0.5,3\n", r"row 2, column 2.*at 0 cy/px is 5, not 1"),
+        ("freq_cy_per_px,mtf\n0.1,0.9\n0.2,50\n0.5,0.3\n", r"row 3, column 2.*above 10"),
         ("", r"empty"),
     ],
 )

@@ -171,3 +171,26 @@ def test_batch_names_an_input_error_once(tmp_path, basler_csv):
     for ln in lines:
         assert ln.startswith(f"bayescap: error: {p}, row 18, column 'spatial_var_dn2'"), ln
         assert ln.count(str(p)) == 1
+
+
+def test_mtf_above_one_is_flagged_and_an_all_zero_table_refused(tmp_path, basler_csv):
+    """A sharpened MTF (above 1 over the band) gives Δs > 0, which Eq. 9 does not allow for: the
+    result carries the flag and a note. An all-zero MTF table without a 0 cy/px row is refused
+    before fitting, naming the table."""
+    import json
+
+    sharp = tmp_path / "sharp.csv"
+    sharp.write_text("freq_cy_per_px,mtf\n0.05,1.6\n0.5,1.4\n")
+    r = subprocess.run([sys.executable, "-m", "bayescap.cli", "fit", str(basler_csv), "--quality", "fast",
+                        "--seed", "1", "--mtf", str(sharp), "--json"], capture_output=True, text=True)
+    assert r.returncode == 0, r.stderr
+    d = json.loads(r.stdout)
+    assert d["flags"].get("mtf_above_one") is True
+    assert any(n.startswith("the MTF exceeds 1") for n in d["notes"])
+    zeros = tmp_path / "zeros.csv"
+    zeros.write_text("freq_cy_per_px,mtf\n0.05,0\n0.5,0\n")
+    r = subprocess.run([sys.executable, "-m", "bayescap.cli", "fit", str(basler_csv), "--quality", "fast",
+                        "--mtf", str(zeros)], capture_output=True, text=True)
+    assert r.returncode == 2 and "Traceback" not in r.stderr
+    lines = r.stderr.strip().splitlines()
+    assert len(lines) == 1 and "MTF is zero at every frequency" in lines[0] and "zeros.csv" in lines[0]
