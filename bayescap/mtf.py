@@ -1007,11 +1007,15 @@ def read_image(path: str | Path) -> np.ndarray:
             raise MTFInputError(f"{p}: cannot read the array ({e})") from None
     else:
         try:
-            with Image.open(p) as im:
-                im.load()
-                if im.mode in ("P", "PA", "LA", "RGBA"):
-                    im = im.convert("RGB")
-                arr = np.asarray(im)
+            # Pillow warns of what it finds broken ("Corrupt EXIF data") before failing: the
+            # error below says it on its one line
+            with warnings.catch_warnings():
+                warnings.simplefilter("ignore", UserWarning)
+                with Image.open(p) as im:
+                    im.load()
+                    if im.mode in ("P", "PA", "LA", "RGBA"):
+                        im = im.convert("RGB")
+                    arr = np.asarray(im)
         except FileNotFoundError:
             raise MTFInputError(f"{p}: file not found") from None
         except (UnidentifiedImageError, OSError, ValueError) as e:

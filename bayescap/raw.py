@@ -36,8 +36,10 @@ describes the inputs, options and formulas for users.
 from __future__ import annotations
 
 import argparse
+import contextlib
 import csv
 import io
+import logging
 import math
 import os
 import sys
@@ -165,12 +167,25 @@ def _round_float32_seconds(value: float) -> float:
     return float(f"{float(np.float32(value)):.6g}")
 
 
+@contextlib.contextmanager
+def _quiet_tifffile():
+    """tifffile logs what it finds wrong in a file ("invalid offset to first page") to standard error
+    before raising; the error bayescap reports says it on its one line, so the log is held back."""
+    log = logging.getLogger("tifffile")
+    level = log.level
+    log.setLevel(logging.CRITICAL + 1)
+    try:
+        yield
+    finally:
+        log.setLevel(level)
+
+
 def _tiff_tags(path: Path) -> dict[int, object]:
     """Tags of the first IFD (and of its EXIF IFD) of a TIFF-based file; {} for other files."""
     import tifffile
 
     try:
-        with tifffile.TiffFile(path) as tif:
+        with _quiet_tifffile(), tifffile.TiffFile(path) as tif:
             page = tif.pages[0]
             tags = {tag.code: tag.value for tag in page.tags}
             exif = tags.get(34665)
@@ -300,7 +315,7 @@ def _read_tiff(path: Path) -> Frame:
     import tifffile
 
     try:
-        with tifffile.TiffFile(path) as tif:
+        with _quiet_tifffile(), tifffile.TiffFile(path) as tif:
             page = tif.pages[0]
             size = path.stat().st_size
             ends = [int(o) + int(n) for o, n in zip(page.dataoffsets, page.databytecounts)]

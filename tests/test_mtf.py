@@ -341,3 +341,17 @@ def test_warnings_clipping_contrast_angle_bins():
                                        noise_sd=0.001), n_boot=0)
     assert any("empty projection bin" in str(w.message) for w in rec)
     assert any("empty projection bin" in w for w in r.warnings)
+
+
+def test_broken_image_is_one_line_of_error(tmp_path):
+    """Pillow warns ("Corrupt EXIF data") before it fails on a broken TIFF; the warning's two lines
+    came out above bayescap's error (found 2026-11-25). Now the one line naming the file."""
+    import subprocess
+    import sys
+
+    p = tmp_path / "broken.tif"
+    p.write_bytes(b"II*\x00garbage")
+    r = subprocess.run([sys.executable, "-m", "bayescap.cli", "mtf", str(p)], capture_output=True, text=True)
+    assert r.returncode == 2
+    lines = r.stderr.strip().splitlines()
+    assert len(lines) == 1 and lines[0].startswith("bayescap: error:") and "broken.tif" in lines[0], r.stderr

@@ -612,3 +612,29 @@ def test_ingested_crops_fit_to_the_full_frame_gain(png_csv):
                                 f"{kf.std():.4f} e-/DN: difference {diff:.4f} vs 3 sd {3 * sd:.4f}")
     # the crop's error is the larger one, as its pixel count says
     assert kc.std() > kf.std()
+
+
+def test_broken_tiff_frame_is_one_line_of_error(tmp_path):
+    """tifffile logs what it finds wrong in a file ("invalid offset to first page") to standard error
+    before raising; that line came out above bayescap's own (found 2026-11-25 by feeding the ingest
+    corrupted frames). Now only the IngestError, naming the file."""
+    import subprocess
+    import sys
+
+    rng = np.random.default_rng(0)
+    rows = ["file,kind,exposure_time_s"]
+    for i, t in enumerate((0.001, 0.002, 0.004)):
+        for kind, level in (("bright", 200.0 * (i + 1)), ("dark", 10.0)):
+            for ab in "ab":
+                name = f"{kind}_{i}_{ab}.npy"
+                np.save(tmp_path / name, rng.poisson(level, (32, 32)).astype(np.uint16))
+                rows.append(f"{name},{kind},{t}")
+    (tmp_path / "broken.tif").write_bytes(b"II*\x00garbage")
+    rows[1] = "broken.tif," + rows[1].split(",", 1)[1]
+    (tmp_path / "manifest.csv").write_text("# adc_bits: 12\n" + "\n".join(rows) + "\n")
+    out = tmp_path / "ptc.csv"
+    r = subprocess.run([sys.executable, "-m", "bayescap.cli", "ingest", str(tmp_path / "manifest.csv"),
+                        "-o", str(out)], capture_output=True, text=True)
+    assert r.returncode == 2 and not out.exists()
+    lines = r.stderr.strip().splitlines()
+    assert len(lines) == 1 and lines[0].startswith("bayescap ingest: error:") and "broken.tif" in lines[0], r.stderr
