@@ -28,6 +28,8 @@ from __future__ import annotations
 
 import argparse
 import json
+import math
+import sys
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -477,13 +479,30 @@ def run_sweep(args: argparse.Namespace) -> int:
     """Run ``bayescap sweep`` from parsed arguments; prints a table or JSON; returns 0."""
     if args.study != "pixel-size":  # pragma: no cover - argparse restricts the choices
         raise ValueError(f"unknown study {args.study!r}")
+    def refuse(msg):
+        print(f"bayescap: error: {msg}", file=sys.stderr)
+        return 2
+
+    # (found 2026-11-25: a zero, negative or NaN f-number ended in a traceback, --draws 0 in exit 1)
     if args.draws < 1:
-        raise SystemExit("--draws must be at least 1")
+        return refuse(f"--draws must be at least 1, got {args.draws}")
+    if not (0.5 <= args.f_number < math.inf):
+        return refuse(f"--f-number must be a finite number >= 0.5 (the limit of a lens in air), got {args.f_number}")
+    if not (0.0 < args.wavelength_nm < math.inf):
+        return refuse(f"--wavelength-nm must be a finite number > 0, got {args.wavelength_nm}")
+    if not math.isfinite(args.tr_trend):
+        return refuse(f"--tr-trend must be a finite number (negative: no trend), got {args.tr_trend}")
+    if args.exposure_lux_s is not None and not (0.0 < args.exposure_lux_s < math.inf):
+        return refuse(f"--exposure-lux-s must be a finite number > 0, got {args.exposure_lux_s}")
     res = pixel_size_sweep(optical_format=args.optical_format, f_number=args.f_number,
                            wavelength_nm=args.wavelength_nm, n_draws=args.draws, seed=args.seed,
                            method=args.method,
                            tr_trend_bits_per_um=None if args.tr_trend < 0 else args.tr_trend,
                            exposure_lux_s=args.exposure_lux_s)
+    if not np.any(np.asarray(res.capacity_nominal_bits) > 0):
+        # every pitch's capacity underflows (an f/1e308 lens passes no detail): no optimum to report
+        return refuse(f"the capacity is zero at every pitch (Δs down to {float(np.min(res.delta_s_bits)):.0f} bits "
+                      f"at f/{args.f_number:g}, {args.wavelength_nm:g} nm): no optimal pitch exists")
     if args.json:
         print(json.dumps(res.to_dict(), indent=2))
     else:

@@ -5,6 +5,7 @@ import sys
 from pathlib import Path
 
 import numpy as np
+import pytest
 
 EDGE = Path(__file__).parent / "data" / "slanted_edge" / "sfrmat3_v_edge_mono.tif"
 
@@ -133,3 +134,17 @@ def test_fast_tolerance_and_confidence_flags(tmp_path):
                      (("--quality", "fast", "--fast-confidence", "high"), "--fast-confidence must be")):
         r = _run("fit", basler, *bad)
         assert r.returncode == 2 and msg in r.stderr and "Traceback" not in r.stderr, r.stderr
+
+
+@pytest.mark.parametrize("args, fragment", [
+    (["--f-number", "0"], "--f-number must be"), (["--f-number", "nan"], "--f-number must be"),
+    (["--draws", "0"], "--draws must be at least 1"), (["--wavelength-nm", "-5"], "--wavelength-nm"),
+    (["--f-number", "1e308"], "capacity is zero at every pitch"),
+])
+def test_sweep_bad_numbers_exit_2_one_line(args, fragment):
+    """Found 2026-11-25: a zero or NaN f-number ended in a traceback, --draws 0 in exit 1, and an
+    f/1e308 lens printed an 'optimal pitch' among capacities that were all zero."""
+    r = _run("sweep", "pixel-size", "--draws", "50", *args)
+    assert r.returncode == 2 and r.stdout == ""
+    lines = r.stderr.strip().splitlines()
+    assert len(lines) == 1 and lines[0].startswith("bayescap: error:") and fragment in lines[0], r.stderr
