@@ -20,6 +20,18 @@ class InputError(Exception):
     """Any refusal of user input: printed on one line, exit status 2."""
 
 
+def seed_arg(text: str) -> int:
+    """argparse type of ``--seed``: a whole number >= 0 (numpy's SeedSequence refuses negative
+    seeds, with a traceback: found 2026-11-25)."""
+    try:
+        v = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a whole number >= 0, got {text!r}") from None
+    if v < 0:
+        raise argparse.ArgumentTypeError(f"expected a whole number >= 0, got {v}")
+    return v
+
+
 def add_fast_arguments(p):
     """``--fast-tolerance``, ``--fast-confidence`` (``fit``, ``compare``, ``report``): the fast preset's
     check, read back by :func:`fast_settings_from_args`."""
@@ -71,7 +83,7 @@ def build_parser() -> argparse.ArgumentParser:
                                                        "a JSON array of them for several CSVs)")
     p.add_argument("--jobs", type=int, default=1, metavar="N",
                    help="several CSVs: worker processes for the batch (default 1)")
-    p.add_argument("--seed", type=int, default=None, help="random seed: the same seed gives the same numbers")
+    p.add_argument("--seed", type=seed_arg, default=None, help="random seed: the same seed gives the same numbers")
     p.add_argument("--out", metavar="DIR", help="also write result.json, report.txt, posterior.nc "
                                                "(ArviZ InferenceData), ptc.png and corner.png into DIR "
                                                "(several CSVs: into DIR/<csv name>/)")
@@ -120,7 +132,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--channel", default=None, help="R, G, B, lum (RGB images; default lum) or mono")
     p.add_argument("--window", choices=("tukey", "hamming"), default="tukey")
     p.add_argument("--n-boot", type=int, default=200, help="bootstrap draws (default 200)")
-    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--seed", type=seed_arg, default=0)
     p.add_argument("--correct-bin-width", action="store_true",
                    help="divide out the 1/4-pixel binning (recommended for Δs; off = ISO output)")
     p.add_argument("--json", action="store_true", help="print the result as JSON")
@@ -374,8 +386,8 @@ def _scene_from_args(args, data):
         return None
     base = default_scene(data)
     t = spec.get("exposure_s", base.exposure_time_s)
-    if not (t >= 0 and t < float("inf")):
-        raise InputError(f"scene exposure time must be a finite number >= 0, got {t}")
+    if not (0 <= t <= 1e30):     # 1e30: the reader's bound on any value (ptc._MAX_ABS_VALUE)
+        raise InputError(f"scene exposure time must be a number in [0, 1e30] s, got {t}")
     temp = spec.get("temperature_c")
     if temp is not None and not (-273.15 <= temp < float("inf")):
         raise InputError(f"scene temperature must be a finite number >= -273.15 °C, got {temp}")

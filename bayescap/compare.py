@@ -271,7 +271,8 @@ def tonal_range_at_exposure(result: FitResult, h0_lux_s, *, calibration: Exposur
         raise CompareInputError(f"H0 must be positive (lux·s), got {h0_lux_s}")
     clip, _ = result.signal_max_e(p)
     clip = np.asarray(clip, float)[:, None]
-    s_max = np.minimum(clip, sens * h / mid_grey)
+    with np.errstate(over="ignore"):   # an H0 of 1e308 lux·s: every pixel at the clip, as meant
+        s_max = np.minimum(clip, sens * h / mid_grey)
     a, b, c = (x[:, None] for x in _coefficients(result, p))
     k = np.asarray(p["conversion_gain_e_per_dn"], float)[:, None]
     gain = clip / s_max
@@ -608,6 +609,8 @@ def format_compare_text(d: dict) -> str:
 # --------------------------------------------------------------------------------------------
 
 def add_compare_arguments(p: argparse.ArgumentParser) -> None:
+    from .cli import seed_arg
+
     p.add_argument("csv", nargs="+", help="photon-transfer CSVs, one per sensor")
     p.add_argument("--area", default=DEFAULT_AREA,
                    help="fixed imaging area: an optical format (1/4in, 1/3.2in, 1/3in, 2/3in, ...), WxHmm, "
@@ -616,7 +619,7 @@ def add_compare_arguments(p: argparse.ArgumentParser) -> None:
                    help="average photometric exposure H0 (lux·s) for TR, as Fig. 8(a) (default 0.4)")
     p.add_argument("--mid-grey", type=float, default=DEFAULT_MID_GREY, dest="mid_grey",
                    help="fraction of the top of the signal range where the scene's mean is placed (default 0.18)")
-    p.add_argument("--seed", type=int, default=0, help="random seed of the run (each sensor's seed derives from it)")
+    p.add_argument("--seed", type=seed_arg, default=0, help="random seed of the run (each sensor's seed derives from it)")
     p.add_argument("--quality", choices=("fast", "standard", "accurate"), default=DEFAULT_QUALITY,
                    help="sampler preset for every fit (default fast: several sensors are fitted; "
                         "use standard or accurate for final numbers)")

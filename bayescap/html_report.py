@@ -402,6 +402,8 @@ def write_report(cmp: Comparison, path, *, title: str = "bayescap sensor compari
 
 
 def add_report_arguments(p: argparse.ArgumentParser) -> None:
+    from .cli import seed_arg
+
     p.add_argument("csv", nargs="+", help="photon-transfer CSVs, one per sensor")
     p.add_argument("-o", "--output", default="report.html", help="HTML file to write (default report.html)")
     p.add_argument("--area", default=DEFAULT_AREA, help="fixed imaging area (as for compare; default 1/4in)")
@@ -409,7 +411,7 @@ def add_report_arguments(p: argparse.ArgumentParser) -> None:
                    help="average exposure H0 (lux·s) for TR and capacity (default 0.4)")
     p.add_argument("--mid-grey", type=float, default=DEFAULT_MID_GREY, dest="mid_grey",
                    help="fraction of the top of the range where the scene's mean is placed (default 0.18)")
-    p.add_argument("--seed", type=int, default=0, help="random seed of the run")
+    p.add_argument("--seed", type=seed_arg, default=0, help="random seed of the run")
     p.add_argument("--quality", choices=("fast", "standard", "accurate"), default=DEFAULT_QUALITY,
                    help="sampler preset (default fast)")
     p.add_argument("--title", default="bayescap sensor comparison")

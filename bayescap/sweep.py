@@ -422,6 +422,8 @@ def farrell_tradeoff(*, specs: list[PixelSpec] | None = None, f_number: float | 
 
 def add_sweep_arguments(parser: argparse.ArgumentParser) -> argparse.ArgumentParser:
     """Arguments of ``bayescap sweep``: ``pixel-size --format 1/4in --f-number 2.8 ...``."""
+    from .cli import seed_arg
+
     parser.add_argument("study", choices=["pixel-size"],
                         help="pixel-size: image information capacity vs pixel pitch (paper Fig. 4)")
     parser.add_argument("--format", dest="optical_format", default="1/4in", choices=sorted(FORMATS_MM),
@@ -436,7 +438,7 @@ def add_sweep_arguments(parser: argparse.ArgumentParser) -> argparse.ArgumentPar
     parser.add_argument("--exposure-lux-s", type=float, default=None,
                         help="evaluate TR at this exposure instead of over the dynamic range")
     parser.add_argument("--draws", type=int, default=2000, help="Table 1 draws (default 2000)")
-    parser.add_argument("--seed", type=int, default=0, help="random seed (default 0)")
+    parser.add_argument("--seed", type=seed_arg, default=0, help="random seed (default 0)")
     parser.add_argument("--json", action="store_true", help="print JSON instead of a table")
     return parser
 

@@ -148,3 +148,24 @@ def test_sweep_bad_numbers_exit_2_one_line(args, fragment):
     assert r.returncode == 2 and r.stdout == ""
     lines = r.stderr.strip().splitlines()
     assert len(lines) == 1 and lines[0].startswith("bayescap: error:") and fragment in lines[0], r.stderr
+
+
+BASLER = Path(__file__).parents[1] / "data" / "emva1288_basler_ccd12.csv"
+
+
+@pytest.mark.parametrize("cmd", [["fit", BASLER], ["compare", BASLER, BASLER], ["report", BASLER],
+                                 ["sweep", "pixel-size"], ["mtf", EDGE]])
+def test_negative_seed_is_a_usage_error_not_a_traceback(cmd):
+    """Found 2026-11-25: --seed -1 reached numpy's SeedSequence and ended in a traceback."""
+    r = _run(*cmd, "--seed", "-1")
+    assert r.returncode == 2 and "Traceback" not in r.stderr
+    assert "argument --seed: expected a whole number >= 0, got -1" in r.stderr
+
+
+def test_scene_exposure_beyond_any_plausible_value_is_refused():
+    """Found 2026-11-25: --scene-exposure-s 1e308 overflowed the dark signal and crashed the report's
+    noise breakdown."""
+    r = _run("fit", BASLER, "--quality", "fast", "--scene-exposure-s", "1e308")
+    assert r.returncode == 2 and r.stdout == ""
+    lines = r.stderr.strip().splitlines()
+    assert len(lines) == 1 and "scene exposure time must be a number in [0, 1e30] s" in lines[0], r.stderr
