@@ -869,8 +869,8 @@ _FREQ_COL = "freq_cy_per_px"
 _CI_COLS = ("mtf_ci95_low", "mtf_ci95_high")
 
 
-#: the largest MTF value :func:`read_mtf_table` accepts (sharpening lifts a measured SFR above 1, by
-#: a factor of 1.2-2 in camera pipelines, never tenfold)
+#: the largest MTF value :func:`read_mtf_table` accepts (sharpening lifts a measured SFR above 1 in
+#: the band; a value ten times the zero-frequency one is no SFR)
 _MTF_MAX = 10.0
 
 
