@@ -386,18 +386,18 @@ def _scene_from_args(args, data):
         return None
     base = default_scene(data)
     t = spec.get("exposure_s", base.exposure_time_s)
-    if not (0 <= t <= 1e30):     # 1e30: the reader's bound on any value (ptc._MAX_ABS_VALUE)
-        raise InputError(f"scene exposure time must be a number in [0, 1e30] s, got {t}")
     temp = spec.get("temperature_c")
-    if temp is not None and not (-273.15 <= temp < float("inf")):
-        raise InputError(f"scene temperature must be a finite number >= -273.15 °C, got {temp}")
     ref = data.metadata.get("temperature_c")
+    src = "--scene" if args.scene else ("--scene-exposure-s" if "exposure_s" in spec else base.source)
+    try:        # Scene checks the exposure time and the temperature
+        scene = Scene(exposure_time_s=t, source=src, temperature_c=temp,
+                      reference_temperature_c=ref if temp is not None else None)
+    except ValueError as e:
+        raise InputError(str(e)) from None
     if temp is not None and ref is None:
         raise InputError(f"{data.source}: a scene temperature needs the measurement's temperature: add "
                          "'# temperature_c: <°C>' to the CSV")
-    src = "--scene" if args.scene else ("--scene-exposure-s" if "exposure_s" in spec else base.source)
-    return Scene(exposure_time_s=t, source=src, temperature_c=temp,
-                 reference_temperature_c=ref if temp is not None else None)
+    return scene
 
 
 def main(argv=None) -> int:

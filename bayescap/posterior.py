@@ -17,6 +17,7 @@ from .capacity import (NoiseCoefficients, dynamic_range_db, mtf_loss_bits, snr_d
 from .fit import (ChainResult, ConvergenceWarning, fast_diagnostics, interval_end_mcse_mcmc, stuck_threshold,
                   stuck_walkers, worst_end)
 from .model import PTCModel
+from .ptc import _ABSOLUTE_ZERO_C, _MAX_ABS_VALUE
 
 __all__ = ["FitResult", "Scene", "summarize", "DERIVED_INFO"]
 
@@ -41,6 +42,15 @@ class Scene:
     source: str = "given"
     temperature_c: float | None = None
     reference_temperature_c: float | None = None
+
+    def __post_init__(self):
+        # (a scene exposure of 1e308 s overflowed the dark signal and crashed the noise breakdown)
+        if not 0.0 <= self.exposure_time_s <= _MAX_ABS_VALUE:
+            raise ValueError(f"scene exposure time must be a number in [0, {_MAX_ABS_VALUE:g}] s, "
+                             f"got {self.exposure_time_s}")
+        for t in (self.temperature_c, self.reference_temperature_c):
+            if t is not None and not _ABSOLUTE_ZERO_C <= t < math.inf:
+                raise ValueError(f"scene temperature must be a finite number >= {_ABSOLUTE_ZERO_C:g} °C, got {t}")
 
     @property
     def dark_current_factor(self) -> float:

@@ -164,9 +164,9 @@ def _check_metadata(md, path):
     if "crosstalk_sigma_px" in md and not md["crosstalk_sigma_px"] >= 0:
         raise PTCInputError(f"metadata 'crosstalk_sigma_px' must be >= 0, got {md['crosstalk_sigma_px']}",
                             path=path)
-    if "temperature_c" in md and not md["temperature_c"] >= -273.15:
-        raise PTCInputError(f"metadata 'temperature_c' must be >= -273.15 (absolute zero), got {md['temperature_c']}",
-                            path=path)
+    if "temperature_c" in md and not md["temperature_c"] >= _ABSOLUTE_ZERO_C:
+        raise PTCInputError(f"metadata 'temperature_c' must be >= {_ABSOLUTE_ZERO_C:g} (absolute zero), "
+                            f"got {md['temperature_c']}", path=path)
     if "fill_factor" in md and not 0 < md["fill_factor"] <= 1:
         raise PTCInputError(f"metadata 'fill_factor' must be in (0, 1], got {md['fill_factor']}", path=path)
 
@@ -259,6 +259,8 @@ def read_ptc_csv(path, *, overrides: dict | None = None) -> PTCData:
 #: no column of a photon-transfer table comes near this (a variance of 32-bit DN values is below 2e19);
 #: a larger value is a unit or export error, and the model's products of it would overflow
 _MAX_ABS_VALUE = 1e30
+#: temperatures below it (°C) are refused (metadata ``temperature_c``, a scene's temperature)
+_ABSOLUTE_ZERO_C = -273.15
 
 
 def _check_value(col, v, path, row):

@@ -168,4 +168,4 @@ def test_scene_exposure_beyond_any_plausible_value_is_refused():
     r = _run("fit", BASLER, "--quality", "fast", "--scene-exposure-s", "1e308")
     assert r.returncode == 2 and r.stdout == ""
     lines = r.stderr.strip().splitlines()
-    assert len(lines) == 1 and "scene exposure time must be a number in [0, 1e30] s" in lines[0], r.stderr
+    assert len(lines) == 1 and "scene exposure time must be a number in [0, 1e+30] s" in lines[0], r.stderr

@@ -135,3 +135,16 @@ def test_dark_pixels_clipped_at_zero_are_flagged():
             spatial = [int(d.row_label(i)) for i in np.nonzero(np.isfinite(d.dark_spatial_var_dn2))[0]]
             assert res.flags["dark_floor_clipping"] == spatial
             assert "biased low" in res.notes[0] and "sd above 0 DN" in res.notes[0]
+
+
+def test_scene_refuses_exposures_and_temperatures_out_of_range():
+    """The checks live in Scene, so a Python caller gets them too (the command line turns the
+    ValueError into its one-line error)."""
+    import math
+
+    for kw in ({"exposure_time_s": -1.0}, {"exposure_time_s": math.nan}, {"exposure_time_s": 1e308},
+               {"exposure_time_s": 1.0, "temperature_c": -300.0, "reference_temperature_c": 25.0},
+               {"exposure_time_s": 1.0, "temperature_c": 25.0, "reference_temperature_c": math.inf}):
+        with pytest.raises(ValueError, match="scene"):
+            Scene(**kw)
+    assert Scene(exposure_time_s=0.0).exposure_time_s == 0.0
