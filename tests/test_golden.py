@@ -1,0 +1,70 @@
+"""Golden outputs: the bundled sensors' fit, batch and comparison JSON with fixed seeds.
+
+A refactor must leave these bit for bit unchanged (wall-clock times aside). A deliberate
+change of the numbers regenerates them, in its own commit that says why:
+
+    python tests/test_golden.py --regenerate
+"""
+
+import contextlib
+import io
+import json
+import sys
+from pathlib import Path
+
+import pytest
+
+ROOT = Path(__file__).resolve().parents[1]
+GOLDEN = Path(__file__).resolve().parent / "data" / "golden"
+
+SENSORS = {
+    "basler": "data/emva1288_basler_ccd12.csv",
+    "industrial": "data/simulated/sim_industrial_3p45um_12bit.csv",
+    "phone": "data/simulated/sim_phone_1p75um_10bit.csv",
+    "scientific": "data/simulated/sim_scientific_6p5um_16bit_unsaturated.csv",
+    "M1_1.75um": "data/benchmark/M1_1.75um.csv",
+    "M2_2.80um": "data/benchmark/M2_2.80um.csv",
+}
+BENCHMARK = sorted(str(p.relative_to(ROOT)) for p in (ROOT / "data" / "benchmark").glob("M*.csv"))
+
+CASES = {
+    **{f"fit_{name}_{q}": ["fit", path, "--seed", "1", "--quality", q, "--json"]
+       for name, path in SENSORS.items() for q in ("standard", "fast")},
+    "fit_batch_benchmark_fast": ["fit", *BENCHMARK, "--seed", "3", "--quality", "fast", "--json"],
+    "compare_benchmark_fast": ["compare", *BENCHMARK, "--seed", "2", "--json"],
+}
+
+TIMING_KEYS = {"wall_s"}
+
+
+def _strip_timings(obj):
+    if isinstance(obj, dict):
+        return {k: _strip_timings(v) for k, v in obj.items() if k not in TIMING_KEYS}
+    if isinstance(obj, list):
+        return [_strip_timings(v) for v in obj]
+    return obj
+
+
+def run_case(args):
+    from bayescap.cli import main
+
+    out = io.StringIO()
+    with contextlib.chdir(ROOT), contextlib.redirect_stdout(out):
+        status = main(list(args) + ["--no-progress"] if args[0] == "fit" else list(args))
+    assert status in (0, None), f"bayescap {' '.join(args)} exited {status}"
+    return _strip_timings(json.loads(out.getvalue()))
+
+
+@pytest.mark.parametrize("case", sorted(CASES))
+def test_golden(case):
+    expected = json.loads((GOLDEN / f"{case}.json").read_text())
+    assert run_case(CASES[case]) == expected
+
+
+if __name__ == "__main__":
+    if sys.argv[1:] != ["--regenerate"]:
+        sys.exit(__doc__)
+    GOLDEN.mkdir(parents=True, exist_ok=True)
+    for name, args in sorted(CASES.items()):
+        (GOLDEN / f"{name}.json").write_text(json.dumps(run_case(args), indent=1, sort_keys=True) + "\n")
+        print("wrote", name)
