@@ -11,11 +11,14 @@ import warnings
 
 import numpy as np
 
-from .fit import QUALITY_PRESETS, SamplerSettings, run_ensembles
-from .model import PTCModel, saturation_flags, select_terms
-from .optics import default_mtf
-from .posterior import FitResult, Scene
-from .ptc import PTCData, PTCInputError, read_ptc_csv
+from bayescap.exceptions import PTCInputError
+from bayescap.inference.fast import FastSettings
+from bayescap.inference.mcmc import run_ensembles
+from bayescap.inference.presets import QUALITY_PRESETS, SamplerSettings
+from bayescap.io.ptc_csv import PTCData, read_ptc_csv
+from bayescap.model.ptc_model import PTCModel, saturation_flags, select_terms
+from bayescap.physics.optics import default_mtf
+from bayescap.posterior import FitResult, Scene
 
 __all__ = ["load", "fit", "default_scene", "mtf_from_metadata", "measured_mtf"]
 
@@ -43,7 +46,7 @@ def mtf_from_metadata(metadata: dict, notes: list | None = None):
 
     ``bayescap fit``, ``compare`` and ``report`` all build the MTF here, so one CSV gives one
     capacity whichever command reads it."""
-    from .optics import GaussianCrosstalk, MTFProduct
+    from bayescap.physics.optics import GaussianCrosstalk, MTFProduct
 
     md = {**METADATA_DEFAULTS, **metadata}
     pitch = metadata.get("pixel_pitch_um")
@@ -67,8 +70,8 @@ def measured_mtf(path, *, seed: int = 0, n_boot: int = 200):
     bootstrap intervals are centred on the true MTF) with ``n_boot`` bootstrap draws."""
     from pathlib import Path
 
-    from .mtf import measure_sfr, read_image, read_mtf_table
-    from .optics import TabulatedMTF
+    from bayescap.measure.sfr import measure_sfr, read_image, read_mtf_table
+    from bayescap.physics.optics import TabulatedMTF
 
     p = Path(path)
     if p.suffix.lower() == ".csv":
@@ -90,7 +93,7 @@ def _check_mtf_passes(mtf, data: PTCData, given: bool):
     """Refuse, before any fitting, an MTF that is zero at every frequency of the band (a crosstalk σ
     of 10⁶ px, an all-zero MTF table): Δs would be −∞ and no capacity can be computed. A
     :class:`PTCInputError` naming where the MTF came from."""
-    from .capacity import mtf_loss_bits
+    from bayescap.physics.capacity import mtf_loss_bits
 
     try:
         mtf_loss_bits(mtf)
@@ -155,7 +158,7 @@ def fit(data: PTCData | PTCModel | str, *, seed: int | None = None,
     if isinstance(quality, str) and quality not in QUALITY_PRESETS:
         raise ValueError(f"unknown quality {quality!r}: use one of {', '.join(QUALITY_PRESETS)}")
     if quality == "fast":
-        from .fast import FastSettings, fast_posterior
+        from bayescap.inference.fast import FastSettings, fast_posterior
 
         fs = fast_settings or FastSettings()
         # with a gate on the interval ends' Monte Carlo error, the top-up covers the derived
@@ -210,3 +213,15 @@ def fit(data: PTCData | PTCModel | str, *, seed: int | None = None,
     if defaults_used:
         res.flags["metadata_defaults"] = defaults_used
     return res
+
+
+def fast_fit(data_or_model, *, seed, settings: FastSettings = FastSettings(), mtf=None, scene=None,
+             fallback: bool = True, fallback_quality: str = "fast", terms=None):
+    """``bayescap.fit(..., quality="fast")`` with explicit fast-path knobs (a thin wrapper).
+
+    ``data_or_model``: a PTCData, a contract CSV path or a :class:`~bayescap.model.PTCModel`.
+    ``fallback=False`` returns a rejected fast result (flagged NOT CONVERGED) instead of running
+    the MCMC ``fallback_quality`` preset. See :func:`bayescap.api.fit`.
+    """
+    return fit(data_or_model, seed=seed, quality="fast", fast_settings=settings, mtf=mtf, scene=scene,
+               fallback=fallback, fallback_quality=fallback_quality, terms=terms)

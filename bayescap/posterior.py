@@ -11,13 +11,24 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from . import __version__
-from .capacity import (NoiseCoefficients, dynamic_range_db, mtf_loss_bits, snr_db, tonal_range,
-                       N_GREY_LEVELS)
-from .fit import (ChainResult, ConvergenceWarning, fast_diagnostics, interval_end_mcse_mcmc, stuck_threshold,
-                  stuck_walkers, worst_end)
-from .model import PTCModel
-from .ptc import _ABSOLUTE_ZERO_C, _MAX_ABS_VALUE
+from bayescap._version import __version__
+from bayescap.exceptions import ConvergenceWarning
+from bayescap.inference.chains import ChainResult, stuck_threshold, stuck_walkers
+from bayescap.inference.diagnostics import (
+    fast_diagnostics,
+    interval_end_mcse_mcmc,
+    worst_end,
+)
+from bayescap.io.ptc_csv import _ABSOLUTE_ZERO_C, _MAX_ABS_VALUE
+from bayescap.model.ptc_model import PTCModel
+from bayescap.physics.capacity import (
+    N_GREY_LEVELS,
+    NoiseCoefficients,
+    dynamic_range_db,
+    mtf_loss_bits,
+    snr_db,
+    tonal_range,
+)
 
 __all__ = ["FitResult", "Scene", "summarize", "DERIVED_INFO"]
 
@@ -416,7 +427,7 @@ class FitResult:
             # its errors of the quantities that are not parameters (~5 % of a batch sensor's time)
             return {n: float(e) for n, e in (self.chains.extra.get("end_mcse") or {}).items()
                     if n not in self.draws}
-        from .fast import _varies, interval_end_mcse
+        from bayescap.inference.fast import _varies, interval_end_mcse
 
         fn = FitResult.derived_values_fn(self.model, metadata=self.metadata, scene=self.scene, mtf=self.mtf,
                                          seed=self.seed)

@@ -17,7 +17,7 @@ from dataclasses import asdict, dataclass
 
 import numpy as np
 
-from .ptc import PTCData, read_ptc_csv, write_ptc_csv
+from bayescap.io.ptc_csv import PTCData, read_ptc_csv, write_ptc_csv
 
 __all__ = ["SensorTruth", "simulate_frames", "simulate_ptc", "exposure_series"]
 
@@ -172,7 +172,7 @@ def simulate_ptc(truth: SensorTruth, *, photons_per_pixel=None, exposure_time_s=
     if path is not None:
         write_ptc_csv(out, path, metadata=md)
         return read_ptc_csv(path)
-    from .ptc import _readonly
+    from bayescap.io.ptc_csv import _readonly
 
     order = np.argsort(out["mean_dn"] - out["dark_mean_dn"], kind="stable")
     kw = {k: _readonly(v[order]) for k, v in out.items()}

@@ -174,7 +174,7 @@ def main(argv=None):
     datas, truths = gpixel_sensors(n_max=a.n, seed=1)
     from dataclasses import replace
 
-    from bayescap.fast import FastSettings
+    from bayescap.inference.fast import FastSettings
 
     fs = FastSettings() if a.gate is None else replace(FastSettings(), end_mcse_max=a.gate)
     if a.confidence is not None:

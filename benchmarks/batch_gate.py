@@ -36,7 +36,7 @@ OUT = ROOT / "benchmarks" / "results" / "batch_gate.md"
 
 
 def _settings(variant):
-    from bayescap.fast import FastSettings
+    from bayescap.inference.fast import FastSettings
 
     parts = variant.split(":")
     gate = None if parts[0] == "none" else float(parts[0])

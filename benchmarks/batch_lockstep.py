@@ -28,8 +28,8 @@ CONFIGS = [  # (solo_points, stack_size, max_points); the first is the default
 
 def lockstep_run(models, groups, settings, solo_points, stack_size, max_points):
     import bayescap.batch as B
-    from bayescap.fast import fast_posterior
-    from bayescap.model import PTCModelStack
+    from bayescap.inference.fast import fast_posterior
+    from bayescap.model.ptc_model import PTCModelStack
 
     out = {}
     for ix in groups:
@@ -50,9 +50,10 @@ def main(argv=None):
     warnings.simplefilter("ignore")
     from _machine import describe_machine
 
-    from bayescap.batch import gpixel_sensors, stack_groups
-    from bayescap.fast import FastSettings, fast_posterior
-    from bayescap.model import PTCModel
+    from bayescap.batch import gpixel_sensors
+    from bayescap.inference.lockstep import stack_groups
+    from bayescap.inference.fast import FastSettings, fast_posterior
+    from bayescap.model.ptc_model import PTCModel
 
     load0 = os.getloadavg()
     datas, _ = gpixel_sensors(n_max=a.n, seed=0)

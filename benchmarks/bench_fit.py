@@ -40,8 +40,8 @@ def main(argv=None):
                         "print(time.perf_counter()-t)"], capture_output=True, text=True, check=True)
     import_s = float(r.stdout.strip())
     import bayescap
-    from bayescap.fit import mcmc_start
-    from bayescap.model import PTCModel
+    from bayescap.inference.coordinates import mcmc_start
+    from bayescap.model.ptc_model import PTCModel
 
     files = {"Basler CCD (real, 51 rows)": ROOT / "data" / "emva1288_basler_ccd12.csv",
              "simulated 1.75 um (50 rows)": ROOT / "data" / "simulated" / "sim_phone_1p75um_10bit.csv"}

@@ -9,8 +9,8 @@ from pathlib import Path
 
 import numpy as np
 
-from bayescap.model import PTCModel
-from bayescap.ptc import read_ptc_csv
+from bayescap.model.ptc_model import PTCModel
+from bayescap.io.ptc_csv import read_ptc_csv
 
 ROOT = Path(__file__).resolve().parents[1]
 

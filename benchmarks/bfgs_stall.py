@@ -21,8 +21,8 @@ def traces():
     from scipy import optimize
 
     from bayescap.batch import gpixel_sensors
-    from bayescap.model import PTCModel
-    from bayescap.ptc import read_ptc_csv
+    from bayescap.model.ptc_model import PTCModel
+    from bayescap.io.ptc_csv import read_ptc_csv
 
     fm = importlib.import_module("bayescap.fit")
     fm.BFGS_STALL_EVALS = 10**9          # full runs

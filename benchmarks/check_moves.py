@@ -47,7 +47,7 @@ def moves_registry():
 
 def independence_moves(mean, cov, fraction=0.5, *, nu=6.0, scale=1.0):
     """bayescap's IndependenceMove (t proposal at ``mean``, ``cov``) mixed with DE 0.8 + stretch 0.2."""
-    from bayescap.fit import IndependenceMove
+    from bayescap.inference.moves import IndependenceMove
 
     rest = 1.0 - fraction
     return [(IndependenceMove(mean, cov, nu=nu, scale=scale), fraction),
@@ -134,7 +134,8 @@ def check_banana(moves_fn, *, seeds, n_steps, n_walkers=32, probs=(0.025, 0.16, 
     sampler does) and compare mean, sd and quantiles with 400 000 exact draws. Returns the largest
     |error| / (Monte Carlo standard error across seeds, floored by the exact draws' own error)
     and the raw errors."""
-    from bayescap.fit import _initial_ball, laplace_start
+    from bayescap.inference.mcmc import _initial_ball
+    from bayescap.inference.optimize import laplace_start
 
     tgt = _Target()
     x_map, _, cov, _ = laplace_start(tgt)

@@ -36,7 +36,7 @@ def main(argv=None):
     import sbc
     from _machine import describe_machine, emit
 
-    from bayescap.model import PTCModel
+    from bayescap.model.ptc_model import PTCModel
     F = importlib.import_module("bayescap.fit")
     warnings.simplefilter("ignore")
     if a.no_reset:

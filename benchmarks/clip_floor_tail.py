@@ -34,9 +34,9 @@ def main(argv=None):
     import bayescap
     import speed_accuracy as sa
     from _machine import describe_machine
-    from bayescap.fast import FastSettings, fast_posterior
-    from bayescap.fit import LogClipCoordinates
-    from bayescap.model import PTCModel
+    from bayescap.inference.fast import FastSettings, fast_posterior
+    from bayescap.inference.coordinates import LogClipCoordinates
+    from bayescap.model.ptc_model import PTCModel
 
     name, d, _ = next(s for s in sa.sensor_set(10) if s[0].startswith(a.sensor))
     m = PTCModel(d)

@@ -8,7 +8,7 @@ to 6 s' above the clip.
 import numpy as np
 from scipy.special import ndtr
 
-from bayescap.model import PTCModel
+from bayescap.model.ptc_model import PTCModel
 
 
 def sums(mu, s, tau, c, xi, w):

@@ -30,7 +30,7 @@ from pathlib import Path
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
-from bayescap import model as M  # noqa: E402
+from bayescap.model import ptc_model as M  # noqa: E402
 
 LOG_2PI, REL, RATE, BADC = M._LOG_2PI, M.OUTLIER_REL_SD, M.OUTLIER_RATE, M._BAD_GAMMA_CONST
 

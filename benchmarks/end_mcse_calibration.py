@@ -46,8 +46,8 @@ def main(argv=None):
     import speed_accuracy as sa
     from _machine import describe_machine
     from batch_accuracy import apply_sets
-    from bayescap.fast import FastSettings, fast_posterior
-    from bayescap.model import PTCModel, select_terms
+    from bayescap.inference.fast import FastSettings, fast_posterior
+    from bayescap.model.ptc_model import PTCModel, select_terms
 
     fs = apply_sets(FastSettings(), a.set)
     if a.rois:

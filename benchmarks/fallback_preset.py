@@ -40,7 +40,7 @@ OUT = ROOT / "benchmarks" / "results" / "fallback_preset.md"
 
 def before_preset():
     """The MCMC ``fast`` preset until 2026-11-25 (commit 7f27bc9 replaced it)."""
-    from bayescap.fit import SamplerSettings
+    from bayescap.inference.presets import SamplerSettings
 
     return SamplerSettings(n_ensembles=2, n_burn=100, n_steps=150, extend_steps=None, max_rounds=3, ess_target=200,
                            tau_factor=10, max_draws=4000)
@@ -57,7 +57,7 @@ def main(argv=None):
     import bayescap
     import speed_accuracy as sa
     from _machine import describe_machine, emit
-    from bayescap.fit import QUALITY_PRESETS
+    from bayescap.inference.presets import QUALITY_PRESETS
     from fast_tradeoff import _reference
 
     presets = {"now": QUALITY_PRESETS["fast"], "before": before_preset()}

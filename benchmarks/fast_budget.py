@@ -30,8 +30,8 @@ sys.path.insert(0, str(ROOT / "benchmarks"))
 
 from speed_accuracy import machine, sensor_set  # noqa: E402
 
-import bayescap.fast as fast  # noqa: E402
-from bayescap.model import PTCModel  # noqa: E402
+import bayescap.inference.fast as fast  # noqa: E402
+from bayescap.model.ptc_model import PTCModel  # noqa: E402
 
 OUT = ROOT / "benchmarks" / "results" / "fast_budget.md"
 

@@ -15,7 +15,7 @@ from pathlib import Path
 import numpy as np
 
 import bayescap
-from bayescap import fast
+from bayescap.inference import fast
 from bayescap.batch import gpixel_sensors
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))

@@ -28,10 +28,10 @@ def main(argv=None):
     a = ap.parse_args(argv)
     import bayescap
     from _machine import describe_machine, emit
-    from bayescap import fast
+    from bayescap.inference import fast
     from bayescap.batch import gpixel_sensors
-    from bayescap.model import PTCModel
-    from bayescap.ptc import read_ptc_csv
+    from bayescap.model.ptc_model import PTCModel
+    from bayescap.io.ptc_csv import read_ptc_csv
 
     if a.set == "speed_accuracy":
         from speed_accuracy import sensor_set

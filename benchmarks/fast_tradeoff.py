@@ -70,8 +70,9 @@ def main(argv=None):
     import bayescap
     import speed_accuracy as sa
     from _machine import describe_machine
-    from bayescap.fast import FastSettings, fast_fit, fast_posterior
-    from bayescap.model import PTCModel
+    from bayescap.inference.fast import FastSettings, fast_posterior
+    from bayescap.api import fast_fit
+    from bayescap.model.ptc_model import PTCModel
 
     gates = [None if g.strip().lower() == "none" else float(g) for g in a.gate.split(",")]
     nus = [None if v.strip().lower() == "none" else float(v) for v in a.adapt_nu.split(",")]

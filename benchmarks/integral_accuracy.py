@@ -25,8 +25,8 @@ from pathlib import Path
 import numpy as np
 from scipy import integrate
 
-from bayescap.capacity import integral_inv_sqrt_quadratic, mtf_loss_bits
-from bayescap.optics import DiffractionLens, GaussianCrosstalk, MTFProduct, PixelAperture
+from bayescap.physics.capacity import integral_inv_sqrt_quadratic, mtf_loss_bits
+from bayescap.physics.optics import DiffractionLens, GaussianCrosstalk, MTFProduct, PixelAperture
 
 OUT = Path(__file__).resolve().parent / "results" / "integral_accuracy.md"
 
@@ -101,9 +101,9 @@ def ds_reference(mtf):
 
 def propagation_timing(n_draws=10_000, repeat=7):
     import bayescap
-    from bayescap.fast import fast_posterior
+    from bayescap.inference.fast import fast_posterior
     from bayescap.posterior import FitResult
-    from bayescap.model import PTCModel
+    from bayescap.model.ptc_model import PTCModel
 
     d = bayescap.load(Path(__file__).resolve().parents[1] / "data" / "emva1288_basler_ccd12.csv")
     m = PTCModel(d)
@@ -128,7 +128,7 @@ def propagation_timing(n_draws=10_000, repeat=7):
     # TR alone
     coeffs = res._noise_coefficients(res.draws, res.scene.exposure_time_s)
     smax, _ = res.signal_max_e()
-    from bayescap.capacity import tonal_range
+    from bayescap.physics.capacity import tonal_range
 
     best_tr = np.inf
     for _ in range(repeat):

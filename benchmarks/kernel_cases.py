@@ -46,9 +46,10 @@ def main(argv=None):
     from _machine import describe_machine
 
     import bayescap
-    from bayescap.batch import gpixel_sensors, stack_groups
-    from bayescap.fast import fast_posterior
-    from bayescap.model import PTCModel, PTCModelStack
+    from bayescap.batch import gpixel_sensors
+    from bayescap.inference.lockstep import stack_groups
+    from bayescap.inference.fast import fast_posterior
+    from bayescap.model.ptc_model import PTCModel, PTCModelStack
 
     load0 = os.getloadavg()
     datas, _ = gpixel_sensors(n_max=200, seed=0)

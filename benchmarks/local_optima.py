@@ -34,7 +34,7 @@ OUT = ROOT / "benchmarks" / "results" / "local_optima.md"
 def sensors():
     import speed_accuracy as sa
     from bayescap.batch import gpixel_sensors
-    from bayescap.ptc import read_ptc_csv
+    from bayescap.io.ptc_csv import read_ptc_csv
 
     datas, _ = gpixel_sensors(n_max=20, seed=1)
     out = [(f"Gpixel ROI sim {i}", d) for i, d in enumerate(datas)]
@@ -45,7 +45,7 @@ def sensors():
 
 
 def log_evidence(model, x, cov, n=20000, seed=1):
-    from bayescap import fast
+    from bayescap.inference import fast
 
     rng = np.random.default_rng(seed)
     X, lq = fast.student_t_draws(x, cov * 1.5**2, 4.0, n, rng)
@@ -73,8 +73,8 @@ def _start(F, m, coords, optimizer, multi_start):
 def main():
     warnings.simplefilter("ignore")
     F = importlib.import_module("bayescap.fit")
-    from bayescap import fast
-    from bayescap.model import PTCModel
+    from bayescap.inference import fast
+    from bayescap.model.ptc_model import PTCModel
 
     t_all = time.perf_counter()
     load = os.getloadavg()

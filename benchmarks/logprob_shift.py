@@ -16,8 +16,8 @@ ROOT = Path(__file__).resolve().parents[1]
 
 def values():
     from bayescap.batch import gpixel_sensors
-    from bayescap.model import PTCModel
-    from bayescap.ptc import read_ptc_csv
+    from bayescap.model.ptc_model import PTCModel
+    from bayescap.io.ptc_csv import read_ptc_csv
 
     paths = ([ROOT / "data" / "emva1288_basler_ccd12.csv"]
              + sorted(glob.glob(str(ROOT / "data" / "benchmark" / "*.csv")))

@@ -87,7 +87,7 @@ def main(argv=None):
     from _machine import describe_machine, emit
 
     import bayescap
-    from bayescap.model import PTCModel
+    from bayescap.model.ptc_model import PTCModel
     from bayescap.simulate import SensorTruth, simulate_ptc
 
     pkg = Path(bayescap.__file__).resolve().parents[1]

@@ -235,7 +235,7 @@ def sensor_seeds(seed, n):
 # --------------------------------------------------------------------------- truth values
 def truth_values(truth, result):
     """True value of every ranked quantity the fit reports (same names as ``result.draws``)."""
-    import bayescap.capacity as cap
+    import bayescap.physics.capacity as cap
 
     m = result.model
     p = {"conversion_gain_e_per_dn": truth.conversion_gain_e_per_dn}
@@ -302,7 +302,7 @@ SBC_SETTINGS = dict(n_ensembles=2, n_burn=100, n_steps=200, max_rounds=2, ess_ta
 
 def _settings(quality):
     if quality == "sbc":
-        from bayescap.fit import SamplerSettings
+        from bayescap.inference.presets import SamplerSettings
         return SamplerSettings(**SBC_SETTINGS)
     return quality
 

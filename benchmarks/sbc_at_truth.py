@@ -23,7 +23,7 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 import sbc  # noqa: E402
 
-from bayescap.model import PTCModel  # noqa: E402
+from bayescap.model.ptc_model import PTCModel  # noqa: E402
 from bayescap.simulate import _FixedPattern, _frames, simulate_ptc  # noqa: E402
 
 

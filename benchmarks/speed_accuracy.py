@@ -61,7 +61,7 @@ def _previous_standard():
     """The `standard` preset as it was before the IndependenceMove (commit 8182a20): 50 burn-in +
     200 steps, rounds of 100, DE 0.8 + stretch 0.2, walkers from the Laplace ball, two optimiser
     restarts. Timed beside the new preset so that before/after share the machine's load."""
-    from bayescap.fit import SamplerSettings
+    from bayescap.inference.presets import SamplerSettings
 
     return SamplerSettings(n_burn=50, n_steps=200, extend_steps=100, max_rounds=8, independence_fraction=0.0,
                            adaptive_extend=False, map_restarts=2)
@@ -182,7 +182,7 @@ def naive_emcee_full(data, *, seed, n_walkers=32, n_burn=500, n_steps=2000):
     Returns (wall s, min bulk/tail ESS over parameters, max rank R-hat over 4 groups of walkers)."""
     import arviz as az
     import emcee
-    from bayescap.model import PTCModel
+    from bayescap.model.ptc_model import PTCModel
 
     m = PTCModel(data)
     nw = max(n_walkers, 2 * m.ndim + 2)
@@ -213,9 +213,10 @@ def naive_emcee_full(data, *, seed, n_walkers=32, n_burn=500, n_steps=2000):
 # ------------------------------------------------------------------------------ runs
 def run_presets(sensors, *, ref_quality, seed, presets=("standard", "accurate")):
     import bayescap
-    from bayescap.fast import fast_fit, fast_posterior
-    from bayescap.fit import find_map
-    from bayescap.model import PTCModel
+    from bayescap.api import fast_fit
+    from bayescap.inference.fast import fast_posterior
+    from bayescap.inference.optimize import find_map
+    from bayescap.model.ptc_model import PTCModel
 
     rows = []
     for i, (name, d, truth) in enumerate(sensors):
@@ -270,8 +271,8 @@ def run_presets(sensors, *, ref_quality, seed, presets=("standard", "accurate"))
 def fast_timing(sensors, *, seed, repeat=3, settings=None):
     """Per-sensor fast-path wall time split into its stages (best of ``repeat``); ``settings``:
     FastSettings (default its defaults)."""
-    from bayescap.fast import FastSettings, fast_posterior
-    from bayescap.model import PTCModel
+    from bayescap.inference.fast import FastSettings, fast_posterior
+    from bayescap.model.ptc_model import PTCModel
 
     settings = settings or FastSettings()
     out = []
@@ -289,8 +290,8 @@ def fast_timing(sensors, *, seed, repeat=3, settings=None):
 def batch_throughput(n, *, seed, n_jobs, stack_size=64, fallback=False, sets=()):
     """``sets``: "FIELD=VALUE" changes to the batch's FastSettings (``batch_accuracy.apply_sets``)."""
     from bayescap.batch import fit_many, gpixel_sensors
-    from bayescap.fast import FastSettings
-    from bayescap.fit import ConvergenceWarning
+    from bayescap.inference.fast import FastSettings
+    from bayescap.exceptions import ConvergenceWarning
 
     from batch_accuracy import apply_sets
 
@@ -527,7 +528,7 @@ def main(argv=None):
         import arviz  # noqa: F401  (imports excluded from the timings)
 
         from batch_accuracy import apply_sets
-        from bayescap.fast import FastSettings
+        from bayescap.inference.fast import FastSettings
 
         sensors = sensor_set(1 if a.quick else a.n_sim)
         timing = fast_timing(sensors, seed=a.seed, settings=apply_sets(FastSettings(), a.set))
@@ -566,7 +567,7 @@ def main(argv=None):
     t0 = time.perf_counter()
     import arviz  # noqa: F401  (imports excluded from the timings)
     import bayescap  # noqa: F401
-    import bayescap.fast  # noqa: F401
+    import bayescap.inference.fast  # noqa: F401
 
     n_sim = 1 if a.quick else a.n_sim
     sensors = sensor_set(n_sim)

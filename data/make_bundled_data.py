@@ -20,7 +20,7 @@ from pathlib import Path
 
 import numpy as np
 
-from bayescap.ptc import atomic_write_text, write_ptc_csv
+from bayescap.io.ptc_csv import atomic_write_text, write_ptc_csv
 from bayescap.simulate import SensorTruth, simulate_ptc
 
 HERE = Path(__file__).resolve().parent

@@ -4,10 +4,10 @@ import pytest
 
 threadpoolctl = pytest.importorskip("threadpoolctl")
 
-from bayescap import fast  # noqa: E402
+from bayescap.inference import fast  # noqa: E402
 from bayescap._blas import one_blas_thread  # noqa: E402
-from bayescap.model import PTCModel  # noqa: E402
-from bayescap.ptc import read_ptc_csv  # noqa: E402
+from bayescap.model.ptc_model import PTCModel  # noqa: E402
+from bayescap.io.ptc_csv import read_ptc_csv  # noqa: E402
 
 
 def _blas_threads():

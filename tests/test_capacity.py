@@ -3,9 +3,8 @@ import numpy as np
 import pytest
 from scipy import integrate
 
-from bayescap.capacity import (NoiseCoefficients, dynamic_range_db, integral_inv_sqrt_quadratic,
-                               mtf_loss_bits, snr_db, tonal_range)
-from bayescap.optics import DiffractionLens, MTFProduct, PixelAperture, TabulatedMTF, default_mtf
+from bayescap.physics.capacity import NoiseCoefficients, dynamic_range_db, integral_inv_sqrt_quadratic, mtf_loss_bits, snr_db, tonal_range
+from bayescap.physics.optics import DiffractionLens, MTFProduct, PixelAperture, TabulatedMTF, default_mtf
 
 
 def _quad(a, b, c, s1, s2, floor=0.0):

@@ -69,7 +69,7 @@ def test_fit_many_csvs_as_a_batch(tmp_path):
     CSV fitted alone, by the batch's child seed), outputs in DIR/<name>/; a bad CSV among them
     stops the run with exit 2 before anything is written."""
     from bayescap.batch import gpixel_sensors
-    from bayescap.ptc import write_ptc_csv
+    from bayescap.io.ptc_csv import write_ptc_csv
 
     datas, _ = gpixel_sensors(n_max=3, seed=6)
     paths = [tmp_path / f"roi{i}.csv" for i in range(3)]
@@ -111,7 +111,7 @@ def test_fast_tolerance_and_confidence_flags(tmp_path):
     assert "within 0.1 of its width" in lo["fast_path"]
 
     from bayescap.batch import gpixel_sensors
-    from bayescap.ptc import write_ptc_csv
+    from bayescap.io.ptc_csv import write_ptc_csv
 
     datas, _ = gpixel_sensors(n_max=2, seed=6)
     paths = [tmp_path / f"roi{i}.csv" for i in range(2)]

@@ -20,7 +20,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from bayescap import compare as C
+from bayescap.studies import compare as C
+from bayescap.cli import compare as cli_compare
 
 ROOT = Path(__file__).resolve().parents[1]
 BENCH = ROOT / "data" / "benchmark"
@@ -130,7 +131,7 @@ def test_fit_and_compare_use_the_same_mtf(cmp12):
     Δs_G = π f_N⁻² ∫₀^{f_N} f·log2(exp(−2π²σ²f²)) df = −π³σ²f_N²/(2 ln 2) to the aperture × lens Δs
     (no band cut at 1.75 µm, f/2.8)."""
     from bayescap.api import load, mtf_from_metadata
-    from bayescap.capacity import mtf_loss_bits
+    from bayescap.physics.capacity import mtf_loss_bits
 
     md = load(M1).metadata
     sigma = md["crosstalk_sigma_px"]
@@ -212,8 +213,8 @@ def test_cli_benchmark_runtime_and_json_equals_text(tmp_path):
     ([str(M1), "--mid-grey", "1.5"], "--mid-grey"),
 ])
 def test_bad_input_exits_2_with_one_line(argv, what, capsys):
-    args = _parser(C.add_compare_arguments).parse_args(argv)
-    assert C.run_compare(args) == 2
+    args = _parser(cli_compare.add_compare_arguments).parse_args(argv)
+    assert cli_compare.run_compare(args) == 2
     err = capsys.readouterr().err.strip()
     assert err.count("\n") == 0 and what in err
 
@@ -226,8 +227,8 @@ def test_bad_csv_exits_2(tmp_path, capsys):
     cells[2] = "-5"                                            # negative temporal variance
     lines[i + 2] = ",".join(cells)
     bad.write_text("\n".join(lines) + "\n")
-    args = _parser(C.add_compare_arguments).parse_args([str(M1), str(bad), "--out", str(tmp_path / "o")])
-    assert C.run_compare(args) == 2
+    args = _parser(cli_compare.add_compare_arguments).parse_args([str(M1), str(bad), "--out", str(tmp_path / "o")])
+    assert cli_compare.run_compare(args) == 2
     err = capsys.readouterr().err.strip()
     assert err.count("\n") == 0 and "bad.csv" in err and "temporal_var_dn2" in err
     assert not (tmp_path / "o").exists()                       # nothing written on refusal
@@ -248,7 +249,7 @@ class _Collect(HTMLParser):
 
 
 def test_html_report_structure(cmp12, tmp_path):
-    from bayescap.html_report import SECTION_IDS, write_report
+    from bayescap.report.html import SECTION_IDS, write_report
 
     out = write_report(cmp12, tmp_path / "report.html")
     text = out.read_text(encoding="utf-8")

@@ -17,11 +17,11 @@ import numpy as np
 import pytest
 
 import bayescap
-from bayescap.fast import fast_fit
-from bayescap.fit import QUALITY_PRESETS
-from bayescap.optics import DiffractionLens, MTFProduct, PixelAperture
-from bayescap.ptc import PTCInputError
-from bayescap.report import format_text
+from bayescap.api import fast_fit
+from bayescap.inference.presets import QUALITY_PRESETS
+from bayescap.physics.optics import DiffractionLens, MTFProduct, PixelAperture
+from bayescap.exceptions import PTCInputError
+from bayescap.report.text import format_text
 from bayescap.simulate import SensorTruth, exposure_series, simulate_ptc
 
 T = SensorTruth
@@ -174,8 +174,8 @@ def test_all_rows_saturated_is_a_clear_input_error(mechanism, tmp_path, capsys):
     """Before: K came out 105x (ADC) or 3.7x (well) off with no input error. Now refused from
     the API (in-memory data and PTCModel), and by the CLI with exit status 2, one line, nothing written."""
     from bayescap.cli import main
-    from bayescap.model import PTCModel
-    from bayescap.ptc import write_ptc_csv
+    from bayescap.model.ptc_model import PTCModel
+    from bayescap.io.ptc_csv import write_ptc_csv
 
     d = _all_saturated(ALL_SATURATED[mechanism])
     with pytest.raises(PTCInputError, match="every row is saturated") as e:
@@ -201,7 +201,7 @@ def test_one_unsaturated_row_is_not_refused():
     truth = ALL_SATURATED["well"]
     ph = np.concatenate([[0.3, 0.6], np.linspace(2, 3, 8)]) * truth.clip_charge_e / truth.quantum_efficiency
     d = simulate_ptc(truth, photons_per_pixel=ph, exposure_time_s=0.01, shape=(32, 32), seed=1)
-    from bayescap.model import PTCModel
+    from bayescap.model.ptc_model import PTCModel
 
     m = PTCModel(d)
     assert m.terms.clip != "none" and m.full_sat.sum() >= 1

@@ -10,11 +10,11 @@ import pytest
 from scipy import stats
 
 import bayescap
-from bayescap.fast import (FastSettings, fast_fit, fast_posterior, psis_weights, student_t_draws,
-                           student_t_logpdf)
-from bayescap.fit import ConvergenceWarning
+from bayescap.inference.fast import FastSettings, fast_posterior, psis_weights, student_t_draws, student_t_logpdf
+from bayescap.api import fast_fit
+from bayescap.exceptions import ConvergenceWarning
 from bayescap.posterior import FitResult
-from bayescap.report import format_text
+from bayescap.report.text import format_text
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "benchmarks"))
 import check_moves  # noqa: E402
@@ -283,7 +283,7 @@ def test_independence_move_on_a_skewed_bounded_target():
 def test_vectorised_integrated_time_equals_emcee():
     import emcee
 
-    from bayescap.fit import _emcee_integrated_time
+    from bayescap.inference.diagnostics import _emcee_integrated_time
 
     rng = np.random.default_rng(3)
     for steps in (64, 101):
@@ -329,7 +329,7 @@ def test_fit_many_gpixel_and_a_bad_sensor():
 def test_fast_diagnostics_equal_arviz(ties):
     """fit.fast_diagnostics (shared rank sort) gives ArviZ's R-hat and bulk/tail ESS exactly,
     also with the repeated values of rejected moves (ties)."""
-    from bayescap.fit import diagnostics, fast_diagnostics
+    from bayescap.inference.diagnostics import diagnostics, fast_diagnostics
 
     rng = np.random.default_rng(7)
     x = np.cumsum(rng.standard_normal((4, 200, 24)), axis=1) * 0.1 + rng.standard_normal((4, 200, 24))
@@ -372,9 +372,9 @@ def test_sampler_coordinates_round_trip_and_jacobian():
     z_clip + z_qe; on a model without a free clip (the bundled Basler) only the QE is transformed.
     LogClipCoordinates, the class's old name, is the same class."""
     from bayescap.batch import gpixel_sensors
-    from bayescap.fast import LogClipCoordinates, SamplerCoordinates
-    from bayescap.model import PTCModel
-    from bayescap.ptc import read_ptc_csv
+    from bayescap.inference.coordinates import LogClipCoordinates, SamplerCoordinates
+    from bayescap.model.ptc_model import PTCModel
+    from bayescap.io.ptc_csv import read_ptc_csv
 
     assert LogClipCoordinates is SamplerCoordinates
     m = PTCModel(gpixel_sensors(n_max=1, seed=1)[0][0])
@@ -409,7 +409,7 @@ def test_fast_path_with_clip_at_its_bound_finds_the_mode():
     the MCMC reaches (standard preset, seed 2: max −158.04 over its draws; the MAP is −157.90, and the
     best of 4 000 draws in 8 dimensions sits ~1 nat below it)."""
     from bayescap.batch import gpixel_sensors
-    from bayescap.model import PTCModel
+    from bayescap.model.ptc_model import PTCModel
 
     d = gpixel_sensors(n_max=12, seed=1)[0][11]
     m = PTCModel(d)
@@ -482,7 +482,7 @@ def test_interval_end_mcse_matches_the_spread_over_replications():
     median over replications) is the observed sd of the ends, /width, within 15 % (the sd of an sd
     estimated from 300 replications is 4 %; the error is the larger of the two ends', 0–10 % above
     either end's own)."""
-    from bayescap.fast import interval_end_mcse
+    from bayescap.inference.fast import interval_end_mcse
 
     rng = np.random.default_rng(7)
     width = 2 * 1.959964
@@ -550,7 +550,7 @@ def test_targeted_top_up_needs_fewer_draws_and_aims_beyond_the_ends():
     miss with fewer draws than more moment-matched ones (seeds 1-3, the same first 6 000 draws), and
     its proposals sit beyond the ends they aim at: the lower end's component at a location below the
     weighted 5 % quantile of its quantity, the upper end's above the 95 % one."""
-    from bayescap.fast import _end_components, _end_table, _end_values, interval_end_mcse, psis_weights
+    from bayescap.inference.fast import _end_components, _end_table, _end_values, interval_end_mcse, psis_weights
 
     model = _gaussian_target()
     base = FastSettings(retry_restarts=0, end_mcse_max=None)
@@ -586,7 +586,7 @@ def test_targeted_top_up_needs_fewer_draws_and_aims_beyond_the_ends():
 def test_density_cache_evaluates_each_proposal_once_on_the_batches_it_has_not_seen():
     """_DensityCache.fill: one call per density over all the batches it lacks (stacked), the same
     values as a call per batch, and nothing evaluated twice."""
-    from bayescap.fast import _DensityCache, _t_logpdf
+    from bayescap.inference.fast import _DensityCache, _t_logpdf
 
     rng = np.random.default_rng(5)
     calls = []
@@ -619,7 +619,7 @@ def test_joint_target_keeps_every_end_within_the_tolerance_with_the_confidence()
     more room; the cap when the probability holds there; NaN errors are left to the caller."""
     from scipy.special import ndtri
 
-    from bayescap.fast import _joint_target, _within_logprob
+    from bayescap.inference.fast import _joint_target, _within_logprob
 
     tol = 0.05
     assert _joint_target([0.04], tol, 0.9, 1.0) == pytest.approx(tol / ndtri(0.95), rel=1e-9)
@@ -639,7 +639,7 @@ def test_joint_end_criterion_tops_up_until_all_ends_are_likely_within_tolerance(
     width reaches the confidence, reports it, and the ends are then within 2 tolerances of the exact
     quantiles (seeds 1-3: each end's predicted error is ≤ tol/2.6 there, so 2 tol is > 5 sd). Out of
     reach within max_proposals, it rejects and says why."""
-    from bayescap.fast import _within_logprob
+    from bayescap.inference.fast import _within_logprob
 
     model = _gaussian_target()
     base = FastSettings(retry_restarts=0, end_mcse_max=None)
@@ -691,7 +691,7 @@ def test_interval_end_mcse_counts_the_resampling(n, seed, ratio):
     test above; within 15 % of the observed sd, and larger than without the resampling term. n = N
     is what the fast path does after a top-up: with unequal weights resampling still adds (~1.6×
     the weighted error here), where the equal-weight term p(1 − p)(1/n − 1/N) used before said 0."""
-    from bayescap.fast import _systematic_resample, interval_end_mcse
+    from bayescap.inference.fast import _systematic_resample, interval_end_mcse
 
     rng = np.random.default_rng(seed)
     width = 2 * 1.959964
@@ -768,7 +768,7 @@ def test_tail_probe_finds_the_long_one_sided_tail_and_its_draws_cover_it():
 def test_tail_proposal_is_a_normalised_density_and_draws_from_it(ray):
     """fast._tail_proposal: its log density integrates to 1 (a 2-D grid), is −∞ off its side, and
     the draws' own log q equals it."""
-    from bayescap.fast import _tail_proposal
+    from bayescap.inference.fast import _tail_proposal
 
     x_map = np.array([0.5, -1.0])
     c1 = np.array([[0.04, 0.03], [0.03, 0.09]])
@@ -790,7 +790,7 @@ def test_pair_proposal_is_a_normalised_density_and_draws_from_it():
     draws it, the rest Laplace t): its log density integrates to 1 over a 3-D grid, is −∞ off its
     support, and the draws carry their own log q (a component whose density disagrees with its
     draws inflates the weights: docs/performance.md, "Long one-sided tails, probed")."""
-    from bayescap.fast import _pair_proposal
+    from bayescap.inference.fast import _pair_proposal
 
     x_map = np.array([0.5, -1.0, 2.0])
     c1 = np.array([[0.04, 0.01, 0.0], [0.01, 0.09, 0.02], [0.0, 0.02, 0.25]])
@@ -813,8 +813,8 @@ def test_fast_result_reports_the_derived_quantities_end_mcse(basler_csv):
     TR, DR, SNR) as well as the parameters: each is fast.interval_end_mcse of the quantity on the
     weighted draws behind the resampled ones, counting the resampling; at_scene recomputes the
     derived ones for the new scene and keeps the parameters'."""
-    from bayescap.fast import interval_end_mcse
-    from bayescap.model import PTCModel
+    from bayescap.inference.fast import interval_end_mcse
+    from bayescap.model.ptc_model import PTCModel
 
     model = PTCModel(bayescap.load(basler_csv))
     chains, fd = fast_posterior(model, seed=3)
@@ -851,7 +851,7 @@ def test_fast_gate_failed_by_a_derived_quantity_falls_back(basler_csv):
     result whose top-up saw the parameters only (``fast_result`` made without ``derived_fn``): a
     derived quantity above the gate fails the result (NOT CONVERGED, named), and bayescap.fit falls
     back to MCMC with that reason."""
-    from bayescap.model import PTCModel
+    from bayescap.model.ptc_model import PTCModel
 
     model = PTCModel(bayescap.load(basler_csv))
     chains, fd = fast_posterior(model, seed=3)
@@ -879,8 +879,8 @@ def test_gate_top_up_covers_the_derived_quantities(monkeypatch, basler_csv):
     quantity whose error falls as 1/√N from 0.08 at the default 6 000 draws needs ~11 000 for a
     0.06 gate, which the parameters alone (≤ 0.04 on the Basler) do not ask for; and
     ``bayescap.fit`` with a gate hands the fast path the result's own derived quantities."""
-    import bayescap.fast as fast_mod
-    from bayescap.model import PTCModel
+    import bayescap.inference.fast as fast_mod
+    from bayescap.model.ptc_model import PTCModel
 
     model = PTCModel(bayescap.load(basler_csv))
     real = fast_mod._end_errors
@@ -922,8 +922,8 @@ def test_end_mcse_of_non_finite_draws_is_nan_and_the_worst():
     """A parameter with a non-finite draw gets NaN for its interval-end error, as the MCMC side
     (fit.interval_end_mcse_mcmc) does, instead of being left out of the report and the gate; NaN
     is the worst; a constant parameter is still left out (no interval)."""
-    from bayescap.fast import _end_mcse, _worst_end_mcse, interval_end_mcse
-    from bayescap.fit import interval_end_mcse_mcmc
+    from bayescap.inference.fast import _end_mcse, _worst_end_mcse, interval_end_mcse
+    from bayescap.inference.diagnostics import interval_end_mcse_mcmc
 
     rng = np.random.default_rng(0)
     x = rng.standard_normal((500, 3))
@@ -954,10 +954,10 @@ def test_fast_fit_does_not_import_emcee(basler_csv):
     code = (
         "import sys, bayescap\n"
         f"r = bayescap.fit({str(basler_csv)!r}, quality='fast', seed=1)\n"
-        "from bayescap.report import format_text, to_json\n"
+        "from bayescap.report.text import format_text, to_json\n"
         "assert 'capacity' in format_text(r).lower() and to_json(r)\n"
         "print(sorted(m for m in ('emcee', 'scipy.stats', 'scipy.optimize') if m in sys.modules))\n"
-        "from bayescap.fit import IndependenceMove, _Sampler\n"
+        "from bayescap.inference.moves import IndependenceMove, _Sampler\n"
         "import emcee\n"
         "print(issubclass(IndependenceMove, emcee.moves.MHMove), issubclass(_Sampler, emcee.EnsembleSampler))\n")
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=300)
@@ -975,7 +975,7 @@ def test_joint_check_never_rejects_with_draws_to_spare():
     of 24 000 draws (15 of 1 000 ROIs). A rejection for the joint check must come only at the draw
     cap (or with k̂ failing); ROI 89 is accepted since, after one more round."""
     from bayescap.batch import gpixel_sensors, sensor_seeds
-    from bayescap.model import PTCModel, select_terms
+    from bayescap.model.ptc_model import PTCModel, select_terms
 
     datas, _ = gpixel_sensors(n_max=150, seed=1)
     seeds = sensor_seeds(1, 150)                         # fit_many(seed=1)'s
@@ -1001,7 +1001,7 @@ def test_fast_intervals_of_the_gain_are_not_narrow_on_small_rois():
     first 48 ROIs: this code +0.003 ± 0.003, the code before log QE +0.015 ± 0.0065 (fails; with 24
     ROIs it failed by a hair, 0.0206 against 2 × 0.0101). ~15 s."""
     from bayescap.batch import gpixel_sensors
-    from bayescap.model import PTCModel, select_terms
+    from bayescap.model.ptc_model import PTCModel, select_terms
 
     datas, _ = gpixel_sensors(n_max=48, seed=1)
     ref_settings = FastSettings(end_mcse_max=None, end_confidence=None, n_proposals=40000, n_draws=40000)

@@ -8,7 +8,14 @@ import numpy as np
 import pytest
 
 import bayescap
-from bayescap.report import format_text
+from bayescap.report.text import format_text
+from bayescap.inference import chains as inf_chains
+from bayescap.inference import coordinates as inf_coordinates
+from bayescap.inference import diagnostics as inf_diagnostics
+from bayescap.inference import mcmc as inf_mcmc
+from bayescap.inference import moves as inf_moves
+from bayescap.inference import optimize as inf_optimize
+from bayescap.inference import presets as inf_presets
 
 EMVA_K_E_PER_DN = 3.571     # emva1288 1.0.2 on the full set: 1/K = 1/0.2801
 EMVA_READ_NOISE_E = 10.92   # sigma_d = sigma_y.dark / K
@@ -105,7 +112,7 @@ def test_stuck_walker_rule_on_exact_gaussian_draws():
     its *best* over the steps stays ½·χ²_D(1 − 1e-6) + 5 nats below: with 200 walkers × 20 steps of
     independent draws the chance of any false flag is far below 1e-6. A walker planted 100 nats down
     is flagged, and only it."""
-    from bayescap.fit import stuck_threshold, stuck_walkers
+    from bayescap.inference.chains import stuck_threshold, stuck_walkers
 
     rng = np.random.default_rng(3)
     for D in (3, 10, 14):
@@ -157,15 +164,13 @@ def test_walkers_stranded_in_burn_in_are_moved():
 
     import numpy as np
 
-    from bayescap.model import PTCModel
-
-    F = importlib.import_module("bayescap.fit")   # the module (bayescap.fit is also the API function)
+    from bayescap.model.ptc_model import PTCModel
 
     data = bayescap.load(Path(__file__).resolve().parents[1] / "data" / "benchmark" / "M1_1.75um.csv")
     model = PTCModel(data)
-    x_map, _, cov, _ = F.laplace_start(model)
+    x_map, _, cov, _ = inf_optimize.laplace_start(model)
     rng = np.random.default_rng(7)
-    p0 = F._initial_ball(model, x_map, cov, 80, rng)
+    p0 = inf_mcmc._initial_ball(model, x_map, cov, 80, rng)
     bad = p0[:12].copy()
     bad[:, model.idx["log_g"]] = np.log(0.3)
     bad[:, model.idx["qe"]] = 0.33
@@ -176,18 +181,18 @@ def test_walkers_stranded_in_burn_in_are_moved():
 
     # the reset itself, with DE/stretch moves only (the standard preset's IndependenceMove proposals
     # usually pull such walkers back before the check, so it would not be exercised)
-    for settings, must_reset in ((replace(F.QUALITY_PRESETS["standard"], independence_fraction=0.0), True),
-                                 (F.QUALITY_PRESETS["standard"], False)):
+    for settings, must_reset in ((replace(inf_presets.QUALITY_PRESETS["standard"], independence_fraction=0.0), True),
+                                 (inf_presets.QUALITY_PRESETS["standard"], False)):
         rstate = np.random.RandomState(11).get_state()
-        F._WORKER_MODEL = model
+        inf_mcmc._WORKER_MODEL = model
         try:
-            _, chain, lp, *_, n_reset, _ = F._run_segment((0, p0.copy(), None, rstate, 100, 400, settings,
+            _, chain, lp, *_, n_reset, _ = inf_mcmc._run_segment((0, p0.copy(), None, rstate, 100, 400, settings,
                                                            (x_map, cov)))
         finally:
-            F._WORKER_MODEL = None
+            inf_mcmc._WORKER_MODEL = None
         if must_reset:
             assert n_reset >= 12
-        assert not F.stuck_walkers(lp, model.ndim).any()
+        assert not inf_chains.stuck_walkers(lp, model.ndim).any()
         qe = chain[..., model.idx["qe"]].ravel()
         lo, hi = np.quantile(qe, [0.025, 0.975])
         assert 0.39 < lo < 0.3991 < hi < 0.41
@@ -198,7 +203,7 @@ def test_rhat_halves_are_split_in_time():
     drift that every ensemble shares (all start from one approximation) fails the check; the same
     draws without the drift pass. Before 2026-11-23 the halves were halves of the walkers and the
     drifted chain passed (R-hat 1.000)."""
-    from bayescap.fit import diagnostics, fast_diagnostics
+    from bayescap.inference.diagnostics import diagnostics, fast_diagnostics
 
     rng = np.random.default_rng(5)
     E, S, W = 4, 200, 32
@@ -230,27 +235,25 @@ def test_laplace_start_finds_the_higher_optimum():
     coordinates, where mcmc_start and the fast path optimise a free clip level."""
     import importlib
 
-    from bayescap.model import PTCModel
-
-    F = importlib.import_module("bayescap.fit")
+    from bayescap.model.ptc_model import PTCModel
     m = PTCModel(_sim00())
-    c = F._sampler_coordinates(m)
+    c = inf_coordinates._sampler_coordinates(m)
 
     def lp_x(z):
         return float(m.log_prob(c.to_x(z)[None])[0])
 
-    z_one, _, _, _ = F.laplace_start(m, n_restarts=0, multi_start=False, coords=c)
-    z, lp, cov, _ = F.laplace_start(m, n_restarts=0, coords=c)
+    z_one, _, _, _ = inf_optimize.laplace_start(m, n_restarts=0, multi_start=False, coords=c)
+    z, lp, cov, _ = inf_optimize.laplace_start(m, n_restarts=0, coords=c)
     assert lp_x(z_one) < -500
     assert lp_x(z) > -408.48
     assert np.all(np.isfinite(cov)) and np.all(np.linalg.eigvalsh(cov) > 0)
     # the optimiser itself reaches the mode from the τ start (not a later step by chance)
-    starts = F._map_starts(m)
+    starts = inf_optimize._map_starts(m)
     assert len(starts) == 2
-    (end,), _ = F.newton_map(c, [c.start_from_x(starts[-1])])
+    (end,), _ = inf_optimize.newton_map(c, [c.start_from_x(starts[-1])])
     assert lp_x(end.x) > -408.48
     # the BFGS route (kept for comparison) agrees
-    z_b, _, _, _ = F.laplace_start(m, n_restarts=0, coords=c, optimizer="bfgs")
+    z_b, _, _, _ = inf_optimize.laplace_start(m, n_restarts=0, coords=c, optimizer="bfgs")
     assert abs(lp_x(z_b) - lp_x(z)) < 0.01
 
 
@@ -275,8 +278,6 @@ def test_newton_map_finds_a_gaussian_mode_and_its_covariance():
     from two points: the mode to 1e-4 sd and the covariance to 1e-6 (the stencil is exact for a
     quadratic), the lower start dropped as the same mode, a non-finite start skipped."""
     import importlib
-
-    F = importlib.import_module("bayescap.fit")
     rng = np.random.default_rng(3)
     n = 6
     Q, _ = np.linalg.qr(rng.standard_normal((n, n)))
@@ -292,7 +293,7 @@ def test_newton_map_finds_a_gaussian_mode_and_its_covariance():
 
     g = WithWall([m], [C], [1.0])
     starts = [m + L @ rng.normal(0, 3, n), m + L @ rng.normal(0, 5, n), np.full(n, 2e3)]
-    ends, n_calls = F.newton_map(g, starts)
+    ends, n_calls = inf_optimize.newton_map(g, starts)
     assert len(ends) == 2                       # the start beyond the wall is not an optimum
     best = max(ends, key=lambda o: o.lp)
     assert best.converged and best.reason == "converged"
@@ -308,20 +309,18 @@ def test_newton_map_finds_a_gaussian_mode_and_its_covariance():
     assert other.reason in ("reached the mode of a higher start", "converged")
     assert n_calls < 30
     with pytest.raises(RuntimeError, match="no finite starting point"):
-        F.newton_map(g, [np.full(n, 2e3)])
+        inf_optimize.newton_map(g, [np.full(n, 2e3)])
 
 
 def test_newton_map_keeps_each_start_on_its_own_mode():
     """Two Gaussians 40 sd apart (weights 0.3 and 0.7): one start near each ends on its own mode,
     with log p and covariance of that component (the other's mass is e^-800 there)."""
     import importlib
-
-    F = importlib.import_module("bayescap.fit")
     n = 3
     C1, C2 = np.diag([0.04, 0.09, 0.01]), np.diag([0.01, 0.25, 0.04])
     m1, m2 = np.zeros(n), np.array([8.0, 0.0, 0.0])
     g = _Gaussians([m1, m2], [C1, C2], [0.3, 0.7])
-    ends, _ = F.newton_map(g, [m1 + 0.3, m2 - 0.3])
+    ends, _ = inf_optimize.newton_map(g, [m1 + 0.3, m2 - 0.3])
     for o, m, C, w in zip(ends, (m1, m2), (C1, C2), (0.3, 0.7)):
         assert o.converged
         np.testing.assert_allclose(o.x, m, atol=1e-6)
@@ -335,8 +334,6 @@ def test_newton_map_next_to_a_wall_retries_the_stencil_at_smaller_steps():
     2 stencils), and the mode and covariance come out as without the wall (the stencil is exact for
     a quadratic)."""
     import importlib
-
-    F = importlib.import_module("bayescap.fit")
     n = 3
     C, m = np.diag([0.04, 0.09, 0.01]), np.zeros(n)
     sizes = []
@@ -347,7 +344,7 @@ def test_newton_map_next_to_a_wall_retries_the_stencil_at_smaller_steps():
             sizes.append(x.shape[0])
             return np.where(x[:, 0] > 0.1 * 0.2, -np.inf, super().log_prob(x))
 
-    ends, n_calls = F.newton_map(Wall([m], [C], [1.0]), [m + np.array([-0.3, 0.4, 0.1])])
+    ends, n_calls = inf_optimize.newton_map(Wall([m], [C], [1.0]), [m + np.array([-0.3, 0.4, 0.1])])
     (o,) = ends
     assert o.converged
     np.testing.assert_allclose(o.x, m, atol=1e-6)
@@ -368,13 +365,11 @@ def test_slow_burn_in_transient_is_discarded_not_reported(monkeypatch):
     log τ at ESS ≥ 1000 (this run) and ≥ 2000 (the reference): 4 · 1.2533 · 1.10 ·
     sqrt(1/1000 + 1/2000) = 0.21."""
     import importlib
-
-    F = importlib.import_module("bayescap.fit")
     # the BFGS route from the initial guess alone: its optimum 136 nats below the mode (Newton from
     # there stays on τ's cap, 160 nats below, with the raw covariance: a start the extra starts exist for)
-    monkeypatch.setattr(F, "LAPLACE_OPTIMIZER", "bfgs")
-    monkeypatch.setattr(F, "_map_starts", lambda model: [])
-    monkeypatch.setattr(F, "find_map_scaled", lambda *a, **k: pytest.fail("no extra start expected"))
+    monkeypatch.setattr(inf_optimize, "LAPLACE_OPTIMIZER", "bfgs")
+    monkeypatch.setattr(inf_optimize, "_map_starts", lambda model: [])
+    monkeypatch.setattr(inf_optimize, "find_map_scaled", lambda *a, **k: pytest.fail("no extra start expected"))
     r = bayescap.fit(_sim00(), seed=1, quality="standard")
     dg = r.diag
     assert dg["converged"]
@@ -399,23 +394,21 @@ class _Quadratic:
 
 def test_laplace_covariance_is_exact_for_a_quadratic_and_second_order_otherwise():
     import importlib
-
-    F = importlib.import_module("bayescap.fit")
     rng = np.random.default_rng(5)
     n = 7
     B = rng.standard_normal((n, n))
     A = B @ B.T + n * np.eye(n)          # eigenvalues ≥ n > 1: below laplace_covariance's sd cap
     m = rng.normal(0, 3, n)
-    cov = F.laplace_covariance(_Quadratic(A, m), m, h=1e-2)
+    cov = inf_optimize.laplace_covariance(_Quadratic(A, m), m, h=1e-2)
     np.testing.assert_allclose(cov, np.linalg.inv(A), rtol=1e-6, atol=1e-9)
     # with a quartic term the error is O(h²): the second difference of c·d⁴ is 12 c d² + 2 c h²
     x = m + 0.3
     exact = np.linalg.inv(A - np.diag([12 * 2.0 * 0.3**2] + [0] * (n - 1)))
-    errs = [np.max(np.abs(F.laplace_covariance(_Quadratic(A, m, c=2.0), x, h=hh) - exact)) for hh in (3e-2, 3e-3)]
+    errs = [np.max(np.abs(inf_optimize.laplace_covariance(_Quadratic(A, m, c=2.0), x, h=hh) - exact)) for hh in (3e-2, 3e-3)]
     assert 50 < errs[0] / errs[1] < 200                       # 100× for a 10× smaller step
     e0 = 3e-2 * max(1.0, abs(x[0]))                           # the step along x₀
     predicted = np.linalg.inv(A - np.diag([12 * 2.0 * 0.3**2 + 2 * 2.0 * e0**2] + [0] * (n - 1)))
-    np.testing.assert_allclose(F.laplace_covariance(_Quadratic(A, m, c=2.0), x, h=3e-2), predicted,
+    np.testing.assert_allclose(inf_optimize.laplace_covariance(_Quadratic(A, m, c=2.0), x, h=3e-2), predicted,
                                rtol=1e-6, atol=1e-9)
 
 
@@ -425,23 +418,21 @@ def test_ensembles_in_lockstep_give_the_chains_of_one_after_the_other():
     for each ensemble in turn, bit for bit."""
     import importlib
 
-    from bayescap.model import PTCModel
-
-    F = importlib.import_module("bayescap.fit")
+    from bayescap.model.ptc_model import PTCModel
     model = PTCModel(bayescap.load(Path(__file__).resolve().parents[1] / "data" / "emva1288_basler_ccd12.csv"))
-    x_map, _, cov, _ = F.laplace_start(model, n_restarts=0)
-    settings = F.QUALITY_PRESETS["standard"]
+    x_map, _, cov, _ = inf_optimize.laplace_start(model, n_restarts=0)
+    settings = inf_presets.QUALITY_PRESETS["standard"]
     tasks = []
     for i in range(3):
-        p0 = F._initial_ball(model, x_map, cov, 8 * model.ndim, np.random.default_rng(i))
+        p0 = inf_mcmc._initial_ball(model, x_map, cov, 8 * model.ndim, np.random.default_rng(i))
         rstate = np.random.RandomState(20 + i).get_state()
         tasks.append((i, p0, None, rstate, 20, 30 + 10 * i, settings, (x_map, cov)))
-    F._WORKER_MODEL = model
+    inf_mcmc._WORKER_MODEL = model
     try:
-        together = F._run_segments(tasks)
-        alone = [F._run_segment(t) for t in tasks]
+        together = inf_mcmc._run_segments(tasks)
+        alone = [inf_mcmc._run_segment(t) for t in tasks]
     finally:
-        F._WORKER_MODEL = None
+        inf_mcmc._WORKER_MODEL = None
     for a, b in zip(together, alone):
         assert a[0] == b[0]
         for u, v in zip(a[1:6], b[1:6]):
@@ -458,22 +449,20 @@ def test_convergence_check_in_the_pool_decides_as_one_after_the_other(shift):
     """_default_converged with the ensembles' pool (every quantity diagnosed in the workers) gives
     the answer and the cache of the serial check (stop at the first failure)."""
     import importlib
-
-    F = importlib.import_module("bayescap.fit")
     rng = np.random.default_rng(9)
     E, S, W, D = 4, 400, 24, 5
     chain = rng.standard_normal((E, S, W, D))
     chain[:, : S // 2, :, 2] += shift          # a drift in parameter 2: R-hat fails there
-    settings = F.QUALITY_PRESETS["standard"]
+    settings = inf_presets.QUALITY_PRESETS["standard"]
 
     def derived(ch):
         return {"sum": ch.sum(axis=-1)}
 
     serial, pooled = {}, {}
-    a = F._default_converged(chain, settings, serial, derived)
-    pool = F._Workers(2)
+    a = inf_mcmc._default_converged(chain, settings, serial, derived)
+    pool = inf_mcmc._Workers(2)
     try:
-        b = F._default_converged(chain, settings, pooled, derived, pool)
+        b = inf_mcmc._default_converged(chain, settings, pooled, derived, pool)
     finally:
         pool.close()
     assert a == b == (shift == 0.0)
@@ -499,19 +488,17 @@ def test_quantile_mcse_is_arviz_quantile_mcse_with_walkers_as_chains():
     import importlib
 
     import arviz as az
-
-    F = importlib.import_module("bayescap.fit")
     x = np.exp(0.5 * _ar1_walkers(np.random.default_rng(3), 4, 200, 48, 0.8))   # skewed
     by_walker = np.transpose(x, (0, 2, 1)).reshape(4 * 48, 200)
-    ours = F.quantile_mcse(x, [0.025, 0.975])
+    ours = inf_diagnostics.quantile_mcse(x, [0.025, 0.975])
     theirs = [float(az.mcse(by_walker, method="quantile", prob=p)) for p in (0.025, 0.975)]
     assert ours == pytest.approx(theirs, rel=1e-12)
     lo, hi = np.quantile(x, [0.025, 0.975])
-    assert F.interval_end_mcse_mcmc(x) == pytest.approx(max(theirs) / (hi - lo), rel=1e-12)
-    assert F.interval_end_mcse_mcmc(np.ones((2, 10, 4))) == 0.0
+    assert inf_diagnostics.interval_end_mcse_mcmc(x) == pytest.approx(max(theirs) / (hi - lo), rel=1e-12)
+    assert inf_diagnostics.interval_end_mcse_mcmc(np.ones((2, 10, 4))) == 0.0
     bad = x.copy()
     bad[0, 0, 0] = np.nan
-    assert np.isnan(F.interval_end_mcse_mcmc(bad))
+    assert np.isnan(inf_diagnostics.interval_end_mcse_mcmc(bad))
 
 
 def test_quantile_mcse_matches_the_spread_over_replications():
@@ -521,14 +508,12 @@ def test_quantile_mcse_matches_the_spread_over_replications():
     is 4.1 %, and the root mean square of the predictions is far more precise (measured ratios
     0.97–1.05 over three seeds while writing this test)."""
     import importlib
-
-    F = importlib.import_module("bayescap.fit")
     rng = np.random.default_rng(11)
     ends, pred = [], []
     for _ in range(300):
         x = _ar1_walkers(rng, 2, 200, 16, 0.7)
         ends.append(np.quantile(x, [0.025, 0.975]))
-        pred.append(F.quantile_mcse(x))
+        pred.append(inf_diagnostics.quantile_mcse(x))
     observed = np.std(np.array(ends), axis=0, ddof=1)
     predicted = np.sqrt(np.mean(np.array(pred) ** 2, axis=0))
     assert observed == pytest.approx(predicted, rel=0.15)
@@ -541,19 +526,17 @@ def test_a_walker_that_never_moved_fails_the_length_check_and_extends_the_run():
     there and failed only in FitResult's check, so the run stopped NOT CONVERGED unextended)."""
     import dataclasses
     import importlib
-
-    F = importlib.import_module("bayescap.fit")
     rng = np.random.default_rng(5)
     chain = np.stack([_ar1_walkers(rng, 4, 100, 24, 0.3) for _ in range(3)], axis=-1)
-    settings = dataclasses.replace(F.QUALITY_PRESETS["standard"], adaptive_extend=True)
+    settings = dataclasses.replace(inf_presets.QUALITY_PRESETS["standard"], adaptive_extend=True)
     cache = {}
-    assert F._default_converged(chain, settings, cache)
+    assert inf_mcmc._default_converged(chain, settings, cache)
     chain[2, :, 7, :] = chain[2, 0, 7, :]            # walker 7 of ensemble 2 never moves
-    assert not np.all(np.isfinite(F.integrated_time(chain)))
+    assert not np.all(np.isfinite(inf_diagnostics.integrated_time(chain)))
     cache = {}
-    assert not F._default_converged(chain, settings, cache)
+    assert not inf_mcmc._default_converged(chain, settings, cache)
     assert cache["_shortfall"][0] == "tau" and np.isnan(cache["_shortfall"][1])
-    assert F._next_round_steps(100, settings, cache) == settings.extend_steps
+    assert inf_mcmc._next_round_steps(100, settings, cache) == settings.extend_steps
 
 
 def test_end_mcse_target_extends_the_run_until_the_ends_are_accurate():
@@ -563,30 +546,28 @@ def test_end_mcse_target_extends_the_run_until_the_ends_are_accurate():
     either way, and the pool shares the work out without changing it."""
     import dataclasses
     import importlib
-
-    F = importlib.import_module("bayescap.fit")
     rng = np.random.default_rng(5)
     chain = np.stack([_ar1_walkers(rng, 4, 400, 24, 0.3) for _ in range(3)], axis=-1)
     reported = lambda ch: {"a": ch[..., 0], "b": np.exp(ch[..., 1]), "c": ch[..., 2]}  # noqa: E731
-    base = dataclasses.replace(F.QUALITY_PRESETS["standard"], adaptive_extend=True)
+    base = dataclasses.replace(inf_presets.QUALITY_PRESETS["standard"], adaptive_extend=True)
     cache = {}
-    assert F._default_converged(chain, base, cache, reported_fn=reported)
+    assert inf_mcmc._default_converged(chain, base, cache, reported_fn=reported)
     end = cache["end_mcse"]
     assert set(end) == {"a", "b", "c"} and all(0 < v < 0.05 for v in end.values())
     worst = max(end, key=end.get)
     strict = dataclasses.replace(base, end_mcse_target=end[worst] / 1.5)
     cache = {}
-    assert not F._default_converged(chain, strict, cache, reported_fn=reported)
+    assert not inf_mcmc._default_converged(chain, strict, cache, reported_fn=reported)
     assert cache["_shortfall"] == ("mcse", end[worst], worst)
     # the error falls as 1/√n: a target 1.5× below the error needs 2.25× the steps, 1.25× more (+10 %)
-    n_next = F._next_round_steps(400, strict, cache)
+    n_next = inf_mcmc._next_round_steps(400, strict, cache)
     assert n_next % 2 == 0 and abs(n_next - 1.1 * 400 * 1.25) <= 2
     loose = dataclasses.replace(base, end_mcse_target=1.01 * end[worst])
-    assert F._default_converged(chain, loose, {}, reported_fn=reported)
-    pool = F._Workers(2)
+    assert inf_mcmc._default_converged(chain, loose, {}, reported_fn=reported)
+    pool = inf_mcmc._Workers(2)
     try:
         pooled = {}
-        assert not F._default_converged(chain, strict, pooled, pool=pool, reported_fn=reported)
+        assert not inf_mcmc._default_converged(chain, strict, pooled, pool=pool, reported_fn=reported)
     finally:
         pool.close()
     assert pooled["end_mcse"] == cache["end_mcse"]
@@ -597,8 +578,6 @@ def test_mcmc_result_reports_its_interval_ends_monte_carlo_error(basler_fit):
     derived quantity that varies (JSON diagnostics and the text report), computed on the final
     chain; the standard preset reports it without a target, the accurate one checks ≤ 1 %."""
     import importlib
-
-    F = importlib.import_module("bayescap.fit")
     dg = basler_fit.to_dict()["diagnostics"]
     end = dg["interval_end_mcse"]
     varying = [n for n, v in list(basler_fit.draws.items()) + list(basler_fit.derived.items()) if np.ptp(v) > 0]
@@ -609,12 +588,12 @@ def test_mcmc_result_reports_its_interval_ends_monte_carlo_error(basler_fit):
     E, S, W = basler_fit.shape_esw
     k = dg["interval_end_mcse_worst"]
     x = (basler_fit.draws.get(k) if k in basler_fit.draws else basler_fit.derived[k]).reshape(E, S, W)
-    assert F.interval_end_mcse_mcmc(x) == pytest.approx(end[k], rel=1e-12)
+    assert inf_diagnostics.interval_end_mcse_mcmc(x) == pytest.approx(end[k], rel=1e-12)
     # ESS ≥ 1 000 puts a Gaussian's 2.5 % point within ~0.68/√ESS ≈ 2 % of the width
     assert 0.002 < dg["interval_end_mcse_max"] < 0.05
     txt = format_text(basler_fit)
     assert f"Monte Carlo error of the 95 % interval ends: up to {dg['interval_end_mcse_max']:.3f}" in txt
-    assert F.QUALITY_PRESETS["accurate"].end_mcse_target == 0.01
+    assert inf_presets.QUALITY_PRESETS["accurate"].end_mcse_target == 0.01
     assert "IndependenceMove" in dg["method_description"]
     # at another scene the derived quantities move, and their errors are recomputed; the parameters' stay
     from bayescap.posterior import Scene
@@ -626,7 +605,7 @@ def test_mcmc_result_reports_its_interval_ends_monte_carlo_error(basler_fit):
         if n in end:
             assert end2[n] == end[n]
     cap = other.derived["capacity_bits"].reshape(E, S, W)
-    assert end2["capacity_bits"] == F.interval_end_mcse_mcmc(cap) != end["capacity_bits"]
+    assert end2["capacity_bits"] == inf_diagnostics.interval_end_mcse_mcmc(cap) != end["capacity_bits"]
     assert other.diag["interval_end_mcse_max"] == max(end2.values())
     # with a target the new scene's errors miss, the result at that scene says NOT CONVERGED
     import copy
@@ -681,8 +660,6 @@ def test_sampler_subclass_gives_emcee_chains_across_rounds():
     import importlib
 
     import emcee
-
-    F = importlib.import_module("bayescap.fit")
     cov = np.array([[1.0, 0.5, 0.0], [0.5, 2.0, 0.3], [0.0, 0.3, 0.5]])
     prec = np.linalg.inv(cov)
 
@@ -703,10 +680,10 @@ def test_sampler_subclass_gives_emcee_chains_across_rounds():
         return np.concatenate(chains), state
 
     a, sa_ = run(emcee.EnsembleSampler)
-    b, sb = run(F._Sampler)
+    b, sb = run(inf_moves._Sampler)
     assert np.array_equal(a, b)
     assert all(np.array_equal(np.asarray(u), np.asarray(v)) for u, v in zip(sa_.random_state, sb.random_state))
-    s = F._Sampler(16, 3, lambda x: np.full(x.shape[0], np.nan), vectorize=True)
+    s = inf_moves._Sampler(16, 3, lambda x: np.full(x.shape[0], np.nan), vectorize=True)
     with pytest.raises(ValueError, match="NaN"):
         s.run_mcmc(np.random.default_rng(0).standard_normal((16, 3)), 2, progress=False)
 

@@ -5,7 +5,7 @@ import numpy as np
 import pytest
 from scipy import stats
 
-from bayescap.model import PTCModel, gamma_logpdf, select_terms
+from bayescap.model.ptc_model import PTCModel, gamma_logpdf, select_terms
 from bayescap.simulate import SensorTruth, simulate_ptc
 
 
@@ -107,7 +107,7 @@ def test_latent_clip_solver_reaches_roots_deep_in_the_clip():
     on the clipped mean stopped once it was within 1e-9 s of the measured one, which at a
     shortfall of 1e-8 DN put the root at h = −5.84 instead of −5.96."""
     import types
-    from bayescap.model import _log_shortfall
+    from bayescap.model.ptc_model import _log_shortfall
 
     g = np.array([300, 30, 5, 1, 0.1, 1e-2, 1e-4, 1e-8, 1e-12, 0.0, -0.5])
     c0, dark = 1000.0, 10.0
@@ -189,7 +189,7 @@ def test_robust_blocks_are_the_two_component_mixture():
     against the mixture written out with scipy: (1 − ε) Gamma(k, σ²/k) + ε LogNormal(log σ², 0.3) for
     the variances, (1 − ε) N(m, sd) + ε N(m, √(sd² + (0.3 m)²)) for the means; and the outlier
     probabilities ε·bad / mixture."""
-    from bayescap.model import OUTLIER_RATE as eps, OUTLIER_REL_SD as rs
+    from bayescap.model.ptc_model import OUTLIER_RATE as eps, OUTLIER_REL_SD as rs
 
     truth = SensorTruth(conversion_gain_e_per_dn=2.0, read_noise_e=5.0, full_well_e=8000.0, adc_bits=12)
     m = PTCModel(simulate_ptc(truth, seed=3, shape=(64, 64), n_levels=20))
@@ -213,7 +213,7 @@ def test_robust_blocks_are_the_two_component_mixture():
 
 
 def test_logaddexp_matches_numpy():
-    from bayescap.model import _logaddexp
+    from bayescap.model.ptc_model import _logaddexp
 
     rng = np.random.default_rng(4)
     a, b = rng.normal(0, 40, 10**5), rng.normal(0, 40, 10**5)
@@ -245,7 +245,7 @@ def _split_case():
     _, d = _sim(spatial_frames=8, spatial_every=5)
     m = PTCModel(d)
     x = m.initial_guess()
-    from bayescap.model import SPLIT_MIN_ELEMENTS
+    from bayescap.model.ptc_model import SPLIT_MIN_ELEMENTS
     n = SPLIT_MIN_ELEMENTS // m._observations() + 101
     assert n >= 1000
     X = x + 0.01 * np.random.default_rng(3).standard_normal((n, m.ndim))
@@ -256,7 +256,7 @@ def test_large_log_prob_calls_split_into_halves_the_same_on_one_or_two_threads(m
     """A call of SPLIT_MIN_ELEMENTS draws × observations or more is two half calls (the second on
     a thread): the same numbers bit for bit whatever BAYESCAP_THREADS says, equal to the halves
     evaluated apart."""
-    import bayescap.model as M
+    import bayescap.model.ptc_model as M
 
     m, X = _split_case()
     k = X.shape[0] // 2
@@ -287,7 +287,7 @@ def test_split_log_prob_thread_keeps_the_callers_errstate(monkeypatch):
 
 
 def _child_split(args):
-    import bayescap.model as M
+    import bayescap.model.ptc_model as M
     m, X = args
     return M.n_threads(), m.log_prob(X)
 
@@ -320,7 +320,7 @@ def test_two_pixel_rows_and_far_out_draws_evaluate_quietly(basler_csv):
     in the prior with a RuntimeWarning on the command line (now −inf quietly, as the likelihood)."""
     import dataclasses
 
-    from bayescap.ptc import read_ptc_csv
+    from bayescap.io.ptc_csv import read_ptc_csv
 
     d = read_ptc_csv(basler_csv)
     two = dataclasses.replace(d, n_pixels=np.full_like(d.n_pixels, 2.0))

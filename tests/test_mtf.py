@@ -16,16 +16,8 @@ import numpy as np
 import pytest
 from scipy import stats
 
-from bayescap.mtf import (
-    MTFInputError,
-    MTFWarning,
-    SFRResult,
-    measure_sfr,
-    read_mtf_table,
-    synthetic_edge,
-    synthetic_edge_mtf,
-    write_mtf_table,
-)
+from bayescap.exceptions import MTFInputError, MTFWarning
+from bayescap.measure.sfr import SFRResult, measure_sfr, read_mtf_table, synthetic_edge, synthetic_edge_mtf, write_mtf_table
 
 tifffile = pytest.importorskip("tifffile")
 

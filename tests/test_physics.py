@@ -14,10 +14,11 @@ import numpy as np
 import pytest
 from scipy import integrate, optimize
 
-from bayescap import paper, photometry, sweep
-from bayescap.capacity import mtf_loss_bits, mtf_loss_bits_eq8
-from bayescap.optics import (DiffractionLens, GaussianCrosstalk, LShapedAperture, MTFProduct,
-                             PixelAperture, TabulatedMTF, default_mtf, mtf50_cy_per_px)
+from bayescap.physics import table1 as paper, photometry
+from bayescap.studies import sweep
+from bayescap.physics.capacity import mtf_loss_bits, mtf_loss_bits_eq8
+from bayescap.physics.optics import DiffractionLens, GaussianCrosstalk, LShapedAperture, MTFProduct, PixelAperture, TabulatedMTF, default_mtf, mtf50_cy_per_px
+from bayescap.cli import sweep as cli_sweep
 
 H_PLANCK, C_LIGHT = 6.62607015e-34, 299_792_458.0
 
@@ -416,10 +417,10 @@ def test_interpolate_tr_least_squares_trend():
 
 
 def test_cli_json(capsys):
-    parser = sweep.add_sweep_arguments(argparse.ArgumentParser())
+    parser = cli_sweep.add_sweep_arguments(argparse.ArgumentParser())
     args = parser.parse_args(["pixel-size", "--format", "1/4in", "--f-number", "2.8", "--json",
                               "--seed", "5", "--draws", "200"])
-    assert sweep.run_sweep(args) == 0
+    assert cli_sweep.run_sweep(args) == 0
     out = json.loads(capsys.readouterr().out)
     o = out["optimal_pitch"]
     assert o["ci95_um"][0] <= o["ci68_um"][0] <= o["median_um"] <= o["ci68_um"][1] <= o["ci95_um"][1]
@@ -427,5 +428,5 @@ def test_cli_json(capsys):
     assert out["settings"]["draws"] == {"n": 200, "seed": 5, "full_well": "uniform within the Table 1 range",
                                         "prnu": "uniform in [0, bound]"}
     args = parser.parse_args(["pixel-size", "--draws", "50"])
-    assert sweep.run_sweep(args) == 0
+    assert cli_sweep.run_sweep(args) == 0
     assert "optimal pitch: median" in capsys.readouterr().out

@@ -5,7 +5,8 @@ import sys
 import numpy as np
 import pytest
 
-from bayescap.ptc import PTCInputError, read_ptc_csv, write_ptc_csv
+from bayescap.exceptions import PTCInputError
+from bayescap.io.ptc_csv import read_ptc_csv, write_ptc_csv
 
 HEADER = "exposure_time_s,mean_dn,temporal_var_dn2,dark_mean_dn,dark_temporal_var_dn2,n_pixels"
 GOOD_ROWS = ["0.001,100,30,10,5,10000", "0.002,200,55,10,5,10000", "0.003,300,80,10,5,10000"]

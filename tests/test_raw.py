@@ -17,8 +17,9 @@ import tifffile
 from PIL import Image
 from scipy import stats
 
-from bayescap import raw
-from bayescap.raw import IngestError
+from bayescap.io import frames as raw
+from bayescap.exceptions import IngestError
+from bayescap.cli import ingest as cli_ingest
 
 DATA = Path(__file__).parent / "data" / "emva1288_basler"
 N_CROP = 128 * 128
@@ -398,7 +399,7 @@ def test_spatial_stacks_give_spatial_variance(crops, tmp_path):
     np.testing.assert_allclose(cols["spatial_var_dn2"][0], np.var(pair.mean(axis=0), ddof=1),
                                rtol=1e-10)
     # the project's own contract reader takes the table as it is
-    from bayescap.ptc import read_ptc_csv as contract_reader
+    from bayescap.io.ptc_csv import read_ptc_csv as contract_reader
     data = contract_reader(out)
     assert data.n_levels == 2 and data.metadata["adc_bits"] == 12
 
@@ -542,16 +543,16 @@ def test_cli_exit_status_and_one_line_error(crops, tmp_path, capsys):
     rows = small_png_set(tmp_path, crops)
     rows[0][1] = "brite"
     write_manifest(tmp_path / "manifest.csv", rows)
-    parser = raw.add_ingest_arguments(argparse.ArgumentParser(prog="bayescap ingest"))
+    parser = cli_ingest.add_ingest_arguments(argparse.ArgumentParser(prog="bayescap ingest"))
     out = tmp_path / "ptc.csv"
     args = parser.parse_args([str(tmp_path / "manifest.csv"), "-o", str(out)])
-    assert raw.run_ingest(args) == 2
+    assert cli_ingest.run_ingest(args) == 2
     err = capsys.readouterr().err
     assert err.count("\n") == 1 and "row 2, column 'kind'" in err
     assert nothing_written(tmp_path, out)
     rows[0][1] = "bright"
     write_manifest(tmp_path / "manifest.csv", rows)
-    assert raw.run_ingest(args) == 0
+    assert cli_ingest.run_ingest(args) == 0
     assert capsys.readouterr().out.strip() == str(out)
     assert out.exists()
 

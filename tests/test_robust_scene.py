@@ -4,7 +4,7 @@ import pytest
 
 import bayescap
 from bayescap.posterior import Scene
-from bayescap.ptc import write_ptc_csv
+from bayescap.io.ptc_csv import write_ptc_csv
 from bayescap.simulate import SensorTruth, simulate_ptc
 
 TRUTH = SensorTruth(conversion_gain_e_per_dn=2.0, read_noise_e=4.0, full_well_e=9000.0, dark_current_e_per_s=30.0,
@@ -89,7 +89,7 @@ def test_cli_scene_requires_reference_temperature(tmp_path):
 def test_model_selection_by_loo_keeps_the_mixture_for_corrupted_rows(tmp_path):
     """PSIS-LOO prefers the outlier mixture when two rows are corrupted and the plain χ²
     likelihood (the simplest variant) when the data are clean simulations."""
-    from bayescap.selection import select_model
+    from bayescap.studies.selection import select_model
 
     d = simulate_ptc(TRUTH, seed=7, shape=(100, 100))
     cols = {c: np.array(getattr(d, c)) for c in ("exposure_time_s", "mean_dn", "temporal_var_dn2", "dark_mean_dn",
@@ -119,7 +119,7 @@ def test_dark_pixels_clipped_at_zero_are_flagged():
     flagged."""
     from types import SimpleNamespace
 
-    from bayescap.model import PTCModel
+    from bayescap.model.ptc_model import PTCModel
     from bayescap.posterior import FitResult
     from bayescap.simulate import SensorTruth, simulate_ptc
 

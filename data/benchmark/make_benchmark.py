@@ -28,9 +28,9 @@ from pathlib import Path
 
 import numpy as np
 
-from bayescap.paper import load_table1
-from bayescap.photometry import photons_per_lux_s_um2
-from bayescap.ptc import atomic_write_text, write_ptc_csv
+from bayescap.physics.table1 import load_table1
+from bayescap.physics.photometry import photons_per_lux_s_um2
+from bayescap.io.ptc_csv import atomic_write_text, write_ptc_csv
 from bayescap.simulate import SensorTruth, simulate_ptc
 
 HERE = Path(__file__).resolve().parent

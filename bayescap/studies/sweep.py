@@ -26,18 +26,23 @@ Command line (registered by ``bayescap.cli``)::
 """
 from __future__ import annotations
 
-import argparse
-import json
-import math
-import sys
 from dataclasses import dataclass, field
 
 import numpy as np
 
-from .capacity import mtf_loss_bits, mtf_loss_bits_eq8, tonal_range
-from .optics import OPTICAL_FORMATS, PixelAperture, default_mtf, mtf50_cy_per_px
-from .paper import PixelSpec, load_table1
-from .photometry import mpe30_lux_s, pixel_noise_coefficients, snr_vs_exposure_db
+from bayescap.physics.capacity import mtf_loss_bits, mtf_loss_bits_eq8, tonal_range
+from bayescap.physics.optics import (
+    OPTICAL_FORMATS,
+    PixelAperture,
+    default_mtf,
+    mtf50_cy_per_px,
+)
+from bayescap.physics.photometry import (
+    mpe30_lux_s,
+    pixel_noise_coefficients,
+    snr_vs_exposure_db,
+)
+from bayescap.physics.table1 import PixelSpec, load_table1
 
 __all__ = [
     "FORMATS_MM",
@@ -51,19 +56,16 @@ __all__ = [
     "pixel_size_sweep",
     "snr_curves_table1",
     "farrell_tradeoff",
-    "add_sweep_arguments",
-    "run_sweep",
 ]
+
 
 #: imaging area (width, height) in mm of the optical formats (4:3), keyed "1/4in" etc.
 FORMATS_MM = {f"{k}in": v for k, v in OPTICAL_FORMATS.items() if k[0].isdigit()}
+
+
 #: Section 3: below 1.45 µm "TR continues to decrease ... at approximately 0.35 bit/µm"
 PAPER_TR_TREND_BITS_PER_UM = 0.35
 
-
-# ------------------------------------------------------------------------------------------
-# Table 1 parameters: draws and nominal values
-# ------------------------------------------------------------------------------------------
 
 def _table_columns(specs, temperature_c):
     return (np.array([s.pitch_um for s in specs]),
@@ -190,10 +192,6 @@ def delta_s_vs_pitch(pitch_um, *, f_number: float | None = 2.8, wavelength_nm: f
         cut.append(r.band_cut_bits)
     return np.array(ds), np.array(cut)
 
-
-# ------------------------------------------------------------------------------------------
-# The sweep
-# ------------------------------------------------------------------------------------------
 
 def _q(x, qs, axis=0):
     return np.quantile(x, qs, axis=axis)
@@ -369,10 +367,6 @@ def pixel_size_sweep(pitch_um=None, *, optical_format: str = "1/4in", f_number: 
                           settings=settings)
 
 
-# ------------------------------------------------------------------------------------------
-# Fig. 2(b) and Farrell's MPE30 / MTF50 trade-off (Section 2.3)
-# ------------------------------------------------------------------------------------------
-
 def snr_curves_table1(h_lux_s, *, specs: list[PixelSpec] | None = None, exposure_time_s: float = 0.1,
                       temperature_c: float = 25.0, adc_bits: int = 10) -> dict:
     """Fig. 2(b): SNR (dB) against exposure H (lux·s) of every Table 1 pixel (nominal values).
@@ -416,33 +410,6 @@ def farrell_tradeoff(*, specs: list[PixelSpec] | None = None, f_number: float | 
     return rows
 
 
-# ------------------------------------------------------------------------------------------
-# Command line
-# ------------------------------------------------------------------------------------------
-
-def add_sweep_arguments(parser: argparse.ArgumentParser) -> argparse.ArgumentParser:
-    """Arguments of ``bayescap sweep``: ``pixel-size --format 1/4in --f-number 2.8 ...``."""
-    from .cli import seed_arg
-
-    parser.add_argument("study", choices=["pixel-size"],
-                        help="pixel-size: image information capacity vs pixel pitch (paper Fig. 4)")
-    parser.add_argument("--format", dest="optical_format", default="1/4in", choices=sorted(FORMATS_MM),
-                        help="optical format (fixed imaging area); 1/4in = 3.6 x 2.7 mm (default)")
-    parser.add_argument("--f-number", type=float, default=2.8, help="ideal lens f-number (default 2.8)")
-    parser.add_argument("--wavelength-nm", type=float, default=555.0, help="wavelength (default 555 nm)")
-    parser.add_argument("--method", choices=["eq9", "eq8"], default="eq9",
-                        help="MTF loss: eq9 (radial, the paper's Fig. 4; default) or eq8 (2-D square)")
-    parser.add_argument("--tr-trend", type=float, default=PAPER_TR_TREND_BITS_PER_UM,
-                        help="TR slope below 1.45 um in bit/um (default 0.35, the paper's); "
-                             "a negative value fits it per draw")
-    parser.add_argument("--exposure-lux-s", type=float, default=None,
-                        help="evaluate TR at this exposure instead of over the dynamic range")
-    parser.add_argument("--draws", type=int, default=2000, help="Table 1 draws (default 2000)")
-    parser.add_argument("--seed", type=seed_arg, default=0, help="random seed (default 0)")
-    parser.add_argument("--json", action="store_true", help="print JSON instead of a table")
-    return parser
-
-
 def _format_table(res: PixelSizeSweep) -> str:
     o = res.optimal_pitch_summary()
     st = res.settings
@@ -476,47 +443,3 @@ def _format_table(res: PixelSizeSweep) -> str:
     ]
     return "\n".join(lines)
 
-
-def run_sweep(args: argparse.Namespace) -> int:
-    """Run ``bayescap sweep`` from parsed arguments; prints a table or JSON; returns 0."""
-    if args.study != "pixel-size":  # pragma: no cover - argparse restricts the choices
-        raise ValueError(f"unknown study {args.study!r}")
-    def refuse(msg):
-        print(f"bayescap: error: {msg}", file=sys.stderr)
-        return 2
-
-    # (found 2026-11-25: a zero, negative or NaN f-number ended in a traceback, --draws 0 in exit 1)
-    if args.draws < 1:
-        return refuse(f"--draws must be at least 1, got {args.draws}")
-    if not (0.5 <= args.f_number < math.inf):
-        return refuse(f"--f-number must be a finite number >= 0.5 (the limit of a lens in air), got {args.f_number}")
-    if not (0.0 < args.wavelength_nm < math.inf):
-        return refuse(f"--wavelength-nm must be a finite number > 0, got {args.wavelength_nm}")
-    if not math.isfinite(args.tr_trend):
-        return refuse(f"--tr-trend must be a finite number (negative: no trend), got {args.tr_trend}")
-    if args.exposure_lux_s is not None and not (0.0 < args.exposure_lux_s < math.inf):
-        return refuse(f"--exposure-lux-s must be a finite number > 0, got {args.exposure_lux_s}")
-    res = pixel_size_sweep(optical_format=args.optical_format, f_number=args.f_number,
-                           wavelength_nm=args.wavelength_nm, n_draws=args.draws, seed=args.seed,
-                           method=args.method,
-                           tr_trend_bits_per_um=None if args.tr_trend < 0 else args.tr_trend,
-                           exposure_lux_s=args.exposure_lux_s)
-    if not np.any(np.asarray(res.capacity_nominal_bits) > 0):
-        # every pitch's capacity underflows (an f/1e308 lens passes no detail): no optimum to report
-        return refuse(f"the capacity is zero at every pitch (Δs down to {float(np.min(res.delta_s_bits)):.0f} bits "
-                      f"at f/{args.f_number:g}, {args.wavelength_nm:g} nm): no optimal pitch exists")
-    if args.json:
-        print(json.dumps(res.to_dict(), indent=2))
-    else:
-        print(_format_table(res))
-    return 0
-
-
-def main(argv=None) -> int:
-    """``python -m bayescap.sweep pixel-size ...`` (the same as ``bayescap sweep``)."""
-    parser = add_sweep_arguments(argparse.ArgumentParser(prog="bayescap sweep", description=__doc__.split("\n")[0]))
-    return run_sweep(parser.parse_args(argv))
-
-
-if __name__ == "__main__":  # pragma: no cover
-    raise SystemExit(main())

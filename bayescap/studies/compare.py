@@ -32,22 +32,25 @@ Conventions (docs/compare.md):
 """
 from __future__ import annotations
 
-import argparse
 import json
 import math
 import re
-import sys
-import warnings
 import zlib
 from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
 
-from .capacity import N_GREY_LEVELS, NoiseCoefficients, snr_db, tonal_range
-from .optics import OPTICAL_FORMATS
-from .photometry import photons_per_lux_s_um2
-from .posterior import FitResult, rerun_advice, summarize
+from bayescap.exceptions import CompareInputError
+from bayescap.physics.capacity import (
+    N_GREY_LEVELS,
+    NoiseCoefficients,
+    snr_db,
+    tonal_range,
+)
+from bayescap.physics.optics import OPTICAL_FORMATS
+from bayescap.physics.photometry import photons_per_lux_s_um2
+from bayescap.posterior import FitResult, rerun_advice, summarize
 
 __all__ = [
     "OPTICAL_FORMATS",
@@ -67,30 +70,31 @@ __all__ = [
     "compare",
     "compare_results",
     "format_compare_text",
-    "add_compare_arguments",
-    "run_compare",
 ]
+
 
 #: a sensor within 2 % of the area in both directions counts as filling it (formats are nominal)
 AREA_TOLERANCE = 0.02
+
+
 #: mid-grey: the fraction of the top of the signal range at which the scene's mean is placed
 DEFAULT_MID_GREY = 0.18
+
+
 DEFAULT_H0_LUX_S = 0.4
+
+
 DEFAULT_AREA = "1/4in"
+
+
 #: posterior draws kept per sensor for the comparison (thinned evenly)
 DEFAULT_N_DRAWS = 4000
+
+
 #: compare fits several sensors: the fast preset by default (Laplace–IS; MCMC with ESS >= 200 per
 #: quantity when its k̂ check rejects the draws)
 DEFAULT_QUALITY = "fast"
 
-
-class CompareInputError(ValueError):
-    """A bad option or file for ``bayescap compare``/``report``: one line, exit status 2."""
-
-
-# --------------------------------------------------------------------------------------------
-# imaging area
-# --------------------------------------------------------------------------------------------
 
 @dataclass(frozen=True)
 class ImagingArea:
@@ -172,10 +176,6 @@ def area_crop(width_px: int, height_px: int, pitch_um: float, area: ImagingArea)
                     covered_fraction=float(covered))
 
 
-# --------------------------------------------------------------------------------------------
-# fitting one sensor
-# --------------------------------------------------------------------------------------------
-
 def sensor_seed(seed: int, path) -> int:
     """The seed of one sensor's fit: from the run's seed and the file's name, so a sensor's numbers
     do not depend on which other files are compared (``bayescap fit --seed`` with this value and
@@ -183,10 +183,6 @@ def sensor_seed(seed: int, path) -> int:
     return int(np.random.SeedSequence([int(seed), zlib.crc32(Path(str(path)).name.encode())]).generate_state(1)[0]
                % (2**31 - 1))
 
-
-# --------------------------------------------------------------------------------------------
-# exposure calibration, TR(H0), SNR(H)
-# --------------------------------------------------------------------------------------------
 
 @dataclass(frozen=True)
 class ExposureCalibration:
@@ -297,10 +293,6 @@ def snr_at_exposure(result: FitResult, h_lux_s, *, calibration: ExposureCalibrat
     return np.where(s <= np.asarray(clip)[:, None], out, np.nan)
 
 
-# --------------------------------------------------------------------------------------------
-# pairwise probabilities
-# --------------------------------------------------------------------------------------------
-
 def prob_greater(x, y) -> float:
     """P(X > Y) for independent X, Y given by draws: the mean over all pairs (ties count ½).
 
@@ -312,10 +304,6 @@ def prob_greater(x, y) -> float:
     hi = np.searchsorted(ys, x, side="right")
     return float(np.sum(lo + 0.5 * (hi - lo)) / (x.size * ys.size))
 
-
-# --------------------------------------------------------------------------------------------
-# the comparison
-# --------------------------------------------------------------------------------------------
 
 @dataclass
 class SensorComparison:
@@ -339,7 +327,7 @@ class Comparison:
     conventions: dict
 
     def to_dict(self) -> dict:
-        from . import __version__
+        from bayescap._version import __version__
 
         return _clean({"bayescap_version": __version__, "command": "compare", "conventions": self.conventions,
                        "sensors": [s.info for s in self.sensors], "pairs": self.pairs})
@@ -526,7 +514,7 @@ def compare(paths, *, area=DEFAULT_AREA, h0_lux_s: float = DEFAULT_H0_LUX_S, mid
     Raises :class:`bayescap.ptc.PTCInputError` for a bad file and :class:`CompareInputError` for
     a bad option.
     """
-    from .api import fit, load
+    from bayescap.api import fit, load
 
     if len(paths) < 1:
         raise CompareInputError("give at least one photon-transfer CSV")
@@ -543,10 +531,6 @@ def compare(paths, *, area=DEFAULT_AREA, h0_lux_s: float = DEFAULT_H0_LUX_S, mid
     return compare_results(results, inputs=[str(p) for p in paths], seeds=seeds, area=ar, h0_lux_s=h0_lux_s,
                            mid_grey=mid_grey, seed=seed, n_draws=n_draws, quality=quality)
 
-
-# --------------------------------------------------------------------------------------------
-# text
-# --------------------------------------------------------------------------------------------
 
 def _mbit(x):
     return "—" if x is None else f"{x / 1e6:.4g}"
@@ -602,62 +586,3 @@ def format_compare_text(d: dict) -> str:
         for name, n in notes:
             L.append(f"  ! {name}: {n}")
     return "\n".join(L) + "\n"
-
-
-# --------------------------------------------------------------------------------------------
-# command line
-# --------------------------------------------------------------------------------------------
-
-def add_compare_arguments(p: argparse.ArgumentParser) -> None:
-    from .cli import seed_arg
-
-    p.add_argument("csv", nargs="+", help="photon-transfer CSVs, one per sensor")
-    p.add_argument("--area", default=DEFAULT_AREA,
-                   help="fixed imaging area: an optical format (1/4in, 1/3.2in, 1/3in, 2/3in, ...), WxHmm, "
-                        "or none (default 1/4in)")
-    p.add_argument("--h0", type=float, default=DEFAULT_H0_LUX_S, metavar="LUX_S",
-                   help="average photometric exposure H0 (lux·s) for TR, as Fig. 8(a) (default 0.4)")
-    p.add_argument("--mid-grey", type=float, default=DEFAULT_MID_GREY, dest="mid_grey",
-                   help="fraction of the top of the signal range where the scene's mean is placed (default 0.18)")
-    p.add_argument("--seed", type=seed_arg, default=0, help="random seed of the run (each sensor's seed derives from it)")
-    p.add_argument("--quality", choices=("fast", "standard", "accurate"), default=DEFAULT_QUALITY,
-                   help="sampler preset for every fit (default fast: several sensors are fitted; "
-                        "use standard or accurate for final numbers)")
-    from .cli import add_fast_arguments
-
-    add_fast_arguments(p)
-    p.add_argument("--json", action="store_true", help="print the comparison as JSON")
-    p.add_argument("--out", metavar="DIR", help="also write compare.json and compare.txt into DIR")
-
-
-def run_compare(args) -> int:
-    """``bayescap compare``: returns the exit status (2 with one line on bad input)."""
-    from .cli import InputError, fast_settings_from_args
-    from .fit import ConvergenceWarning
-    from .ptc import PTCInputError, atomic_write_text
-
-    try:
-        fs = fast_settings_from_args(args)
-    except InputError as e:    # handled here: under `python -m bayescap.cli` main's InputError is another class
-        print(f"bayescap: error: {e}", file=sys.stderr)
-        return 2
-    try:
-        with warnings.catch_warnings():
-            warnings.filterwarnings("ignore", category=ConvergenceWarning)  # reported in the output
-            warnings.filterwarnings("ignore", category=FutureWarning)
-            cmp = compare(args.csv, area=args.area, h0_lux_s=args.h0, mid_grey=args.mid_grey, seed=args.seed,
-                          quality=args.quality, fit_kwargs=None if fs is None else {"fast_settings": fs})
-    except (PTCInputError, CompareInputError) as e:
-        print(f"bayescap: error: {e}", file=sys.stderr)
-        return 2
-    except OSError as e:
-        print(f"bayescap: error: {e}", file=sys.stderr)
-        return 2
-    js = cmp.to_json()
-    text = format_compare_text(json.loads(js))
-    if args.out:
-        out = Path(args.out)
-        atomic_write_text(out / "compare.json", js)
-        atomic_write_text(out / "compare.txt", text)
-    sys.stdout.write(js if args.json else text)
-    return 0

@@ -33,7 +33,7 @@ __all__ = [
 ]
 
 #: repository copy of Table 1 (the package is installed editable from the repository)
-TABLE1_PATH = Path(__file__).resolve().parent.parent / "data" / "paper_table1_pixel_parameters.csv"
+TABLE1_PATH = Path(__file__).resolve().parents[2] / "data" / "paper_table1_pixel_parameters.csv"
 #: Section 2.2: dark current doubles about every 6 °C
 DARK_CURRENT_DOUBLING_C = 6.0
 

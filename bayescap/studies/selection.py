@@ -19,7 +19,7 @@ from dataclasses import replace
 
 import numpy as np
 
-from .model import select_terms
+from bayescap.model.ptc_model import select_terms
 
 __all__ = ["loo", "select_model", "VARIANTS"]
 
@@ -62,7 +62,7 @@ def select_model(data, *, seed=None, quality="standard", variants=None, progress
     that difference (paired over observations), p_loo, k̂ counts, and which was chosen and why.
     ``fit_kwargs`` (scene, mtf) are passed to :func:`bayescap.fit`.
     """
-    from .api import fit
+    from bayescap.api import fit
 
     base = select_terms(data)
     names = list(variants or VARIANTS)

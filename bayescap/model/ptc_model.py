@@ -42,7 +42,8 @@ from pathlib import Path
 import numpy as np
 from scipy.special import erfcx, gammaln, ndtr, ndtri, owens_t
 
-from .ptc import PTCData, PTCInputError, check_not_all_saturated
+from bayescap.io.ptc_csv import PTCData, check_not_all_saturated
+from bayescap.exceptions import PTCInputError
 
 __all__ = ["PTCModel", "PTCModelStack", "ModelTerms", "select_terms", "saturation_flags", "gamma_logpdf", "PARAMETER_INFO"]
 

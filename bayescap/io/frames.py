@@ -35,14 +35,12 @@ describes the inputs, options and formulas for users.
 """
 from __future__ import annotations
 
-import argparse
 import contextlib
 import csv
 import io
 import logging
 import math
 import os
-import sys
 import tempfile
 import warnings
 from dataclasses import dataclass, field, replace
@@ -51,7 +49,7 @@ from typing import Iterable, Sequence
 
 import numpy as np
 
-from .ptc import PTCInputError
+from bayescap.exceptions import IngestError, IngestWarning
 
 __all__ = [
     "IngestError",
@@ -73,40 +71,40 @@ __all__ = [
     "pair_statistics",
     "spatial_variance_dn2",
     "ingest",
-    "add_ingest_arguments",
-    "run_ingest",
 ]
+
 
 #: Channel names accepted by :func:`ingest`; ``G`` pools the Gr and Gb pixels, ``all`` writes
 #: one CSV for each of R, Gr, Gb and B.
 CHANNELS = ("R", "Gr", "Gb", "B", "G", "all")
+
+
 _SINGLE_CHANNELS = ("R", "Gr", "Gb", "B")
+
+
 _BAYER_PATTERNS = ("RGGB", "GRBG", "GBRG", "BGGR")
+
+
 _REQUIRED_MANIFEST_COLUMNS = ("file", "kind", "exposure_time_s")
+
+
 _OPTIONAL_MANIFEST_COLUMNS = ("photons_per_pixel", "exposure_lux_s")
+
+
 #: Manifest metadata keys that describe the frames themselves (they override the files).
 _FRAME_OVERRIDE_KEYS = ("adc_bits", "black_level_dn", "white_level_dn", "cfa_pattern")
+
+
 _PILLOW_SUFFIXES = (".png",)
+
+
 _TIFF_SUFFIXES = (".tif", ".tiff")
+
+
 _NPY_SUFFIXES = (".npy",)
+
+
 _PNG_END = b"IEND\xaeB`\x82"
-
-
-class IngestError(PTCInputError):
-    """The frames or their description cannot be turned into a photon-transfer table.
-
-    One line naming the offending file (and, for a manifest, the row and column), as every
-    :class:`~bayescap.ptc.PTCInputError`; ``path`` is a :class:`pathlib.Path` here.
-    """
-
-    def __init__(self, message: str, *, path: os.PathLike | str | None = None,
-                 row: int | None = None, column: str | None = None):
-        super().__init__(message, path=path, row=row, column=column)
-        self.path = None if path is None else Path(path)
-
-
-class IngestWarning(UserWarning):
-    """A soft problem in the input (for instance frames with different black levels)."""
 
 
 # --------------------------------------------------------------------------------------------
@@ -1309,38 +1307,3 @@ def ingest(source: os.PathLike | str, *, out: os.PathLike | str,
         files[paths[c]] = _table_text(md, rows[c])
     _write_atomically(files)
     return list(paths.values())
-
-
-# --------------------------------------------------------------------------------------------
-# Command line
-# --------------------------------------------------------------------------------------------
-def add_ingest_arguments(parser: argparse.ArgumentParser) -> argparse.ArgumentParser:
-    """Add the options of ``bayescap ingest`` to ``parser`` (and return it)."""
-    parser.add_argument("source", help="manifest CSV, EMVA 1288 descriptor (*.txt), or a "
-                        "directory holding manifest.csv or one descriptor")
-    parser.add_argument("-o", "--out", required=True,
-                        help="photon-transfer CSV to write (with --channel all: one file per "
-                        "channel, _R/_Gr/_Gb/_B added before the suffix)")
-    parser.add_argument("--roi", default=None,
-                        help="region of interest: x0,y0,x1,y1 in pixels (x1, y1 exclusive) or "
-                        "a centred fraction of each dimension (default 0.5)")
-    parser.add_argument("--channel", choices=CHANNELS, default="G",
-                        help="Bayer channel; G pools Gr and Gb, all writes four files "
-                        "(ignored for monochrome sensors; default G)")
-    parser.add_argument("--format", dest="format", choices=("auto", "manifest", "emva"),
-                        default="auto", help="how to read SOURCE (default auto)")
-    return parser
-
-
-def run_ingest(args: argparse.Namespace) -> int:
-    """Run ``bayescap ingest``: 0 on success (paths printed), 2 on an input error (one line on
-    standard error, nothing written)."""
-    try:
-        paths = ingest(args.source, out=args.out, roi=args.roi, channel=args.channel,
-                       fmt=args.format)
-    except IngestError as exc:
-        print(f"bayescap ingest: error: {exc}", file=sys.stderr)
-        return 2
-    for p in paths:
-        print(p)
-    return 0

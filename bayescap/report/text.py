@@ -10,8 +10,8 @@ from pathlib import Path
 
 import numpy as np
 
-from .posterior import FitResult
-from .ptc import atomic_write_text
+from bayescap.io.ptc_csv import atomic_write_text
+from bayescap.posterior import FitResult
 
 __all__ = ["format_text", "to_json", "write_outputs", "to_inference_data", "plot_ptc", "plot_corner"]
 

@@ -17,6 +17,8 @@ from pathlib import Path
 
 import numpy as np
 
+from bayescap.exceptions import PTCInputError
+
 __all__ = ["PTCData", "PTCInputError", "read_ptc_csv", "write_ptc_csv", "REQUIRED_COLUMNS",
            "OPTIONAL_COLUMNS", "METADATA_TYPES"]
 
@@ -35,24 +37,6 @@ METADATA_TYPES = {
     "wavelength_nm": float, "fill_factor": float, "analog_gain": float, "channel": str,
     "temperature_c": float, "crosstalk_sigma_px": float,
 }
-
-
-class PTCInputError(ValueError):
-    """An input that cannot be used. The message is one line, ``file, row R, column 'C': what``,
-    so the command line prints it as it is and exits with status 2; ``path``, ``row`` and
-    ``column`` carry the same information for programs."""
-
-    def __init__(self, message, *, path=None, row=None, column=None):
-        where = []
-        if path is not None:
-            where.append(str(path))
-        if row is not None:
-            where.append(f"row {row}")
-        if column is not None:
-            where.append(f"column '{column}'")
-        text = (", ".join(where) + ": " if where else "") + message
-        super().__init__(" ".join(text.split()))  # one line, whatever the pieces contain
-        self.path, self.row, self.column = path, row, column
 
 
 def _readonly(a):

@@ -88,6 +88,8 @@ from typing import Any
 import numpy as np
 from scipy import special
 
+from bayescap.exceptions import MTFInputError, MTFWarning
+
 __all__ = [
     "LUMINANCE_WEIGHTS",
     "MTFInputError",
@@ -108,14 +110,6 @@ _CLIP_FRACTION_LIMIT = 0.005
 _MIN_CONTRAST = 0.2
 _SLANT_RANGE_DEG = (2.0, 10.0)
 _MIN_CYCLES_FOR_BOOTSTRAP = 10
-
-
-class MTFWarning(UserWarning):
-    """Warning about a slanted-edge measurement whose result may be inaccurate."""
-
-
-class MTFInputError(ValueError):
-    """Input image or MTF table that cannot be analysed."""
 
 
 # --------------------------------------------------------------------------------------

@@ -11,29 +11,35 @@ no external assets. The file is written atomically.
 """
 from __future__ import annotations
 
-import argparse
 import base64
 import html
 import io
-import sys
 import warnings
 from pathlib import Path
 
 import numpy as np
 
-from .compare import _coefficients
-from .report import format_or_na
-from .compare import (DEFAULT_AREA, DEFAULT_H0_LUX_S, DEFAULT_MID_GREY, DEFAULT_QUALITY, Comparison,
-                      CompareInputError, compare, snr_at_exposure, tonal_range_at_exposure)
+from bayescap.report.text import format_or_na
+from bayescap.studies.compare import (
+    Comparison,
+    _coefficients,
+    snr_at_exposure,
+    tonal_range_at_exposure,
+)
 
 __all__ = ["render_html", "write_report", "plot_capacity", "plot_tr_h0", "plot_snr_exposure",
-           "plot_probability_matrix", "plot_snr_sensor", "add_report_arguments", "run_report",
+           "plot_probability_matrix", "plot_snr_sensor",
            "H0_GRID_LUX_S", "SECTION_IDS"]
+
 
 #: exposures of the TR(H0) and SNR(H) curves (lux·s)
 H0_GRID_LUX_S = np.geomspace(1e-3, 10.0, 61)
+
+
 #: the cross-sensor sections every report has (per-sensor sections are ``sensor-<i>``)
 SECTION_IDS = ("summary", "capacity", "tonal-range", "snr", "probabilities", "conventions")
+
+
 _N_CURVE_DRAWS = 1000
 
 
@@ -184,7 +190,7 @@ def plot_snr_sensor(s):
     """One sensor's SNR curve with its 95 % band: against exposure when calibrated, else against
     the signal in electrons."""
     plt = _plt()
-    from .capacity import NoiseCoefficients, snr_db
+    from bayescap.physics.capacity import NoiseCoefficients, snr_db
 
     fig, ax = plt.subplots(figsize=(6, 3.4))
     r = s.result
@@ -210,10 +216,6 @@ def plot_snr_sensor(s):
     fig.tight_layout()
     return fig
 
-
-# --------------------------------------------------------------------------------------------
-# HTML
-# --------------------------------------------------------------------------------------------
 
 _CSS = """
 body{font-family:system-ui,-apple-system,Segoe UI,Helvetica,Arial,sans-serif;margin:0 auto;max-width:1200px;
@@ -270,7 +272,7 @@ def _is_simulated(s) -> bool:
 
 def render_html(cmp: Comparison, *, title: str = "bayescap sensor comparison") -> str:
     """The report page as a string (figures rendered now, embedded as base64 PNG)."""
-    from .report import plot_corner, plot_ptc
+    from bayescap.report.text import plot_corner, plot_ptc
 
     d = cmp.to_dict()
     c = d["conventions"]
@@ -394,52 +396,8 @@ def render_html(cmp: Comparison, *, title: str = "bayescap sensor comparison") -
 
 def write_report(cmp: Comparison, path, *, title: str = "bayescap sensor comparison") -> Path:
     """Render and write the page atomically (temp file in the same folder, then rename)."""
-    from .ptc import atomic_write_text
+    from bayescap.io.ptc_csv import atomic_write_text
 
     path = Path(path)
     atomic_write_text(path, render_html(cmp, title=title))
     return path
-
-
-def add_report_arguments(p: argparse.ArgumentParser) -> None:
-    from .cli import seed_arg
-
-    p.add_argument("csv", nargs="+", help="photon-transfer CSVs, one per sensor")
-    p.add_argument("-o", "--output", default="report.html", help="HTML file to write (default report.html)")
-    p.add_argument("--area", default=DEFAULT_AREA, help="fixed imaging area (as for compare; default 1/4in)")
-    p.add_argument("--h0", type=float, default=DEFAULT_H0_LUX_S, metavar="LUX_S",
-                   help="average exposure H0 (lux·s) for TR and capacity (default 0.4)")
-    p.add_argument("--mid-grey", type=float, default=DEFAULT_MID_GREY, dest="mid_grey",
-                   help="fraction of the top of the range where the scene's mean is placed (default 0.18)")
-    p.add_argument("--seed", type=seed_arg, default=0, help="random seed of the run")
-    p.add_argument("--quality", choices=("fast", "standard", "accurate"), default=DEFAULT_QUALITY,
-                   help="sampler preset (default fast)")
-    p.add_argument("--title", default="bayescap sensor comparison")
-    from .cli import add_fast_arguments
-
-    add_fast_arguments(p)
-
-
-def run_report(args) -> int:
-    """``bayescap report``: returns the exit status (2 with one line on bad input)."""
-    from .cli import InputError, fast_settings_from_args
-    from .fit import ConvergenceWarning
-    from .ptc import PTCInputError
-
-    try:
-        fs = fast_settings_from_args(args)
-    except InputError as e:    # handled here: under `python -m bayescap.cli` main's InputError is another class
-        print(f"bayescap: error: {e}", file=sys.stderr)
-        return 2
-    try:
-        with warnings.catch_warnings():
-            warnings.filterwarnings("ignore", category=ConvergenceWarning)
-            warnings.filterwarnings("ignore", category=FutureWarning)
-            cmp = compare(args.csv, area=args.area, h0_lux_s=args.h0, mid_grey=args.mid_grey, seed=args.seed,
-                          quality=args.quality, fit_kwargs=None if fs is None else {"fast_settings": fs})
-            out = write_report(cmp, args.output, title=args.title)
-    except (PTCInputError, CompareInputError, OSError) as e:
-        print(f"bayescap: error: {e}", file=sys.stderr)
-        return 2
-    print(f"wrote {out}")
-    return 0

@@ -90,13 +90,23 @@ from dataclasses import asdict, dataclass, replace
 import numpy as np
 from scipy.special import erfc, gammaln
 
-from ._blas import one_blas_thread
-from .fit import (QUALITY_PRESETS, ChainResult, LogClipCoordinates, SamplerCoordinates, _proposal_cov,
-                  _sampler_coordinates, find_map,
-                  laplace_covariance, laplace_start, polish_map, refine_covariance)
+from bayescap._blas import one_blas_thread
+from bayescap.inference.chains import ChainResult
+from bayescap.inference.coordinates import (
+    SamplerCoordinates,
+    _sampler_coordinates,
+)
+from bayescap.inference.optimize import (
+    _proposal_cov,
+    find_map,
+    laplace_covariance,
+    laplace_start,
+    refine_covariance,
+)
+from bayescap.inference.presets import QUALITY_PRESETS
 
-__all__ = ["FastSettings", "fast_posterior", "fast_fit", "student_t_draws", "LogClipCoordinates", "SamplerCoordinates",
-           "student_t_logpdf", "psis_weights", "interval_end_mcse", "refine_covariance", "polish_map", "METHOD"]
+__all__ = ["FastSettings", "fast_posterior", "student_t_draws", "student_t_logpdf", "psis_weights", "interval_end_mcse",
+           "METHOD"]
 
 METHOD = "laplace-is"
 
@@ -1114,17 +1124,3 @@ def fast_posterior(model, *, seed, n_draws: int | None = None,
         # FitResult to reuse them: FitResult._derived_end_mcse_importance)
         wd["derived_fn"] = derived_fn
     return chains, diag
-
-
-def fast_fit(data_or_model, *, seed, settings: FastSettings = FastSettings(), mtf=None, scene=None,
-             fallback: bool = True, fallback_quality: str = "fast", terms=None):
-    """``bayescap.fit(..., quality="fast")`` with explicit fast-path knobs (a thin wrapper).
-
-    ``data_or_model``: a PTCData, a contract CSV path or a :class:`~bayescap.model.PTCModel`.
-    ``fallback=False`` returns a rejected fast result (flagged NOT CONVERGED) instead of running
-    the MCMC ``fallback_quality`` preset. See :func:`bayescap.api.fit`.
-    """
-    from .api import fit
-
-    return fit(data_or_model, seed=seed, quality="fast", fast_settings=settings, mtf=mtf, scene=scene,
-               fallback=fallback, fallback_quality=fallback_quality, terms=terms)

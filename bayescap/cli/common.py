@@ -1,0 +1,84 @@
+"""What the commands share: the seed and fast-path options, metadata overrides, the exit status of an input error."""
+from __future__ import annotations
+
+import argparse
+
+from bayescap.exceptions import InputError
+
+EXIT_INPUT = 2
+
+
+def seed_arg(text: str) -> int:
+    """argparse type of ``--seed``: a whole number >= 0 (numpy's SeedSequence refuses negative
+    seeds, with a traceback: found 2026-11-25)."""
+    try:
+        v = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a whole number >= 0, got {text!r}") from None
+    if v < 0:
+        raise argparse.ArgumentTypeError(f"expected a whole number >= 0, got {v}")
+    return v
+
+
+def add_fast_arguments(p):
+    """``--fast-tolerance``, ``--fast-confidence`` (``fit``, ``compare``, ``report``): the fast preset's
+    check, read back by :func:`fast_settings_from_args`."""
+    p.add_argument("--fast-tolerance", type=float, default=None, metavar="FRAC",
+                   help="--quality fast: the error, as a fraction of each 95 %% interval's width, every "
+                        "interval end should stay within (default 0.05; the per-end Monte Carlo error "
+                        "gate is 0.7 x this). Larger is faster and looser (README, Performance, 'The fast "
+                        "preset's knob')")
+    p.add_argument("--fast-confidence", default=None, metavar="P",
+                   help="--quality fast: accept when every end is predicted within --fast-tolerance with "
+                        "at least this probability (default 0.9; 'none': each end on its own gate only)")
+
+
+def _add_metadata_overrides(p):
+    g = p.add_argument_group("sensor metadata (override the CSV's '# key: value' lines)")
+    g.add_argument("--pixel-pitch-um", type=float, dest="pixel_pitch_um")
+    g.add_argument("--width-px", type=int, dest="width_px")
+    g.add_argument("--height-px", type=int, dest="height_px")
+    g.add_argument("--adc-bits", type=int, dest="adc_bits")
+    g.add_argument("--f-number", type=float, dest="f_number")
+    g.add_argument("--wavelength-nm", type=float, dest="wavelength_nm")
+    g.add_argument("--fill-factor", type=float, dest="fill_factor")
+    g.add_argument("--sensor-name", dest="sensor")
+
+
+_OVERRIDE_KEYS = ("pixel_pitch_um", "width_px", "height_px", "adc_bits", "f_number", "wavelength_nm",
+                  "fill_factor", "sensor")
+
+
+def fast_settings_from_args(args):
+    """The :class:`~bayescap.fast.FastSettings` of ``--fast-tolerance``/``--fast-confidence`` (None
+    when neither is given); :class:`InputError` (exit 2) for values out of range or without
+    ``--quality fast``."""
+    tol, conf = args.fast_tolerance, args.fast_confidence
+    if tol is None and conf is None:
+        return None
+    if args.quality != "fast":
+        raise InputError("--fast-tolerance and --fast-confidence apply to --quality fast only "
+                         f"(got --quality {args.quality})")
+    from dataclasses import replace
+
+    from bayescap.inference.fast import FastSettings
+
+    fs = FastSettings()
+    if tol is not None:
+        if not 0.0 < tol < 1.0:
+            raise InputError(f"--fast-tolerance must be a fraction of the interval width in (0, 1), got {tol:g}")
+        # the per-end gate keeps its default ratio to the tolerance (0.035 for 0.05)
+        fs = replace(fs, end_tolerance=float(tol),
+                     end_mcse_max=float(tol) * FastSettings.end_mcse_max / FastSettings.end_tolerance)
+    if conf is not None:
+        if str(conf).strip().lower() == "none":
+            fs = replace(fs, end_confidence=None)
+        else:
+            try:
+                c = float(conf)
+            except ValueError:
+                c = float("nan")
+            if not 0.0 < c < 1.0:
+                raise InputError(f"--fast-confidence must be a probability in (0, 1) or 'none', got {conf!r}")
+            fs = replace(fs, end_confidence=c)
+    return fs

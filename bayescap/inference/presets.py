@@ -1,0 +1,68 @@
+"""Sampler settings and the quality presets (fast, standard, accurate)."""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+
+@dataclass(frozen=True)
+class SamplerSettings:
+    """Knobs of the sampler (docs/performance.md, "Presets and knobs")."""
+
+    n_ensembles: int = 4
+    walkers_per_dim: int = 8
+    min_walkers: int = 48
+    n_burn: int = 50
+    n_steps: int = 200          # production steps of the first round
+    extend_steps: int | None = 100   # steps of each further round (None: n_steps)
+    max_rounds: int = 8         # extend until converged, at most this many rounds
+    rhat_target: float = 1.01
+    ess_target: float = 1000.0  # bulk and tail, every parameter and capacity
+    tau_factor: float = 10.0    # production length ≥ tau_factor × integrated autocorrelation time
+    max_draws: int = 8000       # posterior draws kept for propagation
+    de_fraction: float = 0.8    # DEMove share of the non-independence moves, the rest StretchMove
+    independence_fraction: float = 0.0   # share of IndependenceMove steps (t proposal at the Laplace start)
+    independence_nu: float = 6.0         # its Student-t degrees of freedom
+    independence_scale: float = 1.0      # its sd multiplier on the Laplace covariance
+    map_restarts: int = 2           # extra optimiser starts in find_map (the Laplace start)
+    adaptive_extend: bool = False   # size each further round from the ESS / τ shortfall (≥ extend_steps)
+    importance_start: bool = True   # with the IndependenceMove: start from Laplace–IS draws when accepted
+    start_proposals: int = 6000     # importance draws of that start (FastSettings.n_proposals)
+    # largest Monte Carlo error of a reported 95 % interval end, as a fraction of its width
+    # (interval_end_mcse_mcmc; None: computed and reported, not checked)
+    end_mcse_target: float | None = None
+
+
+QUALITY_PRESETS = {
+    # fast: the Laplace–IS fast path's fallback (bayescap.fit(quality="fast") runs this MCMC preset where
+    # the importance draws fail their check). The standard preset's sampler (IS start, IndependenceMove
+    # 70 %, rounds sized from the shortfall) with 2 ensembles and ESS ≥ 200. Until 2026-11-25 it was
+    # DE/stretch from a Laplace ball, 100 burn-in + 150 steps, ≤ 3 rounds: 1.8× slower (27.5 against
+    # 15.0 s over the README's 11 sensors × 3 seeds) at the same interval-end errors against the
+    # `accurate` references (median worst end 0.039 of the width both; > 0.1 in 4/33 against 2/33), and
+    # 29 against ~17 s over the 25 ROIs of the 1 000-ROI batch whose fast path was rejected
+    # (docs/performance.md, "2026-11-25, 01:09–")
+    "fast": SamplerSettings(n_ensembles=2, walkers_per_dim=10, n_burn=80, n_steps=60, extend_steps=20, max_rounds=8,
+                            ess_target=200, tau_factor=10, max_draws=4000, independence_fraction=0.7,
+                            independence_nu=4.0, independence_scale=1.3, adaptive_extend=True, map_restarts=0),
+    # standard: the issue's targets (R-hat < 1.01, ESS >= 1000 for every parameter and capacity).
+    # 70 % of the steps are IndependenceMove proposals (t, ν 4, sd × 1.3) fitted to the burn-in (share
+    # cut where they are rarely accepted), the rest DE 0.8 + stretch 0.2; walkers start from Laplace–IS
+    # draws. τ 4–5 steps instead of 16–22. 10 walkers per parameter, 80 burn-in + 80 steps (8·D and
+    # 100 + 100 until 2026-11-24: 11–13 % slower at the same interval-end errors over 88 benchmark fits,
+    # the same coverage on the 200-sensor SBC; docs/performance.md, "Walkers against steps"). The
+    # burn-in is not cut further: the Basler dark current's lower tail (an upper limit) takes ~100–200
+    # walker-steps to fill from any start (with 40 burn-in + 60 steps its 2.5 % quantile came out 9–16
+    # e⁻/s, reference 5.7, flipping the upper-limit flag); rounds after the first are sized from the
+    # ESS/τ shortfall; one optimiser start (polish_map reaches the 2-restart MAP on 13 sensors).
+    "standard": SamplerSettings(walkers_per_dim=10, n_burn=80, n_steps=80, extend_steps=20, max_rounds=16,
+                                independence_fraction=0.7, independence_nu=4.0, independence_scale=1.3,
+                                adaptive_extend=True, map_restarts=0),
+    # accurate: every reported interval end's Monte Carlo error ≤ 1 % of its width too (issue 7). Up to 20
+    # rounds of 800 steps (8 before that check, 12 until 2026-11-24 evening): on the simulated sim09 (clip
+    # spread τ ≈ 120 steps) the 50 τ length check passed after 8 rounds with the clip spread's ends at
+    # 1.1 %; seed 11 on an AVX-512 machine still had 1.18 % after 12 rounds (9 600 steps; 1/√n asks for
+    # ~13 400). Rounds run only while a check fails: a run done in 12 has the same chains as before
+    "accurate": SamplerSettings(n_ensembles=8, n_burn=400, n_steps=800, extend_steps=None, max_rounds=20,
+                                rhat_target=1.005, ess_target=2000, tau_factor=50, max_draws=20000,
+                                end_mcse_target=0.01),
+}
