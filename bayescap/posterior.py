@@ -21,14 +21,8 @@ from bayescap.inference.diagnostics import (
 )
 from bayescap.io.ptc_csv import _ABSOLUTE_ZERO_C, _MAX_ABS_VALUE
 from bayescap.model.ptc_model import PTCModel
-from bayescap.physics.capacity import (
-    N_GREY_LEVELS,
-    NoiseCoefficients,
-    dynamic_range_db,
-    mtf_loss_bits,
-    snr_db,
-    tonal_range,
-)
+from bayescap.physics.capacity import N_GREY_LEVELS, mtf_loss_bits, tonal_range
+from bayescap.physics.noise import NoiseCoefficients, dynamic_range_db, snr_db
 
 __all__ = ["FitResult", "Scene", "summarize", "DERIVED_INFO"]
 

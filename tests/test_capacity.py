@@ -3,7 +3,8 @@ import numpy as np
 import pytest
 from scipy import integrate
 
-from bayescap.physics.capacity import NoiseCoefficients, dynamic_range_db, integral_inv_sqrt_quadratic, mtf_loss_bits, snr_db, tonal_range
+from bayescap.physics.capacity import integral_inv_sqrt_quadratic, mtf_loss_bits, tonal_range
+from bayescap.physics.noise import NoiseCoefficients, dynamic_range_db, snr_db
 from bayescap.physics.optics import DiffractionLens, MTFProduct, PixelAperture, TabulatedMTF, default_mtf
 
 

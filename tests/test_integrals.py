@@ -7,7 +7,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from bayescap.physics.capacity import NoiseCoefficients, integral_inv_sqrt_quadratic, mtf_loss_bits, tonal_range
+from bayescap.physics.capacity import integral_inv_sqrt_quadratic, mtf_loss_bits, tonal_range
+from bayescap.physics.noise import NoiseCoefficients
 from bayescap.physics.optics import DiffractionLens, GaussianCrosstalk
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "benchmarks"))

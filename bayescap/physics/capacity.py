@@ -5,10 +5,8 @@ Everything here is vectorised over a leading axis of posterior draws: pass array
 
 Conventions (also in the README, "How capacity is computed"):
 
-* The noise model is quadratic in the mean signal ``S`` (electrons):
-  ``σ²(S) = a + b·S + c·S²`` with ``a = σ_read² + D·t + σ_DSNU² + K²/12`` (read, dark-current
-  shot, DSNU and quantization noise, e⁻²), ``b = 1`` (photon shot noise) and
-  ``c = PRNU²`` (PRNU as a fraction). This is Eq. 1's denominator.
+* The noise model is Eq. 1, quadratic in the mean signal ``S`` (electrons):
+  ``σ²(S) = a + b·S + c·S²`` (:class:`bayescap.physics.noise.NoiseCoefficients`).
 * Tonal range, Eq. 7, is evaluated on an **8-bit-equivalent grey scale over the sensor's dynamic
   range**: the signal axis from 0 to ``S_max`` (the largest non-saturating signal, Eq. 2) is
   mapped linearly onto ``n_levels = 256`` grey levels, so one grey level is ``S_max/256``
@@ -31,12 +29,11 @@ from functools import lru_cache
 
 import numpy as np
 
+from bayescap.physics.noise import NoiseCoefficients, dynamic_range_db, snr_db
+
 __all__ = [
-    "NoiseCoefficients",
     "integral_inv_sqrt_quadratic",
     "tonal_range",
-    "snr_db",
-    "dynamic_range_db",
     "mtf_loss_bits",
     "mtf_loss_bits_eq8",
     "information_capacity_bits",
@@ -47,35 +44,6 @@ __all__ = [
 
 NYQUIST_CY_PER_PX = 0.5
 N_GREY_LEVELS = 256
-
-
-@dataclass(frozen=True)
-class NoiseCoefficients:
-    """σ²(S) = a + b·S + c·S² in e⁻², vectorised over draws."""
-
-    a: np.ndarray
-    b: np.ndarray
-    c: np.ndarray
-
-    def variance(self, s_e):
-        s_e = np.asarray(s_e, float)
-        return self.a + self.b * s_e + self.c * s_e * s_e
-
-    @classmethod
-    def from_parameters(cls, *, read_noise_e, dark_current_e_per_s=0.0, exposure_time_s=0.0,
-                        dsnu_e=0.0, prnu_frac=0.0, conversion_gain_e_per_dn=0.0,
-                        dark_noise_e=None):
-        """Eq. 1 terms. ``dark_noise_e``, if given, replaces ``read² + D·t`` (used when only
-        their sum is identifiable)."""
-        k = np.asarray(conversion_gain_e_per_dn, float)
-        if dark_noise_e is None:
-            rd2 = np.asarray(read_noise_e, float) ** 2 + np.asarray(dark_current_e_per_s, float) * exposure_time_s
-        else:
-            rd2 = np.asarray(dark_noise_e, float) ** 2
-        a = rd2 + np.asarray(dsnu_e, float) ** 2 + k * k / 12.0
-        b = np.ones_like(a)
-        c = np.asarray(prnu_frac, float) ** 2 * np.ones_like(a)
-        return cls(a=np.asarray(a, float), b=b, c=c)
 
 
 def _antiderivative_diff(a, b, c, s1, s2):
@@ -134,17 +102,6 @@ def tonal_range(coeffs: NoiseCoefficients, s_max_e, *, n_levels: int = N_GREY_LE
     s_min = np.sqrt(coeffs.a) if s_min_e is None else np.asarray(s_min_e, float)
     grey_e = s_max_e / n_levels
     return integral_inv_sqrt_quadratic(coeffs.a, coeffs.b, coeffs.c, s_min, s_max_e, floor=grey_e)
-
-
-def snr_db(coeffs: NoiseCoefficients, s_e):
-    """SNR of Eq. 1 in dB at signal ``s_e`` (e⁻): 10 log10(S²/σ²(S))."""
-    s_e = np.asarray(s_e, float)
-    return 10.0 * np.log10(s_e * s_e / coeffs.variance(s_e))
-
-
-def dynamic_range_db(coeffs: NoiseCoefficients, s_max_e):
-    """DR of Eq. 2: 20 log10(S_max / σ_dark) with σ_dark² = a (read, DC, DSNU, quantization)."""
-    return 20.0 * np.log10(np.asarray(s_max_e, float) / np.sqrt(coeffs.a))
 
 
 @dataclass(frozen=True)

@@ -18,7 +18,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from bayescap.physics.capacity import NoiseCoefficients, snr_db
+from bayescap.physics.noise import NoiseCoefficients, snr_db
 
 __all__ = [
     "K_M_LM_PER_W",

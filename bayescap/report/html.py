@@ -190,7 +190,7 @@ def plot_snr_sensor(s):
     """One sensor's SNR curve with its 95 % band: against exposure when calibrated, else against
     the signal in electrons."""
     plt = _plt()
-    from bayescap.physics.capacity import NoiseCoefficients, snr_db
+    from bayescap.physics.noise import NoiseCoefficients, snr_db
 
     fig, ax = plt.subplots(figsize=(6, 3.4))
     r = s.result

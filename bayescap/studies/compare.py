@@ -42,12 +42,8 @@ from pathlib import Path
 import numpy as np
 
 from bayescap.exceptions import CompareInputError
-from bayescap.physics.capacity import (
-    N_GREY_LEVELS,
-    NoiseCoefficients,
-    snr_db,
-    tonal_range,
-)
+from bayescap.physics.capacity import N_GREY_LEVELS, tonal_range
+from bayescap.physics.noise import NoiseCoefficients, snr_db
 from bayescap.physics.optics import OPTICAL_FORMATS
 from bayescap.physics.photometry import photons_per_lux_s_um2
 from bayescap.posterior import FitResult, rerun_advice, summarize
