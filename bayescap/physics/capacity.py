@@ -29,7 +29,7 @@ from functools import lru_cache
 
 import numpy as np
 
-from bayescap.physics.noise import NoiseCoefficients, dynamic_range_db, snr_db
+from bayescap.physics.noise import NoiseCoefficients
 
 __all__ = [
     "integral_inv_sqrt_quadratic",
