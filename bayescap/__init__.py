@@ -6,18 +6,42 @@ Eq. 1) -> image information capacity C = s' * b' (Eq. 6-9) with credible interva
 >>> import bayescap
 >>> result = bayescap.fit(bayescap.load("sensor.csv"), seed=1)   # doctest: +SKIP
 >>> result.to_dict()["derived"]["capacity_bits"]["ci95"]         # doctest: +SKIP
+
+Importing bayescap changes nothing global. :func:`retain_freed_memory` is an opt-in speed-up for
+long-running processes (the command line calls it).
 """
-from bayescap._version import __version__  # noqa: E402
 
-from bayescap._heap import retain_freed_memory as _retain_freed_memory  # noqa: E402
-
-_retain_freed_memory()   # glibc keeps freed temporaries for the next log_prob call (bayescap/_heap.py)
-
-from bayescap.api import fit, load, default_scene  # noqa: E402
-from bayescap.posterior import FitResult, Scene  # noqa: E402
+from bayescap import simulate
+from bayescap._heap import retain_freed_memory
+from bayescap._version import __version__
+from bayescap.api import default_scene, fit, load
+from bayescap.batch import fit_many
+from bayescap.exceptions import (
+    BayescapError,
+    BayescapWarning,
+    ConvergenceWarning,
+    InputError,
+    PTCInputError,
+)
 from bayescap.io.ptc_csv import PTCData, read_ptc_csv, write_ptc_csv
-from bayescap.exceptions import PTCInputError
-from bayescap import simulate  # noqa: E402,F401
+from bayescap.posterior import FitResult, Scene
 
-__all__ = ["fit", "load", "default_scene", "FitResult", "Scene", "PTCData", "PTCInputError",
-           "read_ptc_csv", "write_ptc_csv", "simulate", "__version__"]
+__all__ = [
+    "fit",
+    "fit_many",
+    "load",
+    "default_scene",
+    "FitResult",
+    "Scene",
+    "PTCData",
+    "read_ptc_csv",
+    "write_ptc_csv",
+    "BayescapError",
+    "InputError",
+    "PTCInputError",
+    "BayescapWarning",
+    "ConvergenceWarning",
+    "retain_freed_memory",
+    "simulate",
+    "__version__",
+]

@@ -4,13 +4,13 @@ operating system after every ``log_prob`` call.
 A ``log_prob`` call on a few thousand draws creates tens of temporary (draws, rows) arrays of
 0.1–3 MB. With glibc's default settings, freed memory at the top of the heap is returned to the
 kernel once more than 2× the dynamic mmap threshold is free, so the next call faults the same
-pages back in (transparent huge pages: 2 MB zeroed per fault). On this project's benchmark this
-was 7 % of a batch fit and a third of a repeated 6 000-draw ``log_prob`` call
-(``docs/performance.md``, "2026-11-23 (day)").
+pages back in (transparent huge pages: 2 MB zeroed per fault). That costs a few per cent of a
+batch fit and up to a third of a repeated 6 000-draw ``log_prob`` call.
 
 :func:`retain_freed_memory` raises the two thresholds once (``mallopt``): arrays up to 32 MB
 come from the heap, and free heap is returned to the kernel only above 256 MB. The memory kept
-is bounded by the process's own peak use. It is called when :mod:`bayescap` is imported:
+is bounded by the process's own peak use. Importing :mod:`bayescap` does not call it: the
+command line does, at start, and a program may (``bayescap.retain_freed_memory()``). It acts:
 
 - only on glibc (Linux); elsewhere it does nothing;
 - not when the environment already tunes malloc (``MALLOC_TRIM_THRESHOLD_``,

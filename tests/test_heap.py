@@ -1,4 +1,4 @@
-"""bayescap._heap: glibc keeps freed temporaries in the heap (issue 7, speed), unless the user
+"""bayescap._heap: glibc keeps freed temporaries in the heap (speed), unless the user
 tunes malloc themselves or opts out."""
 import sys
 
@@ -20,13 +20,27 @@ def test_environment_decides_whether_malloc_is_tuned(env, left_alone):
     assert _heap._env_tunes_malloc(env) is left_alone
 
 
-def test_applied_once_at_import_and_reported():
+def _status_after(code):
+    import subprocess
+
+    out = subprocess.run([sys.executable, "-c", code + "\nfrom bayescap import _heap\nprint(_heap.status())"],
+                         capture_output=True, text=True, timeout=120)
+    assert out.returncode == 0, out.stderr
+    return eval(out.stdout.strip().splitlines()[-1])
+
+
+def test_import_changes_nothing_global():
+    """A library has no side effects: importing bayescap leaves malloc as it was."""
+    assert _status_after("import bayescap") == {}
+
+
+def test_the_command_line_applies_it_once_and_reports():
     import os
 
-    st = _heap.status()
-    assert set(st) == {"applied", "reason"}         # import bayescap called it
-    assert _heap.retain_freed_memory() == st        # idempotent
+    st = _status_after("import bayescap.cli\ntry:\n    bayescap.cli.main(['fit', '--help'])\nexcept SystemExit:\n    pass")
+    assert set(st) == {"applied", "reason"}
     if sys.platform.startswith("linux") and not _heap._env_tunes_malloc(os.environ):
         assert st["applied"] is True, st["reason"]
     else:
         assert st["applied"] is False
+    assert _heap.retain_freed_memory() == _heap.retain_freed_memory()   # idempotent

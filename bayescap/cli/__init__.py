@@ -19,6 +19,7 @@ from bayescap.cli.common import (
 )
 from bayescap.cli.fit import _cmd_fit
 from bayescap.cli.mtf import _cmd_mtf
+from bayescap._heap import retain_freed_memory
 from bayescap.exceptions import InputError
 
 __all__ = ["main", "build_parser"]
@@ -129,6 +130,7 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def main(argv=None) -> int:
+    retain_freed_memory()  # this process is ours: keep freed temporaries for the next log_prob call
     warnings.filterwarnings("ignore", category=FutureWarning)  # ArviZ's refactor notice
     warnings.filterwarnings("ignore", module="arviz")
     from bayescap.exceptions import ConvergenceWarning
