@@ -10,7 +10,7 @@ EXIT_INPUT = 2
 
 def seed_arg(text: str) -> int:
     """argparse type of ``--seed``: a whole number >= 0 (numpy's SeedSequence refuses negative
-    seeds, with a traceback: found 2026-11-25)."""
+    seeds, with a traceback)."""
     try:
         v = int(text)
     except ValueError:

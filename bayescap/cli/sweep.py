@@ -47,7 +47,6 @@ def run_sweep(args: argparse.Namespace) -> int:
         print(f"bayescap: error: {msg}", file=sys.stderr)
         return 2
 
-    # (found 2026-11-25: a zero, negative or NaN f-number ended in a traceback, --draws 0 in exit 1)
     if args.draws < 1:
         return refuse(f"--draws must be at least 1, got {args.draws}")
     if not (0.5 <= args.f_number < math.inf):
