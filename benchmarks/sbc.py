@@ -9,17 +9,18 @@ autocorrelation time. If the posterior is calibrated the ranks are uniform on ``
 **Classic SBC (``--truths prior``, the default).** Classic SBC needs truths drawn from the prior
 the fit uses. The production prior (``PTCModel.PRIOR``) is deliberately wide (log K uniform on
 1e-4..1e4 e⁻/DN, read noise of scale 1000 e⁻, ...): most of its draws are not sensors. So the SBC
-uses a proper, realistic prior ``SBC_PRIOR`` for every model parameter, draws the truths from it
-(:func:`draw_sensor_prior`) and fits with exactly it (``bayescap.fit(prior=SBC_PRIOR)``). The
+uses a proper, realistic prior ``bayescap.validation.SBC_PRIOR`` for every model parameter, draws
+the truths from it (``validation.draw_sensor_prior``) and fits with exactly it
+(``bayescap.fit(prior=SBC_PRIOR)``). The
 simulator has no systematics, so the variance and mean discrepancies f and g are drawn from their
 priors and injected into the simulated data as the likelihood describes them
-(:func:`inject_discrepancies`). What is *not* from the fit's prior, because it is not a model
+(``validation.inject_discrepancies``). What is *not* from the fit's prior, because it is not a model
 parameter: the full well and ADC range (the clip level's prior is uniform between data-derived
 bounds), black level, and the per-pixel well spread (drawn from the clip-spread prior expressed
 as a fraction of the full well); those parts are likelihood-dominated. ``docs/calibration.md``
 lists the details.
 
-**Realistic-range variant (``--truths realistic``).** Truths from :func:`draw_sensor`, fitted with
+**Realistic-range variant (``--truths realistic``).** Truths from ``validation.draw_sensor``, fitted with
 the production priors: uniform ranks then hold only where the likelihood dominates the prior.
 
 The coverage of the equal-tailed 50/68/95 % intervals (from all kept draws, as a user sees them)
@@ -31,8 +32,11 @@ terms the fit includes (a PRNU/DSNU the fit cannot see is not in its capacity es
 
     python benchmarks/sbc.py --n 200 --seed 1 --quality standard --jobs 1 --truths prior --levels 50
 
-writes ``benchmarks/results/sbc.md`` and ``benchmarks/results/sbc_ranks.png`` (and the raw
-per-sensor records as JSON lines to ``--raw``, default in the system temp directory).
+The simulate-fit-rank loop of one sensor is ``bayescap.validation.run_one`` (the test suite runs it on
+30 sensors: tests/test_coverage.py, tests/test_sbc_small.py). Writes ``benchmarks/results/sbc.md``
+and the rank histograms beside it, ``benchmarks/results/sbc_ranks.png`` (and the raw per-sensor
+records as JSON lines to ``--raw``, default in the system temp directory; ``--from-raw`` rebuilds
+the report from them).
 """
 from __future__ import annotations
 
@@ -44,7 +48,6 @@ for _v in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
 import argparse  # noqa: E402
 import json  # noqa: E402
 import math  # noqa: E402
-import platform  # noqa: E402
 import sys  # noqa: E402
 import tempfile  # noqa: E402
 import time  # noqa: E402
@@ -55,13 +58,14 @@ from scipy import stats  # noqa: E402
 
 RESULTS = Path(__file__).resolve().parent / "results"
 
-#: ranked quantities: fit name -> truth name (see ``truth_values``)
+#: ranked quantities (names of ``FitResult.draws`` / ``derived``; truths: ``validation.truth_values``)
 PARAMS = ["conversion_gain_e_per_dn", "read_noise_e", "dark_current_e_per_s", "full_well_e",
           "quantum_efficiency", "prnu_percent", "dsnu_e", "variance_discrepancy",
           "mean_discrepancy", "capacity_bits"]
 LEVELS = (0.50, 0.68, 0.95)
 
 
+from _machine import describe_machine  # noqa: E402
 from bayescap.validation import SBC_LEVELS, SBC_SETTINGS, run_one, sensor_seeds  # noqa: E402
 
 
@@ -171,10 +175,8 @@ def write_report(records, summary, path_md, *, cmd, wall_s, args, n_bins, strata
         "# Simulation-based calibration" + (" (classic: truths from the fit's prior)" if records[0].get("truths") == "prior" else " (realistic-range truths)"),
         "",
         f"Command: `{cmd}`  ",
-        f"Machine: {platform.node()} — {platform.platform()}, Python {platform.python_version()}, "
-        f"{os.cpu_count()} CPUs (shared), {args.jobs} worker processes  ",
-        f"Date: {time.strftime('%Y-%m-%d %H:%M %Z')}; "
-        + (f"wall time {wall_s / 60:.1f} min" if wall_s is not None else "report rebuilt from the raw records")
+        f"Machine: {describe_machine()}; {args.jobs} worker processes  ",
+        (f"Wall time {wall_s / 60:.1f} min" if wall_s is not None else "report rebuilt from the raw records")
         + f" for {n} sensors (simulation + fit per sensor: median "
         f"{np.median([r['wall_s'] for r in records]):.1f} s, max {max(r['wall_s'] for r in records):.1f} s, "
         f"total {sum(r['wall_s'] for r in records) / 60:.0f} process-min on a machine shared with other jobs)  ",
@@ -231,6 +233,7 @@ def write_report(records, summary, path_md, *, cmd, wall_s, args, n_bins, strata
 def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--n", type=int, default=200, help="number of simulated sensors")
+    ap.add_argument("--quick", action="store_true", help="20 sensors instead of --n")
     ap.add_argument("--seed", type=int, default=1)
     ap.add_argument("--quality", default="standard",
                     help='a preset name, or "sbc" for SBC_SETTINGS (2 ensembles, at most 2 rounds)')
@@ -244,15 +247,16 @@ def main(argv=None):
                          "and DSNU on every sensor")
     ap.add_argument("--L", type=int, default=99, help="thinned posterior draws per sensor (L+1 ranks)")
     ap.add_argument("--bins", type=int, default=10)
-    ap.add_argument("--out", type=Path, default=RESULTS)
     ap.add_argument("--raw", type=Path, default=Path(tempfile.gettempdir()) / "bayescap_sbc_raw.jsonl",
                     help="per-sensor records, one JSON object per line (written as they finish)")
     ap.add_argument("--from-raw", type=Path, default=None,
                     help="only rebuild the report from raw records of an earlier (possibly partial) run")
     ap.add_argument("--cmd", default=None, help="with --from-raw: the command that made the records")
     args = ap.parse_args(argv)
+    if args.quick:
+        args.n = 20
     cmd = "python benchmarks/sbc.py " + " ".join(argv if argv is not None else sys.argv[1:])
-    args.out.mkdir(parents=True, exist_ok=True)
+    RESULTS.mkdir(parents=True, exist_ok=True)
     if args.from_raw is not None:
         records = [json.loads(line) for line in open(args.from_raw) if line.strip()]
         records.sort(key=lambda r: r["i"])
@@ -315,7 +319,7 @@ def report(records, *, args, cmd, wall_s):
         "Stratified: the fit reports the quantity unconstrained (upper limit)": summarise(
             records, n_bins, lambda r, n: not r["q"][n]["constrained"]),
     }
-    out = Path(args.out)
+    out = RESULTS
     classic = records[0].get("truths") == "prior"
     _plot(summary, out / "sbc_ranks.png", records[0]["L"], n_bins,
           title="bayescap SBC (classic: truths from the fit's prior)" if classic else "bayescap SBC (realistic-range truths)")
