@@ -1,5 +1,5 @@
 """Speed for accuracy, measured (issue 7): fast (Laplace–IS), standard and accurate presets
-against a long reference run, plus a naive emcee baseline and the batch throughput.
+against a long reference run, plus a naive emcee baseline.
 
 For each sensor of a fixed seeded set (simulated with :mod:`bayescap.simulate`, plus the bundled
 real Basler CCD) and each preset it records wall time, ESS per second, the error of the median
@@ -7,23 +7,22 @@ and of the 95 % interval endpoints of every parameter and of capacity against a 
 (quality "accurate" with a different seed), expressed as a fraction of the reference 95 %
 width, and (simulated sensors) whether the truth falls inside the 95 % interval.
 
-Regenerate everything with one command (≈ 15–30 min on 2 cores):
+    python benchmarks/speed_accuracy.py            # ≈ 20–40 min on 2 cores
+    python benchmarks/speed_accuracy.py --quick    # the Basler and one simulated sensor, ≈ 5–8 min
 
-    python benchmarks/speed_accuracy.py
-
-``--quick`` runs 2 sensors and a 20-sensor batch (≈ 2 min) for development.
+Writes ``benchmarks/results/speed_accuracy.md`` (a ``--quick`` run too, saying so). The batch of
+simulated Gpixel ROIs (throughput and accuracy) is ``benchmarks/batch_accuracy.py``.
 """
 from __future__ import annotations
 
 import argparse
-import datetime
 import os
 import time
 import warnings
 from pathlib import Path
 
 import numpy as np
-from _machine import describe_machine
+from _machine import describe_machine, emit
 
 ROOT = Path(__file__).resolve().parents[1]
 OUT = ROOT / "benchmarks" / "results" / "speed_accuracy.md"
@@ -55,19 +54,6 @@ def truth_values(truth):
     t = {"conversion_gain_e_per_dn": truth.conversion_gain_e_per_dn, "full_well_e": truth.clip_charge_e,
          "quantum_efficiency": truth.quantum_efficiency, "read_noise_e": truth.read_noise_e}
     return t
-
-
-def _previous_standard():
-    """The `standard` preset as it was before the IndependenceMove (commit 8182a20): 50 burn-in +
-    200 steps, rounds of 100, DE 0.8 + stretch 0.2, walkers from the Laplace ball, two optimiser
-    restarts. Timed beside the new preset so that before/after share the machine's load."""
-    from bayescap.inference.presets import SamplerSettings
-
-    return SamplerSettings(n_burn=50, n_steps=200, extend_steps=100, max_rounds=8, independence_fraction=0.0,
-                           adaptive_extend=False, map_restarts=2)
-
-
-PREVIOUS_STANDARD = _previous_standard()
 
 
 # ------------------------------------------------------------------------------ metrics
@@ -214,9 +200,6 @@ def naive_emcee_full(data, *, seed, n_walkers=32, n_burn=500, n_steps=2000):
 def run_presets(sensors, *, ref_quality, seed, presets=("standard", "accurate")):
     import bayescap
     from bayescap.api import fast_fit
-    from bayescap.inference.fast import fast_posterior
-    from bayescap.inference.optimize import find_map
-    from bayescap.model.ptc_model import PTCModel
 
     rows = []
     for i, (name, d, truth) in enumerate(sensors):
@@ -241,14 +224,9 @@ def run_presets(sensors, *, ref_quality, seed, presets=("standard", "accurate"))
             row["presets"]["fast"] = dict(wall=wall, ess=x["ess_is"], accepted=x["accepted"], khat=x["khat"],
                                           err=e, cov=cov, mcse=fr.diag.get("interval_end_mcse_max"),
                                           z=mcse_ratios(quantiles(fr), qref, own, ref_mcse))
-            # the optimiser restarts: do they change the MAP?
-            m = PTCModel(d)
-            _, lp0 = find_map(m, n_restarts=0)
-            _, lp2 = find_map(m, n_restarts=2)
-            row["map_restart_gain"] = lp2 - lp0
             for q in presets:
                 t = time.perf_counter()
-                r = bayescap.fit(d, seed=seed + i, quality=PREVIOUS_STANDARD if q == "standard_before" else q)
+                r = bayescap.fit(d, seed=seed + i, quality=q)
                 wall = time.perf_counter() - t
                 own = r.diag.get("interval_end_mcse") or {}
                 row["presets"][q] = dict(wall=wall, ess=r.diag["ess_min"], converged=r.diag["converged"],
@@ -287,60 +265,12 @@ def fast_timing(sensors, *, seed, repeat=3, settings=None):
     return out
 
 
-def batch_throughput(n, *, seed, n_jobs, stack_size=64, fallback=False, sets=()):
-    """``sets``: "FIELD=VALUE" changes to the batch's FastSettings (``batch_accuracy.apply_sets``)."""
-    from bayescap.batch import fit_many, gpixel_sensors
-    from bayescap.inference.fast import FastSettings
-    from bayescap.exceptions import ConvergenceWarning
-
-    from batch_accuracy import apply_sets
-
-    fs = apply_sets(FastSettings(), sets)
-
-    t = time.perf_counter()
-    datas, truths = gpixel_sensors(n_max=n, seed=seed)
-    t_sim = time.perf_counter() - t
-    t = time.perf_counter()
-    with warnings.catch_warnings():
-        # without the fallback every rejected sensor warns NOT CONVERGED: they are counted below
-        warnings.simplefilter("ignore", ConvergenceWarning)
-        res = fit_many(datas, seed=seed, n_jobs=n_jobs, fallback=fallback, summary_only=True, stack_size=stack_size,
-                       settings=fs)
-    t_fit = time.perf_counter() - t
-    acc = sum(r["accepted"] for r in res)
-    conv = sum(r["converged"] for r in res)          # with the fallback: the result returned
-    # (q2.5, q50, q97.5): the 95 % interval is [0] .. [2] (this compared with the median, [1], before 2026-11-23)
-    kin = sum(r["conversion_gain_e_per_dn"][0] <= tr.conversion_gain_e_per_dn <= r["conversion_gain_e_per_dn"][2]
-              for r, tr in zip(res, truths) if r["accepted"])
-    # why the rejected ones were: k̂/ESS, or the interval-end checks at the draw cap, or (a defect
-    # since commit 1a4edf9: 15 of 1 000 before it) the interval-end checks with draws to spare
-    why = {"k̂ or IS ESS": 0, "interval ends, at the draw cap": 0, "other (below the cap, or a derived quantity's check)": 0}
-    for r in res:
-        if r.get("accepted") or "error" in r:
-            continue
-        reason = r.get("reason", "")
-        if "Pareto" in reason or "importance-sampling ESS" in reason:
-            why["k̂ or IS ESS"] += 1
-        elif f"after {fs.max_proposals} draws" in reason:
-            why["interval ends, at the draw cap"] += 1
-        else:
-            why["other (below the cap, or a derived quantity's check)"] += 1
-    # results flagged with imprecise interval ends (an MCMC fallback whose ends' Monte Carlo error is above
-    # posterior.IMPRECISE_END_MCSE of the width), and the true K inside the fallbacks' intervals
-    imprecise = sum(bool(r.get("imprecise_interval_ends")) for r in res)
-    fb_kin = sum(r["conversion_gain_e_per_dn"][0] <= tr.conversion_gain_e_per_dn <= r["conversion_gain_e_per_dn"][2]
-                 for r, tr in zip(res, truths) if not r["accepted"] and "error" not in r and r.get("method") == "emcee")
-    return dict(n=len(datas), t_sim=t_sim, t_fit=t_fit, accepted=acc, k_inside=kin, n_jobs=n_jobs,
-                stack_size=stack_size, fallback=fallback, converged=conv, sets=list(sets), rejected_why=why,
-                imprecise=imprecise, fallback_k_inside=fb_kin)
-
-
 # ------------------------------------------------------------------------------ report
 def machine():
     return describe_machine()
 
 
-def write_md(path, rows, timing, batch, *, args, load_before, load_after, wall_total):
+def write_md(path, rows, timing, *, args, load_before, load_after, wall_total):
     L = []
     L.append("# Speed for accuracy, measured")
     L.append("")
@@ -349,12 +279,11 @@ def write_md(path, rows, timing, batch, *, args, load_before, load_after, wall_t
         cmd += f" --n-sim {args.n_sim}"
     if args.presets != "standard,accurate":
         cmd += f" --presets {args.presets}"
-    if args.batch is not None:
-        cmd += f" --batch {args.batch}"
-    if args.batch_fallback:
-        cmd += " --batch-fallback"
-    L.append(f"Generated by `{cmd}` on {datetime.datetime.now().isoformat(timespec='minutes')} "
-             f"in {wall_total / 60:.1f} min.")
+    if args.ref_quality != "accurate":
+        cmd += f" --ref-quality {args.ref_quality}"
+    if args.seed != 1:
+        cmd += f" --seed {args.seed}"
+    L.append(f"Generated by `{cmd}` in {wall_total / 60:.1f} min.")
     L.append(f"Machine: {machine()}.")
     loaded = max(load_before[0], load_after[0]) > 0.5 * (os.cpu_count() or 1)
     L.append(f"Load average (1, 5, 15 min) before {', '.join(f'{x:.2f}' for x in load_before)}, after "
@@ -373,7 +302,7 @@ def write_md(path, rows, timing, batch, *, args, load_before, load_after, wall_t
     L.append("")
     L.append("| sensor | preset | wall s | ESS/s | end err | med err | worst quantity | own MC err | coverage | notes |")
     L.append("|---|---|---|---|---|---|---|---|---|---|")
-    qs = [q for q in ("fast", "standard", "standard_before", "accurate") if q in rows[0]["presets"]]
+    qs = ["fast"] + [q for q in rows[0]["presets"] if q != "fast"]
     for r in rows:
         for q in qs:
             p = r["presets"][q]
@@ -420,7 +349,7 @@ def write_md(path, rows, timing, batch, *, args, load_before, load_after, wall_t
         if own:
             L.append(f"- {q}: its own predicted Monte Carlo error of the interval ends, worst quantity, median "
                      f"{np.median(own):.3f}, max {max(own):.3f} of the width"
-                     + (f" (the `accurate` preset extends its run until it is ≤ 0.01)" if q == "accurate" else "")
+                     + (" (the `accurate` preset extends its run until it is ≤ 0.01)" if q == "accurate" else "")
                      + (f"; observed |Δ end| against the reference over the error both runs predict, per "
                         f"quantity ({z.size}): median {np.median(z):.2f}, ≤ 2 on {np.mean(z <= 2):.0%} "
                         f"(right predictions: median 0.67–1.05, ≤ 2 on 91–95 %)" if z.size else "") + ".")
@@ -436,12 +365,6 @@ def write_md(path, rows, timing, batch, *, args, load_before, load_after, wall_t
             L.append(f"- coverage of the truth, {q}: {sum(a for a, _ in c)}/{sum(b for _, b in c)} (95 % intervals).")
     bl = [r["baseline"]["ess"] / r["baseline"]["wall"] for r in rows]
     st = [r["presets"]["standard"]["ess"] / r["presets"]["standard"]["wall"] for r in rows]
-    if "standard_before" in rows[0]["presets"]:
-        sb = [r["presets"]["standard_before"]["ess"] / r["presets"]["standard_before"]["wall"] for r in rows]
-        L.append(f"- standard vs the previous standard preset (`standard_before`, same run, same load): median "
-                 f"ESS/s {np.median(st):.0f} vs {np.median(sb):.0f}, median wall "
-                 f"{np.median([r['presets']['standard']['wall'] for r in rows]):.2f} s vs "
-                 f"{np.median([r['presets']['standard_before']['wall'] for r in rows]):.2f} s.")
     L.append(f"- naive emcee baseline median ESS/s {np.median(bl):.0f} (2-parameter Gaussian model, rows < 70 % of "
              f"saturation) vs standard preset {np.median(st):.0f} (full model, {len(rows)} sensors); the "
              "baseline's posterior is far simpler, so the ratio understates the gain per parameter.")
@@ -451,12 +374,8 @@ def write_md(path, rows, timing, batch, *, args, load_before, load_after, wall_t
         L.append(f"- naive emcee on bayescap's own posterior (the like-for-like baseline: same model, emcee "
                  f"used the straightforward way) median ESS/s {np.median(bf):.1f}, R-hat over 4 walker groups "
                  + ", ".join(f"{r['baseline_full']['rhat']:.3f}" for r in rows)
-                 + f"; standard / naive ESS/s per sensor: " + ", ".join(f"{x:.0f}×" for x in ratio)
+                 + "; standard / naive ESS/s per sensor: " + ", ".join(f"{x:.0f}×" for x in ratio)
                  + " (an R-hat above 1.01 means the naive chain has not converged and its ESS is optimistic).")
-    gains = [r["map_restart_gain"] for r in rows]
-    L.append(f"- `find_map` restarts (n_restarts=2 vs 0): log-posterior gain max {max(gains):.2e} "
-             f"(> 0.01 on {sum(g > 0.01 for g in gains)}/{len(gains)} sensors); the fast path starts once and "
-             "retries with restarts only when its check rejects the draws.")
     L.append("")
     L.append("## Fast-path time per stage (best of 3, seconds)")
     L.append("")
@@ -464,124 +383,32 @@ def write_md(path, rows, timing, batch, *, args, load_before, load_after, wall_t
     L.append("|---|---|---|---|---|")
     for name, dg in timing:
         L.append(f"| {name} | {dg['wall_s']:.3f} | {dg['wall_map_s']:.3f} | {dg['wall_laplace_s']:.3f} | {dg['wall_is_s']:.3f} |")
-    L.append("")
-    if batch:
-        L += batch_lines(batch)
     Path(path).parent.mkdir(parents=True, exist_ok=True)
-    Path(path).write_text("\n".join(L) + "\n")
-
-
-def batch_lines(batch):
-    L = []
-    if batch:
-        L.append("## Batch throughput (`bayescap.batch.fit_many`, fast preset"
-                 + (f"; FastSettings {', '.join(batch['sets'])}" if batch.get("sets") else "") + ")")
-        L.append("")
-        L.append(f"{batch['n']} simulated Gpixel GSPRINT4521 ROIs×gains (data/gpixel_gsprint4521; 32×32-pixel "
-                 f"frames, 30 levels): simulation {batch['t_sim']:.0f} s; fit {batch['t_fit']:.0f} s with "
-                 f"n_jobs={batch['n_jobs']}, stack_size={batch.get('stack_size', 1)} "
-                 f"= {batch['t_fit'] / batch['n'] * 1e3:.0f} ms/sensor; fast path "
-                 f"accepted on {batch['accepted']}/{batch['n']}; true K inside the 95 % interval on "
-                 f"{batch['k_inside']}/{batch['accepted']} accepted "
-                 + (f"(the others ran the MCMC fallback, its time included; converged in the end: "
-                    f"{batch['converged']}/{batch['n']})." if batch.get("fallback")
-                    else "(no MCMC fallback in this measurement)."))
-        if batch.get("rejected_why"):
-            L.append("")
-            L.append("Rejected by the fast path's check: " + ", ".join(
-                f"{k} {v}" for k, v in batch["rejected_why"].items()) + ".")
-        if batch.get("fallback"):
-            n_fb = batch["n"] - batch["accepted"]
-            L.append("")
-            L.append(f"MCMC fallbacks: true K inside the 95 % interval on {batch.get('fallback_k_inside', '?')}/{n_fb}; "
-                     f"results flagged `imprecise_interval_ends` (an interval end's Monte Carlo error above 0.1 of "
-                     f"the width): {batch.get('imprecise', '?')}/{batch['n']}.")
-        L.append("")
-    return L
+    emit(L, path)
 
 
 def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--quick", action="store_true", help="2 sensors, 20-sensor batch")
-    ap.add_argument("--n-sim", type=int, default=10)
-    ap.add_argument("--batch", type=int, default=None, help="batch size (default 1000, quick 20; 0 = skip)")
-    ap.add_argument("--n-jobs", type=int, default=2)
-    ap.add_argument("--stack-size", default="64",
-                    help="sensors in lockstep in the batch (comma-separated to compare, e.g. '64,1'; 1 = one at a time)")
+    ap.add_argument("--quick", action="store_true", help="the Basler and one simulated sensor")
+    ap.add_argument("--n-sim", type=int, default=10, help="simulated sensors besides the Basler")
     ap.add_argument("--ref-quality", default="accurate")
     ap.add_argument("--presets", default="standard,accurate",
-                    help="MCMC presets timed besides the fast path (comma-separated; 'standard_before' = the "
-                         "standard preset before the IndependenceMove)")
+                    help="MCMC presets timed besides the fast path (comma-separated)")
     ap.add_argument("--seed", type=int, default=1)
-    ap.add_argument("--out", default=str(OUT))
-    ap.add_argument("--batch-fallback", action="store_true",
-                    help="batch: run the MCMC fallback where the fast path rejects (as fit_many does by default)")
-    ap.add_argument("--batch-only", action="store_true",
-                    help="only the batch throughput, written to results/batch_throughput.md")
-    ap.add_argument("--set", action="append", default=[], metavar="FIELD=VALUE",
-                    help="--batch-only/--fast-only: a FastSettings field, e.g. end_tolerance=0.1 (repeatable; "
-                         "the CLI's --fast-tolerance 0.1 is end_tolerance=0.1 end_mcse_max=0.07)")
-    ap.add_argument("--fast-only", action="store_true",
-                    help="only the fast path's time per sensor (best of 3) and its draws, printed")
     a = ap.parse_args(argv)
-    if a.fast_only:
-        import arviz  # noqa: F401  (imports excluded from the timings)
-
-        from batch_accuracy import apply_sets
-        from bayescap.inference.fast import FastSettings
-
-        sensors = sensor_set(1 if a.quick else a.n_sim)
-        timing = fast_timing(sensors, seed=a.seed, settings=apply_sets(FastSettings(), a.set))
-        ms = [dg["wall_s"] * 1e3 for _, dg in timing]
-        n = [dg["n_proposals"] for _, dg in timing]
-        print(f"# fast_posterior, best of 3, seed {a.seed} + i{''.join(f', {kv}' for kv in a.set)}; "
-              f"{datetime.datetime.now().isoformat(timespec='minutes')}; {machine()}")
-        for (name, dg), t in zip(timing, ms):
-            print(f"{name}: {t:.0f} ms, {dg['n_proposals']} draws, accepted {dg['accepted']}")
-        print(f"median {np.median(ms):.0f} ms ({min(ms):.0f}-{max(ms):.0f}), draws {min(n)}-{max(n)}, "
-              f"accepted {sum(dg['accepted'] for _, dg in timing)}/{len(timing)}")
-        return
-    if a.batch_only:
-        load_before = os.getloadavg()
-        import arviz  # noqa: F401
-        import bayescap.batch  # noqa: F401
-        n = a.batch if a.batch is not None else 1000
-        bs = [batch_throughput(n, seed=a.seed, n_jobs=a.n_jobs, stack_size=int(k), fallback=a.batch_fallback,
-                               sets=a.set)
-              for k in a.stack_size.split(",")]
-        path = Path(a.out).with_name("batch_throughput.md") if a.out == str(OUT) else Path(a.out)
-        L = ["# Batch throughput", "",
-             f"Generated by `python benchmarks/speed_accuracy.py --batch-only --batch {n} "
-             f"--n-jobs {a.n_jobs} --stack-size {a.stack_size}{' --batch-fallback' if a.batch_fallback else ''}"
-             f"{''.join(f' --set {kv}' for kv in a.set)}` on "
-             f"{datetime.datetime.now().isoformat(timespec='minutes')}.",
-             f"Machine: {machine()}.",
-             f"Load average before {', '.join(f'{x:.2f}' for x in load_before)}, after "
-             f"{', '.join(f'{x:.2f}' for x in os.getloadavg())}.", ""]
-        for b in bs:
-            L += batch_lines(b)
-        path.write_text("\n".join(L) + "\n")
-        print("\n".join(L))
-        return
     load_before = os.getloadavg()
     t0 = time.perf_counter()
     import arviz  # noqa: F401  (imports excluded from the timings)
     import bayescap  # noqa: F401
     import bayescap.inference.fast  # noqa: F401
 
-    n_sim = 1 if a.quick else a.n_sim
-    sensors = sensor_set(n_sim)
+    sensors = sensor_set(1 if a.quick else a.n_sim)
     rows = run_presets(sensors, ref_quality=a.ref_quality, seed=a.seed,
                        presets=tuple(q for q in a.presets.split(",") if q))
     timing = fast_timing(sensors, seed=a.seed)
-    n_batch = a.batch if a.batch is not None else (20 if a.quick else 1000)
-    if a.set:
-        raise SystemExit("--set applies to --batch-only (the full run measures the default settings)")
-    batch = batch_throughput(n_batch, seed=a.seed, n_jobs=a.n_jobs,
-                             stack_size=int(a.stack_size.split(",")[0]), fallback=a.batch_fallback) if n_batch else None
-    write_md(a.out, rows, timing, batch, args=a, load_before=load_before, load_after=os.getloadavg(),
+    write_md(OUT, rows, timing, args=a, load_before=load_before, load_after=os.getloadavg(),
              wall_total=time.perf_counter() - t0)
-    print("wrote", a.out)
+    print("wrote", OUT)
 
 
 if __name__ == "__main__":

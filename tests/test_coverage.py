@@ -1,6 +1,6 @@
 """Frequentist coverage of the 95 % intervals on simulated sensors with known truth (issue 2).
 
-30 sensors are drawn from the proper prior of the classic SBC (``benchmarks/sbc.py::SBC_PRIOR``,
+30 sensors are drawn from the proper prior of the classic SBC (``bayescap.validation.SBC_PRIOR``,
 ``draw_sensor_prior``: K log-uniform 0.5–8 e⁻/DN, read noise log-uniform 1–20 e⁻, dark current
 log-uniform 1–200 e⁻/s, QE uniform 0.3–0.8, 40 % with PRNU/DSNU and spatial stacks, variance and
 mean discrepancies f, g injected; full well log-uniform 3 000–60 000 e⁻ with ADC bits chosen so
@@ -24,42 +24,30 @@ keep them across sessions (only while the code and seeds are unchanged).
 from __future__ import annotations
 
 import fcntl
-import importlib.util
 import json
 import os
-import sys
 from pathlib import Path
 
 import numpy as np
 import pytest
 from scipy import stats
 
-ROOT = Path(__file__).resolve().parents[1]
+from bayescap.validation import run_one, sensor_seeds
+
 SEED = 20240602
 N_SENSORS = 30
 ALPHA = 0.01
 QUALITY = "standard"
 COVERAGE_PARAMS = ["conversion_gain_e_per_dn", "read_noise_e", "full_well_e", "quantum_efficiency",
                    "dark_current_e_per_s", "prnu_percent", "dsnu_e", "capacity_bits"]
-TRUTHS = "prior"  # classic SBC truths (benchmarks/sbc.py --truths prior)
+TRUTHS = "prior"  # classic SBC truths (bayescap.validation.run_one, as benchmarks/sbc.py --truths prior)
 N_LEVELS = 50
 
 pytestmark = pytest.mark.slow
 
 
-def _bench():
-    name = "bayescap_benchmarks_sbc"
-    if name not in sys.modules:
-        spec = importlib.util.spec_from_file_location(name, ROOT / "benchmarks" / "sbc.py")
-        mod = importlib.util.module_from_spec(spec)
-        sys.modules[name] = mod  # registered before any fork: workers unpickle run_one by name
-        spec.loader.exec_module(mod)
-    return sys.modules[name]
-
-
 def fit_records(seed, n, quality, tmp_path_factory, tag):
     """Simulate and fit ``n`` sensors once per session (shared across xdist workers)."""
-    sbc = _bench()
     base = tmp_path_factory.getbasetemp()
     if os.environ.get("PYTEST_XDIST_WORKER"):
         base = base.parent
@@ -71,14 +59,14 @@ def fit_records(seed, n, quality, tmp_path_factory, tag):
         fcntl.flock(lock, fcntl.LOCK_EX)
         if cache.exists():
             return json.loads(cache.read_text())
-        tasks = [(i, a, b, c, quality, 99, TRUTHS, N_LEVELS) for i, (a, b, c) in enumerate(sbc.sensor_seeds(seed, n))]
+        tasks = [(i, a, b, c, quality, 99, TRUTHS, N_LEVELS) for i, (a, b, c) in enumerate(sensor_seeds(seed, n))]
         jobs = min(2, os.cpu_count() or 1)
         if jobs > 1:
             import multiprocessing as mp
             with mp.get_context("fork").Pool(jobs) as pool:
-                recs = list(pool.imap(sbc.run_one, tasks))
+                recs = list(pool.imap(run_one, tasks))
         else:
-            recs = [sbc.run_one(t) for t in tasks]
+            recs = [run_one(t) for t in tasks]
         failed = [r["i"] for r in recs if "failed" in r]
         assert not failed, f"fits that raised three times: {failed}"
         cache.write_text(json.dumps(recs))

@@ -10,14 +10,13 @@ import pytest
 from scipy import stats
 
 import bayescap
+from bayescap import validation
 from bayescap.inference.fast import FastSettings, fast_posterior, psis_weights, student_t_draws, student_t_logpdf
 from bayescap.api import fast_fit
 from bayescap.exceptions import ConvergenceWarning
 from bayescap.posterior import FitResult
 from bayescap.report.text import format_text
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "benchmarks"))
-import check_moves  # noqa: E402
 
 
 class GaussianModel:
@@ -38,7 +37,7 @@ class GaussianModel:
 
 def test_student_t_logpdf_matches_scipy():
     rng = np.random.default_rng(0)
-    cov = check_moves.target_cov()
+    cov = validation.target_cov()
     mu = np.arange(6.0)
     x, logq = student_t_draws(mu, cov, 6.0, 50, rng)
     ref = stats.multivariate_t(loc=mu, shape=cov, df=6.0).logpdf(x)
@@ -69,7 +68,7 @@ def test_psis_khat_separates_good_and_bad_proposals():
 
 
 def test_fast_posterior_recovers_a_known_gaussian():
-    cov = check_moves.target_cov()
+    cov = validation.target_cov()
     mu = np.linspace(-1, 1, 6)
     model = GaussianModel(mu, cov)
     ch, dg = fast_posterior(model, seed=3, n_draws=4000)
@@ -240,8 +239,8 @@ def test_cli_quality_fast_runs_the_fast_path(capsys):
 
 # ------------------------------------------------------------------------- moves
 def _sd_ratio_and_tol(moves, *, seed, n_steps):
-    cov = check_moves.target_cov()
-    x, acc, tau = check_moves.run_move(moves, cov, seed=seed, n_steps=n_steps)
+    cov = validation.target_cov()
+    x, acc, tau = validation.run_move(moves, cov, seed=seed, n_steps=n_steps)
     ratio = x.std(0) / np.sqrt(np.diag(cov))
     n = x.shape[0]
     # sd of a sample sd with n/τ effective draws: sqrt(τ/(2n)); mean over 6 dims, 4 sigma
@@ -251,7 +250,7 @@ def _sd_ratio_and_tol(moves, *, seed, n_steps):
 
 @pytest.mark.parametrize("name", ["StretchMove", "DEMove", "DE 0.8 + Stretch 0.2 (fit.py)"])
 def test_move_calibrated_on_known_gaussian(name):
-    mean_ratio, tol = _sd_ratio_and_tol(check_moves.moves_registry()[name], seed=5, n_steps=3000)
+    mean_ratio, tol = _sd_ratio_and_tol(validation.moves_registry()[name], seed=5, n_steps=3000)
     assert abs(mean_ratio - 1) < tol, (mean_ratio, tol)
 
 
@@ -261,13 +260,13 @@ def test_move_calibrated_on_known_gaussian(name):
 def test_independence_move_calibrated_on_known_gaussian(name):
     """bayescap's IndependenceMove (t proposal), alone and mixed with DE/stretch, also when its
     proposal is off (mean 1 sd away, sds × 0.6: it then misses the tails)."""
-    moves = check_moves.independence_registry(check_moves.target_cov())[name]
+    moves = validation.independence_registry(validation.target_cov())[name]
     mean_ratio, tol = _sd_ratio_and_tol(moves, seed=5, n_steps=3000)
     assert abs(mean_ratio - 1) < tol, (mean_ratio, tol)
 
 
 def test_independence_move_on_a_skewed_bounded_target():
-    """Banana + log-Gamma + truncated normal (benchmarks/check_moves.py), walkers from the Laplace
+    """Banana + log-Gamma + truncated normal (bayescap.validation.check_banana), walkers from the Laplace
     start, the standard preset's mix (70 % IndependenceMove, t ν 4, sd × 1.3, at the Laplace
     approximation, a poor fit here; 30 % DE/stretch): mean, sd and five
     quantiles of every coordinate against exact draws. z = error / standard error across 6 seeds
@@ -275,7 +274,7 @@ def test_independence_move_on_a_skewed_bounded_target():
     1 % quantile Bonferroni-corrected for the 28 numbers."""
     from scipy.stats import t
 
-    b = check_moves.check_banana(lambda m, c: check_moves.independence_moves(m, c, 0.7, nu=4.0, scale=1.3),
+    b = validation.check_banana(lambda m, c: validation.independence_moves(m, c, 0.7, nu=4.0, scale=1.3),
                                  seeds=range(1, 7), n_steps=1500)
     assert b["z_max"] < t.ppf(1 - 0.005 / 28, 5), (b["z_max"], b["err"], b["se"])
 
@@ -293,9 +292,9 @@ def test_vectorised_integrated_time_equals_emcee():
 
 
 @pytest.mark.xfail(strict=True, reason="emcee 3.1.6 DESnookerMove returns sds 12-17 % too small on a "
-                   "correlated 6-D Gaussian (acceptance ~0.03; benchmarks/check_moves.py), as NOTES.md reported")
+                   "correlated 6-D Gaussian (acceptance ~0.03; benchmarks/check_moves.py)")
 def test_desnooker_calibrated_on_known_gaussian():
-    mean_ratio, tol = _sd_ratio_and_tol(check_moves.moves_registry()["DESnookerMove"], seed=5, n_steps=2000)
+    mean_ratio, tol = _sd_ratio_and_tol(validation.moves_registry()["DESnookerMove"], seed=5, n_steps=2000)
     assert abs(mean_ratio - 1) < tol, (mean_ratio, tol)
 
 

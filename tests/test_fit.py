@@ -217,14 +217,21 @@ def test_rhat_halves_are_split_in_time():
 
 
 def _sim00():
-    """benchmarks/speed_accuracy.py's sim00 (sensor_set(1)[1]): 10 bits, K 0.64 e-/DN, well clip
-    301 e-, 50 levels."""
-    sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "benchmarks"))
-    import speed_accuracy
+    """The first simulated sensor of benchmarks/speed_accuracy.py's ``sensor_set`` (sim00, the same
+    draws from seed 2024): 10 bits, K 0.64 e-/DN, well clip 301 e-, 50 levels."""
+    from bayescap.simulate import SensorTruth, simulate_ptc
 
-    name, data, truth = speed_accuracy.sensor_set(1)[1]
+    seed = 2024
+    rng = np.random.default_rng(seed)
+    bits = int(rng.choice([10, 12, 12, 14]))
+    k = float(np.exp(rng.uniform(np.log(0.3), np.log(10.0))))
+    fw = float(np.exp(rng.uniform(np.log(0.3), np.log(1.5))) * (2**bits - 1 - 64) * k)
+    truth = SensorTruth(conversion_gain_e_per_dn=k, read_noise_e=float(np.exp(rng.uniform(np.log(1), np.log(30)))),
+                        full_well_e=fw, dark_current_e_per_s=float(rng.choice([0.0, 30.0, 300.0])),
+                        quantum_efficiency=float(rng.uniform(0.3, 0.8)), prnu_frac=0.005,
+                        full_well_spread_frac=0.005, adc_bits=bits)
     assert truth.adc_bits == 10 and abs(truth.conversion_gain_e_per_dn - 0.64) < 0.01
-    return data
+    return simulate_ptc(truth, n_levels=50, seed=seed)
 
 
 def test_laplace_start_finds_the_higher_optimum():

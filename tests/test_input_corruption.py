@@ -2,24 +2,30 @@
 either fits (exit 0) or refuses with one line naming the file (exit 2). Never an exception through
 main (a traceback), never a RuntimeWarning on the way, never a modified input.
 
-A throwaway run of this kind (2026-11-25) found seven tracebacks: a zero spatial
-variance, values of 1e308, two-pixel rows, a crosstalk sigma that zeroes the MTF; they are fixed and
-named in tests/test_ptc.py and tests/test_model.py. This keeps a fixed part of the sweep
-(``benchmarks/corrupt_inputs.py``, whose runner it uses)."""
-import importlib.util
-from pathlib import Path
+The corruptions are a fixed part of the sweep ``benchmarks/corrupt_inputs.py`` runs; the defects it
+found are named in tests/test_ptc.py and tests/test_model.py."""
+import contextlib
+import io
+import warnings
 
-SCRIPT = Path(__file__).resolve().parents[1] / "benchmarks" / "corrupt_inputs.py"
+from bayescap import cli
 
 
-def _run_fit():
-    """``run`` of ``benchmarks/corrupt_inputs.py`` (the sweep this test keeps a fixed part of):
-    ``bayescap fit PATH --quality fast`` in-process -> (exit code or the exception, stderr lines,
-    RuntimeWarnings)."""
-    spec = importlib.util.spec_from_file_location("bayescap_benchmarks_corrupt_inputs", SCRIPT)
-    mod = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(mod)
-    return mod.run
+def _run_fit(path):
+    """(exit code or the exception, stderr lines, RuntimeWarnings) of ``bayescap fit PATH --quality fast``
+    in-process (as ``benchmarks/corrupt_inputs.py`` runs each variant)."""
+    out, err = io.StringIO(), io.StringIO()
+    with contextlib.redirect_stdout(out), contextlib.redirect_stderr(err), \
+            warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always", RuntimeWarning)
+        try:
+            code = cli.main(["fit", str(path), "--quality", "fast", "--seed", "1"])
+        except SystemExit as e:
+            code = e.code
+        except Exception as e:  # noqa: BLE001 - a traceback is what this looks for
+            code = f"{type(e).__name__}: {e}"
+    runtime = [str(w.message) for w in caught if issubclass(w.category, RuntimeWarning)]
+    return code, err.getvalue().strip().splitlines(), runtime
 
 
 TOKENS = ["abc", "", "nan", "inf", "-1", "0", "1e308", "1e-320"]
@@ -54,12 +60,11 @@ def _variants(text):
 
 def test_every_corruption_fits_or_is_refused_in_one_line(tmp_path, basler_csv):
     variants = _variants(basler_csv.read_text())
-    run = _run_fit()
     failures = []
     for i, (name, text) in enumerate(variants.items()):
         p = tmp_path / f"v{i}.csv"
         p.write_text(text)
-        code, lines, runtime = run(p)
+        code, lines, runtime = _run_fit(p)
         ok = code == 0 or (code == 2 and len(lines) == 1 and lines[0].startswith(f"bayescap: error: {p}"))
         if not ok or runtime or p.read_text() != text:
             failures.append((name, code, lines[:2], runtime[:2]))

@@ -1,34 +1,30 @@
 """Integral accuracy (issue 7, item 4): TR closed form vs quadrature, Δs Gauss–Legendre vs
 closed forms, and the cost of propagating 10 000 draws."""
-import sys
 import time
-from pathlib import Path
 
 import numpy as np
 import pytest
 
-from bayescap.physics.capacity import integral_inv_sqrt_quadratic, mtf_loss_bits, tonal_range
 from bayescap.physics.noise import NoiseCoefficients
+from bayescap.physics.capacity import integral_inv_sqrt_quadratic, mtf_loss_bits, tonal_range
 from bayescap.physics.optics import DiffractionLens, GaussianCrosstalk
-
-sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "benchmarks"))
-import integral_accuracy as ia  # noqa: E402
+from bayescap.validation import TR_CASES, ds_reference, tr_reference, tr_simpson
 
 
-@pytest.mark.parametrize("case", ia.TR_CASES, ids=[c[0] for c in ia.TR_CASES])
+@pytest.mark.parametrize("case", TR_CASES, ids=[c[0] for c in TR_CASES])
 def test_tr_closed_form_matches_adaptive_quadrature(case):
     name, a, b, c, s1, s2, fl = case
-    ref, err = ia.tr_reference(a, b, c, s1, s2, fl)
+    ref, err = tr_reference(a, b, c, s1, s2, fl)
     cf = float(integral_inv_sqrt_quadratic(a, b, c, s1, s2, floor=fl))
     assert err < 1e-12 * ref
     assert abs(cf / ref - 1) < 1e-12
 
 
 def test_simpson_log_grid_beats_linear_on_a_typical_sensor():
-    name, a, b, c, s1, s2, fl = ia.TR_CASES[0]
-    ref, _ = ia.tr_reference(a, b, c, s1, s2, fl)
-    e_log = abs(ia.tr_simpson(a, b, c, s1, s2, fl, 1000, "log") / ref - 1)
-    e_lin = abs(ia.tr_simpson(a, b, c, s1, s2, fl, 1000, "linear") / ref - 1)
+    name, a, b, c, s1, s2, fl = TR_CASES[0]
+    ref, _ = tr_reference(a, b, c, s1, s2, fl)
+    e_log = abs(tr_simpson(a, b, c, s1, s2, fl, 1000, "log") / ref - 1)
+    e_lin = abs(tr_simpson(a, b, c, s1, s2, fl, 1000, "linear") / ref - 1)
     assert e_log < 1e-8 < 1e-7 < e_lin
 
 
@@ -45,7 +41,7 @@ def test_delta_s_closed_forms():
 def test_delta_s_with_band_cut_converges_slowly():
     """A lens cut-off inside the band: log singularity at the cut-off, error ~ 1/n²."""
     lens = DiffractionLens(8.0, 555.0, 1.4)
-    ref = ia.ds_reference(lens)
+    ref = ds_reference(lens)
     e = {n: abs(float(mtf_loss_bits(lens, n_nodes=n).delta_s_bits) - ref) for n in (64, 256)}
     assert e[256] < 1e-4                       # the default n = 256: good to 1e-4 bits
     assert 8 < e[64] / e[256] < 32             # algebraic (≈ 16 = 4²), not geometric, convergence

@@ -1,23 +1,20 @@
 """Small seeded simulation-based calibration (issue 6); the full run is ``benchmarks/sbc.py``.
 
 The 30 seeded sensors of ``tests/test_coverage.py``: classic SBC, the truths drawn from the proper
-prior ``benchmarks/sbc.py::SBC_PRIOR`` that every fit uses (``draw_sensor_prior``; variance and
+prior ``bayescap.validation.SBC_PRIOR`` that every fit uses (``draw_sensor_prior``; variance and
 mean discrepancies injected into the simulated data), fitted once per session with the
 ``standard`` sampler. For every parameter and for capacity the statistic is the posterior CDF at
 the truth, u = the fraction of all the fit's draws below it: with truths from the fit's own prior,
 u is uniform on (0, 1) for a correct model and sampler (the probability integral transform, the
 L → ∞ limit of the SBC rank among L draws, Talts et al. 2018).
 
-Why u and not the rank among L = 99 thinned draws (this test's statistic until 2026-11-24): the
-rank adds binomial noise to each sensor's u (sd ≈ √(u(1 − u)/99), ~5 ranks), so the test's verdict
-re-rolled with any change of the sampler at an unchanged posterior. On the 200-sensor SBC run with
-two samplers (``benchmarks/results/sbc_w10_b80_s80/``, docs/performance.md) the mean of u and the 95 %
-coverage agreed to the third digit while the rank p-values moved by an order of magnitude both ways (K
-0.063 → 0.76, DSNU 0.099 → 0.007); on these 30 sensors the read noise's rank p was 0.060 with one
-sampler and 0.0024 with the other, its u counts [6, 3, 15, 6] with both. u's own Monte Carlo
-error (sd ≈ √(u(1 − u)/ESS) ≤ 0.016 at the standard preset's ESS ≥ 1 000) moves a sensor to
-another bin only within ~0.016 of a bin edge. ``benchmarks/sbc.py`` keeps the classic ranks on
-200 sensors (with u's mean and tail fractions).
+Why u and not the rank among L = 99 thinned draws: the rank adds binomial noise to each sensor's u
+(sd ≈ √(u(1 − u)/99), ~5 ranks), so the test's verdict would re-roll with any change of the
+sampler at an unchanged posterior; on 200 sensors fitted with two samplers the mean of u and the
+95 % coverage agree to the third digit while the rank p-values move by an order of magnitude both
+ways. u's own Monte Carlo error (sd ≈ √(u(1 − u)/ESS) ≤ 0.016 at the standard preset's ESS ≥ 1 000)
+moves a sensor to another bin only within ~0.016 of a bin edge. ``benchmarks/sbc.py`` keeps the
+classic ranks on 200 sensors (with u's mean and tail fractions).
 
 Tolerance for the small sample: u goes into 4 bins of width ¼, and the χ² statistic's null
 distribution is computed exactly for the actual number of sensors by simulating
