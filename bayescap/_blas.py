@@ -3,8 +3,8 @@
 NumPy's OpenBLAS runs a matrix product on all cores once it exceeds ~2.6·10⁵ multiply-adds: the
 Student-t draws of the fast path (a few thousand draws × D, times a D×D factor) are just above
 that. After such a call its worker threads spin, waiting for more work, for a while (OpenBLAS's
-thread timeout), on the core that :func:`bayescap.model._split_rows` hands the second half of a
-large ``log_prob`` call to: on the bundled Basler CCD that call then took as long as on one
+thread timeout), on the core that :func:`bayescap.model.threads._split_rows` hands the second half
+of a large ``log_prob`` call to: on the bundled Basler CCD that call then took as long as on one
 thread (2 900 draws, 23 ms against 15 ms when no BLAS thread spins), and the whole fast path
 ~10 % longer (docs/performance.md, "OpenBLAS threads"). bayescap's matrices are D×D with D ≤ 14,
 so a second BLAS thread never pays for itself here.

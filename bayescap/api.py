@@ -16,7 +16,7 @@ from bayescap.inference.fast import FastSettings
 from bayescap.inference.mcmc import run_ensembles
 from bayescap.inference.presets import QUALITY_PRESETS, SamplerSettings
 from bayescap.io.ptc_csv import PTCData, read_ptc_csv
-from bayescap.model.ptc_model import PTCModel, saturation_flags, select_terms
+from bayescap.model import PTCModel, saturation_flags, select_terms
 from bayescap.physics.optics import default_mtf
 from bayescap.posterior import FitResult, Scene
 

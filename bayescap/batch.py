@@ -181,7 +181,7 @@ def fit_many(datas, *, quality: str = "fast", seed, n_jobs: int = 1, fallback: b
         return res
     from bayescap.api import load
     from bayescap.io.ptc_csv import PTCData
-    from bayescap.model.ptc_model import PTCModel, select_terms
+    from bayescap.model import PTCModel, select_terms
 
     models, out = [], [None] * len(datas)
     for i, d in enumerate(datas):

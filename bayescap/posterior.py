@@ -20,7 +20,7 @@ from bayescap.inference.diagnostics import (
     worst_end,
 )
 from bayescap.io.ptc_csv import _ABSOLUTE_ZERO_C, _MAX_ABS_VALUE
-from bayescap.model.ptc_model import PTCModel
+from bayescap.model import PTCModel
 from bayescap.physics.capacity import N_GREY_LEVELS, mtf_loss_bits, tonal_range
 from bayescap.physics.noise import NoiseCoefficients, dynamic_range_db, snr_db
 

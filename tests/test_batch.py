@@ -10,7 +10,7 @@ import pytest
 import bayescap
 from bayescap.inference.lockstep import Lockstep, stack_groups
 from bayescap.batch import fit_many, gpixel_sensors
-from bayescap.model.ptc_model import PTCModel, PTCModelStack
+from bayescap.model import PTCModel, PTCModelStack
 from bayescap.simulate import SensorTruth, simulate_ptc
 
 

@@ -10,7 +10,10 @@ import pytest
 from scipy import stats
 
 import bayescap
-from bayescap.model.ptc_model import PTCModel, _chi2_over_nu, _quantized_pixel_moments, _rounded_normal_moments, _rounded_normal_moments_fourier, _rounded_normal_moments_sums, _rounded_offset, _uniform_offset_moments, _QUANT_EXACT_S2, _QUANT_TEMPORAL_S2
+from bayescap.model import PTCModel
+from bayescap.model.pixel_quantization import _quantized_pixel_moments, _uniform_offset_moments
+from bayescap.model.prediction import _chi2_over_nu, _QUANT_EXACT_S2, _QUANT_TEMPORAL_S2
+from bayescap.model.quantization import _rounded_normal_moments, _rounded_normal_moments_fourier, _rounded_normal_moments_sums, _rounded_offset
 from bayescap.simulate import SensorTruth, simulate_ptc
 
 CASES = [(0.0, 0.12), (0.1, 0.2), (0.4, 0.3), (-0.3, 0.45), (0.5, 0.25), (0.2, 0.68)]
@@ -116,7 +119,8 @@ def test_rounded_normal_moments_series_below_0p3_dn_equal_the_sums():
     (offset, s) pairs from 0.01 to 1 DN and on the 32-point offset grid with one s per row; and
     every element's numbers are its own, bit for bit, in sub-arrays of any size (the products run
     in fixed-size blocks, model._rows_matmul)."""
-    from bayescap.model.ptc_model import _QG_X, _rn_harmonics
+    from bayescap.model.pixel_quantization import _QG_X
+    from bayescap.model.quantization import _rn_harmonics
 
     rng = np.random.default_rng(4)
     d = rng.uniform(-0.5, 0.5, 40000)
@@ -145,7 +149,7 @@ def test_wrapped_normal_grid_equals_the_sum_of_its_images():
     ±40 images to 1e-15 for σ_o from 1/32 to 0.7 DN; each row's weights bit for bit the same in
     sub-arrays of any size; and _quantized_pixel_moments likewise elementwise over all its
     branches (point, Gauss–Hermite, grid, uniform)."""
-    from bayescap.model.ptc_model import _QG_X, _wrapped_normal_grid
+    from bayescap.model.pixel_quantization import _QG_X, _wrapped_normal_grid
 
     rng = np.random.default_rng(9)
     n = 3000
@@ -166,7 +170,7 @@ def test_wrapped_normal_grid_equals_the_sum_of_its_images():
         idx = np.sort(rng.choice(n, m, replace=False))
         assert all(np.array_equal(a[idx], b) for a, b in zip(full, _quantized_pixel_moments(dl[idx], s[idx], so_all[idx])))
     # the grid in chunks (model._QG_CHUNK_POINTS) of any size: the same numbers
-    import bayescap.model.ptc_model as bm
+    import bayescap.model.pixel_quantization as bm
     default = bm._QG_CHUNK_POINTS
     try:
         for points in (1, 100, 1000):
@@ -182,7 +186,7 @@ def test_quantized_pixel_moments_grid_matches_a_256_point_grid():
     for s from 0.02 to 0.75 DN and σ_o from 1/32 to 0.7 DN. The fixed 32 points used until
     2026-11-24 were off by up to 1.8e-3 where s and σ_o are both small (checked here too, so the
     reference resolves what the old grid did not)."""
-    from bayescap.model.ptc_model import _QG_J
+    from bayescap.model.pixel_quantization import _QG_J
 
     def on_grid(dl, sg, sog, M):
         x = np.broadcast_to((np.arange(M) + 0.5) / M - 0.5, (dl.size, M))
@@ -253,7 +257,7 @@ def test_shipped_uniform_offset_table_is_a_fresh_build(monkeypatch, tmp_path):
     """The table shipped with the package (bayescap/_uniform_offset_table.npz, so that no fit pays
     the ~0.18 s build) is what _build_uniform_offset_table computes now, and a missing or damaged
     file falls back to that build."""
-    import bayescap.model.ptc_model as M
+    import bayescap.model.pixel_quantization as M
 
     fresh = M._build_uniform_offset_table()
     with np.load(M.UNIFORM_TABLE_FILE) as z:
@@ -430,7 +434,7 @@ def test_rounded_offset_boundary_solver_converges_within_three_steps():
     and for small ones (log-uniform down to 1e-12, where the mean is exponentially flat in δ and a
     start at δ = f had needed up to 22 steps), s log-uniform from 0.01 to 0.3 DN; the default
     12 steps give the same numbers bit for bit."""
-    from bayescap.model.ptc_model import _rounded_offset_boundaries
+    from bayescap.model.quantization import _rounded_offset_boundaries
 
     rng = np.random.default_rng(11)
     n = 20000
@@ -465,7 +469,7 @@ def test_rounded_offset_branches_match_the_exact_mean():
     agreed to 1e-12, a property of the shared start, not of the solvers).
     (The boundary sums stop at ±5.5 DN: above 0.75 DN they were off by up to 2e-6 DN, above 1.3 DN by
     up to 0.1 DN, where only the quantization's uniform-offset branch, which ignores δ, had used them.)"""
-    from bayescap.model.ptc_model import _rounded_offset_boundaries
+    from bayescap.model.quantization import _rounded_offset_boundaries
 
     rng = np.random.default_rng(3)
     s = np.exp(rng.uniform(np.log(0.3), np.log(5.0), 20000))

@@ -974,7 +974,7 @@ def test_joint_check_never_rejects_with_draws_to_spare():
     of 24 000 draws (15 of 1 000 ROIs). A rejection for the joint check must come only at the draw
     cap (or with k̂ failing); ROI 89 is accepted since, after one more round."""
     from bayescap.batch import gpixel_sensors, sensor_seeds
-    from bayescap.model.ptc_model import PTCModel, select_terms
+    from bayescap.model import PTCModel, select_terms
 
     datas, _ = gpixel_sensors(n_max=150, seed=1)
     seeds = sensor_seeds(1, 150)                         # fit_many(seed=1)'s
@@ -1000,7 +1000,7 @@ def test_fast_intervals_of_the_gain_are_not_narrow_on_small_rois():
     first 48 ROIs: this code +0.003 ± 0.003, the code before log QE +0.015 ± 0.0065 (fails; with 24
     ROIs it failed by a hair, 0.0206 against 2 × 0.0101). ~15 s."""
     from bayescap.batch import gpixel_sensors
-    from bayescap.model.ptc_model import PTCModel, select_terms
+    from bayescap.model import PTCModel, select_terms
 
     datas, _ = gpixel_sensors(n_max=48, seed=1)
     ref_settings = FastSettings(end_mcse_max=None, end_confidence=None, n_proposals=40000, n_draws=40000)

@@ -5,7 +5,7 @@ import numpy as np
 import pytest
 from scipy import stats
 
-from bayescap.model.ptc_model import PTCModel, gamma_logpdf, select_terms
+from bayescap.model import PTCModel, gamma_logpdf, select_terms
 from bayescap.simulate import SensorTruth, simulate_ptc
 
 
@@ -107,7 +107,7 @@ def test_latent_clip_solver_reaches_roots_deep_in_the_clip():
     on the clipped mean stopped once it was within 1e-9 s of the measured one, which at a
     shortfall of 1e-8 DN put the root at h = −5.84 instead of −5.96."""
     import types
-    from bayescap.model.ptc_model import _log_shortfall
+    from bayescap.model.clipping import _log_shortfall
 
     g = np.array([300, 30, 5, 1, 0.1, 1e-2, 1e-4, 1e-8, 1e-12, 0.0, -0.5])
     c0, dark = 1000.0, 10.0
@@ -189,7 +189,7 @@ def test_robust_blocks_are_the_two_component_mixture():
     against the mixture written out with scipy: (1 − ε) Gamma(k, σ²/k) + ε LogNormal(log σ², 0.3) for
     the variances, (1 − ε) N(m, sd) + ε N(m, √(sd² + (0.3 m)²)) for the means; and the outlier
     probabilities ε·bad / mixture."""
-    from bayescap.model.ptc_model import OUTLIER_RATE as eps, OUTLIER_REL_SD as rs
+    from bayescap.model.likelihood import OUTLIER_RATE as eps, OUTLIER_REL_SD as rs
 
     truth = SensorTruth(conversion_gain_e_per_dn=2.0, read_noise_e=5.0, full_well_e=8000.0, adc_bits=12)
     m = PTCModel(simulate_ptc(truth, seed=3, shape=(64, 64), n_levels=20))
@@ -213,7 +213,7 @@ def test_robust_blocks_are_the_two_component_mixture():
 
 
 def test_logaddexp_matches_numpy():
-    from bayescap.model.ptc_model import _logaddexp
+    from bayescap.model.likelihood import _logaddexp
 
     rng = np.random.default_rng(4)
     a, b = rng.normal(0, 40, 10**5), rng.normal(0, 40, 10**5)
@@ -245,7 +245,7 @@ def _split_case():
     _, d = _sim(spatial_frames=8, spatial_every=5)
     m = PTCModel(d)
     x = m.initial_guess()
-    from bayescap.model.ptc_model import SPLIT_MIN_ELEMENTS
+    from bayescap.model.threads import SPLIT_MIN_ELEMENTS
     n = SPLIT_MIN_ELEMENTS // m._observations() + 101
     assert n >= 1000
     X = x + 0.01 * np.random.default_rng(3).standard_normal((n, m.ndim))
@@ -257,6 +257,7 @@ def test_large_log_prob_calls_split_into_halves_the_same_on_one_or_two_threads(m
     a thread): the same numbers bit for bit whatever BAYESCAP_THREADS says, equal to the halves
     evaluated apart."""
     import bayescap.model.ptc_model as M
+    import bayescap.model.threads as T
 
     m, X = _split_case()
     k = X.shape[0] // 2
@@ -264,7 +265,7 @@ def test_large_log_prob_calls_split_into_halves_the_same_on_one_or_two_threads(m
     out = {}
     for n in ("1", "2"):
         monkeypatch.setenv("BAYESCAP_THREADS", n)
-        assert M.n_threads() == int(n)
+        assert T.n_threads() == int(n)
         out[n] = m.log_prob(X)
     np.testing.assert_array_equal(out["1"], out["2"])
     np.testing.assert_array_equal(out["2"], halves)
@@ -287,9 +288,9 @@ def test_split_log_prob_thread_keeps_the_callers_errstate(monkeypatch):
 
 
 def _child_split(args):
-    import bayescap.model.ptc_model as M
+    import bayescap.model.threads as T
     m, X = args
-    return M.n_threads(), m.log_prob(X)
+    return T.n_threads(), m.log_prob(X)
 
 
 def test_pool_workers_use_one_thread_and_a_forked_child_rebuilds_the_pool(monkeypatch):

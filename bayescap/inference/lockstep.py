@@ -139,7 +139,7 @@ def _fast_paths(models, seeds, settings, stack_size: int = 64, derived_fns=None)
     most ``stack_size`` in lockstep. Wall times are the whole run's divided by the number of
     sensors (amortised). ``derived_fns``: each model's ``fast_posterior`` ``derived_fn`` (None: none)."""
     from bayescap.inference.fast import fast_posterior
-    from bayescap.model.ptc_model import PTCModelStack
+    from bayescap.model import PTCModelStack
 
     ls = Lockstep(PTCModelStack(models))
     dfs = derived_fns or [None] * len(models)
@@ -162,7 +162,7 @@ def _fast_paths(models, seeds, settings, stack_size: int = 64, derived_fns=None)
 def stack_groups(models, n_parts: int = 1):
     """Indices of the models that stack together (:meth:`~bayescap.model.PTCModelStack.signature`),
     each group in input order and cut into ``n_parts`` near-equal parts (one per process)."""
-    from bayescap.model.ptc_model import PTCModelStack
+    from bayescap.model import PTCModelStack
 
     groups = defaultdict(list)
     for i, m in enumerate(models):

@@ -26,7 +26,8 @@ from bayescap.inference.diagnostics import (
 )
 from bayescap.inference.optimize import _proposal_cov
 from bayescap.inference.presets import SamplerSettings
-from bayescap.model.ptc_model import PTCModel, _allowed
+from bayescap.model import PTCModel
+from bayescap.model.threads import _allowed
 
 __all__ = ["run_ensembles"]
 
@@ -154,7 +155,7 @@ def _run_segments(tasks):
     The stack returns the model's own ``log_prob`` bit for bit (per request), so the chains are
     the same as one ensemble after the other."""
     from bayescap.inference.lockstep import Lockstep, _with_log_prob
-    from bayescap.model.ptc_model import PTCModelStack
+    from bayescap.model import PTCModelStack
 
     model = _WORKER_MODEL
     if len(tasks) < 2 or type(model) is not PTCModel:
@@ -242,8 +243,8 @@ def _reset_stuck_walkers(sampler, state, ndim):
 
 
 def _default_jobs(n_ensembles):
-    """Processes for the ensembles (:func:`bayescap.model._allowed`, ``BAYESCAP_JOBS``): one per core,
-    at most one per ensemble; 1 in a multiprocessing worker, where the ensembles run in lockstep. (Until
+    """Processes for the ensembles (:func:`bayescap.model.threads._allowed`, ``BAYESCAP_JOBS``): one per
+    core, at most one per ensemble; 1 in a multiprocessing worker, where the ensembles run in lockstep. (Until
     2026-11-25 a batch worker's MCMC fallback forked a pool of its own: four busy processes on two
     cores, and a fork per fallback.)"""
     return _allowed("BAYESCAP_JOBS", lambda: max(1, min(n_ensembles, os.cpu_count() or 1)))

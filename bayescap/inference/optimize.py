@@ -8,7 +8,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from bayescap.model.ptc_model import PTCModel
+from bayescap.model import PTCModel
 
 
 def _vectorised_grad(model: PTCModel, x, h=1e-5):

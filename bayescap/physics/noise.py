@@ -7,7 +7,8 @@ The temporal and fixed-pattern noise of a pixel at mean signal ``S`` (e⁻) is q
 (read noise, dark-current shot noise, DSNU and quantization; photon shot noise; PRNU as a
 fraction). Everything is vectorised over a leading axis of posterior draws. The capacity
 integrals (:mod:`bayescap.physics.capacity`), the photometry (:mod:`bayescap.physics.photometry`)
-and the comparisons use this one definition.
+and the comparisons use this one definition; the likelihood (:mod:`bayescap.model`) takes its dark
+part σ_read² + D·t from :func:`dark_variance_e2`.
 """
 from __future__ import annotations
 
@@ -15,7 +16,15 @@ from dataclasses import dataclass
 
 import numpy as np
 
-__all__ = ["NoiseCoefficients", "snr_db", "dynamic_range_db"]
+__all__ = ["NoiseCoefficients", "dark_variance_e2", "dynamic_range_db", "snr_db"]
+
+
+def dark_variance_e2(read_noise_e=None, dark_current_e_per_s=0.0, exposure_time_s=0.0, *, dark_noise_e=None):
+    """σ_read² + D·t (e⁻²), the temporal dark part of Eq. 1's ``a``; ``dark_noise_e²`` when
+    ``dark_noise_e`` is given (only the sum identifiable). Broadcasts over its arguments."""
+    if dark_noise_e is not None:
+        return np.asarray(dark_noise_e, float) ** 2
+    return np.asarray(read_noise_e, float) ** 2 + np.asarray(dark_current_e_per_s, float) * exposure_time_s
 
 
 @dataclass(frozen=True)
@@ -37,10 +46,7 @@ class NoiseCoefficients:
         """Eq. 1 terms. ``dark_noise_e``, if given, replaces ``read² + D·t`` (used when only
         their sum is identifiable)."""
         k = np.asarray(conversion_gain_e_per_dn, float)
-        if dark_noise_e is None:
-            rd2 = np.asarray(read_noise_e, float) ** 2 + np.asarray(dark_current_e_per_s, float) * exposure_time_s
-        else:
-            rd2 = np.asarray(dark_noise_e, float) ** 2
+        rd2 = dark_variance_e2(read_noise_e, dark_current_e_per_s, exposure_time_s, dark_noise_e=dark_noise_e)
         a = rd2 + np.asarray(dsnu_e, float) ** 2 + k * k / 12.0
         b = np.ones_like(a)
         c = np.asarray(prnu_frac, float) ** 2 * np.ones_like(a)

@@ -19,7 +19,7 @@ from dataclasses import replace
 
 import numpy as np
 
-from bayescap.model.ptc_model import select_terms
+from bayescap.model import select_terms
 
 __all__ = ["loo", "select_model", "VARIANTS"]
 

@@ -1,0 +1,253 @@
+"""The parameters of :class:`~bayescap.model.PTCModel`: their physical meaning
+(:data:`PARAMETER_INFO`, :meth:`~_ParametersMixin.physical`), their prior
+(:meth:`~_ParametersMixin.log_prior`, scales in ``PTCModel.PRIOR``) and the deterministic start
+point of a fit (:meth:`~_ParametersMixin.initial_guess`).
+
+Sampling coordinates are unconstrained (logs of scales) with the Jacobians in the priors.
+"""
+from __future__ import annotations
+
+import numpy as np
+
+from bayescap.model.likelihood import _norm_logpdf
+from bayescap.model.quantization import _rounded_normal_moments, _rounded_offset
+from bayescap.physics.noise import dark_variance_e2
+
+__all__ = ["PARAMETER_INFO"]
+
+# physical parameter -> (unit, description)
+PARAMETER_INFO = {
+    "conversion_gain_e_per_dn": ("e-/DN", "conversion gain K"),
+    "read_noise_e": ("e-", "temporal read noise"),
+    "dark_current_e_per_s": ("e-/s", "dark current (from the dark-noise growth with time)"),
+    "dark_noise_e": ("e-", "read noise and dark-current shot noise combined at the single exposure time"),
+    "full_well_e": ("e-", "charge at which the pixel output clips"),
+    "quantum_efficiency": ("", "quantum efficiency"),
+    "prnu_percent": ("%", "photo-response non-uniformity"),
+    "dsnu_e": ("e-", "dark-signal non-uniformity"),
+    "clip_spread_dn": ("DN", "spread of the pixel means about the clip level"),
+    "variance_discrepancy": ("", "fractional discrepancy of the variances (systematics)"),
+    "mean_discrepancy": ("", "fractional discrepancy of the means (non-linearity)"),
+}
+
+
+def _halfnormal_log_prior(u, scale):
+    """log density of u = log x when x ~ HalfNormal(scale) (Jacobian included)."""
+    x = np.exp(u)
+    return u - 0.5 * (x / scale) ** 2
+
+
+def _scale_log_prior(u, scale, log_bounds=None):
+    """log prior of u = log x: half-normal of ``scale`` in x, or, with ``log_bounds = (lo, hi)``
+    (natural values), log-uniform on [lo, hi] (uniform in u, normalised)."""
+    if log_bounds is None:
+        return _halfnormal_log_prior(u, scale)
+    a, b = np.log(log_bounds[0]), np.log(log_bounds[1])
+    return np.where((u >= a) & (u <= b), -np.log(b - a), -np.inf)
+
+
+class _ParametersMixin:
+    """Parameters, prior and start point of :class:`~bayescap.model.PTCModel` (which sets the
+    attributes these methods read: ``idx``, ``names``, ``terms``, ``PRIOR``, the data arrays)."""
+
+    # ------------------------------------------------------------------ parameters
+    def physical(self, theta) -> dict:
+        """Named physical parameters for draws ``theta`` (n, ndim)."""
+        th = np.atleast_2d(theta)
+        g = lambda n: th[:, self.idx[n]]  # noqa: E731
+        k = np.exp(g("log_k"))
+        out = {"conversion_gain_e_per_dn": k}
+        if self.terms.dark_current:
+            out["read_noise_e"] = np.exp(g("log_read"))
+            out["dark_current_e_per_s"] = np.exp(g("log_dc"))
+        else:
+            out["dark_noise_e"] = np.exp(g("log_dark_noise"))
+        if self.terms.clip in ("adc_sampled", "well"):
+            c = g("clip_dn")
+        elif self.terms.clip == "adc":
+            c = np.full(th.shape[0], self.adc)
+        else:
+            c = None
+        if c is not None:
+            out["clip_dn"] = c
+            out["full_well_e"] = (c - self.black_dn) * k
+        if self.terms.clip_spread:
+            out["clip_spread_dn"] = np.exp(g("log_tau"))
+        if self.terms.quantum_efficiency:
+            out["quantum_efficiency"] = g("qe")
+            out["mean_discrepancy"] = np.exp(g("log_g"))
+        if self.terms.prnu:
+            out["prnu_percent"] = 100.0 * np.exp(g("log_prnu"))
+        if self.terms.dsnu:
+            out["dsnu_e"] = np.exp(g("log_dsnu"))
+        out["variance_discrepancy"] = np.exp(g("log_f")) if self.terms.discrepancy else np.zeros(th.shape[0])
+        return out
+
+    def dark_var_e2(self, p, t):
+        """σ_read² + D·t (e⁻²) for each draw at exposure times t: shape (n_draws, n_t) (Eq. 1's
+        :func:`~bayescap.physics.noise.dark_variance_e2`; ``dark_noise_e²`` when only the sum is
+        identifiable)."""
+        t = np.atleast_1d(np.asarray(t, float))
+        if self.terms.dark_current:
+            return dark_variance_e2(p["read_noise_e"][:, None], p["dark_current_e_per_s"][:, None], t)
+        return np.broadcast_to(dark_variance_e2(dark_noise_e=p["dark_noise_e"][:, None]),
+                               (p["dark_noise_e"].size, t.shape[-1]))
+
+    # ------------------------------------------------------------------ prior
+    def _clip_reference_dn(self, th):
+        """The clip level the clip spread's prior refers to, per draw: the sampled ``clip_dn``, or
+        the ADC maximum when the ADC clips at a known level."""
+        if "clip_dn" in self.idx:
+            return th[:, self.idx["clip_dn"]]
+        return np.full(th.shape[0], self.adc, dtype=float)
+
+    def tau_cap_dn(self, th):
+        """Upper bound of the clip spread τ (DN) in the prior, per draw: ``tau_max_frac`` of
+        :meth:`_clip_reference_dn` (a wall: log prior −∞ beyond it)."""
+        return self.PRIOR["tau_max_frac"] * self._clip_reference_dn(np.atleast_2d(th))
+
+    def log_prior(self, th):
+        P = self.PRIOR
+        g = lambda n: th[:, self.idx[n]]  # noqa: E731
+        lk = g("log_k")
+        lp = np.where((lk > P["log_k_bounds"][0]) & (lk < P["log_k_bounds"][1]), 0.0, -np.inf)
+        if self.terms.dark_current:
+            lp = lp + _scale_log_prior(g("log_read"), P["read_scale_e"], P["read_log_bounds"])
+            lp = lp + _scale_log_prior(g("log_dc"), P["dark_current_scale_e_per_s"], P["dark_current_log_bounds"])
+        else:
+            lp = lp + _halfnormal_log_prior(g("log_dark_noise"), P["read_scale_e"])
+        if self.terms.clip in ("adc_sampled", "well"):
+            c = g("clip_dn")
+            lo, hi = self.clip_bounds
+            lp = lp + np.where((c > lo) & (c < hi), -np.log(hi - lo), -np.inf)
+        if self.terms.clip_spread:
+            cref = self._clip_reference_dn(th)
+            lt = g("log_tau")
+            center = np.log(0.005 * np.maximum(cref - self.black_dn, 1.0))
+            lp = lp + _norm_logpdf(lt, center, P["tau_log_sd"])
+            lp = lp + np.where(np.exp(lt) < self.tau_cap_dn(th), 0.0, -np.inf)
+        if self.terms.quantum_efficiency:
+            qe = g("qe")
+            qlo, qhi = P["qe_bounds"] if P["qe_bounds"] is not None else (0.0, 1.0)
+            lp = lp + np.where((qe > qlo) & (qe <= qhi), 0.0, -np.inf)
+            lp = lp + _norm_logpdf(g("log_g"), np.log(P["g_center"]), P["g_log_sd"])
+        if self.terms.prnu:
+            lp = lp + _scale_log_prior(g("log_prnu"), P["prnu_scale"], P["prnu_log_bounds"])
+        if self.terms.dsnu:
+            lp = lp + _scale_log_prior(g("log_dsnu"), P["dsnu_scale_e"], P["dsnu_log_bounds"])
+        for n in self.pattern_latents:
+            lp = lp - 0.5 * g(n) ** 2  # standard normal (constant dropped)
+        if self.terms.discrepancy:
+            lp = lp + _norm_logpdf(g("log_f"), np.log(P["f_center"]), P["f_log_sd"])
+        return lp
+
+    # ------------------------------------------------------------------ start point
+    def initial_guess(self) -> np.ndarray:
+        """A deterministic starting point from EMVA-1288-style linear fits (no randomness).
+
+        Computed once per model (a copy returned each time): it costs ~1.3 ms with its scan of the
+        clip spread, and a fast fit asks for it three times (the Newton start, the sampler
+        coordinates, the observation count)."""
+        return self._memoized("initial_guess", self._initial_guess).copy()
+
+    def _initial_guess(self) -> np.ndarray:
+        tm = self.terms
+        s, v = self.s_obs, self.v
+        vd_ok = self.vd[~self.full_sat]
+        lin = s <= 0.7 * s.max()
+        if lin.sum() < 2:
+            lin = np.ones_like(s, bool)
+        y = v[lin] - vd_ok[lin]
+        x = s[lin]
+        slope = np.sum(x * y) / max(np.sum(x * x), 1e-300)
+        if len(x) >= 3:
+            A = np.vstack([x, np.ones_like(x)]).T
+            slope = np.linalg.lstsq(A, y, rcond=None)[0][0]
+        slope = slope if np.isfinite(slope) and slope > 0 else 1.0
+        k0 = float(np.clip(1.0 / slope, 2e-3, 5e2))
+        vd0 = float(np.median(self.vd))
+        sig0_e2 = max((vd0 - 1.0 / 12.0) * k0 * k0, (0.05 * k0) ** 2)
+        if vd0 < 1.0 / 12.0 + 0.25:
+            # near or below the quantization floor: invert the exact rounded-normal variance at the
+            # median dark row's measured offset (Sheppard's σ² + 1/12 would put σ near 0, where the
+            # likelihood is flat and a local optimiser strays)
+            i = int(np.argsort(self.vd)[self.vd.size // 2])
+            s_grid = np.geomspace(0.03, 1.0, 200)
+            frac = np.full(s_grid.size, self.dark_frac_dn[i])
+            _, vg, _ = _rounded_normal_moments(_rounded_offset(frac, s_grid), s_grid)
+            s0 = float(s_grid[np.argmin(np.abs(vg - vd0))])
+            sig0_e2 = max((s0 * k0) ** 2, (0.05 * k0) ** 2)
+        th = {"log_k": np.log(k0)}
+        if tm.dark_current:
+            t = self.t
+            if np.ptp(t) > 0:
+                b = np.polyfit(t, self.vd, 1)[0] * k0 * k0
+            else:
+                b = 0.0
+            tmax = max(t.max(), 1e-9)
+            dc0 = b if b > 0 else 0.05 * sig0_e2 / tmax
+            dc0 = min(dc0, 0.5 * sig0_e2 / tmax) if b <= 0 else dc0
+            r2 = max(sig0_e2 - dc0 * np.median(t), 0.25 * sig0_e2)
+            th["log_read"] = 0.5 * np.log(r2)
+            th["log_dc"] = np.log(max(dc0, 1e-6))
+        else:
+            th["log_dark_noise"] = 0.5 * np.log(sig0_e2)
+        if tm.clip in ("adc_sampled", "well"):
+            lo, hi = self.clip_bounds
+            if self.full_means.size:
+                th["clip_dn"] = float(np.clip(self.full_means.mean(), lo + 1e-6 * (hi - lo), hi - 1e-6 * (hi - lo)))
+            else:
+                th["clip_dn"] = lo + 0.02 * (hi - lo)
+        if tm.clip_spread:
+            cref = th.get("clip_dn", self.adc if self.adc is not None else self.max_mean_ok)
+            th["log_tau"] = np.log(max(0.005 * (cref - self.black_dn), 0.5))
+        if tm.quantum_efficiency:
+            x = self.mu_p[lin]
+            r = np.sum(x * s[lin]) / max(np.sum(x * x), 1e-300)
+            th["qe"] = float(np.clip(r * k0, 0.01, 0.99))
+            th["log_g"] = np.log(0.005)
+        if tm.prnu or tm.dsnu:
+            dsnu_dn2 = 1e-4
+            if self.spd_rows.size:
+                r = self.spd_rows
+                dsnu_dn2 = max(np.median(self.spd[r] - self.vd[r] / self.L_all[r]), 1e-4)
+            if tm.dsnu:
+                th["log_dsnu"] = 0.5 * np.log(dsnu_dn2 * k0 * k0)
+            if tm.prnu:
+                pr2 = 1e-6
+                if self.sp_rows.size:
+                    r = self.sp_rows
+                    est = (self.sp[r] - v[r] / self.L_ok[r] - dsnu_dn2) / np.maximum(s[r], 1e-9) ** 2
+                    pr2 = max(np.median(est), 1e-8)
+                th["log_prnu"] = 0.5 * np.log(pr2)
+        for n in self.pattern_latents:
+            th[n] = 0.0
+        if tm.discrepancy:
+            th["log_f"] = np.log(0.01)
+        # keep the start inside an overridden (bounded) prior
+        P = self.PRIOR
+        for name, key in (("log_read", "read_log_bounds"), ("log_dc", "dark_current_log_bounds"),
+                          ("log_prnu", "prnu_log_bounds"), ("log_dsnu", "dsnu_log_bounds")):
+            if name in th and P[key] is not None:
+                a, b = np.log(P[key][0]), np.log(P[key][1])
+                th[name] = float(np.clip(th[name], a + 1e-3 * (b - a), b - 1e-3 * (b - a)))
+        lk0, lk1 = P["log_k_bounds"]
+        th["log_k"] = float(np.clip(th["log_k"], lk0 + 1e-3 * (lk1 - lk0), lk1 - 1e-3 * (lk1 - lk0)))
+        if "qe" in th and P["qe_bounds"] is not None:
+            q0, q1 = P["qe_bounds"]
+            th["qe"] = float(np.clip(th["qe"], q0 + 1e-3 * (q1 - q0), q1 - 1e-3 * (q1 - q0)))
+        x = np.array([th[n] for n in self.names], float)
+        if tm.clip_spread:
+            # the clip spread: a deterministic scan of log_prob over τ from 10⁻³ DN to the prior's cap.
+            # Below the quantization floor the plateau variance depends on τ only for τ ≲ 0.7 DN
+            # (exact rounding), flat above (Sheppard): a start in the flat part leaves the
+            # optimiser there, thousands of nats below the mode
+            cref = th.get("clip_dn", self.adc if self.adc is not None else self.max_mean_ok)
+            hi = np.log(0.999 * self.PRIOR["tau_max_frac"] * cref)
+            grid = np.linspace(np.log(1e-3), hi, 16) if hi > np.log(1e-3) else np.array([th["log_tau"]])
+            cand = np.repeat(x[None, :], grid.size + 1, axis=0)
+            cand[1:, self.idx["log_tau"]] = grid
+            lp = self.log_prob(cand)
+            if np.any(np.isfinite(lp)):
+                x = cand[int(np.nanargmax(np.where(np.isfinite(lp), lp, -np.inf)))]
+        return x

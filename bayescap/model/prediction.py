@@ -1,0 +1,226 @@
+"""The model's prediction of every observation block (:meth:`_PredictionMixin.predict`): the
+Eq. 1 variances in DN, temporal and spatial apart, with the ROI's realised fixed patterns, the
+rounding to integer DN and the clip near saturation.
+"""
+from __future__ import annotations
+
+import numpy as np
+
+from bayescap.model.pixel_quantization import _quantized_pixel_moments
+from bayescap.model.quantization import _rounded_offset
+
+#: below this s² + σ_o² (DN²) the rounded-normal moments replace Sheppard's σ² + 1/12
+_QUANT_EXACT_S2 = 0.5
+#: Sheppard's s² + 1/12 is the variance of rounded values over *all* offsets; a pixel's temporal
+#: variance about its own mean is smaller by Q(s) = Σₖ e^{−4π²k²s²}/(2π²k²) (the rounding bias of
+#: its mean, h of :func:`~bayescap.model.pixel_quantization._quantized_pixel_moments`, averaged):
+#: Q < 2e-5 DN² (relative < 1e-4) only for s² ≥ 0.2 DN²
+_QUANT_TEMPORAL_S2 = 0.2
+
+
+def _chi2_over_nu(z, nu):
+    """χ²_ν/ν as a function of a standard normal z (Wilson–Hilferty; relative error of the
+    quantiles < 1e-4 for ν ≥ 10, far below the ~√(2/ν) spread it describes)."""
+    a = 2.0 / (9.0 * nu)
+    return np.maximum(1.0 - a + z * np.sqrt(a), 1e-3) ** 3
+
+
+class _PredictionMixin:
+    """:meth:`predict` and its parts, methods of :class:`~bayescap.model.PTCModel` (which sets
+    the data arrays and the rows of each block they read)."""
+
+    # ------------------------------------------------------------------ fixed patterns
+    def _pattern_moments(self, th, p):
+        """Sample (co)variances of the ROI's *realised* fixed patterns, for draws ``th``.
+
+        The PRNU map p_i (fraction) and the DSNU map d_i (e⁻) are one realisation, shared by
+        every spatial row. Over n pixels (ν = n − 1) their sample covariance matrix is
+        Wishart(ν, diag(PRNU², DSNU²))/ν; by Bartlett's decomposition with standard-normal
+        latents z₁ (``z_roi_prnu``), z₂ (``z_roi_dsnu``), z₃ (``z_roi_cross``):
+
+            var_s(p)   = PRNU² · χ²_ν/ν (z₁)
+            var_s(d)   = DSNU² · [(ν−1)·χ²_{ν−1}/(ν−1) (z₂) + z₃²]/ν
+            cov_s(p,d) = PRNU·DSNU · √(χ²_ν/ν (z₁)) · z₃/√ν
+
+        Returns (var_s(p), var_s(d) [e⁻²], cov_s(p, d) [e⁻]), each (n_draws, 1)."""
+        nu = self.nu_pattern
+        n = th.shape[0]
+        zero = np.zeros((n, 1))
+        a = b = c = zero
+        if self.terms.dsnu:
+            dsnu2 = (p["dsnu_e"] ** 2)[:, None]
+            z2 = th[:, self.idx["z_roi_dsnu"]][:, None]
+            if self.terms.prnu:
+                prnu = (p["prnu_percent"] / 100.0)[:, None]
+                z1 = th[:, self.idx["z_roi_prnu"]][:, None]
+                z3 = th[:, self.idx["z_roi_cross"]][:, None]
+                q1 = _chi2_over_nu(z1, nu)
+                a = prnu**2 * q1
+                # (χ²₀ = 0: with two pixels, ν = 1, the DSNU's sample variance is z₃² alone; ν is an
+                # array of one per sensor in a PTCModelStack)
+                rest = np.where(nu > 1.0, (nu - 1.0) * _chi2_over_nu(z2, np.maximum(nu - 1.0, 1.0)), 0.0)
+                b = dsnu2 * (rest + z3 * z3) / nu
+                c = prnu * np.sqrt(dsnu2) * np.sqrt(q1) * z3 / np.sqrt(nu)
+            else:
+                b = dsnu2 * _chi2_over_nu(z2, nu)
+        return a, b, c
+
+    def _quantized_var(self, s2, frac, spread2):
+        """Quantization of the temporal variance, and of the fixed pattern, for every draw and row.
+
+        ``s2`` (n_draws, rows): temporal variance before rounding (DN²); ``frac`` (rows,): the
+        measured mean's offset from the nearest integer DN; ``spread2`` (n_draws, 1 or rows):
+        variance σ_o² of the per-pixel mean offsets (fixed patterns, well spread).
+
+        Returns ``(var, phi, excess)``: the pixel-averaged temporal variance of the rounded values,
+        the factor φ of its sampling variance (relative variance of a pair estimate over n pixels
+        = φ/ν; 2 for a normal), and the excess of the per-pixel means' spatial variance over σ_o²
+        that rounding adds (what a spatial variance of frame averages sees besides σ_o²).
+        Sheppard's s² + 1/12, φ = 2 and no excess where s² ≥ 0.2 DN² and s² + σ_o² ≥ ½ DN²
+        (relative errors < 3e-4, below the ≥ 0.4 % sampling error of a variance over ≤ 10⁵
+        pixels); elsewhere the exact moments of :func:`_quantized_pixel_moments`."""
+        var = s2 + 1.0 / 12.0
+        phi = np.full_like(var, 2.0)
+        excess = np.zeros_like(var)
+        sp2 = np.maximum(np.broadcast_to(spread2, s2.shape), 0.0)
+        need = (s2 < _QUANT_TEMPORAL_S2) | (s2 + sp2 < _QUANT_EXACT_S2)
+        if not np.any(need):
+            return var, phi, excess
+        s = np.sqrt(np.maximum(s2[need], 1e-8))
+        so = np.sqrt(sp2[need])
+        fr = np.broadcast_to(frac, s2.shape)[need]
+        delta = _rounded_offset(fr, np.sqrt(s * s + so * so))
+        V, E4, H = _quantized_pixel_moments(delta, s, so)
+        # the measured variances are floored at 1e-6 DN² (a sample with no differing pixel): so is
+        # the model, which otherwise penalises a ratio 1e-6/1e-12 for identical "zero" data
+        V = np.maximum(V, 1e-6)
+        var[need] = V
+        phi[need] = E4 / (2.0 * V * V)
+        excess[need] = H
+        return var, phi, excess
+
+    # ------------------------------------------------------------------ prediction
+    def predict(self, th):
+        """Model predictions per observation block, for draws ``th`` (n, ndim).
+
+        Returns ``{block: (observed, model, spread, kind)}``: for ``kind == "gamma"`` the
+        spread is the shape ``k`` (the observed value ~ Gamma(k, model/k)); for
+        ``"normal"`` it is the standard deviation. Blocks: ``dark_var`` (every row),
+        ``bright_var`` and ``mean`` (rows not fully clipped), ``clip_mean`` (fully clipped rows,
+        sampled clip), ``spatial_var``/``dark_spatial_var`` (rows with spatial columns)."""
+        p = self.physical(th)
+        k = p["conversion_gain_e_per_dn"]
+        K = k[:, None]
+        if self.terms.discrepancy:
+            f2 = np.exp(2.0 * th[:, self.idx["log_f"]])[:, None]
+        else:
+            f2 = np.zeros((th.shape[0], 1))
+        rd2_ok = self.dark_var_e2(p, self.tt)  # (n, rows)
+        rd2_all = self.dark_var_e2(p, self.t)
+        out = {}
+        pa, pb, pc = self._pattern_moments(th, p)  # realised ROI patterns (zeros without the terms)
+        # dark temporal variances (all rows); rounding at the measured offset below 1 DN
+        vdm, phi_d, hd = self._quantized_var(rd2_all / (K * K), self.dark_frac_dn, pb / (K * K))
+        out["dark_var"] = (self.vd, vdm, 1.0 / (phi_d / self.nu_d + f2), "gamma")
+        # bright temporal variances, unclipped rows: S from the measured mean
+        S = np.broadcast_to(self.s_obs, rd2_ok.shape).copy()
+        vm, phi_b, hb = self._quantized_var(S / K + rd2_ok / (K * K), self.bright_frac_dn,
+                                        pa * S * S + pb / (K * K) + 2.0 * pc * S / K)
+        slope = np.ones_like(vm)
+        if self.clip_rows.size:
+            c = p["clip_dn"]
+            tau = p["clip_spread_dn"]
+            # rows more than 8.5 sd of N(mean, s² + τ²) below the clip for every draw are unclipped
+            # to double precision (_clip_mean): keep only the others. (The rule of the 9-node
+            # quadrature, 8.5 s + 4.52 τ, let rows with τ ≫ s in at h ≈ 4.5: a clipped fraction 3e-6)
+            # (bounds over each sensor's draws: over all draws here, per request in a PTCModelStack)
+            k_min, c_min, tau_max = (self._per_draw(self._request_reduce(f, a)) for f, a in
+                                     ((np.minimum, k), (np.minimum, c), (np.maximum, tau)))
+            cr = self.clip_rows
+            s_est = np.sqrt(self.v[..., cr] + self.s_obs[..., cr] / k_min)
+            alpha_min = (c_min - self.m[..., cr]) / np.sqrt(s_est**2 + tau_max**2)
+            need = alpha_min < 8.5
+            needed = need if need.ndim == 1 else need.any(axis=0)
+            rows = cr[needed]
+        if self.clip_rows.size and rows.size:
+            # stacked sensors: a row one sensor needs is computed for all, kept where needed
+            keep = None if need.ndim == 1 else need[:, needed]
+            keep = None if keep is None or keep.all() else keep
+            put = (lambda new, old: new) if keep is None else (lambda new, old: np.where(keep, new, old))
+            if self.terms.clip == "well":
+                # the well clips the collected charge; read noise and quantization come after
+                dc_e2 = (p["dark_current_e_per_s"][:, None] * self.tt[..., rows]
+                         if self.terms.dark_current else np.zeros((k.size, rows.size)))
+                pre = dc_e2 / (K * K)
+                post = (rd2_ok[:, rows] - dc_e2) / (K * K) + 1.0 / 12.0
+                mu, var_c, sl = self._latent_clip_rows(k, pre, tau, c, rows)
+                vm[:, rows] = put(var_c + post, vm[:, rows])
+            else:
+                # the ADC clips everything; quantization survives only for the unclipped pixels
+                mu, var_c, sl = self._latent_clip_rows(k, rd2_ok[:, rows] / (K * K), tau, c, rows)
+                vm[:, rows] = put(var_c + sl / 12.0, vm[:, rows])
+            S[:, rows] = put(mu - self.dm[..., rows], S[:, rows])
+            slope[:, rows] = put(sl, slope[:, rows])
+        out["bright_var"] = (self.v, np.maximum(vm, 1e-12), 1.0 / (phi_b / self.nu + f2), "gamma")
+        self._last_latent_signal_dn = S
+        if self.terms.quantum_efficiency:
+            qe = p["quantum_efficiency"][:, None]
+            g2 = p["mean_discrepancy"][:, None] ** 2
+            s_model = qe * self.mu_p / K
+            m_err2 = (self.v + self.vd_ok) / (self.nu + 1.0)
+            sd = np.sqrt(g2 * s_model**2 + m_err2 / np.maximum(slope, 1e-6) ** 2)
+            out["mean"] = (S, s_model, sd, "normal")
+        if self.terms.clip == "well" and self.full_means.size:
+            # plateau rows: charge at the (spread) well; read noise and quantization remain
+            post_full = self.dark_var_e2(p, self.t_full)
+            if self.terms.dark_current:
+                post_full = post_full - p["dark_current_e_per_s"][:, None] * self.t_full
+            tau_full = np.broadcast_to(p["clip_spread_dn"][:, None], post_full.shape)
+            # rounding of the plateau values: exact below the quantization floor (offsets spread by
+            # the well spread τ), Sheppard above
+            vfull, phi_pl, _ = self._quantized_var(post_full / (K * K), self.full_frac_dn, tau_full**2)
+            cmean = np.broadcast_to(p["clip_dn"][:, None], vfull.shape)
+            if self.adc is not None:
+                # the ADC clips the plateau's read noise too (wells just below the ADC maximum):
+                # moments of clip(N(c + τξ, σ²_post), ADC) over the well spread ξ
+                cm, cv, unclipped = self._clip_moments(
+                    np.array(cmean), np.sqrt(post_full) / K, tau_full,
+                    np.broadcast_to(self._per_draw(self.adc), vfull.shape).astype(float))
+                # only where the ADC clips a measurable part (keeps the exact rounding otherwise)
+                clipped = unclipped < 1.0 - 1e-9
+                vfull = np.where(clipped, cv + unclipped / 12.0, vfull)
+                cmean = cm
+            out["plateau_var"] = (np.maximum(self.full_v, 1e-6), np.maximum(vfull, 1e-6),
+                                  1.0 / (phi_pl / self.full_nu + f2), "gamma")
+        else:
+            cmean = None
+        if self.terms.clip in ("adc_sampled", "well") and self.full_means.size:
+            if cmean is None:
+                cmean = np.broadcast_to(p["clip_dn"][:, None], (k.size, self.full_means.size))
+            out["clip_mean"] = (self.full_means, cmean, np.atleast_2d(self.full_sd), "normal")
+        # spatial variances of L-frame averages: the ROI's realised pattern P (the same in every
+        # row, see _pattern_moments) plus the averaged temporal noise T. Given the pattern, only
+        # T's sample variance and its sample covariance with the pattern scatter:
+        # var = (2T² + 4PT)/ν (+ f² relative)
+        if self.sp_rows.size:
+            r = self.sp_rows
+            Sr = S[:, r]
+            # realised pattern, plus what rounding adds to it below the quantization floor
+            P = pa * Sr * Sr + pb / (K * K) + 2.0 * pc * Sr / K + hb[:, r]
+            T = vm[:, r] / self.L_ok[..., r]
+            out["spatial_var"] = (self.sp[..., r], np.maximum(P + T, 1e-12),
+                                  self._pattern_shape(P, T, self.nu[..., r], f2), "gamma")
+        if self.spd_rows.size:
+            r = self.spd_rows
+            P = pb / (K * K) + hd[:, r]
+            T = vdm[:, r] / self.L_all[..., r]
+            out["dark_spatial_var"] = (np.maximum(self.spd[..., r], 1e-9), np.maximum(P + T, 1e-12),
+                                       self._pattern_shape(P, T, self.nu_d[..., r], f2), "gamma")
+        return out
+
+    @staticmethod
+    def _pattern_shape(P, T, nu, f2):
+        """Gamma shape of a spatial variance given the realised pattern P and temporal part T."""
+        P = np.maximum(P, 0.0)
+        rel = (2.0 * T * T + 4.0 * P * T) / (nu * (P + T) ** 2)
+        return 1.0 / (rel + f2)

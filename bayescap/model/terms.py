@@ -1,0 +1,148 @@
+"""Which terms enter the fit: the data decide (:func:`select_terms`), and every left-out term
+is recorded with its reason (:class:`ModelTerms`). :func:`saturation_flags` finds the fully
+clipped rows and whether saturation is reached.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from bayescap.exceptions import PTCInputError
+from bayescap.io.ptc_csv import PTCData, check_not_all_saturated
+
+__all__ = ["ModelTerms", "saturation_flags", "select_terms"]
+
+
+@dataclass(frozen=True)
+class ModelTerms:
+    """Which terms the data can inform, and why the others are left out."""
+
+    dark_current: bool
+    clip: str  # "none" | "adc" (fixed at the ADC maximum) | "adc_sampled" | "well"
+    clip_spread: bool
+    quantum_efficiency: bool
+    prnu: bool
+    dsnu: bool
+    robust: bool = True
+    discrepancy: bool = True
+    reasons: dict = field(default_factory=dict)  # term -> why it is left out
+    how: dict = field(default_factory=dict)      # term -> how an included term enters (caveats)
+
+    def names(self) -> list[str]:
+        out = ["photon_shot", "read"]
+        out.append("dark_current_shot" if self.dark_current else "read_plus_dark_combined")
+        out.append("quantization")
+        if self.prnu:
+            out.append("prnu")
+        if self.dsnu:
+            out.append("dsnu")
+        if self.clip != "none":
+            out.append("saturation")
+        if self.discrepancy:
+            out.append("variance_discrepancy")
+        if self.robust:
+            out.append("outlier_mixture")
+        if self.quantum_efficiency:
+            out += ["quantum_efficiency", "mean_discrepancy"]
+        return out
+
+
+def saturation_flags(d: PTCData):
+    """Rows fully clipped (plateau at the top of the series) and whether saturation is reached.
+
+    A row is fully clipped when ``frac_saturated`` ≥ 0.999, or when its mean sits at the top of
+    the series and its temporal variance has collapsed below a tenth of the peak variance (a
+    well that clips before the read-out keeps only read noise there)."""
+    check_not_all_saturated(d)   # every row on the plateau: an input error, not a fit
+    v, m = d.temporal_var_dn2, d.mean_dn
+    vmax = float(v.max())
+    top = m >= m.max() - max(1.0, 1e-4 * m.max())
+    full = top & (v < 0.1 * vmax)
+    if np.any(full):
+        # only rows at the plateau's own variance level (not partly clipped rows beside it)
+        # (within 10 % of the plateau minimum: a row whose variance is higher still has unclipped
+        # pixels — classified as fully clipped it was modelled with the read noise alone, 15–40
+        # standard errors off on simulated well-clipped sensors, and inflated f; the clip-row
+        # model describes it)
+        v_pl = float(np.min(v[full]))
+        full = full & (v <= 1.1 * v_pl + 0.01)
+    partial = np.zeros_like(full)
+    if d.frac_saturated is not None:
+        full = full | (d.frac_saturated >= 0.999)
+        partial = (d.frac_saturated > 0) & ~full
+    if np.all(full):
+        raise PTCInputError("every row is saturated (at the plateau's mean and variance): no row lies on "
+                            "the photon-transfer curve; add exposures below saturation",
+                            path=d.source, column="mean_dn")
+    i_peak = int(np.argmax(np.where(full, -np.inf, v)))
+    above = (~full) & (np.arange(v.size) > i_peak)
+    turnover = bool(np.any(above & (v < 0.8 * v[i_peak])))
+    adc = d.adc_max_dn
+    near_adc = False
+    if adc is not None:
+        nf = ~full
+        if np.any(nf):
+            near_adc = bool(np.any(m[nf] + 4.0 * np.sqrt(v[nf]) >= adc))
+    reached = bool(np.any(full) or np.any(partial) or turnover or near_adc)
+    return full, reached
+
+
+def _clip_mechanism(d: PTCData, full, reached):
+    """How the output clips: at the ADC maximum (everything clipped, plateau variance ≈ 0), or
+    at the full well before the read-out (plateau keeps the read noise)."""
+    adc = d.adc_max_dn
+    if not reached:
+        return "none", None
+    if np.any(full):
+        plateau_m = d.mean_dn[full]
+        plateau_v = d.temporal_var_dn2[full]
+        if adc is not None and np.all(plateau_m >= adc - 0.5):
+            return "adc", (f"the fully clipped rows sit at the ADC maximum {adc:g} DN: the clip level "
+                           "is the ADC's, and the photodiode's own well may be deeper")
+        dark_v = float(np.median(d.dark_temporal_var_dn2))
+        if np.median(plateau_v) >= 0.3 * dark_v:
+            return "well", ("the plateau keeps the read noise: the full well clips before the read-out; "
+                            "its variance also informs the read noise")
+        return "adc_sampled", "the plateau has no noise left: an ADC-like clip at a fitted level"
+    if adc is not None:
+        nf = ~full
+        if np.any(d.mean_dn[nf] + 4.0 * np.sqrt(d.temporal_var_dn2[nf]) >= adc):
+            return "adc", f"the top rows approach the ADC maximum {adc:g} DN"
+        return "well", "the variance turns over below the ADC maximum: the full well clips first"
+    return "adc_sampled", "the variance turns over: a clip at a fitted level"
+
+
+def select_terms(d: PTCData, *, force: dict | None = None) -> ModelTerms:
+    """Decide from the data which terms enter the fit (module docstring), with reasons."""
+    reasons, how = {}, {}
+    t = d.exposure_time_s
+    t_pos = t[t > 0]
+    with np.errstate(over="ignore"):     # a subnormal exposure time: the ratio is inf, still ≥ 1.5
+        multi_t = t_pos.size >= 2 and (t_pos.max() / t_pos.min() >= 1.5)
+    if not multi_t:
+        reasons["dark_current"] = ("all rows share one exposure time: only read² + D·t is "
+                                   "identifiable (reported as dark_noise_e)")
+    full, reached = saturation_flags(d)
+    clip, why = _clip_mechanism(d, full, reached)
+    if clip == "none":
+        reasons["saturation"] = ("no row approaches saturation: the full well is reported as a "
+                                 "lower bound (the largest measured signal)")
+    else:
+        how["saturation"] = why
+    # partially clipped rows need the spread of pixel means about the clip
+    clip_spread = clip != "none"
+    qe = d.photons_per_pixel is not None
+    if not qe:
+        reasons["quantum_efficiency"] = "no photons_per_pixel column"
+    prnu = d.spatial_var_dn2 is not None and np.any(np.isfinite(d.spatial_var_dn2))
+    dsnu = (d.dark_spatial_var_dn2 is not None and np.any(np.isfinite(d.dark_spatial_var_dn2))) or prnu
+    if not prnu:
+        reasons["prnu"] = "no spatial_var_dn2 column: pair differences cancel fixed-pattern noise"
+    if not dsnu:
+        reasons["dsnu"] = "no dark_spatial_var_dn2 column: pair differences cancel fixed-pattern noise"
+    terms = dict(dark_current=multi_t, clip=clip, clip_spread=clip_spread, quantum_efficiency=qe,
+                 prnu=prnu, dsnu=dsnu)
+    if force:
+        terms.update(force)
+    return ModelTerms(**terms, reasons=reasons, how=how)
