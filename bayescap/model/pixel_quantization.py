@@ -33,17 +33,17 @@ _GH_W = _GH_W / _GH_W.sum()
 #: e^{−2π²k²σ_o²}) and the moments (harmonics down to ~e^{−π²n²s²/2}, the 4th moment's products):
 #: at most ~e^{−c}, c = M²·ab/(a + b), a = 2π²σ_o², b = π²s²/2. Each element takes the smallest M
 #: of :data:`_QG_SIZES` (:mod:`~bayescap.model.quantization`) with c ≥ :data:`_QG_C` (measured against 256 points: max error 6e-12 at
-#: c ≥ 23 over s 0.02-0.75 DN, σ_o 1/32-0.7 DN), 1 024 where none does (s below ~0.005 DN). Until
-#: 2026-11-24 every element took M = 32, whose error reached 1.8e-3 DN² where s and σ_o are both
-#: below ~0.05 DN and which was 2-4× more points than needed where they are not.
+#: c ≥ 23 over s 0.02-0.75 DN, σ_o 1/32-0.7 DN), 1 024 where none does (s below ~0.005 DN). A fixed
+#: M = 32 errs by up to 1.8e-3 DN² where s and σ_o are both below ~0.05 DN, and is 2-4× more points
+#: than needed where they are not.
 _QG_M = 32                # below σ_o = 1/_QG_M (and σ_o < s/4): Gauss–Hermite nodes instead of a grid
 #: the Gauss–Hermite nodes need the integrands smooth on the scale of σ_o: σ_o < s/4 (error ≤ 1.5e-13
-#: against a 4 096-point quadrature over s 0.005-0.75 DN; with σ_o between s/2 and 2s they had been
-#: off by up to 1e-3 DN², 4 % of V, measured 2026-11-24), else the grid
+#: against a 4 096-point quadrature over s 0.005-0.75 DN; with σ_o between s/2 and 2s they are
+#: off by up to 1e-3 DN², 4 % of V), else the grid
 _GH_SO_OVER_S = 0.25
 _QG_C = 25.0
 _QG_X = _QG_GRIDS[_QG_M]
-_QG_J = np.arange(-6, 6)  # DN boundaries j + ½ of the Stein term (the wrapped normal's images until 2026-11-24)
+_QG_J = np.arange(-6, 6)  # DN boundaries j + ½ of the Stein term
 #: :func:`_wrapped_normal_grid`: below this σ_o (DN) the images j = −1, 0, 1 (the next ones are
 #: ≥ 1 DN away: e^{−½(1/0.1)²} ≈ 2e-22 of the peak); from it up the Fourier series to
 #: :data:`_WN_K` harmonics (the next one's factor e^{−2π²·15²·0.1²} ≈ 9e-20)
@@ -74,10 +74,9 @@ def _wrapped_normal_grid(delta, so, M=_QG_M):
     Below :data:`_WN_FOURIER_SO` (0.1 DN) the density's three nearest images; from it, its Fourier
     series 1 + 2 Σ_k e^{−2π²k²σ_o²} cos 2πk(x − δ), k ≤ :data:`_WN_K`, whose cosines are the grid's
     (constants) combined with δ's harmonics (:func:`_harmonics`: one sin and one cos per element)
-    in one matrix product: no exponential per grid point. Until 2026-11-24 the sum of twelve
-    images at every grid point (384 exponentials an element) took half of a ``log_prob`` call of a
-    sensor with a spatial stack whose read noise is below 0.5 DN (docs/performance.md,
-    "2026-11-24, 11:25–"). Both forms agree with the sum of ±40 images to 1e-15
+    in one matrix product: no exponential per grid point (a sum of twelve images at every grid
+    point, 384 exponentials an element, takes half of a ``log_prob`` call of a sensor with a
+    spatial stack whose read noise is below 0.5 DN). Both forms agree with the sum of ±40 images to 1e-15
     (``tests/test_calibration_terms.py``)."""
     delta = np.asarray(delta, float)
     so = np.asarray(so, float)
@@ -149,8 +148,8 @@ def _quantized_pixel_moments(delta, s, so):
 
 #: :func:`_quantized_pixel_moments` works on the grid's (elements, M) arrays in chunks of at most this
 #: many points (1 MB a float array): a fast path's 6 000 draws × 13 spatial-stack rows × 16 points
-#: had ~10 MB arrays, and the same work in chunks took 76 instead of 111-114 ms (the largest recorded
-#: call of sbc-s68 of benchmarks/quantization_regime.py, 2026-11-25); each element's numbers are its
+#: had ~10 MB arrays, and the same work in chunks took 76 instead of 111-114 ms (the largest
+#: call of benchmarks/quantization_regime.py); each element's numbers are its
 #: own either way
 _QG_CHUNK_POINTS = 131072
 

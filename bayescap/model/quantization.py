@@ -51,11 +51,10 @@ def _rounded_normal_moments(delta, s, J=6):
     direct sums over the integers j = −J..J with J at most 2 (the DN boundaries beyond ±3/2 are ≥ 11 s
     away for |δ| ≤ 1; ``J`` matters only for :func:`_rounded_normal_moments_sums` called directly).
     With the sums, these moments and the offset solver took most of a fast fit of a 12-bit sensor
-    whose dark noise is half a DN (sim05 of ``benchmarks/speed_accuracy.py``; docs/performance.md,
-    "2026-11-23, 19:40–22:40"); the sums on the 32-point offset grid of
-    :func:`_quantized_pixel_moments` (320 normal CDFs an element) took most of a ``log_prob`` call
-    of a sensor with a spatial stack and 0.2 DN of read noise until the series replaced them from
-    0.045 DN (2026-11-24, "11:25–" in docs/performance.md).
+    whose dark noise is half a DN (sim05 of ``benchmarks/speed_accuracy.py``); the sums on the
+    32-point offset grid of :func:`_quantized_pixel_moments` (320 normal CDFs an element) take most
+    of a ``log_prob`` call of a sensor with a spatial stack and 0.2 DN of read noise, hence the
+    series from 0.045 DN.
     ``delta`` and ``s`` broadcast; an ``s`` that is constant along trailing axes may be given with
     length-1 axes there (a 1-D ``delta`` with ``s`` of shape (n, 1): the grid's harmonics are
     computed once). Each element's numbers depend on its own δ and s only.
@@ -193,7 +192,7 @@ def _rounded_normal_moments_fourier(delta, s, K=4):
     #   m₄ = 3v₄ + v₂/2 + 1/80 + L_c + A₁·P_s + A₁²(½ − 6v₂ + Q_c − 3A₁²),
     # with the sums V_c = 2v₂B₀ + B₂, L_c = B₄ + 4v₂B₃ + 6v₂B₂ − 4v₆B₅, P_s = 12v₄A₄ + 12v₂A₂ − 4A₃
     # and Q_c = 12v₂B₀ + 6B₂ formed from combined coefficients: 5 sums instead of 9, ~11 array
-    # passes instead of ~35 (the same numbers to rounding; until 2026-11-24 term by term)
+    # passes instead of ~35 (the same numbers as term by term, to rounding)
     a1, a3, g2, w2a1 = rn_sin.T                         # α₁, α₃, ωγ₂, ω²α₁
     b0, b2, b4, b3, b5 = rn_cos.T                       # ωα₁, γ₂, γ₄, ωα₃, ω³α₁
     if delta.ndim == 1 and s.shape == (shape[0], 1):
@@ -213,7 +212,7 @@ def _rounded_normal_moments_fourier(delta, s, K=4):
         QS = np.broadcast_to(q * S, (K,) + shape).reshape(K, -1)
         QC = np.broadcast_to(q * C, (K,) + shape).reshape(K, -1)
         if K == 4:
-            # (4, 4) by (4, N) as before 2026-11-24: a row's sums do not depend on N here (tested
+            # (4, 4) by (4, N) directly: a row's sums do not depend on N here (tested
             # with sub-arrays of every size), and the blocked product costs ~5 % of a call on sim05
             A1, A3, A2, A4 = (rn_sin.T @ QS).reshape((4,) + shape)
             B0, B2, B4, B3, B5 = (rn_cos.T @ QC).reshape((5,) + shape)
@@ -306,10 +305,10 @@ def _rounded_offset_boundaries(frac_obs, s_tot, n_iter=12, n_boundaries=6):
 
     Newton starts from the inverse of the nearest boundary's term alone, δ₀ = sign(f)·max(½ +
     s·Φ⁻¹(|f|), 0): every element then meets the 1e-9 DN tolerance within 3 steps (40 000 random
-    offsets and s from 0.01 to 0.3 DN; ``tests/test_calibration_terms.py``). Started from δ₀ = f, as
-    before 2026-11-24, small offsets needed up to 22 steps (the mean is exponentially flat near 0 at
-    small s), more than the 12 allowed, and the solver took 70 % of a ``log_prob`` call of a sensor
-    whose read noise is 0.1 DN (docs/performance.md, "2026-11-24, 11:25–")."""
+    offsets and s from 0.01 to 0.3 DN; ``tests/test_calibration_terms.py``). Started from δ₀ = f,
+    small offsets need up to 22 steps (the mean is exponentially flat near 0 at small s), more
+    than the 12 allowed, and the solver takes 70 % of a ``log_prob`` call of a sensor whose read
+    noise is 0.1 DN."""
     bs = [k + 0.5 for k in range(n_boundaries)]     # positive boundaries; E[round X] is odd in δ
     shape = np.broadcast(frac_obs, s_tot).shape
     fo_all = np.broadcast_to(frac_obs, shape).astype(float).reshape(-1)
@@ -320,8 +319,8 @@ def _rounded_offset_boundaries(frac_obs, s_tot, n_iter=12, n_boundaries=6):
     # Newton on the elements not yet converged only (each element's steps are its own, so the
     # result is the same as iterating all of them until the last one converges: 2.4 passes' worth
     # instead of 4 on a sensor with 0.14 DN of read noise). One boundary at a time on 1-D arrays,
-    # summed in the order np.sum took over an (n, boundaries) array until 2026-11-25 (the same bits,
-    # 30 % less time: that sum over a short last axis and the (n, 3) temporaries were half the cost)
+    # summed in the order np.sum takes over an (n, boundaries) array (the same bits, 30 % less
+    # time: that sum over a short last axis and the (n, 3) temporaries are half its cost)
     idx = None
     d, fo, s = d_all, fo_all, s_all
     lo = np.full(d.size, -0.5)

@@ -17,7 +17,7 @@ __all__ = ["SPLIT_MIN_ELEMENTS", "n_threads"]
 #: simulated Gpixel ROI (90) 2 000 draws 7.2 → 8.3 ms, slower: the hand-over costs ~1 ms
 #: (benchmarks/results/ab_trees_b9fb93f.md). Inside a fast fit the Basler's calls gained nothing
 #: until OpenBLAS's spinning worker was held off (bayescap/_blas.py); since, two halves on two threads
-#: against one: 1 000 draws 0.85, 2 000 0.73, 4 000 0.64 (docs/performance.md, "OpenBLAS threads").
+#: against one: 1 000 draws 0.85, 2 000 0.73, 4 000 0.64.
 SPLIT_MIN_ELEMENTS = 200_000
 
 _SPLIT_POOL = {}
