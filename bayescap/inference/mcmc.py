@@ -24,7 +24,7 @@ from bayescap.inference.diagnostics import (
     interval_end_mcse_mcmc,
     worst_end,
 )
-from bayescap.inference.optimize import _proposal_cov
+from bayescap.inference.curvature import _proposal_cov
 from bayescap.inference.presets import SamplerSettings
 from bayescap.model.ptc_model import PTCModel, _allowed
 

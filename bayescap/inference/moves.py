@@ -7,7 +7,7 @@ from __future__ import annotations
 import emcee
 import numpy as np
 
-from bayescap.inference.optimize import _proposal_cov
+from bayescap.inference.curvature import _proposal_cov
 
 __all__ = ["IndependenceMove"]
 
