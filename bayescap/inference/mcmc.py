@@ -25,7 +25,7 @@ from bayescap.inference.diagnostics import (
     worst_end,
 )
 from bayescap.inference.curvature import _proposal_cov
-from bayescap.inference.presets import SamplerSettings
+from bayescap.inference.presets import FastSettings, SamplerSettings
 from bayescap.model.ptc_model import PTCModel, _allowed
 
 __all__ = ["run_ensembles"]
@@ -67,7 +67,7 @@ def _importance_start(model, x_map, cov, seed, coords=None, n_proposals=6000):
     With ``coords`` (:class:`SamplerCoordinates`), ``x_map`` and ``cov`` are in those
     coordinates and the draws come back in the model's. None when the IS check rejects the draws
     (then: the Laplace ball)."""
-    from bayescap.inference.fast import FastSettings, fast_posterior
+    from bayescap.inference.fast import fast_posterior
 
     target = model if coords is None else coords
     # no gate on the interval ends' Monte Carlo error (the fast preset's default since 2026-11-24

@@ -1,4 +1,5 @@
-"""Sampler settings and the quality presets (fast, standard, accurate)."""
+"""The inference settings in one registry: the MCMC sampler's (:class:`SamplerSettings`), the fast
+path's (:class:`FastSettings`) and the quality presets (fast, standard, accurate)."""
 from __future__ import annotations
 
 from dataclasses import dataclass
@@ -30,6 +31,40 @@ class SamplerSettings:
     # largest Monte Carlo error of a reported 95 % interval end, as a fraction of its width
     # (interval_end_mcse_mcmc; None: computed and reported, not checked)
     end_mcse_target: float | None = None
+
+
+@dataclass(frozen=True)
+class FastSettings:
+    """Knobs of the Laplace–IS fast path (:mod:`bayescap.inference.fast`; ``docs/performance.md``)."""
+
+    nu: float = 4.0               # Student-t degrees of freedom of the proposals
+    n_proposals: int = 6000       # importance draws before any top-up (1 + adapt_rounds vectorised log_prob calls)
+    adapt_fraction: float = 2 / 3  # share drawn from the moment-matched proposals
+    adapt_inflation: float = 1.2  # sd multiplier on the weighted covariance of the draws so far
+    refine_iter: int = 6          # BFGS route only (laplace_start(optimizer="bfgs")): whitened Hessian re-evaluations
+    polish: bool = True           # BFGS route only: whitened gradient ascent after find_map (polish_map)
+    n_draws: int = 4000           # equally weighted draws returned after resampling
+    khat_max: float = 0.7         # accept when Pareto k̂ < khat_max ...
+    min_ess_is: float = 200.0     # ... and the importance-sampling ESS ≥ this
+    n_restarts: int = 0           # extra optimiser starts in find_map
+    retry_restarts: int = 2       # on rejection, retry once with this many restarts
+    scale: float = 1.0            # proposal scale factor on the Laplace covariance (sd multiplier)
+    polish_both: bool = False     # clip coordinates: optimise in the model's coordinates first (the retry does)
+    adapt_rounds: int = 3         # moment-matching rounds sharing the adapt_fraction draws
+    clip_floor_fraction: float = 0.1  # clip coordinates: share of the first draws from _clip_floor_proposal
+    end_mcse_max: float | None = 0.035  # accept only when every interval end's predicted Monte Carlo error ≤ this × width (None: report only)
+    max_proposals: int = 24000    # draws in all, topping up towards end_mcse_max (n_proposals: no top-up)
+    tail_fraction: float = 0.05   # share of the draws from each long one-sided tail the probe finds (_tail_probe; 0: no probe)
+    tail_max_fraction: float = 0.2  # at most this share for all tail (and pair) components together
+    floor_pair: bool = True       # with the clip floor and a tail: tail_fraction more draws from both at once (_pair_proposal)
+    adapt_nu: float | None = None  # degrees of freedom of the moment-matched rounds' t (None: nu)
+    topup: str = "targeted"       # end_mcse_max's top-up: "targeted" (_end_components) or "global" (moment-matched t)
+    topup_components: int = 8     # targeted top-up: at most this many interval ends aimed at per round
+    topup_draws: int | None = None  # targeted top-up: draws per round at least (a quarter of those so far if more; None: n_proposals/4)
+    wide_fraction: float = 0.1    # share of the draws from a defensive t at the MAP, wide_scale × the Laplace sd (0: none)
+    wide_scale: float = 3.0
+    end_tolerance: float = 0.05   # with end_confidence: the error (× width) every interval end should stay within ...
+    end_confidence: float | None = 0.9  # ... with at least this predicted probability, all ends at once (None: per end only)
 
 
 QUALITY_PRESETS = {
