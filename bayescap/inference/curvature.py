@@ -18,9 +18,8 @@ def laplace_covariance(model: PTCModel, x, h=1e-4):
         H_ii = [f(+i) − 2 f(0) + f(−i)] / e_i²
         H_ij = [f(+i+j) + f(−i−j) − f(+i) − f(−i) − f(+j) − f(−j) + 2 f(0)] / (2 e_i e_j)
 
-    (Abramowitz & Stegun 25.3.23/25.3.27; both exact for a quadratic, error O(e²)). The four-point
-    stencil ``f(x±e_i±e_j)`` used before 2026-11-23 took ``2n² + 2n`` points (144 for n = 8, 73
-    now), a third of the fast path's ``log_prob`` points (docs/performance.md, "2026-11-23 (day)")."""
+    (Abramowitz & Stegun 25.3.23/25.3.27; both exact for a quadratic, error O(e²)): 73 points for
+    n = 8, where the four-point stencil ``f(x±e_i±e_j)`` takes ``2n² + 2n`` (144)."""
     step = h * np.maximum(1.0, np.abs(x))
     Y, iu, ju = _unit_stencil(x.size)
     with np.errstate(all="ignore"):   # the stencil may leave the prior support: -inf, handled below
@@ -44,7 +43,7 @@ class _Whitened:
 def refine_covariance(model, x_map, cov, *, max_iter=6, alpha=4.0, h=0.05):
     """Re-evaluate the Laplace covariance in whitened coordinates until it is self-consistent.
 
-    :func:`bayescap.fit.laplace_covariance` differentiates with steps of 1e-4 (relative) in the
+    :func:`laplace_covariance` differentiates with steps of 1e-4 (relative) in the
     raw coordinates, floors the Hessian's eigenvalues at 1e-8 of the largest and caps every sd
     at 1. With a condition number ~1e11 (the saturation plateau ties gain and clip level) the
     floor narrows the weakly identified directions (log f, log g, log D: sd stuck near 0.26),

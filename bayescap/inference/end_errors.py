@@ -30,11 +30,10 @@ def interval_end_mcse(values, w, probs=(0.025, 0.975), n_resampled=None):
     of the resampled count below the end: systematic resampling gives draw i ⌊n w_i⌋ copies and one
     more with probability f_i = frac(n w_i), so that count varies as a sum of Bernoullis given
     their total, S_A·S_B/(S_A + S_B)/n² with S = Σ f_i(1 − f_i) below (A) and above (B) the end.
-    For equal weights that is p(1 − p)(1/n − 1/N), sampling n of N without replacement (the term
-    used before 2026-11-24 afternoon, which left out that unequal weights add to it: at n = N it
-    said 0). Returns the
-    largest over ``probs``, divided by Q(0.975) − Q(0.025) (0 when the width is 0; NaN when the
-    values are not all finite, as :func:`bayescap.fit.interval_end_mcse_mcmc`)."""
+    For equal weights that is p(1 − p)(1/n − 1/N), sampling n of N without replacement; unequal
+    weights add to it (at n = N it is not 0). Returns the largest over ``probs``, divided by
+    Q(0.975) − Q(0.025) (0 when the width is 0; NaN when the values are not all finite, as
+    :func:`bayescap.inference.diagnostics.interval_end_mcse_mcmc`)."""
     errs = _end_errors(values, w, probs, n_resampled)
     return float("nan") if errs is None else max(errs, default=0.0)
 
@@ -134,9 +133,9 @@ def _joint_target(errs, tol, confidence, cap):
     """The per-end error the top-up aims at: the largest g ≤ ``cap`` such that, with every end
     above g brought down to g, all of ``errs`` are within ``tol`` with probability ≥ ``confidence``
     (:func:`_within_logprob`). One end at the gate may keep an error of tol/1.64 (0.030 of the
-    width for tol 0.05, conf 0.9); twenty at once need tol/2.8 each (0.018): the benchmark asks
-    for the worst of ~20 ends within 5 %, which a per-end gate of 0.035 leaves ~0.07 on small ROIs
-    (benchmarks/results/batch_accuracy*.md). ``cap`` when ``confidence`` is None or it holds there."""
+    width for tol 0.05, conf 0.9); twenty at once need tol/2.8 each (0.018), where a per-end gate
+    of 0.035 leaves the worst of ~20 ends ~0.07 off. ``cap`` when ``confidence`` is None or it
+    holds there."""
     if confidence is None or cap is None:
         return cap
     s = np.asarray(errs, float)

@@ -40,8 +40,7 @@ def student_t_logpdf(x, mean, cov, nu):
 def _t_logpdf(mean, cov, nu):
     """``x -> log t_ν(x; mean, cov)`` for rows of ``x``, with the Cholesky factor's inverse and the
     normalising constant computed once: the fast path evaluates each proposal on every batch of draws
-    (a matrix product per call instead of a Cholesky factorisation and a solve: ~8 % of a Basler
-    fast fit before)."""
+    (a matrix product per call instead of a Cholesky factorisation and a solve)."""
     mean = np.asarray(mean, float)
     d = mean.size
     L = np.linalg.cholesky(cov)

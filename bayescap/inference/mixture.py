@@ -29,8 +29,7 @@ class _DensityCache:
     def fill(self, fs, batches):
         """Every density of ``fs`` on every batch of ``batches``, each density evaluated once on the
         batches it has not seen, stacked (a top-up round of m new proposals over K old ones on B
-        batches made K·m + m·B calls; this makes K + m: 3 % off 64 small ROIs' fast paths run one at
-        a time, docs/performance.md, "2026-11-24, 22:15–")."""
+        batches takes K + m calls instead of K·m + m·B)."""
         for f in fs:
             todo = [xb for xb in batches if (id(f), id(xb)) not in self._d]
             if not todo:

@@ -149,9 +149,7 @@ def newton_map(target, starts, *, max_iter: int = 60, h: float = NEWTON_H, alpha
             for s, q in zip(need, Q):
                 s["Q"], s["h"] = q, h
         # stencils that left the support: h/10 and h/100 for every such start in one call (the
-        # first finite one is used; one call per level and start until 2026-11-23 late evening:
-        # sim00 and sim04 of the README's sensors took 39 and 47 log_prob calls per fast fit, now
-        # 31 and 33, benchmarks/fast_path_evaluations.py --set speed_accuracy)
+        # first finite one is used), rather than one call per level and start
         retry = [s for s in active if s["raw"] is None and not np.all(np.isfinite(s["Q"]))]
         if retry:
             R = lp_of(np.vstack([s["x"] + (hh * Y) @ s["L"].T for s in retry

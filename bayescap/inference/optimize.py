@@ -103,7 +103,7 @@ def find_map(model: PTCModel, x0=None, *, n_restarts: int = 2):
 def polish_map(model, x, cov, *, max_iter=30, h=0.02):
     """Gradient ascent in whitened coordinates from ``x`` (a MAP estimate) with covariance ``cov``.
 
-    :func:`bayescap.fit.find_map` (BFGS on central differences with 1e-5 relative steps) can
+    :func:`find_map` (BFGS on central differences with 1e-5 relative steps) can
     stop at its starting point when ``log_prob`` jitters at the 1e-5–1e-4 level (the
     latent-mean Newton iteration stops at a tolerance): measured on a simulated 12-bit sensor,
     it returned the initial guess 115 below the maximum in log posterior. Here the gradient is
@@ -174,9 +174,9 @@ def _refine_and_polish(target, x_map, lp_map, refine_iter, polish):
     return x_map, lp_map, cov
 
 
-#: the optimiser of :func:`laplace_start`: ``"newton"`` (:func:`newton_map`, since 2026-11-23
-#: evening) or ``"bfgs"`` (:func:`find_map` / :func:`find_map_scaled`, then :func:`refine_covariance`
-#: and :func:`polish_map`: the route before, kept for comparison in the benchmarks).
+#: the optimiser of :func:`laplace_start`: ``"newton"`` (:func:`newton_map`) or ``"bfgs"``
+#: (:func:`find_map` / :func:`find_map_scaled`, then :func:`refine_covariance` and
+#: :func:`polish_map`: kept for comparison in the benchmarks).
 LAPLACE_OPTIMIZER = "newton"
 
 
@@ -209,7 +209,7 @@ def laplace_start(model: PTCModel, *, n_restarts: int = 2, refine_iter: int = 6,
     on ``model``; each optimum is mapped by ``start_from_x`` and the covariance, polish and the
     returned (point, log p, covariance) are in those coordinates, log p with their Jacobian. With
     ``polish_both`` each optimum is first refined and polished in the model's coordinates, then in
-    ``coords`` (twice the work; :func:`bayescap.fast.fast_posterior` does this on its retry)."""
+    ``coords`` (twice the work; :func:`bayescap.inference.fast.fast_posterior` does this on its retry)."""
     optimizer = LAPLACE_OPTIMIZER if optimizer is None else optimizer
     if optimizer == "newton":
         return _laplace_start_newton(model, n_restarts, multi_start, coords, polish_both)

@@ -70,12 +70,8 @@ class FastSettings:
 QUALITY_PRESETS = {
     # fast: the Laplace–IS fast path's fallback (bayescap.fit(quality="fast") runs this MCMC preset where
     # the importance draws fail their check). The standard preset's sampler (IS start, IndependenceMove
-    # 70 %, rounds sized from the shortfall) with 2 ensembles and ESS ≥ 200. Until 2026-11-25 it was
-    # DE/stretch from a Laplace ball, 100 burn-in + 150 steps, ≤ 3 rounds: 1.8× slower (27.5 against
-    # 15.0 s over the README's 11 sensors × 3 seeds) at the same interval-end errors against the
-    # `accurate` references (median worst end 0.039 of the width both; > 0.1 in 4/33 against 2/33), and
-    # 29 against ~17 s over the 25 ROIs of the 1 000-ROI batch whose fast path was rejected
-    # (docs/performance.md, "2026-11-25, 01:09–")
+    # 70 %, rounds sized from the shortfall) with 2 ensembles and ESS ≥ 200: ~1.8× faster than
+    # DE/stretch from a Laplace ball at the same interval-end errors against the `accurate` references
     "fast": SamplerSettings(n_ensembles=2, walkers_per_dim=10, n_burn=80, n_steps=60, extend_steps=20, max_rounds=8,
                             ess_target=200, tau_factor=10, max_draws=4000, independence_fraction=0.7,
                             independence_nu=4.0, independence_scale=1.3, adaptive_extend=True, map_restarts=0),
@@ -83,8 +79,8 @@ QUALITY_PRESETS = {
     # 70 % of the steps are IndependenceMove proposals (t, ν 4, sd × 1.3) fitted to the burn-in (share
     # cut where they are rarely accepted), the rest DE 0.8 + stretch 0.2; walkers start from Laplace–IS
     # draws. τ 4–5 steps instead of 16–22. 10 walkers per parameter, 80 burn-in + 80 steps (8·D and
-    # 100 + 100 until 2026-11-24: 11–13 % slower at the same interval-end errors over 88 benchmark fits,
-    # the same coverage on the 200-sensor SBC; docs/performance.md, "Walkers against steps"). The
+    # 100 + 100 are 11–13 % slower at the same interval-end errors and coverage; docs/performance.md,
+    # "Walkers against steps"). The
     # burn-in is not cut further: the Basler dark current's lower tail (an upper limit) takes ~100–200
     # walker-steps to fill from any start (with 40 burn-in + 60 steps its 2.5 % quantile came out 9–16
     # e⁻/s, reference 5.7, flipping the upper-limit flag); rounds after the first are sized from the
@@ -93,10 +89,9 @@ QUALITY_PRESETS = {
                                 independence_fraction=0.7, independence_nu=4.0, independence_scale=1.3,
                                 adaptive_extend=True, map_restarts=0),
     # accurate: every reported interval end's Monte Carlo error ≤ 1 % of its width too (issue 7). Up to 20
-    # rounds of 800 steps (8 before that check, 12 until 2026-11-24 evening): on the simulated sim09 (clip
-    # spread τ ≈ 120 steps) the 50 τ length check passed after 8 rounds with the clip spread's ends at
-    # 1.1 %; seed 11 on an AVX-512 machine still had 1.18 % after 12 rounds (9 600 steps; 1/√n asks for
-    # ~13 400). Rounds run only while a check fails: a run done in 12 has the same chains as before
+    # rounds of 800 steps: with a clip spread τ ≈ 120 steps the 50 τ length check can pass with the clip
+    # spread's ends at 1.1 %, and 12 rounds (9 600 steps) can leave 1.18 % (1/√n asks for ~13 400).
+    # Rounds run only while a check fails
     "accurate": SamplerSettings(n_ensembles=8, n_burn=400, n_steps=800, extend_steps=None, max_rounds=20,
                                 rhat_target=1.005, ess_target=2000, tau_factor=50, max_draws=20000,
                                 end_mcse_target=0.01),

@@ -164,11 +164,11 @@ def _pair_proposal(x_map, c1, nu, axis, floor):
     reach)`` uniform on its side out to 1.25 reach Laplace sds, the clip (``floor = (k, log_a)``) as
     in :func:`_clip_floor_proposal`, the other coordinates from the Laplace t's marginal.
 
-    On the simulated sim09 of ``speed_accuracy.sensor_set`` (10-bit, 878 e⁻ well) the MCMC
-    reference's draws in the clip spread's lower tail have the clip level spread down towards its
-    bound: a corner that neither the floor (the clip spread near its mode) nor the clip spread's own
-    tail proposal (the clip near its mode) reaches, and the clip spread's lower interval end came
-    out 0.04–0.11 of the width too high with k̂ ≈ 0 (docs/performance.md, "Long one-sided tails,
+    On a sensor with a sharp clip edge (a simulated 10-bit, 878 e⁻ well), the posterior's draws in
+    the clip spread's lower tail have the clip level spread down towards its bound: a corner that
+    neither the floor (the clip spread near its mode) nor the clip spread's own tail proposal (the
+    clip near its mode) reaches, and where the clip spread's lower interval end comes out
+    0.04–0.11 of the width too high with k̂ ≈ 0 (docs/performance.md, "Long one-sided tails,
     probed"). Returns (draw(n, rng) -> (x, log q), logpdf(x))."""
     D = x_map.size
     j, side, reach = int(axis[0]), float(axis[1]), float(axis[2])

@@ -8,7 +8,7 @@ import numpy as np
 
 def _no_finite_start(target, x0):
     """Raise the error for an optimiser none of whose starts has a finite log posterior: a
-    :class:`~bayescap.ptc.PTCInputError` naming the file, row and column of the first observation
+    :class:`~bayescap.exceptions.PTCInputError` naming the file, row and column of the first observation
     whose likelihood is not finite at ``x0`` when ``target`` is (or wraps) a :class:`PTCModel` that
     finds one (a zero spatial variance, an exposure time of 1e308 s: values the reader accepts and no
     parameter can explain); a RuntimeError otherwise."""
@@ -45,10 +45,9 @@ MAP_START_LOG_F_SHIFTS = (2.3,)
 
 #: shift of log τ (the clip spread) for the extra optimiser start of :func:`_map_starts` when the
 #: initial guess puts τ at its prior cap (``tau_max_frac`` of the clip level). The cap is a wall
-#: (log prior −∞ beyond it), and a start on it stays there: on sim00 (``benchmarks/speed_accuracy.py``)
-#: both optimisers stopped on the wall, 136-264 nats below the mode at τ 7 times smaller, and the
-#: mode had been reached only by chance (a polish step from one of those points). log τ − 2 reaches
-#: the mode from both f starts; so does −3 (docs/performance.md, "two starts that were luck").
+#: (log prior −∞ beyond it), and a start on it stays there: on a simulated sensor both optimisers
+#: stop on the wall, 136-264 nats below the mode at τ 7 times smaller. log τ − 2 reaches the mode
+#: from both f starts; so does −3 (docs/performance.md, "Local optima").
 MAP_START_LOG_TAU_SHIFT = -2.0
 
 
