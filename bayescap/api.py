@@ -12,7 +12,7 @@ import warnings
 import numpy as np
 
 from bayescap.exceptions import PTCInputError
-from bayescap.inference.fast import FastSettings
+from bayescap.inference import FastSettings
 from bayescap.inference.mcmc import run_ensembles
 from bayescap.inference.presets import QUALITY_PRESETS, SamplerSettings
 from bayescap.io.ptc_csv import PTCData, read_ptc_csv
@@ -158,7 +158,7 @@ def fit(data: PTCData | PTCModel | str, *, seed: int | None = None,
     if isinstance(quality, str) and quality not in QUALITY_PRESETS:
         raise ValueError(f"unknown quality {quality!r}: use one of {', '.join(QUALITY_PRESETS)}")
     if quality == "fast":
-        from bayescap.inference.fast import FastSettings, fast_posterior
+        from bayescap.inference.fast import fast_posterior
 
         fs = fast_settings or FastSettings()
         # with a gate on the interval ends' Monte Carlo error, the top-up covers the derived

@@ -30,7 +30,7 @@ from pathlib import Path
 import numpy as np
 
 from bayescap._blas import one_blas_thread
-from bayescap.inference.fast import FastSettings
+from bayescap.inference import FastSettings
 from bayescap.inference.lockstep import _fast_paths, stack_groups
 
 __all__ = ["fit_many", "gpixel_truths", "gpixel_sensors", "GPIXEL_CSV"]

@@ -421,7 +421,7 @@ class FitResult:
             # its errors of the quantities that are not parameters (~5 % of a batch sensor's time)
             return {n: float(e) for n, e in (self.chains.extra.get("end_mcse") or {}).items()
                     if n not in self.draws}
-        from bayescap.inference.fast import _varies, interval_end_mcse
+        from bayescap.inference.end_errors import _varies, interval_end_mcse
 
         fn = FitResult.derived_values_fn(self.model, metadata=self.metadata, scene=self.scene, mtf=self.mtf,
                                          seed=self.seed)

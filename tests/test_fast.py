@@ -11,7 +11,8 @@ from scipy import stats
 
 import bayescap
 from bayescap import validation
-from bayescap.inference.fast import FastSettings, fast_posterior, psis_weights, student_t_draws, student_t_logpdf
+from bayescap.inference import FastSettings, fast_posterior
+from bayescap.inference.importance import psis_weights, student_t_draws, student_t_logpdf
 from bayescap.api import fast_fit
 from bayescap.exceptions import ConvergenceWarning
 from bayescap.posterior import FitResult
@@ -481,7 +482,7 @@ def test_interval_end_mcse_matches_the_spread_over_replications():
     median over replications) is the observed sd of the ends, /width, within 15 % (the sd of an sd
     estimated from 300 replications is 4 %; the error is the larger of the two ends', 0–10 % above
     either end's own)."""
-    from bayescap.inference.fast import interval_end_mcse
+    from bayescap.inference.end_errors import interval_end_mcse
 
     rng = np.random.default_rng(7)
     width = 2 * 1.959964
@@ -549,7 +550,9 @@ def test_targeted_top_up_needs_fewer_draws_and_aims_beyond_the_ends():
     miss with fewer draws than more moment-matched ones (seeds 1-3, the same first 6 000 draws), and
     its proposals sit beyond the ends they aim at: the lower end's component at a location below the
     weighted 5 % quantile of its quantity, the upper end's above the 95 % one."""
-    from bayescap.inference.fast import _end_components, _end_table, _end_values, interval_end_mcse, psis_weights
+    from bayescap.inference.end_errors import _end_table, _end_values, interval_end_mcse
+    from bayescap.inference.importance import psis_weights
+    from bayescap.inference.proposals import _end_components
 
     model = _gaussian_target()
     base = FastSettings(retry_restarts=0, end_mcse_max=None)
@@ -585,7 +588,8 @@ def test_targeted_top_up_needs_fewer_draws_and_aims_beyond_the_ends():
 def test_density_cache_evaluates_each_proposal_once_on_the_batches_it_has_not_seen():
     """_DensityCache.fill: one call per density over all the batches it lacks (stacked), the same
     values as a call per batch, and nothing evaluated twice."""
-    from bayescap.inference.fast import _DensityCache, _t_logpdf
+    from bayescap.inference.importance import _t_logpdf
+    from bayescap.inference.mixture import _DensityCache
 
     rng = np.random.default_rng(5)
     calls = []
@@ -618,7 +622,7 @@ def test_joint_target_keeps_every_end_within_the_tolerance_with_the_confidence()
     more room; the cap when the probability holds there; NaN errors are left to the caller."""
     from scipy.special import ndtri
 
-    from bayescap.inference.fast import _joint_target, _within_logprob
+    from bayescap.inference.end_errors import _joint_target, _within_logprob
 
     tol = 0.05
     assert _joint_target([0.04], tol, 0.9, 1.0) == pytest.approx(tol / ndtri(0.95), rel=1e-9)
@@ -638,7 +642,7 @@ def test_joint_end_criterion_tops_up_until_all_ends_are_likely_within_tolerance(
     width reaches the confidence, reports it, and the ends are then within 2 tolerances of the exact
     quantiles (seeds 1-3: each end's predicted error is ≤ tol/2.6 there, so 2 tol is > 5 sd). Out of
     reach within max_proposals, it rejects and says why."""
-    from bayescap.inference.fast import _within_logprob
+    from bayescap.inference.end_errors import _within_logprob
 
     model = _gaussian_target()
     base = FastSettings(retry_restarts=0, end_mcse_max=None)
@@ -690,7 +694,8 @@ def test_interval_end_mcse_counts_the_resampling(n, seed, ratio):
     test above; within 15 % of the observed sd, and larger than without the resampling term. n = N
     is what the fast path does after a top-up: with unequal weights resampling still adds (~1.6×
     the weighted error here), where the equal-weight term p(1 − p)(1/n − 1/N) used before said 0."""
-    from bayescap.inference.fast import _systematic_resample, interval_end_mcse
+    from bayescap.inference.end_errors import interval_end_mcse
+    from bayescap.inference.importance import _systematic_resample
 
     rng = np.random.default_rng(seed)
     width = 2 * 1.959964
@@ -767,7 +772,7 @@ def test_tail_probe_finds_the_long_one_sided_tail_and_its_draws_cover_it():
 def test_tail_proposal_is_a_normalised_density_and_draws_from_it(ray):
     """fast._tail_proposal: its log density integrates to 1 (a 2-D grid), is −∞ off its side, and
     the draws' own log q equals it."""
-    from bayescap.inference.fast import _tail_proposal
+    from bayescap.inference.proposals import _tail_proposal
 
     x_map = np.array([0.5, -1.0])
     c1 = np.array([[0.04, 0.03], [0.03, 0.09]])
@@ -789,7 +794,7 @@ def test_pair_proposal_is_a_normalised_density_and_draws_from_it():
     draws it, the rest Laplace t): its log density integrates to 1 over a 3-D grid, is −∞ off its
     support, and the draws carry their own log q (a component whose density disagrees with its
     draws inflates the weights: docs/performance.md, "Long one-sided tails, probed")."""
-    from bayescap.inference.fast import _pair_proposal
+    from bayescap.inference.proposals import _pair_proposal
 
     x_map = np.array([0.5, -1.0, 2.0])
     c1 = np.array([[0.04, 0.01, 0.0], [0.01, 0.09, 0.02], [0.0, 0.02, 0.25]])
@@ -812,7 +817,7 @@ def test_fast_result_reports_the_derived_quantities_end_mcse(basler_csv):
     TR, DR, SNR) as well as the parameters: each is fast.interval_end_mcse of the quantity on the
     weighted draws behind the resampled ones, counting the resampling; at_scene recomputes the
     derived ones for the new scene and keeps the parameters'."""
-    from bayescap.inference.fast import interval_end_mcse
+    from bayescap.inference.end_errors import interval_end_mcse
     from bayescap.model.ptc_model import PTCModel
 
     model = PTCModel(bayescap.load(basler_csv))
@@ -878,18 +883,19 @@ def test_gate_top_up_covers_the_derived_quantities(monkeypatch, basler_csv):
     quantity whose error falls as 1/√N from 0.08 at the default 6 000 draws needs ~11 000 for a
     0.06 gate, which the parameters alone (≤ 0.04 on the Basler) do not ask for; and
     ``bayescap.fit`` with a gate hands the fast path the result's own derived quantities."""
+    import bayescap.inference.end_errors as end_errors_mod
     import bayescap.inference.fast as fast_mod
     from bayescap.model.ptc_model import PTCModel
 
     model = PTCModel(bayescap.load(basler_csv))
-    real = fast_mod._end_errors
+    real = end_errors_mod._end_errors
 
     def stand_in(values, w, probs=(0.025, 0.975), n_resampled=None):
         if np.min(values) > 1e5:          # the probe below
             return [0.08 * np.sqrt(6000.0 / np.size(values))] * len(probs)
         return real(values, w, probs, n_resampled)
 
-    monkeypatch.setattr(fast_mod, "_end_errors", stand_in)
+    monkeypatch.setattr(end_errors_mod, "_end_errors", stand_in)
     probe = lambda x: {"probe": 1e6 + x[:, 0]}        # noqa: E731
     gate = FastSettings(end_mcse_max=0.06, end_confidence=None)     # the per-end gate alone
     _, plain = fast_posterior(model, seed=1, settings=gate)
@@ -898,7 +904,7 @@ def test_gate_top_up_covers_the_derived_quantities(monkeypatch, basler_csv):
     assert dg["accepted"] and dg["n_topup"] > 0 and dg["n_proposals"] >= 10_000
     assert dg["end_mcse"]["probe"] <= 0.06
     assert set(plain["end_mcse"]) < set(dg["end_mcse"])
-    monkeypatch.setattr(fast_mod, "_end_errors", real)
+    monkeypatch.setattr(end_errors_mod, "_end_errors", real)
 
     seen = {}
     real_fp = fast_mod.fast_posterior
@@ -921,7 +927,7 @@ def test_end_mcse_of_non_finite_draws_is_nan_and_the_worst():
     """A parameter with a non-finite draw gets NaN for its interval-end error, as the MCMC side
     (fit.interval_end_mcse_mcmc) does, instead of being left out of the report and the gate; NaN
     is the worst; a constant parameter is still left out (no interval)."""
-    from bayescap.inference.fast import _end_mcse, _worst_end_mcse, interval_end_mcse
+    from bayescap.inference.end_errors import _end_mcse, _worst_end_mcse, interval_end_mcse
     from bayescap.inference.diagnostics import interval_end_mcse_mcmc
 
     rng = np.random.default_rng(0)

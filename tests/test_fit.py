@@ -11,11 +11,14 @@ import bayescap
 from bayescap.report.text import format_text
 from bayescap.inference import chains as inf_chains
 from bayescap.inference import coordinates as inf_coordinates
+from bayescap.inference import curvature as inf_curvature
 from bayescap.inference import diagnostics as inf_diagnostics
 from bayescap.inference import mcmc as inf_mcmc
 from bayescap.inference import moves as inf_moves
+from bayescap.inference import newton as inf_newton
 from bayescap.inference import optimize as inf_optimize
 from bayescap.inference import presets as inf_presets
+from bayescap.inference import starts as inf_starts
 
 EMVA_K_E_PER_DN = 3.571     # emva1288 1.0.2 on the full set: 1/K = 1/0.2801
 EMVA_READ_NOISE_E = 10.92   # sigma_d = sigma_y.dark / K
@@ -160,7 +163,6 @@ def test_walkers_stranded_in_burn_in_are_moved():
     alone put QE's 95 % lower bound at 0.341 (main mode 0.398–0.402, truth 0.3991). Here 12 of 80
     walkers are planted there (g = 0.3, QE = 0.33): burn-in must move every one, and production
     must have none stranded and a QE interval inside the main mode, holding the truth."""
-    import importlib
 
     import numpy as np
 
@@ -240,7 +242,6 @@ def test_laplace_start_finds_the_higher_optimum():
     log p = -408.48); so does the start with a ten times larger variance discrepancy. The extra start
     with log τ - 2 (fit.MAP_START_LOG_TAU_SHIFT) reaches the mode. Checked in log(clip - lower bound)
     coordinates, where mcmc_start and the fast path optimise a free clip level."""
-    import importlib
 
     from bayescap.model.ptc_model import PTCModel
     m = PTCModel(_sim00())
@@ -255,9 +256,9 @@ def test_laplace_start_finds_the_higher_optimum():
     assert lp_x(z) > -408.48
     assert np.all(np.isfinite(cov)) and np.all(np.linalg.eigvalsh(cov) > 0)
     # the optimiser itself reaches the mode from the τ start (not a later step by chance)
-    starts = inf_optimize._map_starts(m)
+    starts = inf_starts._map_starts(m)
     assert len(starts) == 2
-    (end,), _ = inf_optimize.newton_map(c, [c.start_from_x(starts[-1])])
+    (end,), _ = inf_newton.newton_map(c, [c.start_from_x(starts[-1])])
     assert lp_x(end.x) > -408.48
     # the BFGS route (kept for comparison) agrees
     z_b, _, _, _ = inf_optimize.laplace_start(m, n_restarts=0, coords=c, optimizer="bfgs")
@@ -284,7 +285,6 @@ def test_newton_map_finds_a_gaussian_mode_and_its_covariance():
     """A correlated 6-d Gaussian with sds 0.01-0.5 (condition number ~2500), started 3-8 sd away
     from two points: the mode to 1e-4 sd and the covariance to 1e-6 (the stencil is exact for a
     quadratic), the lower start dropped as the same mode, a non-finite start skipped."""
-    import importlib
     rng = np.random.default_rng(3)
     n = 6
     Q, _ = np.linalg.qr(rng.standard_normal((n, n)))
@@ -300,7 +300,7 @@ def test_newton_map_finds_a_gaussian_mode_and_its_covariance():
 
     g = WithWall([m], [C], [1.0])
     starts = [m + L @ rng.normal(0, 3, n), m + L @ rng.normal(0, 5, n), np.full(n, 2e3)]
-    ends, n_calls = inf_optimize.newton_map(g, starts)
+    ends, n_calls = inf_newton.newton_map(g, starts)
     assert len(ends) == 2                       # the start beyond the wall is not an optimum
     best = max(ends, key=lambda o: o.lp)
     assert best.converged and best.reason == "converged"
@@ -316,18 +316,17 @@ def test_newton_map_finds_a_gaussian_mode_and_its_covariance():
     assert other.reason in ("reached the mode of a higher start", "converged")
     assert n_calls < 30
     with pytest.raises(RuntimeError, match="no finite starting point"):
-        inf_optimize.newton_map(g, [np.full(n, 2e3)])
+        inf_newton.newton_map(g, [np.full(n, 2e3)])
 
 
 def test_newton_map_keeps_each_start_on_its_own_mode():
     """Two Gaussians 40 sd apart (weights 0.3 and 0.7): one start near each ends on its own mode,
     with log p and covariance of that component (the other's mass is e^-800 there)."""
-    import importlib
     n = 3
     C1, C2 = np.diag([0.04, 0.09, 0.01]), np.diag([0.01, 0.25, 0.04])
     m1, m2 = np.zeros(n), np.array([8.0, 0.0, 0.0])
     g = _Gaussians([m1, m2], [C1, C2], [0.3, 0.7])
-    ends, _ = inf_optimize.newton_map(g, [m1 + 0.3, m2 - 0.3])
+    ends, _ = inf_newton.newton_map(g, [m1 + 0.3, m2 - 0.3])
     for o, m, C, w in zip(ends, (m1, m2), (C1, C2), (0.3, 0.7)):
         assert o.converged
         np.testing.assert_allclose(o.x, m, atol=1e-6)
@@ -340,7 +339,6 @@ def test_newton_map_next_to_a_wall_retries_the_stencil_at_smaller_steps():
     whitened step h crosses the wall, the retry evaluates it at h/10 and h/100 together (one call of
     2 stencils), and the mode and covariance come out as without the wall (the stencil is exact for
     a quadratic)."""
-    import importlib
     n = 3
     C, m = np.diag([0.04, 0.09, 0.01]), np.zeros(n)
     sizes = []
@@ -351,7 +349,7 @@ def test_newton_map_next_to_a_wall_retries_the_stencil_at_smaller_steps():
             sizes.append(x.shape[0])
             return np.where(x[:, 0] > 0.1 * 0.2, -np.inf, super().log_prob(x))
 
-    ends, n_calls = inf_optimize.newton_map(Wall([m], [C], [1.0]), [m + np.array([-0.3, 0.4, 0.1])])
+    ends, n_calls = inf_newton.newton_map(Wall([m], [C], [1.0]), [m + np.array([-0.3, 0.4, 0.1])])
     (o,) = ends
     assert o.converged
     np.testing.assert_allclose(o.x, m, atol=1e-6)
@@ -371,7 +369,6 @@ def test_slow_burn_in_transient_is_discarded_not_reported(monkeypatch):
     half of the production becomes burn-in. Tolerance: 4 sd of the Monte Carlo error of a median of
     log τ at ESS ≥ 1000 (this run) and ≥ 2000 (the reference): 4 · 1.2533 · 1.10 ·
     sqrt(1/1000 + 1/2000) = 0.21."""
-    import importlib
     # the BFGS route from the initial guess alone: its optimum 136 nats below the mode (Newton from
     # there stays on τ's cap, 160 nats below, with the raw covariance: a start the extra starts exist for)
     monkeypatch.setattr(inf_optimize, "LAPLACE_OPTIMIZER", "bfgs")
@@ -400,22 +397,21 @@ class _Quadratic:
 
 
 def test_laplace_covariance_is_exact_for_a_quadratic_and_second_order_otherwise():
-    import importlib
     rng = np.random.default_rng(5)
     n = 7
     B = rng.standard_normal((n, n))
     A = B @ B.T + n * np.eye(n)          # eigenvalues ≥ n > 1: below laplace_covariance's sd cap
     m = rng.normal(0, 3, n)
-    cov = inf_optimize.laplace_covariance(_Quadratic(A, m), m, h=1e-2)
+    cov = inf_curvature.laplace_covariance(_Quadratic(A, m), m, h=1e-2)
     np.testing.assert_allclose(cov, np.linalg.inv(A), rtol=1e-6, atol=1e-9)
     # with a quartic term the error is O(h²): the second difference of c·d⁴ is 12 c d² + 2 c h²
     x = m + 0.3
     exact = np.linalg.inv(A - np.diag([12 * 2.0 * 0.3**2] + [0] * (n - 1)))
-    errs = [np.max(np.abs(inf_optimize.laplace_covariance(_Quadratic(A, m, c=2.0), x, h=hh) - exact)) for hh in (3e-2, 3e-3)]
+    errs = [np.max(np.abs(inf_curvature.laplace_covariance(_Quadratic(A, m, c=2.0), x, h=hh) - exact)) for hh in (3e-2, 3e-3)]
     assert 50 < errs[0] / errs[1] < 200                       # 100× for a 10× smaller step
     e0 = 3e-2 * max(1.0, abs(x[0]))                           # the step along x₀
     predicted = np.linalg.inv(A - np.diag([12 * 2.0 * 0.3**2 + 2 * 2.0 * e0**2] + [0] * (n - 1)))
-    np.testing.assert_allclose(inf_optimize.laplace_covariance(_Quadratic(A, m, c=2.0), x, h=3e-2), predicted,
+    np.testing.assert_allclose(inf_curvature.laplace_covariance(_Quadratic(A, m, c=2.0), x, h=3e-2), predicted,
                                rtol=1e-6, atol=1e-9)
 
 
@@ -423,7 +419,6 @@ def test_ensembles_in_lockstep_give_the_chains_of_one_after_the_other():
     """_run_segments runs the ensembles of one process in lockstep (one stacked log_prob call for
     their walkers); the chains, log p, final states and proposals are those of _run_segment run
     for each ensemble in turn, bit for bit."""
-    import importlib
 
     from bayescap.model.ptc_model import PTCModel
     model = PTCModel(bayescap.load(Path(__file__).resolve().parents[1] / "data" / "emva1288_basler_ccd12.csv"))
@@ -455,7 +450,6 @@ def test_ensembles_in_lockstep_give_the_chains_of_one_after_the_other():
 def test_convergence_check_in_the_pool_decides_as_one_after_the_other(shift):
     """_default_converged with the ensembles' pool (every quantity diagnosed in the workers) gives
     the answer and the cache of the serial check (stop at the first failure)."""
-    import importlib
     rng = np.random.default_rng(9)
     E, S, W, D = 4, 400, 24, 5
     chain = rng.standard_normal((E, S, W, D))
@@ -492,7 +486,6 @@ def _ar1_walkers(rng, E, S, W, phi):
 def test_quantile_mcse_is_arviz_quantile_mcse_with_walkers_as_chains():
     """fit.quantile_mcse (the MCMC interval ends' Monte Carlo error) is ArviZ 0.x's
     mcse(method="quantile") on the (walkers, steps) layout of the tail ESS, to rounding."""
-    import importlib
 
     import arviz as az
     x = np.exp(0.5 * _ar1_walkers(np.random.default_rng(3), 4, 200, 48, 0.8))   # skewed
@@ -514,7 +507,6 @@ def test_quantile_mcse_matches_the_spread_over_replications():
     quantiles over 300 replications within 15 %: the sd of an sd estimated from 300 replications
     is 4.1 %, and the root mean square of the predictions is far more precise (measured ratios
     0.97–1.05 over three seeds while writing this test)."""
-    import importlib
     rng = np.random.default_rng(11)
     ends, pred = [], []
     for _ in range(300):
@@ -532,7 +524,6 @@ def test_a_walker_that_never_moved_fails_the_length_check_and_extends_the_run():
     fails _default_converged, which asks for a round of extend_steps (before 2026-11-24 it passed
     there and failed only in FitResult's check, so the run stopped NOT CONVERGED unextended)."""
     import dataclasses
-    import importlib
     rng = np.random.default_rng(5)
     chain = np.stack([_ar1_walkers(rng, 4, 100, 24, 0.3) for _ in range(3)], axis=-1)
     settings = dataclasses.replace(inf_presets.QUALITY_PRESETS["standard"], adaptive_extend=True)
@@ -552,7 +543,6 @@ def test_end_mcse_target_extends_the_run_until_the_ends_are_accurate():
     the next round from the 1/√n law; the error of every reported quantity lands in the cache
     either way, and the pool shares the work out without changing it."""
     import dataclasses
-    import importlib
     rng = np.random.default_rng(5)
     chain = np.stack([_ar1_walkers(rng, 4, 400, 24, 0.3) for _ in range(3)], axis=-1)
     reported = lambda ch: {"a": ch[..., 0], "b": np.exp(ch[..., 1]), "c": ch[..., 2]}  # noqa: E731
@@ -584,7 +574,6 @@ def test_mcmc_result_reports_its_interval_ends_monte_carlo_error(basler_fit):
     """A standard fit gives the Monte Carlo error of the 95 % interval ends of every parameter and
     derived quantity that varies (JSON diagnostics and the text report), computed on the final
     chain; the standard preset reports it without a target, the accurate one checks ≤ 1 %."""
-    import importlib
     dg = basler_fit.to_dict()["diagnostics"]
     end = dg["interval_end_mcse"]
     varying = [n for n, v in list(basler_fit.draws.items()) + list(basler_fit.derived.items()) if np.ptp(v) > 0]
@@ -664,7 +653,6 @@ def test_sampler_subclass_gives_emcee_chains_across_rounds():
     run_mcmc) gives the chain of emcee's own EnsembleSampler bit for bit, also when a run is
     continued by a new sampler from the returned state (as run_ensembles' rounds and burn-in halves
     do), and returns the same random state; NaN log-probabilities are refused as emcee does."""
-    import importlib
 
     import emcee
     cov = np.array([[1.0, 0.5, 0.0], [0.5, 2.0, 0.3], [0.0, 0.3, 0.5]])

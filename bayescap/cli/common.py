@@ -61,7 +61,7 @@ def fast_settings_from_args(args):
                          f"(got --quality {args.quality})")
     from dataclasses import replace
 
-    from bayescap.inference.fast import FastSettings
+    from bayescap.inference import FastSettings
 
     fs = FastSettings()
     if tol is not None:

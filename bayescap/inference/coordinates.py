@@ -12,8 +12,7 @@ class SamplerCoordinates:
     proposals and MCMC start work in, Jacobian included: the clip level as ``z = log(clip_dn − lo)``
     where it is free (``lo`` its data-derived lower bound, the largest unclipped row mean), the QE
     as ``log(qe)`` where the model has one; every other coordinate unchanged. The MCMC itself
-    samples the model's coordinates. (``LogClipCoordinates``, its name until 2026-11-25, when it held
-    the clip alone, is the same class.)
+    samples the model's coordinates. ``LogClipCoordinates`` is another name of the same class.
 
     Why the clip: where its posterior piles up against ``lo`` (the well clips just above the
     last unclipped row), the MAP sits on the bound, the Hessian's stencil leaves the support and the
@@ -26,10 +25,9 @@ class SamplerCoordinates:
     Why the QE: with photon counts the mean signal pins QE/K (``S = QE·μ_p/K``) to ~1e-4 where the
     mean discrepancy is small, so the posterior is a thin ridge along ``QE ∝ K``, straight in
     (log K, log QE) and curved in (log K, QE): on a small Gpixel ROI the curve leaves a straight
-    line by 3.4 of the ridge's widths 2.5 sds out, where the t proposals (straight) then draw too
-    rarely, and the fast path's intervals of K, the full well, QE, read noise and capacity came out
-    ~1 % of the width a side too narrow on average over 115 ROIs (+0.011 / −0.012; in log QE
-    −0.003 / +0.005, docs/performance.md, "2026-11-24, 23:28–")."""
+    line by 3.4 of the ridge's widths 2.5 sds out, where straight t proposals draw too rarely: in
+    QE the fast path's intervals of K, the full well, QE, read noise and capacity are ~1 % of the
+    width a side too narrow, in log QE they are not (docs/performance.md)."""
 
     def __init__(self, model):
         self.model, self.names, self.ndim = model, list(model.names), model.ndim
@@ -121,11 +119,9 @@ def mcmc_start(model, *, n_restarts: int = 0):
     A local optimiser in the model's coordinates can stop with the clip level on its lower bound,
     where the Hessian's stencil leaves the support (Newton stops there; :func:`polish_map`, of the
     BFGS route, crawled): on a simulated
-    Gpixel ROI (``benchmarks/local_optima.py``, ROI 17) it stopped 46 nats below the mode, and the
-    standard preset needed a 204-step burn-in extension to get there (docs/performance.md; measured
-    before the closed-form clip moments, with which the start in the model's coordinates reaches
-    the same mode on all 29 sensors of that benchmark, and this one ends ≤ 1 nat lower in x, the z
-    mode). Returns
+    Gpixel ROI (``benchmarks/local_optima.py``, ROI 17) it can stop 46 nats below the mode, which
+    the MCMC then has to climb in burn-in; in ``z`` the mode is interior (docs/performance.md).
+    Returns
     (x_map, lp_map, cov, coords, z_map, cov_z): the point and covariance in the model's coordinates
     (``cov`` by the delta method, ``∂clip/∂z = clip − lo``, ``∂qe/∂z = qe``), and those of ``coords`` (None without)."""
     coords = _sampler_coordinates(model)

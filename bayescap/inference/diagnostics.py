@@ -42,9 +42,8 @@ def _draws_by_ensemble(x):
     """(E, S, W) -> (E, S*W) step-major: each ensemble's draws as one chain for R-hat, in the order
     of the steps, so that R-hat's split into halves (ArviZ's ``_split_chains``) is a split *in time*
     (Vehtari et al. 2021): a drift shared by every ensemble (all start from one approximation) shows
-    as a difference between the halves. Walker-major order (before 2026-11-23) split the walkers
-    instead, and a slow burn-in transient of the clip spread passed the check (docs/performance.md,
-    sim00)."""
+    as a difference between the halves. Walker-major order would split the walkers instead, and a
+    slow burn-in transient of the clip spread would pass the check."""
     E, S, W = x.shape
     return np.ascontiguousarray(x).reshape(E, S * W)
 
@@ -240,7 +239,7 @@ def interval_end_mcse_mcmc(x_esw):
     """Monte Carlo error of the 95 % interval's ends of ensemble draws (E, S, W), as a fraction of
     the interval's width: the larger of the two ends' :func:`quantile_mcse`. 0 for a constant
     quantity; NaN when the draws are not all finite. The MCMC counterpart of
-    :func:`bayescap.fast.interval_end_mcse` (importance draws)."""
+    :func:`bayescap.inference.end_errors.interval_end_mcse` (importance draws)."""
     x = np.asarray(x_esw, float)
     if not np.all(np.isfinite(x)):
         return float("nan")

@@ -1,7 +1,7 @@
 """Many fast paths in lockstep: each sensor's unchanged fast path runs in a greenlet whose model
 hands its ``log_prob`` requests to a :class:`Lockstep` evaluator; once every running path waits, all
 requests are evaluated in one :class:`~bayescap.model.PTCModelStack` call, and each path resumes
-with its own values (bit for bit those of its own model). Used by :func:`bayescap.fit_many` and by
+with its own values (bit for bit those of its own model). Used by :func:`bayescap.batch.fit_many` and by
 the MCMC's ensembles sharing a call."""
 from __future__ import annotations
 

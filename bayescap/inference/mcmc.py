@@ -24,8 +24,8 @@ from bayescap.inference.diagnostics import (
     interval_end_mcse_mcmc,
     worst_end,
 )
-from bayescap.inference.optimize import _proposal_cov
-from bayescap.inference.presets import SamplerSettings
+from bayescap.inference.curvature import _proposal_cov
+from bayescap.inference.presets import FastSettings, SamplerSettings
 from bayescap.model import PTCModel
 from bayescap.model.threads import _allowed
 
@@ -56,23 +56,22 @@ def _moves(settings: SamplerSettings, x_map=None, cov=None, fraction=None):
 def _importance_start(model, x_map, cov, seed, coords=None, n_proposals=6000):
     """Distinct approximate posterior draws to start the walkers from, and their mean and
     covariance for the IndependenceMove's first proposal: the fast path's Laplace–IS
-    (:func:`bayescap.fast.fast_posterior` at this MAP and covariance, default :class:`FastSettings`:
+    (:func:`bayescap.inference.fast.fast_posterior` at this MAP and covariance, default :class:`FastSettings`:
     6 000 importance draws in two ``log_prob`` calls) resampled. Closer to the posterior than the
     Laplace ball where the posterior is skewed; it does not remove the slow filling of the Basler dark
     current's lower tail (docs/performance.md), which is why the standard burn-in is not cut below 80
-    steps (of 10·D walkers; 100 of 8·D before 2026-11-24).
-    The draws reach the long one-sided tails the fast path's probe finds (fewer extra rounds: 7 → 5
-    of 22 benchmark fits), but not the clip floor's pair with a tail (``floor_pair=False``): walkers
-    started in that corner needed more steps, sim09's 140 and 180 → 290 and 404
-    (``benchmarks/standard_sweep.py``, docs/performance.md, "Long one-sided tails, probed").
+    steps (of 10·D walkers).
+    The draws reach the long one-sided tails the fast path's probe finds (fewer extra rounds), but
+    not the clip floor's pair with a tail (``floor_pair=False``): walkers started in that corner
+    need more steps (docs/performance.md, "Long one-sided tails, probed").
     With ``coords`` (:class:`SamplerCoordinates`), ``x_map`` and ``cov`` are in those
     coordinates and the draws come back in the model's. None when the IS check rejects the draws
     (then: the Laplace ball)."""
-    from bayescap.inference.fast import FastSettings, fast_posterior
+    from bayescap.inference.fast import fast_posterior
 
     target = model if coords is None else coords
-    # no gate on the interval ends' Monte Carlo error (the fast preset's default since 2026-11-24
-    # afternoon): these draws only start the walkers, and a top-up or a rejection would change them
+    # no gate on the interval ends' Monte Carlo error (the fast preset's default has one): these
+    # draws only start the walkers, and a top-up or a rejection would change them
     chains, diag = fast_posterior(target, seed=seed, x_map=x_map, cov=cov,
                                   settings=FastSettings(n_draws=4000, floor_pair=False, n_proposals=n_proposals,
                                                         end_mcse_max=None))
@@ -244,9 +243,9 @@ def _reset_stuck_walkers(sampler, state, ndim):
 
 def _default_jobs(n_ensembles):
     """Processes for the ensembles (:func:`bayescap.model.threads._allowed`, ``BAYESCAP_JOBS``): one per
-    core, at most one per ensemble; 1 in a multiprocessing worker, where the ensembles run in lockstep. (Until
-    2026-11-25 a batch worker's MCMC fallback forked a pool of its own: four busy processes on two
-    cores, and a fork per fallback.)"""
+    core, at most one per ensemble; 1 in a multiprocessing worker, where the ensembles run in lockstep (a
+    pool of its own per batch worker's MCMC fallback would oversubscribe the cores and fork per
+    fallback)."""
     return _allowed("BAYESCAP_JOBS", lambda: max(1, min(n_ensembles, os.cpu_count() or 1)))
 
 
@@ -307,9 +306,8 @@ def run_ensembles(model: PTCModel, *, settings: SamplerSettings = SamplerSetting
     the numbers do not depend on ``n_jobs``.
     """
     global _WORKER_MODEL
-    # emcee, imported here and not with the package (see __getattr__ above): before the workers are
-    # forked, so that they inherit it instead of each importing it again (~0.75 s), and before the
-    # fit's clock starts, as when it came with `import bayescap`
+    # emcee, imported here and not with the package: before the workers are forked, so that they
+    # inherit it instead of each importing it again (~0.75 s), and before the fit's clock starts
     from bayescap.inference import moves as _emcee_moves  # noqa: F401
 
     t0 = time.perf_counter()
@@ -376,7 +374,7 @@ def run_ensembles(model: PTCModel, *, settings: SamplerSettings = SamplerSetting
             if sf is not None and sf[0] == "ess" and not sf[2] < settings.rhat_target and chain.shape[1] >= 40:
                 # R-hat failed. Its halves are split in time (_draws_by_ensemble), so this is most
                 # often a drift that every ensemble shares: a burn-in transient slower than n_burn
-                # (the clip spread τ of sim00 relaxes over 300-400 steps). The first half of the
+                # (a clip spread τ can relax over 300-400 steps). The first half of the
                 # production so far becomes burn-in; the checks then run on what follows.
                 cut = (chain.shape[1] // 2) & ~1
                 discard += cut
@@ -442,7 +440,7 @@ def _default_converged(chain, settings, cache=None, derived_fn=None, pool=None, 
         cache["_tau"] = tau
         # an undefined τ (NaN: a walker that has not moved in the whole production, which the
         # IndependenceMove allows at a point its proposal undervalues) fails too, and asks for a
-        # round of extend_steps (before 2026-11-24 NaN passed here and failed in FitResult's check)
+        # round of extend_steps (rather than passing here and failing in FitResult's check)
         need = settings.tau_factor * tau - S
         cache["_shortfall"] = ("tau", float(np.max(need)) if np.all(np.isfinite(need)) else float("nan"))
     if not np.all(S >= settings.tau_factor * tau):

@@ -1,13 +1,13 @@
-"""The emcee-based classes of :mod:`bayescap.fit` (also reachable as ``bayescap.fit.IndependenceMove``
-and ``bayescap.fit._Sampler``), in a module of their own so that ``import bayescap`` does not
-import emcee: emcee's moves import scipy.stats, ~0.75 s of the ~0.9 s the package took to import
-(``python -X importtime -c "import bayescap.cli"``), which a fast-preset fit never needs."""
+"""The emcee-based classes of the MCMC (:mod:`bayescap.inference.mcmc`), in a module of their own
+(``bayescap.inference.IndependenceMove`` loads it on first access) so that ``import bayescap`` does not
+import emcee: emcee's moves import scipy.stats (~0.75 s, ``python -X importtime -c "import
+bayescap.cli"``), which a fast-preset fit never needs."""
 from __future__ import annotations
 
 import emcee
 import numpy as np
 
-from bayescap.inference.optimize import _proposal_cov
+from bayescap.inference.curvature import _proposal_cov
 
 __all__ = ["IndependenceMove"]
 

@@ -1,4 +1,5 @@
-"""Sampler settings and the quality presets (fast, standard, accurate)."""
+"""The inference settings in one registry: the MCMC sampler's (:class:`SamplerSettings`), the fast
+path's (:class:`FastSettings`) and the quality presets (fast, standard, accurate)."""
 from __future__ import annotations
 
 from dataclasses import dataclass
@@ -32,15 +33,45 @@ class SamplerSettings:
     end_mcse_target: float | None = None
 
 
+@dataclass(frozen=True)
+class FastSettings:
+    """Knobs of the Laplace–IS fast path (:mod:`bayescap.inference.fast`; ``docs/performance.md``)."""
+
+    nu: float = 4.0               # Student-t degrees of freedom of the proposals
+    n_proposals: int = 6000       # importance draws before any top-up (1 + adapt_rounds vectorised log_prob calls)
+    adapt_fraction: float = 2 / 3  # share drawn from the moment-matched proposals
+    adapt_inflation: float = 1.2  # sd multiplier on the weighted covariance of the draws so far
+    refine_iter: int = 6          # BFGS route only (laplace_start(optimizer="bfgs")): whitened Hessian re-evaluations
+    polish: bool = True           # BFGS route only: whitened gradient ascent after find_map (polish_map)
+    n_draws: int = 4000           # equally weighted draws returned after resampling
+    khat_max: float = 0.7         # accept when Pareto k̂ < khat_max ...
+    min_ess_is: float = 200.0     # ... and the importance-sampling ESS ≥ this
+    n_restarts: int = 0           # extra optimiser starts in find_map
+    retry_restarts: int = 2       # on rejection, retry once with this many restarts
+    scale: float = 1.0            # proposal scale factor on the Laplace covariance (sd multiplier)
+    polish_both: bool = False     # clip coordinates: optimise in the model's coordinates first (the retry does)
+    adapt_rounds: int = 3         # moment-matching rounds sharing the adapt_fraction draws
+    clip_floor_fraction: float = 0.1  # clip coordinates: share of the first draws from _clip_floor_proposal
+    end_mcse_max: float | None = 0.035  # accept only when every interval end's predicted Monte Carlo error ≤ this × width (None: report only)
+    max_proposals: int = 24000    # draws in all, topping up towards end_mcse_max (n_proposals: no top-up)
+    tail_fraction: float = 0.05   # share of the draws from each long one-sided tail the probe finds (_tail_probe; 0: no probe)
+    tail_max_fraction: float = 0.2  # at most this share for all tail (and pair) components together
+    floor_pair: bool = True       # with the clip floor and a tail: tail_fraction more draws from both at once (_pair_proposal)
+    adapt_nu: float | None = None  # degrees of freedom of the moment-matched rounds' t (None: nu)
+    topup: str = "targeted"       # end_mcse_max's top-up: "targeted" (_end_components) or "global" (moment-matched t)
+    topup_components: int = 8     # targeted top-up: at most this many interval ends aimed at per round
+    topup_draws: int | None = None  # targeted top-up: draws per round at least (a quarter of those so far if more; None: n_proposals/4)
+    wide_fraction: float = 0.1    # share of the draws from a defensive t at the MAP, wide_scale × the Laplace sd (0: none)
+    wide_scale: float = 3.0
+    end_tolerance: float = 0.05   # with end_confidence: the error (× width) every interval end should stay within ...
+    end_confidence: float | None = 0.9  # ... with at least this predicted probability, all ends at once (None: per end only)
+
+
 QUALITY_PRESETS = {
     # fast: the Laplace–IS fast path's fallback (bayescap.fit(quality="fast") runs this MCMC preset where
     # the importance draws fail their check). The standard preset's sampler (IS start, IndependenceMove
-    # 70 %, rounds sized from the shortfall) with 2 ensembles and ESS ≥ 200. Until 2026-11-25 it was
-    # DE/stretch from a Laplace ball, 100 burn-in + 150 steps, ≤ 3 rounds: 1.8× slower (27.5 against
-    # 15.0 s over the README's 11 sensors × 3 seeds) at the same interval-end errors against the
-    # `accurate` references (median worst end 0.039 of the width both; > 0.1 in 4/33 against 2/33), and
-    # 29 against ~17 s over the 25 ROIs of the 1 000-ROI batch whose fast path was rejected
-    # (docs/performance.md, "2026-11-25, 01:09–")
+    # 70 %, rounds sized from the shortfall) with 2 ensembles and ESS ≥ 200: ~1.8× faster than
+    # DE/stretch from a Laplace ball at the same interval-end errors against the `accurate` references
     "fast": SamplerSettings(n_ensembles=2, walkers_per_dim=10, n_burn=80, n_steps=60, extend_steps=20, max_rounds=8,
                             ess_target=200, tau_factor=10, max_draws=4000, independence_fraction=0.7,
                             independence_nu=4.0, independence_scale=1.3, adaptive_extend=True, map_restarts=0),
@@ -48,8 +79,8 @@ QUALITY_PRESETS = {
     # 70 % of the steps are IndependenceMove proposals (t, ν 4, sd × 1.3) fitted to the burn-in (share
     # cut where they are rarely accepted), the rest DE 0.8 + stretch 0.2; walkers start from Laplace–IS
     # draws. τ 4–5 steps instead of 16–22. 10 walkers per parameter, 80 burn-in + 80 steps (8·D and
-    # 100 + 100 until 2026-11-24: 11–13 % slower at the same interval-end errors over 88 benchmark fits,
-    # the same coverage on the 200-sensor SBC; docs/performance.md, "Walkers against steps"). The
+    # 100 + 100 are 11–13 % slower at the same interval-end errors and coverage; docs/performance.md,
+    # "Walkers against steps"). The
     # burn-in is not cut further: the Basler dark current's lower tail (an upper limit) takes ~100–200
     # walker-steps to fill from any start (with 40 burn-in + 60 steps its 2.5 % quantile came out 9–16
     # e⁻/s, reference 5.7, flipping the upper-limit flag); rounds after the first are sized from the
@@ -58,10 +89,9 @@ QUALITY_PRESETS = {
                                 independence_fraction=0.7, independence_nu=4.0, independence_scale=1.3,
                                 adaptive_extend=True, map_restarts=0),
     # accurate: every reported interval end's Monte Carlo error ≤ 1 % of its width too (issue 7). Up to 20
-    # rounds of 800 steps (8 before that check, 12 until 2026-11-24 evening): on the simulated sim09 (clip
-    # spread τ ≈ 120 steps) the 50 τ length check passed after 8 rounds with the clip spread's ends at
-    # 1.1 %; seed 11 on an AVX-512 machine still had 1.18 % after 12 rounds (9 600 steps; 1/√n asks for
-    # ~13 400). Rounds run only while a check fails: a run done in 12 has the same chains as before
+    # rounds of 800 steps: with a clip spread τ ≈ 120 steps the 50 τ length check can pass with the clip
+    # spread's ends at 1.1 %, and 12 rounds (9 600 steps) can leave 1.18 % (1/√n asks for ~13 400).
+    # Rounds run only while a check fails
     "accurate": SamplerSettings(n_ensembles=8, n_burn=400, n_steps=800, extend_steps=None, max_rounds=20,
                                 rhat_target=1.005, ess_target=2000, tau_factor=50, max_draws=20000,
                                 end_mcse_target=0.01),
