@@ -1,6 +1,6 @@
 """Frames -> photon-transfer table: RAW/DNG/TIFF/PNG/.npy frames to the contract CSV.
 
-The pipeline of this module reads like the measurement:
+The pipeline reads like the measurement:
 
 1. a *frame-set description* lists the frames: a manifest CSV (:func:`read_manifest`) or an
    EMVA 1288 descriptor file (:func:`read_emva_descriptor`);
@@ -16,22 +16,8 @@ The pipeline of this module reads like the measurement:
 The steps live in :mod:`bayescap.io.manifest` (1, 2), :mod:`bayescap.io.frames` (3),
 :mod:`bayescap.io.roi` (3) and :mod:`bayescap.io.statistics` (4); this module runs them.
 
-References
-----------
-EMVA Standard 1288, *Standard for Characterization of Image Sensors and Cameras*, Release 4.0
-Linear (European Machine Vision Association, 2021):
-
-* section "Computation of mean and variance of measured gray values": the mean over the ROI of
-  a pair of frames, and the temporal variance from the pair difference,
-  σ²_y = [mean((A−B)²) − (mean(A) − mean(B))²] / 2;
-* section "Evaluation of the measurements according to the photon transfer method": one bright
-  pair per exposure level and a dark pair at the same exposure time;
-* sections "Spatial variances" and "Methods for spatial nonuniformity": the spatial variance over
-  the ROI of the pixel-wise average of a stack of L frames, which still contains the residual
-  temporal variance σ²_y/L (this module does not remove it; the fit does);
-* the descriptor file format of the EMVA 1288 reference implementation
-  (github.com/EMVA1288/emva1288, ``emva1288.process.parser``): ``n bits width height``,
-  ``b texp_ns photons``, ``d texp_ns`` and ``i path`` lines.
+The formulas follow EMVA Standard 1288, Release 4.0 Linear; the sections are cited in
+:mod:`bayescap.io.statistics` and :mod:`bayescap.io.manifest`.
 
 The CSV format is the project's interface contract (photon-transfer CSV); ``docs/ingest.md``
 describes the inputs, options and formulas for users.
