@@ -70,7 +70,7 @@ def measured_mtf(path, *, seed: int = 0, n_boot: int = 200):
     bootstrap intervals are centred on the true MTF) with ``n_boot`` bootstrap draws."""
     from pathlib import Path
 
-    from bayescap.measure.sfr import measure_sfr, read_image, read_mtf_table
+    from bayescap.measure import measure_sfr, read_image, read_mtf_table
     from bayescap.physics.optics import TabulatedMTF
 
     p = Path(path)

@@ -17,7 +17,7 @@ import pytest
 from scipy import stats
 
 from bayescap.exceptions import MTFInputError, MTFWarning
-from bayescap.measure.sfr import SFRResult, measure_sfr, read_mtf_table, synthetic_edge, synthetic_edge_mtf, write_mtf_table
+from bayescap.measure import SFRResult, measure_sfr, read_mtf_table, synthetic_edge, synthetic_edge_mtf, write_mtf_table
 
 tifffile = pytest.importorskip("tifffile")
 

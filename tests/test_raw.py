@@ -17,7 +17,7 @@ import tifffile
 from PIL import Image
 from scipy import stats
 
-from bayescap.io import frames as raw
+import bayescap.io as raw
 from bayescap.exceptions import IngestError
 from bayescap.cli import ingest as cli_ingest
 

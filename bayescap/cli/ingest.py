@@ -5,7 +5,7 @@ import argparse
 import sys
 
 from bayescap.exceptions import IngestError
-from bayescap.io.frames import CHANNELS, ingest
+from bayescap.io import CHANNELS, ingest
 
 
 # --------------------------------------------------------------------------------------------

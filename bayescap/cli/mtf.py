@@ -11,7 +11,7 @@ def _cmd_mtf(args) -> int:
     import json
 
     from bayescap.exceptions import MTFInputError, MTFWarning
-    from bayescap.measure.sfr import measure_sfr, read_image, write_mtf_table
+    from bayescap.measure import measure_sfr, read_image, write_mtf_table
 
     roi = None
     if args.roi:

@@ -11,13 +11,13 @@ from __future__ import annotations
 import csv
 import io
 import math
-import os
 from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
 
 from bayescap.exceptions import PTCInputError
+from bayescap.io.atomic import atomic_write_text
 
 __all__ = ["PTCData", "PTCInputError", "read_ptc_csv", "write_ptc_csv", "REQUIRED_COLUMNS",
            "OPTIONAL_COLUMNS", "METADATA_TYPES"]
@@ -365,19 +365,3 @@ def _fmt(v, col):
     if col in ("n_pixels", "n_frames"):
         return str(int(round(float(v))))
     return repr(float(v))
-
-
-def atomic_write_text(path, text: str):
-    """Write ``text`` to ``path`` atomically: a temp file in the same folder, then rename."""
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_name(f".{path.name}.tmp-{os.getpid()}")
-    try:
-        with open(tmp, "w", encoding="utf-8", newline="") as fh:
-            fh.write(text)
-            fh.flush()
-            os.fsync(fh.fileno())
-        os.replace(tmp, path)
-    finally:
-        if tmp.exists():
-            tmp.unlink()
