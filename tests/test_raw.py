@@ -639,3 +639,15 @@ def test_broken_tiff_frame_is_one_line_of_error(tmp_path):
     assert r.returncode == 2 and not out.exists()
     lines = r.stderr.strip().splitlines()
     assert len(lines) == 1 and lines[0].startswith("bayescap ingest: error:") and "broken.tif" in lines[0], r.stderr
+
+
+def test_raw_file_without_rawpy_is_one_line_naming_the_extra(tmp_path, monkeypatch):
+    """rawpy is the optional 'raw' extra: without it a RAW file is refused in one line that says
+    what to install, not an ImportError traceback."""
+    import sys
+
+    monkeypatch.setitem(sys.modules, "rawpy", None)      # import rawpy now raises ImportError
+    f = tmp_path / "a.dng"
+    f.write_bytes(b"not read")
+    with pytest.raises(IngestError, match=r"a\.dng: reading a RAW or DNG file needs rawpy: pip install 'bayescap\[raw\]'"):
+        raw.read_frame(f)

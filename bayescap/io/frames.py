@@ -149,6 +149,15 @@ def _tag_seconds(value: object) -> float | None:
     return seconds if math.isfinite(seconds) and seconds > 0 else None
 
 
+def _rawpy(path: Path):
+    """rawpy (LibRaw), an optional extra: only RAW and DNG files need it."""
+    try:
+        import rawpy
+    except ImportError:
+        raise IngestError("reading a RAW or DNG file needs rawpy: pip install 'bayescap[raw]'", path=path) from None
+    return rawpy
+
+
 def _read_rawpy(path: Path) -> Frame:
     """Camera RAW or DNG through LibRaw (rawpy).
 
@@ -156,7 +165,7 @@ def _read_rawpy(path: Path) -> Frame:
     of CFA position (i, j) is ``black_level_per_channel[c]`` with ``c`` the colour index of that
     position in ``raw_colors_visible``; the Bayer letters come from ``color_desc``.
     """
-    import rawpy
+    rawpy = _rawpy(path)
 
     try:
         with rawpy.imread(str(path)) as raw:
@@ -324,7 +333,7 @@ def _exposure_time_from_file(path: Path) -> float | None:
         return _tag_seconds(_tiff_tags(path).get(33434))
     if suffix in _PILLOW_SUFFIXES or suffix in _NPY_SUFFIXES:
         return None
-    import rawpy
+    rawpy = _rawpy(path)
 
     try:
         with rawpy.imread(str(path)) as raw:  # opening reads the metadata, not the pixels
