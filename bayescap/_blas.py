@@ -15,18 +15,19 @@ cheap, ~20 µs). Without threadpoolctl it does nothing. The setting is the proce
 thread's: two fits started concurrently from two threads of one process can restore each other's
 saved value in the wrong order and leave BLAS at one thread afterwards (speed only, never numbers).
 """
+
 from __future__ import annotations
 
 import functools
 
-_CONTROLLER = []      # [ThreadpoolController], made at the first call (~1.5 ms; threadpoolctl ~17 ms to import)
+_CONTROLLER = []  # [ThreadpoolController], made at the first call (~1.5 ms; threadpoolctl ~17 ms to import)
 
 
 def _controller():
     if not _CONTROLLER:
         try:
             from threadpoolctl import ThreadpoolController
-        except ImportError:          # an optional speed-up: without it, BLAS keeps its own setting
+        except ImportError:  # an optional speed-up: without it, BLAS keeps its own setting
             _CONTROLLER.append(None)
         else:
             _CONTROLLER.append(ThreadpoolController())

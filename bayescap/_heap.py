@@ -19,6 +19,7 @@ command line does, at start, and a program may (``bayescap.retain_freed_memory()
 
 Setting any of these parameters turns off glibc's dynamic adjustment of the mmap threshold
 for the whole process (``man 3 mallopt``); that is the purpose here."""
+
 from __future__ import annotations
 
 import ctypes
@@ -30,7 +31,7 @@ import sys
 _M_TRIM_THRESHOLD = -1
 _M_MMAP_THRESHOLD = -3
 
-MMAP_THRESHOLD_BYTES = 32 * 1024 * 1024     # glibc's largest allowed value on 64-bit
+MMAP_THRESHOLD_BYTES = 32 * 1024 * 1024  # glibc's largest allowed value on 64-bit
 TRIM_THRESHOLD_BYTES = 256 * 1024 * 1024
 
 _state: dict = {}
@@ -53,7 +54,9 @@ def retain_freed_memory() -> dict:
     if not sys.platform.startswith("linux"):
         _state.update(applied=False, reason=f"not glibc ({sys.platform})")
     elif _env_tunes_malloc(os.environ):
-        _state.update(applied=False, reason="left to the environment (BAYESCAP_NO_MALLOPT, MALLOC_*_ or GLIBC_TUNABLES)")
+        _state.update(
+            applied=False, reason="left to the environment (BAYESCAP_NO_MALLOPT, MALLOC_*_ or GLIBC_TUNABLES)"
+        )
     else:
         try:
             libc = ctypes.CDLL(ctypes.util.find_library("c") or "libc.so.6")
@@ -63,8 +66,10 @@ def retain_freed_memory() -> dict:
         else:
             mallopt.argtypes = (ctypes.c_int, ctypes.c_int)
             mallopt.restype = ctypes.c_int
-            ok = (mallopt(_M_MMAP_THRESHOLD, MMAP_THRESHOLD_BYTES) == 1
-                  and mallopt(_M_TRIM_THRESHOLD, TRIM_THRESHOLD_BYTES) == 1)
+            ok = (
+                mallopt(_M_MMAP_THRESHOLD, MMAP_THRESHOLD_BYTES) == 1
+                and mallopt(_M_TRIM_THRESHOLD, TRIM_THRESHOLD_BYTES) == 1
+            )
             _state.update(applied=bool(ok), reason="mallopt" if ok else "mallopt refused the values")
     return dict(_state)
 

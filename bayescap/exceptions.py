@@ -4,13 +4,24 @@ Every refusal of user input is an :class:`InputError` (a :class:`ValueError`): t
 prints its one-line message and exits with status 2. Its subclasses say which kind of input it
 was; ``path``, ``row`` and ``column`` carry where, for programs.
 """
+
 from __future__ import annotations
 
 import os
 from pathlib import Path
 
-__all__ = ["BayescapError", "InputError", "PTCInputError", "IngestError", "MTFInputError", "CompareInputError",
-           "BayescapWarning", "ConvergenceWarning", "MTFWarning", "IngestWarning"]
+__all__ = [
+    "BayescapError",
+    "InputError",
+    "PTCInputError",
+    "IngestError",
+    "MTFInputError",
+    "CompareInputError",
+    "BayescapWarning",
+    "ConvergenceWarning",
+    "MTFWarning",
+    "IngestWarning",
+]
 
 
 class BayescapError(Exception):
@@ -43,8 +54,9 @@ class IngestError(PTCInputError):
     """The frames or their description cannot be turned into a photon-transfer table; ``path`` is
     a :class:`pathlib.Path` here."""
 
-    def __init__(self, message: str, *, path: os.PathLike | str | None = None,
-                 row: int | None = None, column: str | None = None):
+    def __init__(
+        self, message: str, *, path: os.PathLike | str | None = None, row: int | None = None, column: str | None = None
+    ):
         super().__init__(message, path=path, row=row, column=column)
         self.path = None if path is None else Path(path)
 

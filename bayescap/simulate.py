@@ -11,6 +11,7 @@ The PRNU, DSNU and full-well maps are fixed for a simulated sensor (drawn once f
 shot and read noise are drawn anew for every frame. Rounding without dither gives the 1/12 DN²
 quantization variance.
 """
+
 from __future__ import annotations
 
 from dataclasses import asdict, dataclass
@@ -39,7 +40,7 @@ class SensorTruth:
 
     @property
     def adc_max_dn(self) -> float:
-        return float(2 ** self.adc_bits - 1)
+        return float(2**self.adc_bits - 1)
 
     @property
     def clip_charge_e(self) -> float:
@@ -80,13 +81,15 @@ def _frames(truth: SensorTruth, fp: _FixedPattern, photons, t_s, n, shape, rng):
         if fp.dsnu is not None:
             e += fp.dsnu
         e = np.minimum(e, fp.fw)
-        y = truth.black_level_dn + (e + truth.read_noise_e * rng.standard_normal(shape)) / truth.conversion_gain_e_per_dn
+        y = (
+            truth.black_level_dn
+            + (e + truth.read_noise_e * rng.standard_normal(shape)) / truth.conversion_gain_e_per_dn
+        )
         out[i] = np.clip(np.floor(y + 0.5), 0.0, truth.adc_max_dn)
     return out
 
 
-def simulate_frames(truth: SensorTruth, photons_per_pixel, exposure_time_s, *, shape=(128, 128),
-                    n_frames=2, seed=None):
+def simulate_frames(truth: SensorTruth, photons_per_pixel, exposure_time_s, *, shape=(128, 128), n_frames=2, seed=None):
     """Bright and dark frame stacks for one exposure level: (bright (n, H, W), dark (n, H, W))."""
     rng = np.random.default_rng(seed)
     fp = _FixedPattern(truth, shape, rng)
@@ -101,8 +104,9 @@ def _pair_stats(a, b):
     return 0.5 * (a.mean() + b.mean()), 0.5 * (np.mean(diff * diff) - diff.mean() ** 2)
 
 
-def exposure_series(truth: SensorTruth, n_levels=50, *, max_fraction=1.15, min_fraction=0.002,
-                    t_max_s=0.02, spacing="linear"):
+def exposure_series(
+    truth: SensorTruth, n_levels=50, *, max_fraction=1.15, min_fraction=0.002, t_max_s=0.02, spacing="linear"
+):
     """Photons per pixel and exposure times of an exposure sweep at constant illumination,
     reaching ``max_fraction`` of the clip charge (values > 1 include saturated rows)."""
     top = max_fraction * truth.clip_charge_e / truth.quantum_efficiency
@@ -115,10 +119,22 @@ def exposure_series(truth: SensorTruth, n_levels=50, *, max_fraction=1.15, min_f
     return photons, t
 
 
-def simulate_ptc(truth: SensorTruth, *, photons_per_pixel=None, exposure_time_s=None, n_levels=50,
-                 shape=(100, 100), spatial_frames: int = 0, spatial_every: int = 0, seed=None,
-                 include_photons=True, include_frac_saturated=True, path=None, metadata=None,
-                 max_fraction=1.15) -> PTCData:
+def simulate_ptc(
+    truth: SensorTruth,
+    *,
+    photons_per_pixel=None,
+    exposure_time_s=None,
+    n_levels=50,
+    shape=(100, 100),
+    spatial_frames: int = 0,
+    spatial_every: int = 0,
+    seed=None,
+    include_photons=True,
+    include_frac_saturated=True,
+    path=None,
+    metadata=None,
+    max_fraction=1.15,
+) -> PTCData:
     """Simulate a photon-transfer series frame by frame and return it as PTCData.
 
     With ``spatial_frames = L > 2`` and ``spatial_every = k``, every k-th level also carries the
@@ -132,10 +148,17 @@ def simulate_ptc(truth: SensorTruth, *, photons_per_pixel=None, exposure_time_s=
     photons_per_pixel = np.asarray(photons_per_pixel, float)
     exposure_time_s = np.broadcast_to(np.asarray(exposure_time_s, float), photons_per_pixel.shape)
     fp = _FixedPattern(truth, shape, rng)
-    cols = {k: [] for k in ("exposure_time_s", "mean_dn", "temporal_var_dn2", "dark_mean_dn",
-                            "dark_temporal_var_dn2", "n_pixels")}
-    extra = {"photons_per_pixel": [], "frac_saturated": [], "spatial_var_dn2": [],
-             "dark_spatial_var_dn2": [], "n_frames": []}
+    cols = {
+        k: []
+        for k in ("exposure_time_s", "mean_dn", "temporal_var_dn2", "dark_mean_dn", "dark_temporal_var_dn2", "n_pixels")
+    }
+    extra = {
+        "photons_per_pixel": [],
+        "frac_saturated": [],
+        "spatial_var_dn2": [],
+        "dark_spatial_var_dn2": [],
+        "n_frames": [],
+    }
     npx = int(np.prod(shape))
     for i, (mu_p, t) in enumerate(zip(photons_per_pixel, exposure_time_s)):
         L = spatial_frames if (spatial_frames > 2 and spatial_every and i % spatial_every == 0) else 2

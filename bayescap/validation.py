@@ -11,6 +11,7 @@ exact draws, from the sampler's own Laplace start).
 The paper's integrals by adaptive quadrature, the reference for their closed forms:
 :data:`TR_CASES`, :func:`tr_reference`, :func:`tr_simpson`, :func:`ds_reference`.
 """
+
 from __future__ import annotations
 
 import math
@@ -29,10 +30,18 @@ def _logu(rng, lo, hi):
 #: from it (``draw_sensor_prior``) and every fit uses exactly it (``bayescap.fit(prior=...)``).
 #: Natural-unit bounds of log-uniform priors; QE uniform; f and g log-normal as in production but
 #: with log-sd 1 (a 95 % range of 0.14–7 % for f instead of 0.05–19 %).
-SBC_PRIOR = dict(log_k_bounds=(math.log(0.5), math.log(8.0)), read_log_bounds=(1.0, 20.0),
-                 dark_current_log_bounds=(1.0, 200.0), qe_bounds=(0.3, 0.8),
-                 prnu_log_bounds=(0.003, 0.02), dsnu_log_bounds=(1.0, 20.0),
-                 f_center=0.01, f_log_sd=1.0, g_center=0.005, g_log_sd=1.0)
+SBC_PRIOR = dict(
+    log_k_bounds=(math.log(0.5), math.log(8.0)),
+    read_log_bounds=(1.0, 20.0),
+    dark_current_log_bounds=(1.0, 200.0),
+    qe_bounds=(0.3, 0.8),
+    prnu_log_bounds=(0.003, 0.02),
+    dsnu_log_bounds=(1.0, 20.0),
+    f_center=0.01,
+    f_log_sd=1.0,
+    g_center=0.005,
+    g_log_sd=1.0,
+)
 #: exposure levels per simulated sensor in the classic SBC (cost: see the report)
 SBC_LEVELS = 50
 
@@ -100,11 +109,21 @@ def draw_sensor_prior(rng, n_levels=SBC_LEVELS, spatial_fraction=0.4):
         dsnu = 0.0
     f = float(np.exp(rng.normal(math.log(SBC_PRIOR["f_center"]), SBC_PRIOR["f_log_sd"])))
     g = float(np.exp(rng.normal(math.log(SBC_PRIOR["g_center"]), SBC_PRIOR["g_log_sd"])))
-    truth = SensorTruth(conversion_gain_e_per_dn=K, read_noise_e=rn, full_well_e=fw,
-                        dark_current_e_per_s=dc, quantum_efficiency=qe, prnu_frac=prnu, dsnu_e=dsnu,
-                        full_well_spread_frac=spread, adc_bits=bits, black_level_dn=black)
-    sim = dict(n_levels=n_levels, shape=(100, 100), spatial_frames=8 if spatial else 0,
-               spatial_every=5 if spatial else 0)
+    truth = SensorTruth(
+        conversion_gain_e_per_dn=K,
+        read_noise_e=rn,
+        full_well_e=fw,
+        dark_current_e_per_s=dc,
+        quantum_efficiency=qe,
+        prnu_frac=prnu,
+        dsnu_e=dsnu,
+        full_well_spread_frac=spread,
+        adc_bits=bits,
+        black_level_dn=black,
+    )
+    sim = dict(
+        n_levels=n_levels, shape=(100, 100), spatial_frames=8 if spatial else 0, spatial_every=5 if spatial else 0
+    )
     return truth, sim, {"variance_discrepancy": f, "mean_discrepancy": g}
 
 
@@ -115,8 +134,9 @@ def simulate_prior_sensor(truth, sim, extra, sim_seed):
     from bayescap.simulate import simulate_ptc
 
     data = simulate_ptc(truth, seed=sim_seed, **sim)
-    return inject_discrepancies(data, extra["variance_discrepancy"], extra["mean_discrepancy"],
-                                np.random.default_rng(sim_seed + 7))
+    return inject_discrepancies(
+        data, extra["variance_discrepancy"], extra["mean_discrepancy"], np.random.default_rng(sim_seed + 7)
+    )
 
 
 def inject_discrepancies(data, f, g, rng):
@@ -135,10 +155,12 @@ def inject_discrepancies(data, f, g, rng):
         a = np.asarray(a, float)
         return a * rng.gamma(1.0 / f**2, f**2, size=a.shape)
 
-    kw = dict(temporal_var_dn2=scale(data.temporal_var_dn2),
-              dark_temporal_var_dn2=scale(data.dark_temporal_var_dn2),
-              spatial_var_dn2=scale(data.spatial_var_dn2),
-              dark_spatial_var_dn2=scale(data.dark_spatial_var_dn2))
+    kw = dict(
+        temporal_var_dn2=scale(data.temporal_var_dn2),
+        dark_temporal_var_dn2=scale(data.dark_temporal_var_dn2),
+        spatial_var_dn2=scale(data.spatial_var_dn2),
+        dark_spatial_var_dn2=scale(data.dark_spatial_var_dn2),
+    )
     if data.photons_per_pixel is not None:
         eps = rng.standard_normal(data.photons_per_pixel.shape)
         kw["photons_per_pixel"] = np.asarray(data.photons_per_pixel, float) / np.maximum(1.0 + g * eps, 0.05)
@@ -171,11 +193,19 @@ def draw_sensor(rng):
     else:
         prnu = float(rng.uniform(0.002, 0.01)) if rng.uniform() < 0.5 else 0.0
         dsnu = 0.0
-    truth = SensorTruth(conversion_gain_e_per_dn=K, read_noise_e=rn, full_well_e=fw,
-                        dark_current_e_per_s=dc, quantum_efficiency=qe, prnu_frac=prnu, dsnu_e=dsnu,
-                        full_well_spread_frac=spread, adc_bits=bits, black_level_dn=black)
-    sim = dict(n_levels=50, shape=(100, 100), spatial_frames=8 if spatial else 0,
-               spatial_every=5 if spatial else 0)
+    truth = SensorTruth(
+        conversion_gain_e_per_dn=K,
+        read_noise_e=rn,
+        full_well_e=fw,
+        dark_current_e_per_s=dc,
+        quantum_efficiency=qe,
+        prnu_frac=prnu,
+        dsnu_e=dsnu,
+        full_well_spread_frac=spread,
+        adc_bits=bits,
+        black_level_dn=black,
+    )
+    sim = dict(n_levels=50, shape=(100, 100), spatial_frames=8 if spatial else 0, spatial_every=5 if spatial else 0)
     return truth, sim
 
 
@@ -232,8 +262,11 @@ def thinned_index(result, L, rng):
     E, S, W = result.shape_esw
     tau = float(result.diag["tau_max_steps"])
     if not math.isfinite(tau):  # emcee's estimate failed (seen once at standard quality): be
-        tau = np.nanmax(np.where(np.isfinite(result.chains.tau), result.chains.tau, np.nan)) \
-            if np.any(np.isfinite(result.chains.tau)) else S / 10.0  # cautious: 10 spaced steps
+        tau = (
+            np.nanmax(np.where(np.isfinite(result.chains.tau), result.chains.tau, np.nan))
+            if np.any(np.isfinite(result.chains.tau))
+            else S / 10.0
+        )  # cautious: 10 spaced steps
     step = max(1, int(math.ceil(tau)))
     s0 = int(rng.integers(0, step))
     steps = np.arange(s0, S, step)
@@ -259,6 +292,7 @@ SBC_SETTINGS = dict(n_ensembles=2, n_burn=100, n_steps=200, max_rounds=2, ess_ta
 def _settings(quality):
     if quality == "sbc":
         from bayescap.inference.presets import SamplerSettings
+
         return SamplerSettings(**SBC_SETTINGS)
     return quality
 
@@ -275,7 +309,6 @@ def run_one(args):
     n_levels = args[7] if len(args) > 7 else SBC_LEVELS
     spatial_fraction = args[8] if len(args) > 8 else 0.4
     from bayescap.api import fit
-
     from bayescap.simulate import simulate_ptc
 
     rng = np.random.default_rng(truth_ss)
@@ -300,14 +333,19 @@ def run_one(args):
             # reset moved most of them onto one walker's path) is retried with another seed; the
             # errors are recorded and counted in the report, and a sensor is never dropped silently
             try:
-                res = fit(data, seed=fit_seed + 7919 * attempt, quality=_settings(quality),
-                                   n_jobs=1, prior=prior)
+                res = fit(data, seed=fit_seed + 7919 * attempt, quality=_settings(quality), n_jobs=1, prior=prior)
                 break
             except Exception as exc:  # noqa: BLE001
                 errors.append(f"{type(exc).__name__}: {exc}")
         else:
-            return {"i": i, "truths": truths, "truth": truth.to_dict(), "injected": extra,
-                    "failed": errors, "wall_s": time.perf_counter() - t0}
+            return {
+                "i": i,
+                "truths": truths,
+                "truth": truth.to_dict(),
+                "injected": extra,
+                "failed": errors,
+                "wall_s": time.perf_counter() - t0,
+            }
     wall = time.perf_counter() - t0
     tv = truth_values(truth, res)
     if truths == "prior":
@@ -316,11 +354,23 @@ def run_one(args):
             tv["mean_discrepancy"] = extra["mean_discrepancy"]
     summ = res.parameter_summary()
     idx = thinned_index(res, L, np.random.default_rng(fit_seed + 1))
-    rec = {"i": i, "truths": truths, "truth": truth.to_dict(), "injected": extra, "sim": {k: (list(v) if isinstance(v, tuple) else v) for k, v in sim.items()},
-           "clip": res.model.terms.clip, "adc_clips_first": truth.adc_clips_first,
-           "converged": bool(res.diag["converged"]), "failed_checks": res.diag["failed_checks"],
-           "n_rounds": res.diag["n_rounds"], "tau_max": float(res.diag["tau_max_steps"]), "wall_s": wall,
-           "L": int(idx.size), "fit_errors": errors, "q": {}}
+    rec = {
+        "i": i,
+        "truths": truths,
+        "truth": truth.to_dict(),
+        "injected": extra,
+        "sim": {k: (list(v) if isinstance(v, tuple) else v) for k, v in sim.items()},
+        "clip": res.model.terms.clip,
+        "adc_clips_first": truth.adc_clips_first,
+        "converged": bool(res.diag["converged"]),
+        "failed_checks": res.diag["failed_checks"],
+        "n_rounds": res.diag["n_rounds"],
+        "tau_max": float(res.diag["tau_max_steps"]),
+        "wall_s": wall,
+        "L": int(idx.size),
+        "fit_errors": errors,
+        "q": {},
+    }
     rrng = np.random.default_rng(fit_seed + 2)
     for name, t in tv.items():
         x = res.derived[name] if name in res.derived else res.draws[name]
@@ -328,9 +378,10 @@ def run_one(args):
         rec["q"][name] = {
             "truth": float(t),
             "rank": rank_of(t, x[idx], rrng),
-            "u": float(np.mean(x < t)),            # posterior CDF at the truth, all draws
+            "u": float(np.mean(x < t)),  # posterior CDF at the truth, all draws
             "median": float(qs[3]),
-            "in50": bool(qs[2] <= t <= qs[4]), "in68": bool(qs[1] <= t <= qs[5]),
+            "in50": bool(qs[2] <= t <= qs[4]),
+            "in68": bool(qs[1] <= t <= qs[5]),
             "in95": bool(qs[0] <= t <= qs[6]),
             "rel_sd": float(np.std(x) / abs(qs[3])) if qs[3] else float("nan"),
             "constrained": bool(summ.get(name, {}).get("constrained", True)),
@@ -373,8 +424,11 @@ def independence_moves(mean, cov, fraction=0.5, *, nu=6.0, scale=1.0):
     from bayescap.inference.moves import IndependenceMove
 
     rest = 1.0 - fraction
-    return [(IndependenceMove(mean, cov, nu=nu, scale=scale), fraction),
-            (emcee.moves.DEMove(), 0.8 * rest), (emcee.moves.StretchMove(), 0.2 * rest)]
+    return [
+        (IndependenceMove(mean, cov, nu=nu, scale=scale), fraction),
+        (emcee.moves.DEMove(), 0.8 * rest),
+        (emcee.moves.StretchMove(), 0.2 * rest),
+    ]
 
 
 def independence_registry(cov):
@@ -386,8 +440,9 @@ def independence_registry(cov):
         "Indep 0.5 (exact Σ) + DE/stretch": independence_moves(np.zeros(NDIM), cov, 0.5),
         "Indep 0.5 (shifted, 0.6 sd) + DE/stretch": independence_moves(sd, 0.36 * cov, 0.5),
         "Indep 1.0 (exact Σ)": independence_moves(np.zeros(NDIM), cov, 1.0),
-        "Indep 0.7 ν4 ×1.3 (shifted, 0.6 sd) + DE/stretch (standard)":
-            independence_moves(sd, 0.36 * cov, 0.7, nu=4.0, scale=1.3),
+        "Indep 0.7 ν4 ×1.3 (shifted, 0.6 sd) + DE/stretch (standard)": independence_moves(
+            sd, 0.36 * cov, 0.7, nu=4.0, scale=1.3
+        ),
     }
 
 
@@ -400,12 +455,13 @@ def run_move(moves, cov, *, seed, n_walkers=32, n_burn=1000, n_steps=6000, thin=
     rng = np.random.default_rng(seed)
 
     if log_prob is None:
+
         def log_prob(x):
             return -0.5 * np.einsum("ij,jk,ik->i", x, prec, x)
 
     L = np.linalg.cholesky(cov)
     if p0 is None:
-        p0 = (rng.standard_normal((n_walkers, NDIM)) @ L.T)  # start from the target: no burn-in bias
+        p0 = rng.standard_normal((n_walkers, NDIM)) @ L.T  # start from the target: no burn-in bias
     s = emcee.EnsembleSampler(n_walkers, p0.shape[1], log_prob, vectorize=True, moves=moves)
     s.random_state = np.random.RandomState(seed).get_state()
     st = s.run_mcmc(p0, n_burn, progress=False)
@@ -428,7 +484,7 @@ def banana_draws(n, rng):
     from scipy.stats import truncnorm
 
     y1 = BANANA_S1 * rng.standard_normal(n)
-    x2 = rng.standard_normal(n) + BANANA_B * (y1 ** 2 - BANANA_S1 ** 2)
+    x2 = rng.standard_normal(n) + BANANA_B * (y1**2 - BANANA_S1**2)
     x3 = np.log(rng.gamma(2.0, size=n))
     x4 = truncnorm.rvs(TRUNC_LO, np.inf, size=n, random_state=rng)
     return np.column_stack([y1, x2, x3, x4])
@@ -437,8 +493,8 @@ def banana_draws(n, rng):
 def banana_log_prob(x):
     x = np.atleast_2d(x)
     y1, x2, x3, x4 = x.T
-    y2 = x2 - BANANA_B * (y1 ** 2 - BANANA_S1 ** 2)
-    lp = -0.5 * (y1 / BANANA_S1) ** 2 - 0.5 * y2 ** 2 + (2.0 * x3 - np.exp(x3)) - 0.5 * x4 ** 2
+    y2 = x2 - BANANA_B * (y1**2 - BANANA_S1**2)
+    lp = -0.5 * (y1 / BANANA_S1) ** 2 - 0.5 * y2**2 + (2.0 * x3 - np.exp(x3)) - 0.5 * x4**2
     return np.where(x4 > TRUNC_LO, lp, -np.inf)
 
 
@@ -469,17 +525,24 @@ def check_banana(moves_fn, *, seeds, n_steps, n_walkers=32, probs=(0.025, 0.16, 
     got, accs, taus = [], [], []
     for sd_ in seeds:
         p0 = _initial_ball(tgt, x_map, cov, n_walkers, np.random.default_rng(sd_))
-        x, a, tau = run_move(moves_fn(x_map, cov), cov, seed=sd_, n_steps=n_steps, log_prob=banana_log_prob,
-                             p0=p0, n_walkers=n_walkers)
+        x, a, tau = run_move(
+            moves_fn(x_map, cov), cov, seed=sd_, n_steps=n_steps, log_prob=banana_log_prob, p0=p0, n_walkers=n_walkers
+        )
         got.append(np.vstack([x.mean(0), x.std(0), np.quantile(x, probs, axis=0)]))
         accs.append(a)
         taus.append(tau)
-    got = np.array(got)                      # (seeds, 2 + len(probs), 4)
+    got = np.array(got)  # (seeds, 2 + len(probs), 4)
     err = got.mean(0) - stats_exact
     se = got.std(0, ddof=1) / np.sqrt(len(seeds))
     z = np.abs(err) / se
-    return {"z_max": float(z.max()), "err": err, "se": se, "acceptance": float(np.mean(accs)),
-            "tau": float(np.mean(taus)), "x_map": x_map}
+    return {
+        "z_max": float(z.max()),
+        "err": err,
+        "se": se,
+        "acceptance": float(np.mean(accs)),
+        "tau": float(np.mean(taus)),
+        "x_map": x_map,
+    }
 
 
 # --------------------------------------------------------------------------- the paper's integrals by quadrature
@@ -510,7 +573,7 @@ def tr_reference(a, b, c, s1, s2, floor):
     tot, err = 0.0, 0.0
     for lo, hi in zip(edges[:-1], edges[1:]):
         # substitute s = lo + u² near a 1/sqrt singularity at s = 0 (a → 0): smooth integrand
-        g = lambda u: 2.0 * u * f(lo + u * u)  # noqa: E731
+        g = lambda u, lo=lo: 2.0 * u * f(lo + u * u)  # noqa: E731
         v, e = integrate.quad(g, 0.0, np.sqrt(hi - lo), epsabs=0.0, epsrel=1e-13, limit=500)
         tot, err = tot + v, err + e
     return tot, err
@@ -521,7 +584,7 @@ def tr_simpson(a, b, c, s1, s2, floor, n, grid):
     from scipy import integrate
 
     if grid == "log":
-        lo = s1 if s1 > 0 else 1e-6 * s2   # a log grid cannot start at 0
+        lo = s1 if s1 > 0 else 1e-6 * s2  # a log grid cannot start at 0
         s = np.geomspace(lo, s2, n)
     else:
         s = np.linspace(s1, s2, n)
@@ -541,7 +604,7 @@ def ds_reference(mtf):
     if f_end < fn:
         # the integrand has a log singularity at the cut-off: f = f_end (1 − t²) makes it t·log t
         h = lambda t: 2.0 * f_end * t * g(f_end * (1.0 - t * t))  # noqa: E731
-        with warnings.catch_warnings():   # quad reports roundoff near 1e-13: converged to that
+        with warnings.catch_warnings():  # quad reports roundoff near 1e-13: converged to that
             warnings.simplefilter("ignore", integrate.IntegrationWarning)
             v, _ = integrate.quad(h, 0.0, 1.0, epsabs=0.0, epsrel=1e-13, limit=500)
     else:

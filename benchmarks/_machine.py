@@ -1,4 +1,5 @@
 """One description of the machine for every benchmark's result file."""
+
 import os
 import platform
 
@@ -18,8 +19,10 @@ def describe_machine() -> str:
     import emcee
     import scipy
 
-    return (f"{cpu}, {os.cpu_count()} cores; Python {platform.python_version()}, numpy {np.__version__}, "
-            f"scipy {scipy.__version__}, emcee {emcee.__version__}")
+    return (
+        f"{cpu}, {os.cpu_count()} cores; Python {platform.python_version()}, numpy {np.__version__}, "
+        f"scipy {scipy.__version__}, emcee {emcee.__version__}"
+    )
 
 
 def emit(lines, out=None) -> str:

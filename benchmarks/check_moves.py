@@ -11,6 +11,7 @@ Carlo error, so a bias is real only where it exceeds that spread.
 The targets, the move mixtures and the sampler loop are ``bayescap.validation``'s (tests/test_fast.py
 runs a fixed part of this on them).
 """
+
 from __future__ import annotations
 
 import argparse
@@ -21,8 +22,18 @@ from pathlib import Path
 import numpy as np
 from _machine import describe_machine, emit
 
-from bayescap.validation import (BANANA_B, BANANA_S1, NDIM, TRUNC_LO, check_banana, independence_moves,
-                                 independence_registry, moves_registry, run_move, target_cov)
+from bayescap.validation import (
+    BANANA_B,
+    BANANA_S1,
+    NDIM,
+    TRUNC_LO,
+    check_banana,
+    independence_moves,
+    independence_registry,
+    moves_registry,
+    run_move,
+    target_cov,
+)
 
 OUT = Path(__file__).resolve().parent / "results" / "check_moves.md"
 
@@ -39,8 +50,12 @@ def check(moves, cov, *, seeds, n_steps):
         cov_err.append(float(np.linalg.norm(Li @ c @ Li.T - np.eye(NDIM))))
         acc.append(a)
         taus.append(tau)
-    return {"sd_ratio": np.array(ratios), "cov_err": np.array(cov_err), "acceptance": np.array(acc),
-            "tau": np.array(taus)}
+    return {
+        "sd_ratio": np.array(ratios),
+        "cov_err": np.array(cov_err),
+        "acceptance": np.array(acc),
+        "tau": np.array(taus),
+    }
 
 
 def main(argv=None):
@@ -60,21 +75,39 @@ def main(argv=None):
         worst = int(np.argmax(np.abs(mean_ratio - 1)))
         # Monte Carlo error of the mean ratio: spread across seeds / sqrt(seeds)
         se = sr.std(axis=0, ddof=1) / np.sqrt(sr.shape[0]) if sr.shape[0] > 1 else np.full(NDIM, np.nan)
-        rows.append((name, mean_ratio.min(), mean_ratio.max(), worst, mean_ratio[worst], se[worst],
-                     r["cov_err"].mean(), r["acceptance"].mean(), r["tau"].mean()))
-        print(f"{name:32s} sd ratio {mean_ratio.min():.3f}–{mean_ratio.max():.3f} "
-              f"(worst dim {worst}: {mean_ratio[worst]:.3f} ± {se[worst]:.3f}), cov err {r['cov_err'].mean():.3f}, "
-              f"acc {r['acceptance'].mean():.2f}, τ {r['tau'].mean():.1f}", flush=True)
+        rows.append(
+            (
+                name,
+                mean_ratio.min(),
+                mean_ratio.max(),
+                worst,
+                mean_ratio[worst],
+                se[worst],
+                r["cov_err"].mean(),
+                r["acceptance"].mean(),
+                r["tau"].mean(),
+            )
+        )
+        print(
+            f"{name:32s} sd ratio {mean_ratio.min():.3f}–{mean_ratio.max():.3f} "
+            f"(worst dim {worst}: {mean_ratio[worst]:.3f} ± {se[worst]:.3f}), cov err {r['cov_err'].mean():.3f}, "
+            f"acc {r['acceptance'].mean():.2f}, τ {r['tau'].mean():.1f}",
+            flush=True,
+        )
     ban = {}
-    for name, fn in {"DE 0.8 + Stretch 0.2": lambda m, c: moves_registry()["DE 0.8 + Stretch 0.2 (fit.py)"],
-                     "Indep 0.5 + DE/stretch (Laplace t, ν 6)": lambda m, c: independence_moves(m, c, 0.5),
-                     "Indep 1.0 (Laplace t, ν 6)": lambda m, c: independence_moves(m, c, 1.0),
-                     "Indep 0.7 ν4 ×1.3 + DE/stretch (standard's mix)":
-                         lambda m, c: independence_moves(m, c, 0.7, nu=4.0, scale=1.3)}.items():
+    for name, fn in {
+        "DE 0.8 + Stretch 0.2": lambda m, c: moves_registry()["DE 0.8 + Stretch 0.2 (fit.py)"],
+        "Indep 0.5 + DE/stretch (Laplace t, ν 6)": lambda m, c: independence_moves(m, c, 0.5),
+        "Indep 1.0 (Laplace t, ν 6)": lambda m, c: independence_moves(m, c, 1.0),
+        "Indep 0.7 ν4 ×1.3 + DE/stretch (standard's mix)": lambda m, c: independence_moves(
+            m, c, 0.7, nu=4.0, scale=1.3
+        ),
+    }.items():
         b = check_banana(fn, seeds=range(1, 2 * n_seeds + 1), n_steps=n_steps // 2)
         ban[name] = b
-        print(f"banana {name:40s} max |err|/se {b['z_max']:.2f}, acc {b['acceptance']:.2f}, τ {b['tau']:.1f}",
-              flush=True)
+        print(
+            f"banana {name:40s} max |err|/se {b['z_max']:.2f}, acc {b['acceptance']:.2f}, τ {b['tau']:.1f}", flush=True
+        )
     load = ", ".join(f"{x:.2f}" for x in __import__("os").getloadavg())
     lines = [
         "# emcee move calibration on a known correlated 6-D Gaussian",
@@ -94,23 +127,30 @@ def main(argv=None):
     ]
     for name, lo, hi, w, r, se, ce, acc, tau in rows:
         lines.append(f"| {name} | {lo:.3f} | {hi:.3f} | {w}: {r:.3f} ± {se:.3f} | {ce:.3f} | {acc:.2f} | {tau:.1f} |")
-    lines += ["", "## Non-Gaussian target (banana, log-Gamma, truncated normal), from the Laplace start", "",
-              f"4-D: y1 ~ N(0, {BANANA_S1}²); x2 = y2 + {BANANA_B}(y1² − {BANANA_S1}²), y2 ~ N(0, 1) (banana); "
-              f"x3 = log Gamma(2) (skewed); x4 ~ N(0, 1) truncated at x4 > {TRUNC_LO} (a bound next to the mode). "
-              f"Walkers start from bayescap's Laplace start (`fit.laplace_start`, `fit._initial_ball`), "
-              f"1000 burn-in + {n_steps // 2} steps, {2 * n_seeds} seeds; the independence move proposes from the "
-              "Laplace t at the mode, which is a poor fit here (banana, skew, bound). Compared with 400 000 "
-              "exact draws: mean, sd and the 2.5/16/50/84/97.5 % quantiles of every coordinate (28 numbers); "
-              "z = |error| / standard error across seeds, Student-t with (seeds − 1) dof under a correct sampler; "
-              f"with 28 numbers the Bonferroni bound for a 1 % family-wise false alarm is "
-              f"{__import__('scipy.stats').stats.t.ppf(1 - 0.005 / 28, 2 * n_seeds - 1):.1f}.", "",
-              "| moves | max z | largest error (stat, coord): err ± se | acceptance | τ (steps) |",
-              "|---|---|---|---|---|"]
+    lines += [
+        "",
+        "## Non-Gaussian target (banana, log-Gamma, truncated normal), from the Laplace start",
+        "",
+        f"4-D: y1 ~ N(0, {BANANA_S1}²); x2 = y2 + {BANANA_B}(y1² − {BANANA_S1}²), y2 ~ N(0, 1) (banana); "
+        f"x3 = log Gamma(2) (skewed); x4 ~ N(0, 1) truncated at x4 > {TRUNC_LO} (a bound next to the mode). "
+        f"Walkers start from bayescap's Laplace start (`fit.laplace_start`, `fit._initial_ball`), "
+        f"1000 burn-in + {n_steps // 2} steps, {2 * n_seeds} seeds; the independence move proposes from the "
+        "Laplace t at the mode, which is a poor fit here (banana, skew, bound). Compared with 400 000 "
+        "exact draws: mean, sd and the 2.5/16/50/84/97.5 % quantiles of every coordinate (28 numbers); "
+        "z = |error| / standard error across seeds, Student-t with (seeds − 1) dof under a correct sampler; "
+        f"with 28 numbers the Bonferroni bound for a 1 % family-wise false alarm is "
+        f"{__import__('scipy.stats').stats.t.ppf(1 - 0.005 / 28, 2 * n_seeds - 1):.1f}.",
+        "",
+        "| moves | max z | largest error (stat, coord): err ± se | acceptance | τ (steps) |",
+        "|---|---|---|---|---|",
+    ]
     stat_names = ["mean", "sd", "q2.5", "q16", "q50", "q84", "q97.5"]
     for name, b in ban.items():
         i, j = np.unravel_index(np.argmax(np.abs(b["err"]) / b["se"]), b["err"].shape)
-        lines.append(f"| {name} | {b['z_max']:.2f} | {stat_names[i]}, x{j + 1}: {b['err'][i, j]:+.4f} ± "
-                     f"{b['se'][i, j]:.4f} | {b['acceptance']:.2f} | {b['tau']:.1f} |")
+        lines.append(
+            f"| {name} | {b['z_max']:.2f} | {stat_names[i]}, x{j + 1}: {b['err'][i, j]:+.4f} ± "
+            f"{b['se'][i, j]:.4f} | {b['acceptance']:.2f} | {b['tau']:.1f} |"
+        )
     OUT.parent.mkdir(parents=True, exist_ok=True)
     emit(lines, OUT)
     print("wrote", OUT)

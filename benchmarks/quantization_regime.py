@@ -14,6 +14,7 @@ ensemble, the size of emcee's calls in ``standard``), and the wall time of ``bay
 ``quality="standard"`` and ``"fast"`` (seed 1, the machine's default workers; imports excluded by a
 first fit of the Basler CSV).
 """
+
 from __future__ import annotations
 
 import argparse
@@ -30,29 +31,124 @@ OUT = ROOT / "benchmarks" / "results" / "quantization_regime.md"
 
 #: (label, SensorTruth keywords, spatial stack?) — the SBC's truths, rounded to 4 digits
 SENSORS = [
-    ("sbc-s143", dict(conversion_gain_e_per_dn=6.3283, read_noise_e=1.426, full_well_e=12905.68,
-                      dark_current_e_per_s=2.5509, quantum_efficiency=0.4236, prnu_frac=0.005, dsnu_e=2.0677,
-                      full_well_spread_frac=0.0167, adc_bits=12), True),
-    ("sbc-s196", dict(conversion_gain_e_per_dn=5.5592, read_noise_e=1.1155, full_well_e=6905.64,
-                      dark_current_e_per_s=52.1111, quantum_efficiency=0.5887, prnu_frac=0.0071, dsnu_e=1.0472,
-                      full_well_spread_frac=0.0022, adc_bits=11), True),
-    ("sbc-s68", dict(conversion_gain_e_per_dn=4.6508, read_noise_e=1.0464, full_well_e=13638.71,
-                     dark_current_e_per_s=82.6377, quantum_efficiency=0.4682, prnu_frac=0.0052, dsnu_e=1.1698,
-                     full_well_spread_frac=0.0002, adc_bits=12), True),
-    ("sbc-s107", dict(conversion_gain_e_per_dn=6.4724, read_noise_e=2.819, full_well_e=20212.99,
-                      dark_current_e_per_s=190.1152, quantum_efficiency=0.4826, prnu_frac=0.0069, dsnu_e=2.6976,
-                      full_well_spread_frac=0.0054, adc_bits=13), True),
-    ("sbc-183", dict(conversion_gain_e_per_dn=7.2747, read_noise_e=2.3983, full_well_e=44373.29,
-                     dark_current_e_per_s=24.7456, quantum_efficiency=0.6642, prnu_frac=0.0058, dsnu_e=1.0567,
-                     full_well_spread_frac=0.0029, adc_bits=12), True),
-    ("sbc-99", dict(conversion_gain_e_per_dn=6.4084, read_noise_e=1.5002, full_well_e=34850.94,
-                    dark_current_e_per_s=6.1928, quantum_efficiency=0.5066, prnu_frac=0.0036, dsnu_e=0.0,
-                    full_well_spread_frac=0.0022, adc_bits=13), False),
-    ("sbc-35", dict(conversion_gain_e_per_dn=3.8232, read_noise_e=1.0917, full_well_e=3853.15,
-                    dark_current_e_per_s=3.849, quantum_efficiency=0.3965, prnu_frac=0.0, dsnu_e=0.0,
-                    full_well_spread_frac=0.0118, adc_bits=10), False),
-    ("k10-rn1", dict(conversion_gain_e_per_dn=10.0, read_noise_e=1.0, full_well_e=20000.0,
-                     dark_current_e_per_s=5.0, prnu_frac=0.005, dsnu_e=1.0, adc_bits=12), False),
+    (
+        "sbc-s143",
+        dict(
+            conversion_gain_e_per_dn=6.3283,
+            read_noise_e=1.426,
+            full_well_e=12905.68,
+            dark_current_e_per_s=2.5509,
+            quantum_efficiency=0.4236,
+            prnu_frac=0.005,
+            dsnu_e=2.0677,
+            full_well_spread_frac=0.0167,
+            adc_bits=12,
+        ),
+        True,
+    ),
+    (
+        "sbc-s196",
+        dict(
+            conversion_gain_e_per_dn=5.5592,
+            read_noise_e=1.1155,
+            full_well_e=6905.64,
+            dark_current_e_per_s=52.1111,
+            quantum_efficiency=0.5887,
+            prnu_frac=0.0071,
+            dsnu_e=1.0472,
+            full_well_spread_frac=0.0022,
+            adc_bits=11,
+        ),
+        True,
+    ),
+    (
+        "sbc-s68",
+        dict(
+            conversion_gain_e_per_dn=4.6508,
+            read_noise_e=1.0464,
+            full_well_e=13638.71,
+            dark_current_e_per_s=82.6377,
+            quantum_efficiency=0.4682,
+            prnu_frac=0.0052,
+            dsnu_e=1.1698,
+            full_well_spread_frac=0.0002,
+            adc_bits=12,
+        ),
+        True,
+    ),
+    (
+        "sbc-s107",
+        dict(
+            conversion_gain_e_per_dn=6.4724,
+            read_noise_e=2.819,
+            full_well_e=20212.99,
+            dark_current_e_per_s=190.1152,
+            quantum_efficiency=0.4826,
+            prnu_frac=0.0069,
+            dsnu_e=2.6976,
+            full_well_spread_frac=0.0054,
+            adc_bits=13,
+        ),
+        True,
+    ),
+    (
+        "sbc-183",
+        dict(
+            conversion_gain_e_per_dn=7.2747,
+            read_noise_e=2.3983,
+            full_well_e=44373.29,
+            dark_current_e_per_s=24.7456,
+            quantum_efficiency=0.6642,
+            prnu_frac=0.0058,
+            dsnu_e=1.0567,
+            full_well_spread_frac=0.0029,
+            adc_bits=12,
+        ),
+        True,
+    ),
+    (
+        "sbc-99",
+        dict(
+            conversion_gain_e_per_dn=6.4084,
+            read_noise_e=1.5002,
+            full_well_e=34850.94,
+            dark_current_e_per_s=6.1928,
+            quantum_efficiency=0.5066,
+            prnu_frac=0.0036,
+            dsnu_e=0.0,
+            full_well_spread_frac=0.0022,
+            adc_bits=13,
+        ),
+        False,
+    ),
+    (
+        "sbc-35",
+        dict(
+            conversion_gain_e_per_dn=3.8232,
+            read_noise_e=1.0917,
+            full_well_e=3853.15,
+            dark_current_e_per_s=3.849,
+            quantum_efficiency=0.3965,
+            prnu_frac=0.0,
+            dsnu_e=0.0,
+            full_well_spread_frac=0.0118,
+            adc_bits=10,
+        ),
+        False,
+    ),
+    (
+        "k10-rn1",
+        dict(
+            conversion_gain_e_per_dn=10.0,
+            read_noise_e=1.0,
+            full_well_e=20000.0,
+            dark_current_e_per_s=5.0,
+            prnu_frac=0.005,
+            dsnu_e=1.0,
+            adc_bits=12,
+        ),
+        False,
+    ),
 ]
 
 
@@ -80,17 +176,20 @@ def main(argv=None):
     from bayescap.model.ptc_model import PTCModel
     from bayescap.simulate import SensorTruth, simulate_ptc
 
-    bayescap.fit(bayescap.load(str(ROOT / "data" / "emva1288_basler_ccd12.csv")), seed=1)   # imports, pools
-    lines = ["# Quantization-regime fit times", "",
-             f"Generated by `python benchmarks/quantization_regime.py` (module docstring: sensors and method); "
-             f"machine: {describe_machine()}; load average before the run {os.getloadavg()[0]:.2f}.", "",
-             "| sensor | read noise (DN) | spatial stack | log_prob, 40 draws (ms) | standard (s) | rounds | "
-             "converged | fast (s) | fast accepted |",
-             "|---|---|---|---|---|---|---|---|---|"]
+    bayescap.fit(bayescap.load(str(ROOT / "data" / "emva1288_basler_ccd12.csv")), seed=1)  # imports, pools
+    lines = [
+        "# Quantization-regime fit times",
+        "",
+        f"Generated by `python benchmarks/quantization_regime.py` (module docstring: sensors and method); "
+        f"machine: {describe_machine()}; load average before the run {os.getloadavg()[0]:.2f}.",
+        "",
+        "| sensor | read noise (DN) | spatial stack | log_prob, 40 draws (ms) | standard (s) | rounds | "
+        "converged | fast (s) | fast accepted |",
+        "|---|---|---|---|---|---|---|---|---|",
+    ]
     for i, (label, kw, spatial) in enumerate(SENSORS):
         truth = SensorTruth(**kw)
-        data = simulate_ptc(truth, seed=1000 + i, spatial_frames=8 if spatial else 0,
-                            spatial_every=5 if spatial else 0)
+        data = simulate_ptc(truth, seed=1000 + i, spatial_frames=8 if spatial else 0, spatial_every=5 if spatial else 0)
         ms = _time_call(PTCModel(data))
         t0 = time.perf_counter()
         r = bayescap.fit(data, seed=1, quality="standard")
@@ -98,13 +197,14 @@ def main(argv=None):
         t0 = time.perf_counter()
         f = bayescap.fit(data, seed=1, quality="fast")
         t_fast = time.perf_counter() - t0
-        row = (f"| {label} | {truth.read_noise_e / truth.conversion_gain_e_per_dn:.3f} | {'yes' if spatial else 'no'} | "
-               f"{ms:.2f} | {t_std:.2f} | {r.diag.get('n_rounds')} | {r.diag.get('converged')} | {t_fast:.2f} | "
-               f"{f.diag.get('method') == 'laplace-is'} |")
+        row = (
+            f"| {label} | {truth.read_noise_e / truth.conversion_gain_e_per_dn:.3f} | {'yes' if spatial else 'no'} | "
+            f"{ms:.2f} | {t_std:.2f} | {r.diag.get('n_rounds')} | {r.diag.get('converged')} | {t_fast:.2f} | "
+            f"{f.diag.get('method') == 'laplace-is'} |"
+        )
         print(row, flush=True)
         lines.append(row)
-    lines += ["", "`fast accepted` False: the fast path rejected itself and the MCMC fallback ran (its time "
-              "included)."]
+    lines += ["", "`fast accepted` False: the fast path rejected itself and the MCMC fallback ran (its time included)."]
     emit(lines, OUT)
 
 

@@ -9,6 +9,7 @@ with the checkout first on ``PYTHONPATH`` so that it measures this tree's ``baye
 passes ``--quick`` to the benchmarks that have a shorter development run (their results file says
 so); the others run in full. Run one directly for its own options (``python benchmarks/NAME.py -h``).
 """
+
 from __future__ import annotations
 
 import argparse
@@ -24,27 +25,56 @@ RESULTS = HERE / "results"
 
 #: name -> (what it measures, rough run time on 2 cores, rough time with --quick or None)
 BENCHMARKS = {
-    "speed_accuracy": ("fast, standard and accurate presets on the Basler CCD and 10 simulated sensors: wall time, "
-                       "ESS/s, interval-end error against an accurate reference, coverage; naive emcee baselines",
-                       "20-40 min", "5-8 min"),
-    "batch_accuracy": ("the batch of simulated Gpixel ROIs: fit_many throughput on 1000 ROIs with and without the "
-                       "MCMC fallback, and the accepted fast-path intervals against pooled standard MCMC references",
-                       "10-20 min", "1-2 min"),
-    "sbc": ("simulation-based calibration on 200 simulated sensors: rank uniformity and 50/68/95 % coverage "
-            "per quantity (also writes sbc_ranks.png)", "5-10 min", "1 min"),
-    "integral_accuracy": ("tonal-range and MTF-loss integrals against quadrature; cost of propagating 10 000 draws",
-                          "10 s", None),
-    "check_moves": ("emcee moves and the IndependenceMove on a known 6-D Gaussian and a banana/skewed/truncated "
-                    "target", "3-6 min", "1 min"),
-    "corrupt_inputs": ("the bundled Basler CSV corrupted ~150 ways through `bayescap fit --quality fast`: every "
-                       "variant fits or is refused in one line", "1-3 min", None),
-    "basler_vs_emva1288": ("the Basler conversion gain by emva1288's recipe, other least-squares fits and the "
-                           "bayescap posterior", "10 s", None),
+    "speed_accuracy": (
+        "fast, standard and accurate presets on the Basler CCD and 10 simulated sensors: wall time, "
+        "ESS/s, interval-end error against an accurate reference, coverage; naive emcee baselines",
+        "20-40 min",
+        "5-8 min",
+    ),
+    "batch_accuracy": (
+        "the batch of simulated Gpixel ROIs: fit_many throughput on 1000 ROIs with and without the "
+        "MCMC fallback, and the accepted fast-path intervals against pooled standard MCMC references",
+        "10-20 min",
+        "1-2 min",
+    ),
+    "sbc": (
+        "simulation-based calibration on 200 simulated sensors: rank uniformity and 50/68/95 % coverage "
+        "per quantity (also writes sbc_ranks.png)",
+        "5-10 min",
+        "1 min",
+    ),
+    "integral_accuracy": (
+        "tonal-range and MTF-loss integrals against quadrature; cost of propagating 10 000 draws",
+        "10 s",
+        None,
+    ),
+    "check_moves": (
+        "emcee moves and the IndependenceMove on a known 6-D Gaussian and a banana/skewed/truncated target",
+        "3-6 min",
+        "1 min",
+    ),
+    "corrupt_inputs": (
+        "the bundled Basler CSV corrupted ~150 ways through `bayescap fit --quality fast`: every "
+        "variant fits or is refused in one line",
+        "1-3 min",
+        None,
+    ),
+    "basler_vs_emva1288": (
+        "the Basler conversion gain by emva1288's recipe, other least-squares fits and the bayescap posterior",
+        "10 s",
+        None,
+    ),
     "bench_logprob": ("cost of one vectorised PTCModel.log_prob call on the bundled and benchmark CSVs", "10 s", None),
-    "fast_budget": ("where the fast path's time goes: log_prob calls against the rest, per phase, on the "
-                    "speed_accuracy sensors", "30 s", None),
-    "quantization_regime": ("fit times (standard, fast) and log_prob cost of sensors with read noise below half a DN",
-                            "1-3 min", None),
+    "fast_budget": (
+        "where the fast path's time goes: log_prob calls against the rest, per phase, on the speed_accuracy sensors",
+        "30 s",
+        None,
+    ),
+    "quantization_regime": (
+        "fit times (standard, fast) and log_prob cost of sensors with read noise below half a DN",
+        "1-3 min",
+        None,
+    ),
 }
 
 
@@ -80,8 +110,11 @@ def main(argv=None):
     a = ap.parse_args(argv)
     if a.list or not (a.names or a.all):
         for name, (what, full, quick) in BENCHMARKS.items():
-            print(f"{name:20s} {full:>10s}" + (f" (--quick {quick})" if quick else "")
-                  + f"  -> {results_file(name).relative_to(ROOT)}\n{'':20s} {what}")
+            print(
+                f"{name:20s} {full:>10s}"
+                + (f" (--quick {quick})" if quick else "")
+                + f"  -> {results_file(name).relative_to(ROOT)}\n{'':20s} {what}"
+            )
         return 0
     unknown = [n for n in a.names if n not in BENCHMARKS]
     if unknown:
@@ -90,8 +123,11 @@ def main(argv=None):
     outcome = {n: run(n, a.quick) for n in names}
     print("\nSummary:")
     for n, (written, code) in outcome.items():
-        print(f"  {n:20s} " + (f"wrote {results_file(n).relative_to(ROOT)}" if written else "FAILED")
-              + (f" (exit code {code})" if code else ""))
+        print(
+            f"  {n:20s} "
+            + (f"wrote {results_file(n).relative_to(ROOT)}" if written else "FAILED")
+            + (f" (exit code {code})" if code else "")
+        )
     return 0 if all(w and not c for w, c in outcome.values()) else 1
 
 

@@ -13,6 +13,7 @@ width, and (simulated sensors) whether the truth falls inside the 95 % interval.
 Writes ``benchmarks/results/speed_accuracy.md`` (a ``--quick`` run too, saying so). The batch of
 simulated Gpixel ROIs (throughput and accuracy) is ``benchmarks/batch_accuracy.py``.
 """
+
 from __future__ import annotations
 
 import argparse
@@ -40,19 +41,29 @@ def sensor_set(n_sim: int, seed: int = 2024):
         bits = int(rng.choice([10, 12, 12, 14]))
         k = float(np.exp(rng.uniform(np.log(0.3), np.log(10.0))))
         adc_e = (2**bits - 1 - 64) * k
-        fw = float(np.exp(rng.uniform(np.log(0.3), np.log(1.5))) * adc_e)   # ADC or well clips first
-        truth = SensorTruth(conversion_gain_e_per_dn=k, read_noise_e=float(np.exp(rng.uniform(np.log(1), np.log(30)))),
-                            full_well_e=fw, dark_current_e_per_s=float(rng.choice([0.0, 30.0, 300.0])),
-                            quantum_efficiency=float(rng.uniform(0.3, 0.8)), prnu_frac=0.005,
-                            full_well_spread_frac=0.005, adc_bits=bits)
+        fw = float(np.exp(rng.uniform(np.log(0.3), np.log(1.5))) * adc_e)  # ADC or well clips first
+        truth = SensorTruth(
+            conversion_gain_e_per_dn=k,
+            read_noise_e=float(np.exp(rng.uniform(np.log(1), np.log(30)))),
+            full_well_e=fw,
+            dark_current_e_per_s=float(rng.choice([0.0, 30.0, 300.0])),
+            quantum_efficiency=float(rng.uniform(0.3, 0.8)),
+            prnu_frac=0.005,
+            full_well_spread_frac=0.005,
+            adc_bits=bits,
+        )
         d = simulate_ptc(truth, n_levels=50, seed=seed + i)
         out.append((f"sim{i:02d} K={k:.2g} σr={truth.read_noise_e:.2g} FW={truth.clip_charge_e:.3g} {bits}b", d, truth))
     return out
 
 
 def truth_values(truth):
-    t = {"conversion_gain_e_per_dn": truth.conversion_gain_e_per_dn, "full_well_e": truth.clip_charge_e,
-         "quantum_efficiency": truth.quantum_efficiency, "read_noise_e": truth.read_noise_e}
+    t = {
+        "conversion_gain_e_per_dn": truth.conversion_gain_e_per_dn,
+        "full_well_e": truth.clip_charge_e,
+        "quantum_efficiency": truth.quantum_efficiency,
+        "read_noise_e": truth.read_noise_e,
+    }
     return t
 
 
@@ -151,7 +162,7 @@ def naive_emcee(data, *, seed, n_walkers=32, n_burn=500, n_steps=2000):
     r0 = np.sqrt(max((np.median(vd) - 1 / 12) * k0 * k0, 1.0))
     p0 = np.array([np.log(k0), np.log(r0)]) + 1e-3 * rng.standard_normal((n_walkers, 2))
     t0 = time.perf_counter()
-    sampler = emcee.EnsembleSampler(n_walkers, 2, log_prob)   # StretchMove, vectorize=False
+    sampler = emcee.EnsembleSampler(n_walkers, 2, log_prob)  # StretchMove, vectorize=False
     sampler.random_state = np.random.RandomState(seed).get_state()
     sampler.run_mcmc(p0, n_burn + n_steps, progress=False)
     wall = time.perf_counter() - t0
@@ -168,6 +179,7 @@ def naive_emcee_full(data, *, seed, n_walkers=32, n_burn=500, n_steps=2000):
     Returns (wall s, min bulk/tail ESS over parameters, max rank R-hat over 4 groups of walkers)."""
     import arviz as az
     import emcee
+
     from bayescap.model.ptc_model import PTCModel
 
     m = PTCModel(data)
@@ -191,8 +203,10 @@ def naive_emcee_full(data, *, seed, n_walkers=32, n_burn=500, n_steps=2000):
         warnings.simplefilter("ignore")
         ess = min(float(az.ess(ch[..., j].T, method=q)) for j in range(m.ndim) for q in ("bulk", "tail"))
         g = ch.shape[1] // 4
-        rhat = max(float(az.rhat(np.stack([ch[:, i * g:(i + 1) * g, j].T.reshape(-1) for i in range(4)]),
-                                 method="rank")) for j in range(m.ndim))
+        rhat = max(
+            float(az.rhat(np.stack([ch[:, i * g : (i + 1) * g, j].T.reshape(-1) for i in range(4)]), method="rank"))
+            for j in range(m.ndim)
+        )
     return wall, ess, rhat
 
 
@@ -211,8 +225,13 @@ def run_presets(sensors, *, ref_quality, seed, presets=("standard", "accurate"))
             ref_wall = time.perf_counter() - t
             qref = quantiles(ref)
             ref_mcse = ref.diag.get("interval_end_mcse") or {}
-            row = {"name": name, "ref_wall": ref_wall, "ref_converged": ref.diag["converged"], "presets": {},
-                   "ref_mcse": ref.diag.get("interval_end_mcse_max")}
+            row = {
+                "name": name,
+                "ref_wall": ref_wall,
+                "ref_converged": ref.diag["converged"],
+                "presets": {},
+                "ref_mcse": ref.diag.get("interval_end_mcse_max"),
+            }
             # fast path, without fallback, so that its own accuracy is measured even when rejected
             t = time.perf_counter()
             fr = fast_fit(d, seed=seed + i, fallback=False)
@@ -221,27 +240,41 @@ def run_presets(sensors, *, ref_quality, seed, presets=("standard", "accurate"))
             cov = coverage(fr, truth)
             x = fr.chains.extra
             own = fr.diag.get("interval_end_mcse") or {}
-            row["presets"]["fast"] = dict(wall=wall, ess=x["ess_is"], accepted=x["accepted"], khat=x["khat"],
-                                          err=e, cov=cov, mcse=fr.diag.get("interval_end_mcse_max"),
-                                          z=mcse_ratios(quantiles(fr), qref, own, ref_mcse))
+            row["presets"]["fast"] = dict(
+                wall=wall,
+                ess=x["ess_is"],
+                accepted=x["accepted"],
+                khat=x["khat"],
+                err=e,
+                cov=cov,
+                mcse=fr.diag.get("interval_end_mcse_max"),
+                z=mcse_ratios(quantiles(fr), qref, own, ref_mcse),
+            )
             for q in presets:
                 t = time.perf_counter()
                 r = bayescap.fit(d, seed=seed + i, quality=q)
                 wall = time.perf_counter() - t
                 own = r.diag.get("interval_end_mcse") or {}
-                row["presets"][q] = dict(wall=wall, ess=r.diag["ess_min"], converged=r.diag["converged"],
-                                         err=errors_vs_ref(quantiles(r), qref), cov=coverage(r, truth),
-                                         mcse=r.diag.get("interval_end_mcse_max"),
-                                         z=mcse_ratios(quantiles(r), qref, own, ref_mcse))
+                row["presets"][q] = dict(
+                    wall=wall,
+                    ess=r.diag["ess_min"],
+                    converged=r.diag["converged"],
+                    err=errors_vs_ref(quantiles(r), qref),
+                    cov=coverage(r, truth),
+                    mcse=r.diag.get("interval_end_mcse_max"),
+                    z=mcse_ratios(quantiles(r), qref, own, ref_mcse),
+                )
             bw, bess = naive_emcee(d, seed=seed + i)
             row["baseline"] = dict(wall=bw, ess=bess)
             fw, fess, frhat = naive_emcee_full(d, seed=seed + i)
             row["baseline_full"] = dict(wall=fw, ess=fess, rhat=frhat)
         f = row["presets"]["fast"]
-        print(f"   fast {f['wall']:.2f}s k̂ {f['khat']:.2f} ess {f['ess']:.0f} end err {f['err'][0]:.3f} ({f['err'][1]}) | "
-              + " | ".join(f"{q} {row['presets'][q]['wall']:.1f}s err {row['presets'][q]['err'][0]:.3f}" for q in presets)
-              + f" | naive {bw:.1f}s ESS {bess:.0f} | naive full model {fw:.1f}s ESS {fess:.0f} R-hat {frhat:.3f}",
-              flush=True)
+        print(
+            f"   fast {f['wall']:.2f}s k̂ {f['khat']:.2f} ess {f['ess']:.0f} end err {f['err'][0]:.3f} ({f['err'][1]}) | "
+            + " | ".join(f"{q} {row['presets'][q]['wall']:.1f}s err {row['presets'][q]['err'][0]:.3f}" for q in presets)
+            + f" | naive {bw:.1f}s ESS {bess:.0f} | naive full model {fw:.1f}s ESS {fess:.0f} R-hat {frhat:.3f}",
+            flush=True,
+        )
         rows.append(row)
     return rows
 
@@ -256,7 +289,7 @@ def fast_timing(sensors, *, seed, repeat=3, settings=None):
     out = []
     for i, (name, d, _) in enumerate(sensors):
         best = None
-        for r in range(repeat):
+        for _ in range(repeat):
             m = PTCModel(d)
             _, dg = fast_posterior(m, seed=seed + i, settings=settings)
             if best is None or dg["wall_s"] < best["wall_s"]:
@@ -286,21 +319,27 @@ def write_md(path, rows, timing, *, args, load_before, load_after, wall_total):
     L.append(f"Generated by `{cmd}` in {wall_total / 60:.1f} min.")
     L.append(f"Machine: {machine()}.")
     loaded = max(load_before[0], load_after[0]) > 0.5 * (os.cpu_count() or 1)
-    L.append(f"Load average (1, 5, 15 min) before {', '.join(f'{x:.2f}' for x in load_before)}, after "
-             f"{', '.join(f'{x:.2f}' for x in load_after)}: the machine was "
-             f"{'LOADED (shared with other jobs; timings are noisy and pessimistic)' if loaded else 'not loaded'}.")
+    L.append(
+        f"Load average (1, 5, 15 min) before {', '.join(f'{x:.2f}' for x in load_before)}, after "
+        f"{', '.join(f'{x:.2f}' for x in load_after)}: the machine was "
+        f"{'LOADED (shared with other jobs; timings are noisy and pessimistic)' if loaded else 'not loaded'}."
+    )
     L.append("")
-    L.append(f"Reference: `bayescap.fit(quality='{args.ref_quality}')` with a different seed. Errors are "
-             "|Δ| of the 95 % interval endpoints (end) and of the median (med) as a fraction of the reference "
-             "95 % width, the worst over every parameter and capacity; the reference's own Monte Carlo error "
-             "is part of them. Fast = Laplace–IS (`bayescap.fast.fast_fit`, no fallback, so that rejected "
-             "cases are measured too; ✗ = its k̂/ESS check rejected it). Coverage = truths (K, read noise, "
-             "clip charge, QE) inside the 95 % interval. ESS/s = min bulk/tail ESS (MCMC, every parameter "
-             "and capacity) or IS ESS (fast) per wall second. Own MC err = the run's own prediction of the "
-             "Monte Carlo error of its 95 % interval ends, the worst over every parameter and derived "
-             "quantity (`diagnostics.interval_end_mcse_max`), as a fraction of the width.")
+    L.append(
+        f"Reference: `bayescap.fit(quality='{args.ref_quality}')` with a different seed. Errors are "
+        "|Δ| of the 95 % interval endpoints (end) and of the median (med) as a fraction of the reference "
+        "95 % width, the worst over every parameter and capacity; the reference's own Monte Carlo error "
+        "is part of them. Fast = Laplace–IS (`bayescap.fast.fast_fit`, no fallback, so that rejected "
+        "cases are measured too; ✗ = its k̂/ESS check rejected it). Coverage = truths (K, read noise, "
+        "clip charge, QE) inside the 95 % interval. ESS/s = min bulk/tail ESS (MCMC, every parameter "
+        "and capacity) or IS ESS (fast) per wall second. Own MC err = the run's own prediction of the "
+        "Monte Carlo error of its 95 % interval ends, the worst over every parameter and derived "
+        "quantity (`diagnostics.interval_end_mcse_max`), as a fraction of the width."
+    )
     L.append("")
-    L.append("| sensor | preset | wall s | ESS/s | end err | med err | worst quantity | own MC err | coverage | notes |")
+    L.append(
+        "| sensor | preset | wall s | ESS/s | end err | med err | worst quantity | own MC err | coverage | notes |"
+    )
     L.append("|---|---|---|---|---|---|---|---|---|---|")
     qs = ["fast"] + [q for q in rows[0]["presets"] if q != "fast"]
     for r in rows:
@@ -312,16 +351,22 @@ def write_md(path, rows, timing, *, args, load_before, load_after, wall_total):
             else:
                 note = "converged" if p["converged"] else "NOT converged"
             mc = "" if p.get("mcse") is None else f"{p['mcse']:.3f}"
-            L.append(f"| {r['name']} | {q} | {p['wall']:.2f} | {p['ess'] / p['wall']:.0f} | {p['err'][0]:.3f} | "
-                     f"{p['err'][2]:.3f} | {p['err'][1]} | {mc} | {cov} | {note} |")
+            L.append(
+                f"| {r['name']} | {q} | {p['wall']:.2f} | {p['ess'] / p['wall']:.0f} | {p['err'][0]:.3f} | "
+                f"{p['err'][2]:.3f} | {p['err'][1]} | {mc} | {cov} | {note} |"
+            )
         b = r["baseline"]
-        L.append(f"| {r['name']} | naive emcee (2 params) | {b['wall']:.2f} | {b['ess'] / b['wall']:.0f} | | | | | | "
-                 "vectorize=False, Gaussian σ from data, StretchMove |")
+        L.append(
+            f"| {r['name']} | naive emcee (2 params) | {b['wall']:.2f} | {b['ess'] / b['wall']:.0f} | | | | | | "
+            "vectorize=False, Gaussian σ from data, StretchMove |"
+        )
         if "baseline_full" in r:
             b = r["baseline_full"]
-            L.append(f"| {r['name']} | naive emcee (bayescap's model) | {b['wall']:.2f} | {b['ess'] / b['wall']:.1f} | | | | | | "
-                     f"vectorize=False, StretchMove, start at the initial guess; R-hat (4 walker groups) "
-                     f"{b['rhat']:.3f} |")
+            L.append(
+                f"| {r['name']} | naive emcee (bayescap's model) | {b['wall']:.2f} | {b['ess'] / b['wall']:.1f} | | | | | | "
+                f"vectorize=False, StretchMove, start at the initial guess; R-hat (4 walker groups) "
+                f"{b['rhat']:.3f} |"
+            )
     L.append("")
     # summary
     L.append("## Summary")
@@ -331,32 +376,53 @@ def write_md(path, rows, timing, *, args, load_before, load_after, wall_total):
         if q == "fast":
             acc = [p for p in ps if p["accepted"]]
             rej = [p for p in ps if not p["accepted"]]
-            L.append(f"- **fast**: accepted on {len(acc)}/{len(ps)} sensors; median wall "
-                     f"{np.median([p['wall'] for p in ps]):.2f} s (including FitResult construction). "
-                     + (f"Accepted: endpoint error max {max(p['err'][0] for p in acc):.3f}, median "
-                        f"{np.median([p['err'][0] for p in acc]):.3f}; within 0.05 on "
-                        f"{sum(p['err'][0] <= 0.05 for p in acc)}/{len(acc)}. " if acc else "")
-                     + (f"Rejected: endpoint error max {max(p['err'][0] for p in rej):.3f} "
-                        "(k̂ " + ", ".join(f"{p['khat']:.2f}" for p in rej) + ")." if rej else ""))
+            L.append(
+                f"- **fast**: accepted on {len(acc)}/{len(ps)} sensors; median wall "
+                f"{np.median([p['wall'] for p in ps]):.2f} s (including FitResult construction). "
+                + (
+                    f"Accepted: endpoint error max {max(p['err'][0] for p in acc):.3f}, median "
+                    f"{np.median([p['err'][0] for p in acc]):.3f}; within 0.05 on "
+                    f"{sum(p['err'][0] <= 0.05 for p in acc)}/{len(acc)}. "
+                    if acc
+                    else ""
+                )
+                + (
+                    f"Rejected: endpoint error max {max(p['err'][0] for p in rej):.3f} "
+                    "(k̂ " + ", ".join(f"{p['khat']:.2f}" for p in rej) + ")."
+                    if rej
+                    else ""
+                )
+            )
         else:
-            L.append(f"- **{q}**: median wall {np.median([p['wall'] for p in ps]):.1f} s, median ESS/s "
-                     f"{np.median([p['ess'] / p['wall'] for p in ps]):.0f}, endpoint error max "
-                     f"{max(p['err'][0] for p in ps):.3f}, converged {sum(p['converged'] for p in ps)}/{len(ps)}.")
+            L.append(
+                f"- **{q}**: median wall {np.median([p['wall'] for p in ps]):.1f} s, median ESS/s "
+                f"{np.median([p['ess'] / p['wall'] for p in ps]):.0f}, endpoint error max "
+                f"{max(p['err'][0] for p in ps):.3f}, converged {sum(p['converged'] for p in ps)}/{len(ps)}."
+            )
     for q in qs:
         ps = [r["presets"][q] for r in rows]
         own = [p["mcse"] for p in ps if p.get("mcse") is not None]
         z = np.concatenate([p["z"] for p in ps if p.get("z")] or [np.zeros(0)])
         if own:
-            L.append(f"- {q}: its own predicted Monte Carlo error of the interval ends, worst quantity, median "
-                     f"{np.median(own):.3f}, max {max(own):.3f} of the width"
-                     + (" (the `accurate` preset extends its run until it is ≤ 0.01)" if q == "accurate" else "")
-                     + (f"; observed |Δ end| against the reference over the error both runs predict, per "
-                        f"quantity ({z.size}): median {np.median(z):.2f}, ≤ 2 on {np.mean(z <= 2):.0%} "
-                        f"(right predictions: median 0.67–1.05, ≤ 2 on 91–95 %)" if z.size else "") + ".")
+            L.append(
+                f"- {q}: its own predicted Monte Carlo error of the interval ends, worst quantity, median "
+                f"{np.median(own):.3f}, max {max(own):.3f} of the width"
+                + (" (the `accurate` preset extends its run until it is ≤ 0.01)" if q == "accurate" else "")
+                + (
+                    f"; observed |Δ end| against the reference over the error both runs predict, per "
+                    f"quantity ({z.size}): median {np.median(z):.2f}, ≤ 2 on {np.mean(z <= 2):.0%} "
+                    f"(right predictions: median 0.67–1.05, ≤ 2 on 91–95 %)"
+                    if z.size
+                    else ""
+                )
+                + "."
+            )
     refm = [r["ref_mcse"] for r in rows if r.get("ref_mcse") is not None]
     if refm:
-        L.append(f"- the references' own predicted end error (worst quantity): median {np.median(refm):.4f}, "
-                 f"max {max(refm):.4f} of the width.")
+        L.append(
+            f"- the references' own predicted end error (worst quantity): median {np.median(refm):.4f}, "
+            f"max {max(refm):.4f} of the width."
+        )
     ks = [(r["presets"]["fast"]["khat"], r["presets"]["fast"]["err"][0]) for r in rows]
     L.append("- k̂ vs endpoint error (fast): " + ", ".join(f"{k:.2f}→{e:.3f}" for k, e in sorted(ks)) + ".")
     for q in qs:
@@ -365,24 +431,33 @@ def write_md(path, rows, timing, *, args, load_before, load_after, wall_total):
             L.append(f"- coverage of the truth, {q}: {sum(a for a, _ in c)}/{sum(b for _, b in c)} (95 % intervals).")
     bl = [r["baseline"]["ess"] / r["baseline"]["wall"] for r in rows]
     st = [r["presets"]["standard"]["ess"] / r["presets"]["standard"]["wall"] for r in rows]
-    L.append(f"- naive emcee baseline median ESS/s {np.median(bl):.0f} (2-parameter Gaussian model, rows < 70 % of "
-             f"saturation) vs standard preset {np.median(st):.0f} (full model, {len(rows)} sensors); the "
-             "baseline's posterior is far simpler, so the ratio understates the gain per parameter.")
+    L.append(
+        f"- naive emcee baseline median ESS/s {np.median(bl):.0f} (2-parameter Gaussian model, rows < 70 % of "
+        f"saturation) vs standard preset {np.median(st):.0f} (full model, {len(rows)} sensors); the "
+        "baseline's posterior is far simpler, so the ratio understates the gain per parameter."
+    )
     if "baseline_full" in rows[0]:
         bf = [r["baseline_full"]["ess"] / r["baseline_full"]["wall"] for r in rows]
         ratio = [a / b for a, b in zip(st, bf)]
-        L.append(f"- naive emcee on bayescap's own posterior (the like-for-like baseline: same model, emcee "
-                 f"used the straightforward way) median ESS/s {np.median(bf):.1f}, R-hat over 4 walker groups "
-                 + ", ".join(f"{r['baseline_full']['rhat']:.3f}" for r in rows)
-                 + "; standard / naive ESS/s per sensor: " + ", ".join(f"{x:.0f}×" for x in ratio)
-                 + " (an R-hat above 1.01 means the naive chain has not converged and its ESS is optimistic).")
+        L.append(
+            f"- naive emcee on bayescap's own posterior (the like-for-like baseline: same model, emcee "
+            f"used the straightforward way) median ESS/s {np.median(bf):.1f}, R-hat over 4 walker groups "
+            + ", ".join(f"{r['baseline_full']['rhat']:.3f}" for r in rows)
+            + "; standard / naive ESS/s per sensor: "
+            + ", ".join(f"{x:.0f}×" for x in ratio)
+            + " (an R-hat above 1.01 means the naive chain has not converged and its ESS is optimistic)."
+        )
     L.append("")
     L.append("## Fast-path time per stage (best of 3, seconds)")
     L.append("")
-    L.append("| sensor | total | MAP and covariance (Newton) | Laplace (BFGS route only) | IS (tail probe, 1 + 3 rounds of draws, PSIS, resampling) |")
+    L.append(
+        "| sensor | total | MAP and covariance (Newton) | Laplace (BFGS route only) | IS (tail probe, 1 + 3 rounds of draws, PSIS, resampling) |"
+    )
     L.append("|---|---|---|---|---|")
     for name, dg in timing:
-        L.append(f"| {name} | {dg['wall_s']:.3f} | {dg['wall_map_s']:.3f} | {dg['wall_laplace_s']:.3f} | {dg['wall_is_s']:.3f} |")
+        L.append(
+            f"| {name} | {dg['wall_s']:.3f} | {dg['wall_map_s']:.3f} | {dg['wall_laplace_s']:.3f} | {dg['wall_is_s']:.3f} |"
+        )
     Path(path).parent.mkdir(parents=True, exist_ok=True)
     emit(L, path)
 
@@ -392,22 +467,32 @@ def main(argv=None):
     ap.add_argument("--quick", action="store_true", help="the Basler and one simulated sensor")
     ap.add_argument("--n-sim", type=int, default=10, help="simulated sensors besides the Basler")
     ap.add_argument("--ref-quality", default="accurate")
-    ap.add_argument("--presets", default="standard,accurate",
-                    help="MCMC presets timed besides the fast path (comma-separated)")
+    ap.add_argument(
+        "--presets", default="standard,accurate", help="MCMC presets timed besides the fast path (comma-separated)"
+    )
     ap.add_argument("--seed", type=int, default=1)
     a = ap.parse_args(argv)
     load_before = os.getloadavg()
     t0 = time.perf_counter()
     import arviz  # noqa: F401  (imports excluded from the timings)
+
     import bayescap  # noqa: F401
     import bayescap.inference.fast  # noqa: F401
 
     sensors = sensor_set(1 if a.quick else a.n_sim)
-    rows = run_presets(sensors, ref_quality=a.ref_quality, seed=a.seed,
-                       presets=tuple(q for q in a.presets.split(",") if q))
+    rows = run_presets(
+        sensors, ref_quality=a.ref_quality, seed=a.seed, presets=tuple(q for q in a.presets.split(",") if q)
+    )
     timing = fast_timing(sensors, seed=a.seed)
-    write_md(OUT, rows, timing, args=a, load_before=load_before, load_after=os.getloadavg(),
-             wall_total=time.perf_counter() - t0)
+    write_md(
+        OUT,
+        rows,
+        timing,
+        args=a,
+        load_before=load_before,
+        load_after=os.getloadavg(),
+        wall_total=time.perf_counter() - t0,
+    )
     print("wrote", OUT)
 
 

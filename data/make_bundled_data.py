@@ -12,6 +12,7 @@
 
 The script is deterministic (fixed seeds); rerunning it reproduces the files byte for byte.
 """
+
 from __future__ import annotations
 
 import csv
@@ -54,12 +55,19 @@ def basler():
 
     m, v = pair(b[0], b[1])
     dm, dv = pair(d[0], d[1])
-    extra = {"exposure_time_s": float(z["spatial_bright_texp_ns"]) * 1e-9, "mean_dn": m, "temporal_var_dn2": v,
-             "dark_mean_dn": dm, "dark_temporal_var_dn2": dv, "n_pixels": b.shape[1] * b.shape[2],
-             "photons_per_pixel": float(z["spatial_bright_photons_per_pixel"]),
-             "frac_saturated": float(np.mean(b[:2] >= 4095)),
-             "spatial_var_dn2": float(b.mean(axis=0).var(ddof=1)),
-             "dark_spatial_var_dn2": float(d.mean(axis=0).var(ddof=1)), "n_frames": b.shape[0]}
+    extra = {
+        "exposure_time_s": float(z["spatial_bright_texp_ns"]) * 1e-9,
+        "mean_dn": m,
+        "temporal_var_dn2": v,
+        "dark_mean_dn": dm,
+        "dark_temporal_var_dn2": dv,
+        "n_pixels": b.shape[1] * b.shape[2],
+        "photons_per_pixel": float(z["spatial_bright_photons_per_pixel"]),
+        "frac_saturated": float(np.mean(b[:2] >= 4095)),
+        "spatial_var_dn2": float(b.mean(axis=0).var(ddof=1)),
+        "dark_spatial_var_dn2": float(d.mean(axis=0).var(ddof=1)),
+        "n_frames": b.shape[0],
+    }
     for k, val in extra.items():
         cols[k].append(val)
     md = {
@@ -70,38 +78,86 @@ def basler():
         "height_px": 480,
         "channel": "mono",
         "source": "EMVA1288/datasets EMVA1288_ReferenceSet_001_CCD_12Bit (CC BY-SA 3.0, Basler AG 2011)",
-        "note": ("rows 1-50 full-frame pairs; row 51 the 64x64 centre crop of the 50-frame spatial stacks "
-                 "(gives PRNU and DSNU)"),
+        "note": (
+            "rows 1-50 full-frame pairs; row 51 the 64x64 centre crop of the 50-frame spatial stacks "
+            "(gives PRNU and DSNU)"
+        ),
     }
-    write_ptc_csv({k: np.asarray(v, float) for k, v in cols.items()}, HERE / "emva1288_basler_ccd12.csv",
-                  metadata=md)
+    write_ptc_csv({k: np.asarray(v, float) for k, v in cols.items()}, HERE / "emva1288_basler_ccd12.csv", metadata=md)
 
 
 SIMULATED = {
     # ADC clips before the well; spatial stacks every 10th level
     "sim_phone_1p75um_10bit": dict(
-        truth=SensorTruth(conversion_gain_e_per_dn=4.0, read_noise_e=3.5, full_well_e=8000.0,
-                          dark_current_e_per_s=25.0, quantum_efficiency=0.5, prnu_frac=0.010,
-                          dsnu_e=2.0, adc_bits=10, black_level_dn=64.0),
-        md={"sensor": "simulated phone sensor 1.75 um (10 bit)", "manufacturer": "simulated", "temperature_c": 25.0,
-            "pixel_pitch_um": 1.75, "width_px": 3264, "height_px": 2448},
-        kw=dict(spatial_frames=16, spatial_every=10), seed=101),
+        truth=SensorTruth(
+            conversion_gain_e_per_dn=4.0,
+            read_noise_e=3.5,
+            full_well_e=8000.0,
+            dark_current_e_per_s=25.0,
+            quantum_efficiency=0.5,
+            prnu_frac=0.010,
+            dsnu_e=2.0,
+            adc_bits=10,
+            black_level_dn=64.0,
+        ),
+        md={
+            "sensor": "simulated phone sensor 1.75 um (10 bit)",
+            "manufacturer": "simulated",
+            "temperature_c": 25.0,
+            "pixel_pitch_um": 1.75,
+            "width_px": 3264,
+            "height_px": 2448,
+        },
+        kw=dict(spatial_frames=16, spatial_every=10),
+        seed=101,
+    ),
     # the well clips before the read-out
     "sim_industrial_3p45um_12bit": dict(
-        truth=SensorTruth(conversion_gain_e_per_dn=3.0, read_noise_e=2.3, full_well_e=10500.0,
-                          dark_current_e_per_s=5.0, quantum_efficiency=0.7, prnu_frac=0.005,
-                          dsnu_e=1.5, full_well_spread_frac=0.003, adc_bits=12, black_level_dn=64.0),
-        md={"sensor": "simulated industrial sensor 3.45 um (12 bit)", "manufacturer": "simulated", "temperature_c": 25.0,
-            "pixel_pitch_um": 3.45, "width_px": 2448, "height_px": 2048},
-        kw=dict(spatial_frames=16, spatial_every=10), seed=202),
+        truth=SensorTruth(
+            conversion_gain_e_per_dn=3.0,
+            read_noise_e=2.3,
+            full_well_e=10500.0,
+            dark_current_e_per_s=5.0,
+            quantum_efficiency=0.7,
+            prnu_frac=0.005,
+            dsnu_e=1.5,
+            full_well_spread_frac=0.003,
+            adc_bits=12,
+            black_level_dn=64.0,
+        ),
+        md={
+            "sensor": "simulated industrial sensor 3.45 um (12 bit)",
+            "manufacturer": "simulated",
+            "temperature_c": 25.0,
+            "pixel_pitch_um": 3.45,
+            "width_px": 2448,
+            "height_px": 2048,
+        },
+        kw=dict(spatial_frames=16, spatial_every=10),
+        seed=202,
+    ),
     # never reaches saturation: the full well can only be bounded from below
     "sim_scientific_6p5um_16bit_unsaturated": dict(
-        truth=SensorTruth(conversion_gain_e_per_dn=0.5, read_noise_e=1.2, full_well_e=30000.0,
-                          dark_current_e_per_s=0.5, quantum_efficiency=0.8, adc_bits=16,
-                          black_level_dn=100.0),
-        md={"sensor": "simulated scientific sensor 6.5 um (16 bit), unsaturated series",
-            "manufacturer": "simulated", "temperature_c": 25.0, "pixel_pitch_um": 6.5, "width_px": 2048, "height_px": 2048},
-        kw=dict(max_fraction=0.7), seed=303),
+        truth=SensorTruth(
+            conversion_gain_e_per_dn=0.5,
+            read_noise_e=1.2,
+            full_well_e=30000.0,
+            dark_current_e_per_s=0.5,
+            quantum_efficiency=0.8,
+            adc_bits=16,
+            black_level_dn=100.0,
+        ),
+        md={
+            "sensor": "simulated scientific sensor 6.5 um (16 bit), unsaturated series",
+            "manufacturer": "simulated",
+            "temperature_c": 25.0,
+            "pixel_pitch_um": 6.5,
+            "width_px": 2048,
+            "height_px": 2048,
+        },
+        kw=dict(max_fraction=0.7),
+        seed=303,
+    ),
 }
 
 
@@ -109,17 +165,29 @@ def simulated():
     out = HERE / "simulated"
     for name, spec in SIMULATED.items():
         truth = spec["truth"]
-        simulate_ptc(truth, seed=spec["seed"], path=out / f"{name}.csv", metadata=spec["md"],
-                     shape=(100, 100), **spec["kw"])
-        atomic_write_text(out / f"{name}.truth.json",
-                          json.dumps({"name": name, "seed": spec["seed"], "truth": truth.to_dict(),
-                                      "simulation": {k: v for k, v in spec["kw"].items()},
-                                      "roi_px": [100, 100],
-                                      "note": "simulated with bayescap.simulate; not a measurement"},
-                                     indent=2) + "\n")
+        simulate_ptc(
+            truth, seed=spec["seed"], path=out / f"{name}.csv", metadata=spec["md"], shape=(100, 100), **spec["kw"]
+        )
+        atomic_write_text(
+            out / f"{name}.truth.json",
+            json.dumps(
+                {
+                    "name": name,
+                    "seed": spec["seed"],
+                    "truth": truth.to_dict(),
+                    "simulation": {k: v for k, v in spec["kw"].items()},
+                    "roi_px": [100, 100],
+                    "note": "simulated with bayescap.simulate; not a measurement",
+                },
+                indent=2,
+            )
+            + "\n",
+        )
 
 
 if __name__ == "__main__":
     basler()
     simulated()
-    print("wrote", sorted(p.name for p in HERE.glob("*.csv")), sorted(p.name for p in (HERE / "simulated").glob("*.csv")))
+    print(
+        "wrote", sorted(p.name for p in HERE.glob("*.csv")), sorted(p.name for p in (HERE / "simulated").glob("*.csv"))
+    )

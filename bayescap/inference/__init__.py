@@ -3,6 +3,7 @@
 
 emcee is imported only when MCMC runs: :class:`IndependenceMove` (an emcee move) loads on first
 access, so that a fast fit never imports emcee or scipy.stats."""
+
 from __future__ import annotations
 
 from bayescap.inference import diagnostics
@@ -13,8 +14,18 @@ from bayescap.inference.mcmc import run_ensembles
 from bayescap.inference.optimize import laplace_start
 from bayescap.inference.presets import QUALITY_PRESETS, FastSettings, SamplerSettings
 
-__all__ = ["SamplerSettings", "FastSettings", "QUALITY_PRESETS", "run_ensembles", "fast_posterior", "ChainResult",
-           "diagnostics", "laplace_start", "SamplerCoordinates", "IndependenceMove"]
+__all__ = [
+    "SamplerSettings",
+    "FastSettings",
+    "QUALITY_PRESETS",
+    "run_ensembles",
+    "fast_posterior",
+    "ChainResult",
+    "diagnostics",
+    "laplace_start",
+    "SamplerCoordinates",
+    "IndependenceMove",
+]
 
 
 def __getattr__(name):

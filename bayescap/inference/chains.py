@@ -1,4 +1,5 @@
 """The sampler's raw output and the stuck-walker test shared by the MCMC, the fast path and the result."""
+
 from __future__ import annotations
 
 from dataclasses import dataclass, field
@@ -14,8 +15,8 @@ class ChainResult:
 
     chain: np.ndarray
     log_prob: np.ndarray
-    acceptance: np.ndarray          # per ensemble, mean acceptance fraction
-    tau: np.ndarray                 # integrated autocorrelation time per parameter (steps)
+    acceptance: np.ndarray  # per ensemble, mean acceptance fraction
+    tau: np.ndarray  # integrated autocorrelation time per parameter (steps)
     x_map: np.ndarray
     lp_map: float
     settings: SamplerSettings

@@ -1,5 +1,6 @@
 """Sampler coordinates: the clip level as log(clip - lower bound) and the QE as log(qe), with the
 Jacobian, where the optimiser, the Laplace approximation, the fast path and the MCMC start work."""
+
 from __future__ import annotations
 
 import numpy as np
@@ -48,8 +49,9 @@ class SamplerCoordinates:
 
     def describe(self) -> str:
         """The transformed coordinates, as the diagnostics name them."""
-        return ", ".join(([] if self.j is None else ["log(clip_dn - lower bound)"])
-                         + ([] if self.q is None else ["log(qe)"]))
+        return ", ".join(
+            ([] if self.j is None else ["log(clip_dn - lower bound)"]) + ([] if self.q is None else ["log(qe)"])
+        )
 
     def to_x(self, z):
         x = np.array(z, float, copy=True)

@@ -1,6 +1,7 @@
 """The posterior's curvature by finite differences: the Hessian stencil of ``n² + n + 1`` points,
 the Laplace covariance (the eigenvalue-clipped inverse of the negative Hessian) and its refinement
 in whitened coordinates, where the stencil's steps are far above the jitter of ``log_prob``."""
+
 from __future__ import annotations
 
 import numpy as np
@@ -22,7 +23,7 @@ def laplace_covariance(model: PTCModel, x, h=1e-4):
     n = 8, where the four-point stencil ``f(x±e_i±e_j)`` takes ``2n² + 2n`` (144)."""
     step = h * np.maximum(1.0, np.abs(x))
     Y, iu, ju = _unit_stencil(x.size)
-    with np.errstate(all="ignore"):   # the stencil may leave the prior support: -inf, handled below
+    with np.errstate(all="ignore"):  # the stencil may leave the prior support: -inf, handled below
         H = _stencil_derivatives(model.log_prob(x + Y * step), step, iu, ju)[2]
     if not np.all(np.isfinite(H)):
         return np.diag(np.full(x.size, 1e-4))
@@ -101,8 +102,8 @@ def _stencil_derivatives(q, step, iu, ju):
     """Value, gradient and Hessian from ``log_prob`` on the stencil of :func:`_unit_stencil` scaled by
     ``step`` (per axis): central differences, A&S 25.3.23/25.3.27 (exact for a quadratic)."""
     n = step.size
-    f0, fp, fm = q[0], q[1:n + 1], q[n + 1:2 * n + 1]
-    fpp, fmm = q[2 * n + 1:2 * n + 1 + iu.size], q[2 * n + 1 + iu.size:]
+    f0, fp, fm = q[0], q[1 : n + 1], q[n + 1 : 2 * n + 1]
+    fpp, fmm = q[2 * n + 1 : 2 * n + 1 + iu.size], q[2 * n + 1 + iu.size :]
     H = np.empty((n, n))
     H[np.arange(n), np.arange(n)] = (fp - 2.0 * f0 + fm) / step**2
     off = (fpp + fmm - fp[iu] - fm[iu] - fp[ju] - fm[ju] + 2.0 * f0) / (2.0 * step[iu] * step[ju])

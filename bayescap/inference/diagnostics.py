@@ -1,5 +1,6 @@
 """Convergence diagnostics of the ensembles: rank-normalised split R-hat, bulk and tail ESS
 (Vehtari et al. 2021), integrated autocorrelation times and the Monte Carlo error of interval ends."""
+
 from __future__ import annotations
 
 import warnings
@@ -16,12 +17,12 @@ def _emcee_integrated_time(x, c=5):
     n = 1
     while n < n_t:
         n <<= 1
-    y = np.ascontiguousarray(np.transpose(x, (1, 2, 0)))       # (walkers, params, steps)
+    y = np.ascontiguousarray(np.transpose(x, (1, 2, 0)))  # (walkers, params, steps)
     f = np.fft.rfft(y - y.mean(axis=-1, keepdims=True), n=2 * n, axis=-1)
-    acf = np.fft.irfft(f.real ** 2 + f.imag ** 2, n=2 * n, axis=-1)[..., :n_t]
+    acf = np.fft.irfft(f.real**2 + f.imag**2, n=2 * n, axis=-1)[..., :n_t]
     with np.errstate(invalid="ignore", divide="ignore"):
         acf = acf / acf[..., :1]
-    f_mean = acf.mean(axis=0).T                 # (steps, params), walkers averaged
+    f_mean = acf.mean(axis=0).T  # (steps, params), walkers averaged
     taus = 2.0 * np.cumsum(f_mean, axis=0) - 1.0
     out = np.empty(x.shape[2])
     for d in range(x.shape[2]):
@@ -124,7 +125,7 @@ def _ess_kernel(a):
     f = np.fft.rfft(c, n=m, axis=1)
     # only the chains' mean autocovariance is used: the inverse transform is linear, so one of
     # the mean power spectrum serves (ArviZ inverts every chain's; equal to ~1e-15 relative)
-    macov = np.fft.irfft(np.mean(f.real ** 2 + f.imag ** 2, axis=0), n=m)[:n_draw] / n_draw
+    macov = np.fft.irfft(np.mean(f.real**2 + f.imag**2, axis=0), n=m)[:n_draw] / n_draw
     mean_var = macov[0] * n_draw / (n_draw - 1.0)
     var_plus = mean_var * (n_draw - 1.0) / n_draw
     if n_chain > 1:
@@ -152,7 +153,7 @@ def _ess_kernel(a):
             rho[t + 2] = rho[t + 1]
         t += 2
     ess = n_chain * n_draw
-    tau_hat = -1.0 + 2.0 * np.sum(rho[: max_t + 1]) + np.sum(rho[max_t + 1: max_t + 2])
+    tau_hat = -1.0 + 2.0 * np.sum(rho[: max_t + 1]) + np.sum(rho[max_t + 1 : max_t + 2])
     tau_hat = max(tau_hat, 1 / np.log10(ess))
     return float(np.nan if np.isnan(rho).any() else ess / tau_hat)
 
@@ -180,7 +181,7 @@ def fast_diagnostics(x_esw):
     z = z.reshape(E * W, S)
     # the folded draws |x − median| in the sorted order fall then rise: a stable sort (timsort)
     # merges the two runs in linear time
-    med = 0.5 * (srt[n // 2 - 1] + srt[n // 2]) if n % 2 == 0 else srt[n // 2]   # = np.median
+    med = 0.5 * (srt[n // 2 - 1] + srt[n // 2]) if n % 2 == 0 else srt[n // 2]  # = np.median
     fold = np.abs(srt - med)
     o2 = np.argsort(fold, kind="stable")
     rf = np.empty(n)
@@ -231,7 +232,7 @@ def quantile_mcse(x_esw, probs=(0.025, 0.975), quantiles=None):
             a = betaincinv(ess * p + 1.0, ess * (1.0 - p) + 1.0, np.array(_ONE_SD_PROBS)) * n - 1.0
         idx.append((int(np.floor(np.nanmax((a[0], 0)))), int(np.ceil(np.nanmin((a[1], n - 1))))))
     ks = sorted({k for pair in idx for k in pair})
-    srt = np.partition(flat, ks)            # the order statistics needed, without a full sort
+    srt = np.partition(flat, ks)  # the order statistics needed, without a full sort
     return np.array([0.5 * (srt[i2] - srt[i1]) for i1, i2 in idx])
 
 

@@ -1,6 +1,7 @@
 """Interval-end Monte Carlo errors of weighted draws: each 95 % interval end's predicted error as a
 fraction of the width (with the resampling's share), the table over every quantity that varies,
 and the joint check that every end is within a tolerance with a given probability."""
+
 from __future__ import annotations
 
 import numpy as np
@@ -49,7 +50,7 @@ def _end_errors(values, w, probs=(0.025, 0.975), n_resampled=None):
     F = np.cumsum(ws)
     F_tot = F[-1]
     F /= F_tot
-    Q = lambda p: np.interp(p, F, v)      # noqa: E731
+    Q = lambda p: np.interp(p, F, v)  # noqa: E731
     width = Q(0.975) - Q(0.025)
     if not width > 0:
         return [0.0 for _ in probs]
@@ -59,12 +60,12 @@ def _end_errors(values, w, probs=(0.025, 0.975), n_resampled=None):
         # systematic resampling gives draw i floor(n w_i) copies and one more with probability
         # frac(n w_i); the count below q varies as a sum of those Bernoullis given the total n
         fr = n_resampled * (ws / F_tot)
-        fr -= np.floor(fr)                  # frac(n w_i): np.mod is ~5x slower here
+        fr -= np.floor(fr)  # frac(n w_i): np.mod is ~5x slower here
         bern = np.cumsum(fr * (1.0 - fr))
     out = []
     for p in probs:
         q = Q(p)
-        k = int(np.searchsorted(v, q, side="right")) - 1      # the last draw at or below q
+        k = int(np.searchsorted(v, q, side="right")) - 1  # the last draw at or below q
         below = c2[k] if k >= 0 else 0.0
         var = (1.0 - p) ** 2 * below + p * p * (c2[-1] - below)
         if n_resampled and bern[-1] > 0:
@@ -144,7 +145,7 @@ def _joint_target(errs, tol, confidence, cap):
     if _within_logprob(np.minimum(s, cap), tol) >= level:
         return float(cap)
     lo, hi = 0.0, float(cap)
-    for _ in range(40):             # the probability falls as g grows: bisection to ~1e-12 of cap
+    for _ in range(40):  # the probability falls as g grows: bisection to ~1e-12 of cap
         g = 0.5 * (lo + hi)
         lo, hi = (g, hi) if _within_logprob(np.minimum(s, g), tol) >= level else (lo, g)
     return lo

@@ -38,6 +38,7 @@ ones in ``extra["weighted_draws"]`` (from which :class:`bayescap.posterior.FitRe
 derived quantities' interval-end errors). R-hat and MCMC ESS do not apply to resampled independent
 draws; the result reports k̂ and the IS ESS instead.
 """
+
 from __future__ import annotations
 
 import time
@@ -88,8 +89,14 @@ def _fast_in_coordinates(model, wrapped, seed, n_draws, settings, derived_fn):
     them (:func:`laplace_start`'s ``coords``), the importance draws there, and the result mapped back
     to the model's coordinates (draws, their log p without the Jacobian, the MAP)."""
     t0 = time.perf_counter()
-    z0, _, cz, _ = laplace_start(model, n_restarts=settings.n_restarts, refine_iter=settings.refine_iter,
-                                 polish=settings.polish, coords=wrapped, polish_both=settings.polish_both)
+    z0, _, cz, _ = laplace_start(
+        model,
+        n_restarts=settings.n_restarts,
+        refine_iter=settings.refine_iter,
+        polish=settings.polish,
+        coords=wrapped,
+        polish_both=settings.polish_both,
+    )
     t_start = time.perf_counter() - t0
     d_fn = None if derived_fn is None else (lambda z: derived_fn(wrapped.to_x(z)))
     chains, diag = _fast_once(wrapped, seed, n_draws, settings, z0, cz, d_fn)
@@ -113,8 +120,9 @@ def _mode_and_covariance(model, settings, x_map, cov, t0):
     """The MAP, log p there and the Laplace covariance (computed where not given), and the time the
     MAP was done (with Newton, the covariance comes out of the same iterations)."""
     if x_map is None and cov is None:
-        x_map, lp_map, cov, t_map = laplace_start(model, n_restarts=settings.n_restarts,
-                                                  refine_iter=settings.refine_iter, polish=settings.polish)
+        x_map, lp_map, cov, t_map = laplace_start(
+            model, n_restarts=settings.n_restarts, refine_iter=settings.refine_iter, polish=settings.polish
+        )
         return x_map, lp_map, cov, t_map + t0
     if x_map is None:
         x_map, lp_map = find_map(model, n_restarts=settings.n_restarts)
@@ -138,31 +146,39 @@ def _initial_mixture(model, settings, rng, x_map, lp_map, cov):
     n1 = settings.n_proposals - n2
     c1 = _proposal_cov(cov, settings.scale)
     # adapt_fraction 1 leaves nothing to adapt from: then every draw comes from the Laplace t
-    floor = (isinstance(model, SamplerCoordinates) and model.j is not None
-             and settings.clip_floor_fraction > 0 and n1 > 0 and n2 > 0)
+    floor = (
+        isinstance(model, SamplerCoordinates)
+        and model.j is not None
+        and settings.clip_floor_fraction > 0
+        and n1 > 0
+        and n2 > 0
+    )
     n_floor = int(round(settings.clip_floor_fraction * settings.n_proposals)) if floor else 0
     # defensive components: the clip floor, and each long one-sided tail the probe finds
-    extra = []                                          # [(logpdf, draws)]
+    extra = []  # [(logpdf, draws)]
     tails, pairs, n_each = [], [], 0
     if n1 > 0 and n2 > 0 and settings.tail_fraction > 0:
-        skip = {(model.j, -1.0)} if floor else set()    # the clip floor covers that one
+        skip = {(model.j, -1.0)} if floor else set()  # the clip floor covers that one
         tails = _tail_probe(model, x_map, lp_map, c1, skip)
         # the clip floor meets the farthest-reaching other tail (a sharp clip edge lets the clip
         # level sit anywhere down to its bound while the clip spread is in its lower tail)
         others = [t for t in tails if n_floor and t[0] != model.j]
         pairs = [max(others, key=lambda t: t[3])] if others and settings.floor_pair else []
         n_comp = max(len(tails) + len(pairs), 1)
-        n_each = min(int(round(settings.tail_fraction * settings.n_proposals)),
-                     int(settings.tail_max_fraction * settings.n_proposals) // n_comp, (n2 // 2) // n_comp)
+        n_each = min(
+            int(round(settings.tail_fraction * settings.n_proposals)),
+            int(settings.tail_max_fraction * settings.n_proposals) // n_comp,
+            (n2 // 2) // n_comp,
+        )
         if n_each <= 0:
             tails, pairs = [], []
-        n2 -= n_each * (len(tails) + len(pairs))        # the same number of draws in all
+        n2 -= n_each * (len(tails) + len(pairs))  # the same number of draws in all
     # a defensive t, wide_scale × wider than the Laplace t (Hesterberg 1995): it bounds the weights
     # where the posterior reaches further than the Laplace and the moment-matched rounds, whose
     # weighted moments cannot see draws they never made (on small ROIs the heaviest weights can sit
     # 2–3 Laplace sds out, where only a much larger sample finds them)
     n_wide = min(int(round(settings.wide_fraction * settings.n_proposals)), n2 // 2) if n1 > 0 and n2 > 0 else 0
-    n2 -= n_wide                                        # (at most half of what the rounds have left)
+    n2 -= n_wide  # (at most half of what the rounds have left)
     x1, _ = student_t_draws(x_map, c1, nu, (n1 - n_floor) if n1 > 0 else n2, rng)
     if n_wide:
         c_w = c1 * float(settings.wide_scale) ** 2
@@ -177,7 +193,7 @@ def _initial_mixture(model, settings, rng, x_map, lp_map, cov):
         draw_p, pdf_p = _pair_proposal(x_map, c1, nu, (j, side, reach), (model.j, _floor_top(x_map, c1, model.j)))
         extra.append((pdf_p, draw_p(n_each, rng)[0]))
     n_t = x1.shape[0]
-    x1 = np.vstack([x1] + [xe for _, xe in extra])    # one log_prob call for all
+    x1 = np.vstack([x1] + [xe for _, xe in extra])  # one log_prob call for all
     with np.errstate(all="ignore"):
         lp1 = model.log_prob(x1)
     cache = _DensityCache()
@@ -185,7 +201,7 @@ def _initial_mixture(model, settings, rng, x_map, lp_map, cov):
         comps = [(_t_logpdf(x_map, c1, nu), x1[:n_t], lp1[:n_t], (x_map, c1))]
         at = n_t
         for pdf_e, xe in extra:
-            comps.append((pdf_e, x1[at:at + len(xe)], lp1[at:at + len(xe)], None))
+            comps.append((pdf_e, x1[at : at + len(xe)], lp1[at : at + len(xe)], None))
             at += len(xe)
         x, logp, logq, comps = _adaptive_rounds(model, settings, rng, comps, n2, cache)
     else:
@@ -215,8 +231,13 @@ def _top_up(model, settings, rng, derived_fn, x, logp, logq, comps, cache, n_dra
     # variance falls as 1/N; the target: end_mcse_max, lower where many ends near it would leave the
     # worst of them outside end_tolerance, _joint_target), at most max_proposals in all; not when
     # k̂ already rejects the proposal (more of the same draws would not help)
-    while (target is not None and comps is not None and worst > target and khat < settings.khat_max
-           and x.shape[0] < settings.max_proposals):
+    while (
+        target is not None
+        and comps is not None
+        and worst > target
+        and khat < settings.khat_max
+        and x.shape[0] < settings.max_proposals
+    ):
         want = x.shape[0] * (1.1 * (worst / target) ** 2 - 1.0)
         n_more = int(min(max(want, settings.n_proposals / 3), settings.max_proposals - x.shape[0]))
         aimed = []
@@ -226,15 +247,16 @@ def _top_up(model, settings, rng, derived_fn, x, logp, logq, comps, cache, n_dra
             # 7 rounds from the default 6 000 to max_proposals) where many are
             base = settings.n_proposals / 4 if settings.topup_draws is None else settings.topup_draws
             n_more = int(min(max(base, x.shape[0] / 4), settings.max_proposals - x.shape[0]))
-            aimed = _end_components(xk, wk, vals, mcse, target, n_out, settings.adapt_inflation,
-                                    settings.topup_components, ends)
+            aimed = _end_components(
+                xk, wk, vals, mcse, target, n_out, settings.adapt_inflation, settings.topup_components, ends
+            )
         if aimed and n_more >= len(aimed):
             each = [n_more // len(aimed) + (1 if i < n_more % len(aimed) else 0) for i in range(len(aimed))]
-            x, logp, logq, comps = _add_components(model, settings, rng, comps,
-                                                   [(mu, c, n) for (mu, c), n in zip(aimed, each)], cache)
+            x, logp, logq, comps = _add_components(
+                model, settings, rng, comps, [(mu, c, n) for (mu, c), n in zip(aimed, each)], cache
+            )
         else:
-            x, logp, logq, comps = _adaptive_rounds(model, replace(settings, adapt_rounds=1), rng, comps, n_more,
-                                                    cache)
+            x, logp, logq, comps = _adaptive_rounds(model, replace(settings, adapt_rounds=1), rng, comps, n_more, cache)
         n_topup += n_more
         w, khat, ess = psis_weights(logp - logq)
         khat, ess = float(khat), float(ess)
@@ -244,8 +266,7 @@ def _top_up(model, settings, rng, derived_fn, x, logp, logq, comps, cache, n_dra
         # between rounds only the quantities near or above the target are looked at again (sorting
         # every quantity each round is a sizeable share of a gated fit); once they are below it,
         # all of them (and the target again), and the rounds go on if one is above
-        watch = None if settings.topup != "targeted" else {
-            n for n, e in mcse.items() if not e <= 0.8 * target}
+        watch = None if settings.topup != "targeted" else {n for n, e in mcse.items() if not e <= 0.8 * target}
         if watch is None:
             xk, wk, vals, mcse, ends, worst, target = full_table()
             continue
@@ -266,7 +287,7 @@ def _top_up(model, settings, rng, derived_fn, x, logp, logq, comps, cache, n_dra
             # rejected with draws to spare
             xk, wk, vals, mcse, ends, worst, target = full_table()
             partial = False
-    if n_topup and partial:     # the rounds stopped above the target: every quantity's error, as reported
+    if n_topup and partial:  # the rounds stopped above the target: every quantity's error, as reported
         xk, wk, vals, mcse, ends, worst, target = full_table()
     return x, logp, w, khat, ess, mcse, ends, worst, target, n_out, n_topup
 
@@ -285,7 +306,8 @@ def _fast_once(model, seed, n_draws, settings, x_map, cov, derived_fn=None):
     rng = np.random.default_rng(np.random.SeedSequence(seed).spawn(1)[0])
     x, logp, logq, comps, cache, tails, pairs, n_each = _initial_mixture(model, settings, rng, x_map, lp_map, cov)
     x, logp, w, khat, ess, mcse, ends, worst, target, n_out, n_topup = _top_up(
-        model, settings, rng, derived_fn, x, logp, logq, comps, cache, n_draws, default_n)
+        model, settings, rng, derived_fn, x, logp, logq, comps, cache, n_draws, default_n
+    )
     gate, tol, conf = settings.end_mcse_max, settings.end_tolerance, settings.end_confidence
     p_within = float(np.exp(_within_logprob(_all_ends(ends), tol)))
     n_draws = n_out
@@ -309,11 +331,14 @@ def _fast_once(model, seed, n_draws, settings, x_map, cov, derived_fn=None):
         if not np.isfinite(worst):
             reasons.append("interval-end Monte Carlo error undefined: a parameter's draws are not all finite")
         elif not worst <= gate:
-            reasons.append(f"interval-end Monte Carlo error {worst:.3f} of the width > {gate:g} "
-                           f"after {x.shape[0]} draws")
+            reasons.append(
+                f"interval-end Monte Carlo error {worst:.3f} of the width > {gate:g} after {x.shape[0]} draws"
+            )
         else:
-            reasons.append(f"predicted probability that every interval end is within {tol:g} of the width "
-                           f"{p_within:.2f} < {conf:g} (worst end {worst:.3f}) after {x.shape[0]} draws")
+            reasons.append(
+                f"predicted probability that every interval end is within {tol:g} of the width "
+                f"{p_within:.2f} < {conf:g} (worst end {worst:.3f}) after {x.shape[0]} draws"
+            )
     wall = time.perf_counter() - t0
     diag = {
         "method": METHOD,
@@ -334,27 +359,48 @@ def _fast_once(model, seed, n_draws, settings, x_map, cov, derived_fn=None):
         "min_ess_is": settings.min_ess_is,
         "nu": settings.nu,
         "wall_s": wall,
-        "wall_map_s": t_map - t0,          # with Newton (the default) the covariance too
+        "wall_map_s": t_map - t0,  # with Newton (the default) the covariance too
         "wall_laplace_s": t_lap - t_map,
         "wall_is_s": t_is - t_lap,
         "end_mcse": mcse,
         # the long one-sided tails the probe found, each given tail_fraction of the draws
         "tails": [_tail_entry(model, t, n_each) for t in tails]
-                 + [_tail_entry(model, t, n_each, " with the clip floor") for t in pairs],
+        + [_tail_entry(model, t, n_each, " with the clip floor") for t in pairs],
         "settings": asdict(settings),
     }
     D = x_map.size
     chains = ChainResult(
         chain=draws.reshape(1, n_draws, 1, D),
         log_prob=lp.reshape(1, n_draws, 1),
-        acceptance=np.array([1.0]),       # no Markov chain: every resampled draw is kept
-        tau=np.ones(D),                   # independent draws: τ = 1 step
-        x_map=x_map, lp_map=float(lp_map),
+        acceptance=np.array([1.0]),  # no Markov chain: every resampled draw is kept
+        tau=np.ones(D),  # independent draws: τ = 1 step
+        x_map=x_map,
+        lp_map=float(lp_map),
         settings=QUALITY_PRESETS["fast"],
-        wall_s=wall, n_rounds=0,
-        extra={k: diag[k] for k in ("method", "khat", "ess_is", "n_proposals", "n_topup", "accepted", "reason",
-                                    "khat_max", "min_ess_is", "nu", "end_mcse", "end_mcse_max", "end_tolerance",
-                                    "end_confidence", "end_within_probability", "tails", "settings")},
+        wall_s=wall,
+        n_rounds=0,
+        extra={
+            k: diag[k]
+            for k in (
+                "method",
+                "khat",
+                "ess_is",
+                "n_proposals",
+                "n_topup",
+                "accepted",
+                "reason",
+                "khat_max",
+                "min_ess_is",
+                "nu",
+                "end_mcse",
+                "end_mcse_max",
+                "end_tolerance",
+                "end_confidence",
+                "end_within_probability",
+                "tails",
+                "settings",
+            )
+        },
     )
     # the weighted draws behind the resampled ones (those of non-negligible weight, as _end_mcse
     # keeps them): FitResult computes the interval ends' Monte Carlo error of the derived
@@ -365,8 +411,16 @@ def _fast_once(model, seed, n_draws, settings, x_map, cov, derived_fn=None):
 
 
 @one_blas_thread
-def fast_posterior(model, *, seed, n_draws: int | None = None,
-                   settings: FastSettings = FastSettings(), x_map=None, cov=None, derived_fn=None):
+def fast_posterior(
+    model,
+    *,
+    seed,
+    n_draws: int | None = None,
+    settings: FastSettings = FastSettings(),
+    x_map=None,
+    cov=None,
+    derived_fn=None,
+):
     """Laplace–IS posterior draws for ``model`` (module docstring).
 
     Parameters
@@ -392,15 +446,19 @@ def fast_posterior(model, *, seed, n_draws: int | None = None,
     """
     chains, diag = _fast_once(model, seed, n_draws, settings, x_map, cov, derived_fn)
     diag["retried_with_restarts"] = False
-    if (not diag["accepted"] and not diag["rejected_for_mcse_only"] and x_map is None
-            and settings.retry_restarts > settings.n_restarts):
+    if (
+        not diag["accepted"]
+        and not diag["rejected_for_mcse_only"]
+        and x_map is None
+        and settings.retry_restarts > settings.n_restarts
+    ):
         # a single optimiser start can stop at the initial guess (measured on small-frame
         # sensors): retry with restarts before declaring failure
         retry = replace(settings, n_restarts=settings.retry_restarts, polish_both=True)
         c2, d2 = _fast_once(model, seed, n_draws, retry, None, None, derived_fn)
         first = {k: diag[k] for k in ("khat", "ess_is", "reason")}
         wall = d2["wall_s"] + diag["wall_s"]
-        if d2["accepted"] or d2["khat"] < diag["khat"]:   # keep the better of the two attempts
+        if d2["accepted"] or d2["khat"] < diag["khat"]:  # keep the better of the two attempts
             chains, diag = c2, d2
         diag["wall_s"] = chains.wall_s = wall
         diag["retried_with_restarts"] = True

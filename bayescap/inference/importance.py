@@ -1,6 +1,7 @@
 """Importance-sampling building blocks: multivariate Student-t draws and log densities, Pareto-
 smoothed importance weights (PSIS, with k̂ and the importance-sampling ESS), systematic
 resampling and moment matching of weighted draws."""
+
 from __future__ import annotations
 
 import warnings
@@ -27,8 +28,13 @@ def student_t_draws(mean, cov, nu, n, rng):
     x = mean + (z @ L.T) / np.sqrt(u)[:, None]
     maha = np.einsum("ij,ij->i", z, z) / u
     logdet = 2.0 * np.sum(np.log(np.diag(L)))
-    logq = (gammaln(0.5 * (nu + d)) - gammaln(0.5 * nu) - 0.5 * d * np.log(nu * np.pi)
-            - 0.5 * logdet - 0.5 * (nu + d) * np.log1p(maha / nu))
+    logq = (
+        gammaln(0.5 * (nu + d))
+        - gammaln(0.5 * nu)
+        - 0.5 * d * np.log(nu * np.pi)
+        - 0.5 * logdet
+        - 0.5 * (nu + d) * np.log1p(maha / nu)
+    )
     return x, logq
 
 
@@ -45,8 +51,7 @@ def _t_logpdf(mean, cov, nu):
     d = mean.size
     L = np.linalg.cholesky(cov)
     Linv_t = np.linalg.inv(L).T
-    const = (gammaln(0.5 * (nu + d)) - gammaln(0.5 * nu) - 0.5 * d * np.log(nu * np.pi)
-             - np.sum(np.log(np.diag(L))))
+    const = gammaln(0.5 * (nu + d)) - gammaln(0.5 * nu) - 0.5 * d * np.log(nu * np.pi) - np.sum(np.log(np.diag(L)))
 
     def logpdf(x):
         z = (np.atleast_2d(x) - mean) @ Linv_t

@@ -3,6 +3,7 @@ hands its ``log_prob`` requests to a :class:`Lockstep` evaluator; once every run
 requests are evaluated in one :class:`~bayescap.model.PTCModelStack` call, and each path resumes
 with its own values (bit for bit those of its own model). Used by :func:`bayescap.batch.fit_many` and by
 the MCMC's ensembles sharing a call."""
+
 from __future__ import annotations
 
 import copy
@@ -45,6 +46,7 @@ class Lockstep:
             if isinstance(r, BaseException):
                 raise r
             return r
+
         return log_prob
 
     def _evaluate(self, requests):
@@ -102,7 +104,7 @@ class Lockstep:
             for i in todo:
                 try:
                     out[i] = fns[i](self.log_prob_for(i))
-                except Exception as e:   # one sensor's failure must not stop the others
+                except Exception as e:  # one sensor's failure must not stop the others
                     out[i] = e
 
         n = len(fns) if concurrency is None else max(1, min(int(concurrency), len(fns)))
@@ -143,9 +145,10 @@ def _fast_paths(models, seeds, settings, stack_size: int = 64, derived_fns=None)
 
     ls = Lockstep(PTCModelStack(models))
     dfs = derived_fns or [None] * len(models)
-    fns = [(lambda lp, m=m, s=s, df=df: fast_posterior(_with_log_prob(m, lp), seed=s, settings=settings,
-                                                        derived_fn=df))
-           for m, s, df in zip(models, seeds, dfs)]
+    fns = [
+        (lambda lp, m=m, s=s, df=df: fast_posterior(_with_log_prob(m, lp), seed=s, settings=settings, derived_fn=df))
+        for m, s, df in zip(models, seeds, dfs)
+    ]
     t0 = time.perf_counter()
     out = ls.run(fns, concurrency=stack_size)
     wall = (time.perf_counter() - t0) / len(models)
@@ -154,8 +157,11 @@ def _fast_paths(models, seeds, settings, stack_size: int = 64, derived_fns=None)
             chains, fd = r
             chains.wall_s = fd["wall_s"] = wall
             fd["stacked"] = chains.extra["stacked"] = {
-                "sensors": len(models), "stack_size": int(stack_size), "stacked_calls": ls.n_calls,
-                "note": "fast path run in lockstep with other sensors (bayescap.batch); wall time amortised"}
+                "sensors": len(models),
+                "stack_size": int(stack_size),
+                "stacked_calls": ls.n_calls,
+                "note": "fast path run in lockstep with other sensors (bayescap.batch); wall time amortised",
+            }
     return out
 
 

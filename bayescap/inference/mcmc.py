@@ -7,6 +7,7 @@ each started from its own draw around the optimum, and compute R-hat with one ch
 ensemble (Vehtari et al. 2021), and ESS with one chain per walker. The diagnostics are checked
 on every parameter and on the capacity (see :mod:`bayescap.posterior`).
 """
+
 from __future__ import annotations
 
 import multiprocessing as mp
@@ -18,13 +19,13 @@ import numpy as np
 from bayescap._blas import one_blas_thread
 from bayescap.inference.chains import ChainResult, stuck_walkers
 from bayescap.inference.coordinates import mcmc_start
+from bayescap.inference.curvature import _proposal_cov
 from bayescap.inference.diagnostics import (
     fast_diagnostics,
     integrated_time,
     interval_end_mcse_mcmc,
     worst_end,
 )
-from bayescap.inference.curvature import _proposal_cov
 from bayescap.inference.presets import FastSettings, SamplerSettings
 from bayescap.model import PTCModel
 from bayescap.model.threads import _allowed
@@ -41,8 +42,7 @@ def _moves(settings: SamplerSettings, x_map=None, cov=None, fraction=None):
     ind = (settings.independence_fraction if fraction is None else fraction) if x_map is not None else 0.0
     out = []
     if ind > 0:
-        out.append((IndependenceMove(x_map, cov, nu=settings.independence_nu, scale=settings.independence_scale),
-                    ind))
+        out.append((IndependenceMove(x_map, cov, nu=settings.independence_nu, scale=settings.independence_scale), ind))
     rest = 1.0 - ind
     if rest <= 0:
         return out
@@ -72,9 +72,13 @@ def _importance_start(model, x_map, cov, seed, coords=None, n_proposals=6000):
     target = model if coords is None else coords
     # no gate on the interval ends' Monte Carlo error (the fast preset's default has one): these
     # draws only start the walkers, and a top-up or a rejection would change them
-    chains, diag = fast_posterior(target, seed=seed, x_map=x_map, cov=cov,
-                                  settings=FastSettings(n_draws=4000, floor_pair=False, n_proposals=n_proposals,
-                                                        end_mcse_max=None))
+    chains, diag = fast_posterior(
+        target,
+        seed=seed,
+        x_map=x_map,
+        cov=cov,
+        settings=FastSettings(n_draws=4000, floor_pair=False, n_proposals=n_proposals, end_mcse_max=None),
+    )
     if not diag["accepted"]:
         return None
     x = chains.chain.reshape(-1, model.ndim)
@@ -95,7 +99,7 @@ def _initial_ball(model, x_map, cov, n_walkers, rng):
         z = x_map + rng.standard_normal((n_walkers, x_map.size)) @ L.T
         ok = np.isfinite(model.log_prob(z))
         take = min(ok.sum(), n_walkers - filled)
-        out[filled:filled + take] = z[ok][:take]
+        out[filled : filled + take] = z[ok][:take]
         filled += take
         if filled == n_walkers:
             return out
@@ -206,8 +210,17 @@ def _run_segment(task, model=None):
     # which the walkers, drawn from a full-rank Laplace covariance, rightly reproduce
     state = s.run_mcmc(state, n_steps, progress=False, skip_initial_state_check=True)
     accepted = s.acceptance_fraction * n_steps
-    return (idx, s.get_chain(), s.get_log_prob(), state.coords, state.log_prob, state.random_state, accepted,
-            n_reset, proposal)
+    return (
+        idx,
+        s.get_chain(),
+        s.get_log_prob(),
+        state.coords,
+        state.log_prob,
+        state.random_state,
+        accepted,
+        n_reset,
+        proposal,
+    )
 
 
 def _reset_stuck_walkers(sampler, state, ndim):
@@ -290,9 +303,17 @@ def _map_segments(tasks, pool, pbar=None):
 
 
 @one_blas_thread
-def run_ensembles(model: PTCModel, *, settings: SamplerSettings = SamplerSettings(), seed=None,
-                  progress: bool = False, converged_fn=None, n_jobs: int | None = None,
-                  derived_fn=None, reported_fn=None) -> ChainResult:
+def run_ensembles(
+    model: PTCModel,
+    *,
+    settings: SamplerSettings = SamplerSettings(),
+    seed=None,
+    progress: bool = False,
+    converged_fn=None,
+    n_jobs: int | None = None,
+    derived_fn=None,
+    reported_fn=None,
+) -> ChainResult:
     """Run ``settings.n_ensembles`` independently seeded emcee ensembles.
 
     Each ensemble: walkers drawn from the Laplace approximation at the MAP, a burn-in, then
@@ -320,15 +341,20 @@ def run_ensembles(model: PTCModel, *, settings: SamplerSettings = SamplerSetting
     pbar = None
     if progress:
         from tqdm.auto import tqdm
-        pbar = tqdm(total=settings.n_ensembles * (settings.n_burn + settings.n_steps),
-                    desc="sampling", unit="step", leave=False)
+
+        pbar = tqdm(
+            total=settings.n_ensembles * (settings.n_burn + settings.n_steps), desc="sampling", unit="step", leave=False
+        )
     is_start = None
     proposal = (x_map, cov)
     if settings.independence_fraction > 0 and settings.importance_start:
         is_seed = int(ss.spawn(1)[0].generate_state(1)[0])
         n_is = settings.start_proposals
-        is_start = (_importance_start(model, x_map, cov, is_seed, n_proposals=n_is) if coords is None else
-                    _importance_start(model, z_map, cov_z, is_seed, coords=coords, n_proposals=n_is))
+        is_start = (
+            _importance_start(model, x_map, cov, is_seed, n_proposals=n_is)
+            if coords is None
+            else _importance_start(model, z_map, cov_z, is_seed, coords=coords, n_proposals=n_is)
+        )
         if is_start is not None:
             proposal = (is_start[1], is_start[2])
     tasks = []
@@ -342,7 +368,7 @@ def run_ensembles(model: PTCModel, *, settings: SamplerSettings = SamplerSetting
         rstate = np.random.RandomState(child.generate_state(1)[0]).get_state()
         tasks.append((i, p0, None, rstate, settings.n_burn, settings.n_steps, settings, proposal))
     _WORKER_MODEL = model
-    pool = _pool(n_jobs, len(tasks))      # forked after _WORKER_MODEL is set: the workers inherit it
+    pool = _pool(n_jobs, len(tasks))  # forked after _WORKER_MODEL is set: the workers inherit it
     try:
         chunks = [[] for _ in children]
         lps = [[] for _ in children]
@@ -350,7 +376,7 @@ def run_ensembles(model: PTCModel, *, settings: SamplerSettings = SamplerSetting
         walkers_reset = np.zeros(len(children), int)
         n_prod = 0
         rounds = 0
-        discard = 0          # production steps moved to the burn-in after a drift (below)
+        discard = 0  # production steps moved to the burn-in after a drift (below)
         drift = []
         while True:
             rounds += 1
@@ -365,8 +391,11 @@ def run_ensembles(model: PTCModel, *, settings: SamplerSettings = SamplerSetting
                 tasks.append((idx, coords, lpf, rstate, 0, 0, settings, prop))
             chain = np.stack([np.concatenate(c, axis=0) for c in chunks])[:, discard:]  # (E, S, W, D)
             cache = {}
-            ok = (converged_fn(chain, settings) if converged_fn is not None
-                  else _default_converged(chain, settings, cache, derived_fn, pool, reported_fn))
+            ok = (
+                converged_fn(chain, settings)
+                if converged_fn is not None
+                else _default_converged(chain, settings, cache, derived_fn, pool, reported_fn)
+            )
             if ok or rounds >= settings.max_rounds:
                 break
             n_done = chain.shape[1]
@@ -396,19 +425,32 @@ def run_ensembles(model: PTCModel, *, settings: SamplerSettings = SamplerSetting
             pbar.close()
     lp = np.stack([np.concatenate(c, axis=0) for c in lps])[:, discard:]
     acc = accepted / n_prod
-    end_mcse = cache.pop("end_mcse", None)       # of the final chain: the last check's
-    tau = cache.pop("_tau", None)                # the same: ~13 ms for a standard fit's chain
+    end_mcse = cache.pop("end_mcse", None)  # of the final chain: the last check's
+    tau = cache.pop("_tau", None)  # the same: ~13 ms for a standard fit's chain
     if tau is None:
         tau = integrated_time(chain)
-    return ChainResult(chain=chain, log_prob=lp, acceptance=acc, tau=tau, x_map=x_map, lp_map=lp_map,
-                       settings=settings, wall_s=time.perf_counter() - t0, n_rounds=rounds,
-                       extra={"n_jobs": n_jobs, "walkers_reset": [int(v) for v in walkers_reset],
-                              # production steps discarded as burn-in after a time-split R-hat failure
-                              "burn_in_extended": int(discard), "drift": drift,
-                              # diagnostics of the final chain's parameters, when all were computed
-                              "param_diagnostics": cache if ok and converged_fn is None else None,
-                              # {quantity: Monte Carlo error of its 95 % interval ends / width}
-                              "end_mcse": end_mcse})
+    return ChainResult(
+        chain=chain,
+        log_prob=lp,
+        acceptance=acc,
+        tau=tau,
+        x_map=x_map,
+        lp_map=lp_map,
+        settings=settings,
+        wall_s=time.perf_counter() - t0,
+        n_rounds=rounds,
+        extra={
+            "n_jobs": n_jobs,
+            "walkers_reset": [int(v) for v in walkers_reset],
+            # production steps discarded as burn-in after a time-split R-hat failure
+            "burn_in_extended": int(discard),
+            "drift": drift,
+            # diagnostics of the final chain's parameters, when all were computed
+            "param_diagnostics": cache if ok and converged_fn is None else None,
+            # {quantity: Monte Carlo error of its 95 % interval ends / width}
+            "end_mcse": end_mcse,
+        },
+    )
 
 
 def _end_mcse_share(xs):
@@ -516,10 +558,10 @@ def _next_round_steps(n_done, settings, cache):
         return base
     kind, *v = cache["_shortfall"]
     if kind == "tau":
-        need = v[0] if np.isfinite(v[0]) else base    # NaN: undefined τ, a walker yet to move
-    elif kind == "mcse":                   # the error falls as 1/√n
+        need = v[0] if np.isfinite(v[0]) else base  # NaN: undefined τ, a walker yet to move
+    elif kind == "mcse":  # the error falls as 1/√n
         need = 1.1 * n_done * ((v[0] / settings.end_mcse_target) ** 2 - 1.0)
-    elif v[1] >= settings.rhat_target:     # R-hat failed: no ESS-based guess
+    elif v[1] >= settings.rhat_target:  # R-hat failed: no ESS-based guess
         need = base
     else:
         need = 1.1 * n_done * (settings.ess_target / max(v[0], 1.0) - 1.0)

@@ -1,6 +1,7 @@
 """The fast path's mixture of proposals: adaptive moment-matching rounds and added components,
 each draw weighted against the whole mixture (the balance heuristic), with every proposal's
 density on every batch of draws computed once."""
+
 from __future__ import annotations
 
 import numpy as np
@@ -20,7 +21,7 @@ class _DensityCache:
         key = (id(f), id(xb))
         hit = self._d.get(key)
         if hit is None:
-            hit = self._d[key] = (f, xb, f(xb))     # f and xb kept alive: their ids stay theirs
+            hit = self._d[key] = (f, xb, f(xb))  # f and xb kept alive: their ids stay theirs
         return hit[2]
 
     def put(self, f, xb, values):
@@ -37,7 +38,7 @@ class _DensityCache:
             vals = f(todo[0] if len(todo) == 1 else np.vstack(todo))
             at = 0
             for xb in todo:
-                self.put(f, xb, vals[at:at + len(xb)])
+                self.put(f, xb, vals[at : at + len(xb)])
                 at += len(xb)
 
 
@@ -57,8 +58,8 @@ def _adaptive_rounds(model, settings, rng, comps, n2, cache=None):
     counts = [len(c[1]) for c in comps]
     xs, lps = [c[1] for c in comps], [c[2] for c in comps]
     cache.fill(pdfs, xs)
-    dens = [[cache.get(f, xb) for xb in xs] for f in pdfs]      # dens[k][b]: proposal k on batch b
-    moments = []                                     # (location, scale) of each new t proposal
+    dens = [[cache.get(f, xb) for xb in xs] for f in pdfs]  # dens[k][b]: proposal k on batch b
+    moments = []  # (location, scale) of each new t proposal
 
     def mix_logq():
         # log Σ_k (n_k/N) q_k(x), one log-sum-exp over the stacked components (numpy's pairwise
@@ -79,19 +80,20 @@ def _adaptive_rounds(model, settings, rng, comps, n2, cache=None):
         xr, lq_own = student_t_draws(mu, c, nu, n_r, rng)
         with np.errstate(all="ignore"):
             lpr = model.log_prob(xr)
-        for k, f in enumerate(pdfs):                 # the earlier proposals on the new batch
+        for k, f in enumerate(pdfs):  # the earlier proposals on the new batch
             dens[k].append(cache.get(f, xr))
         t_new = _t_logpdf(mu, c, nu)
         cache.put(t_new, xr, lq_own)
         cache.fill([t_new], xs)
-        dens.append([cache.get(t_new, xb) for xb in xs] + [lq_own])   # the new one on all
+        dens.append([cache.get(t_new, xb) for xb in xs] + [lq_own])  # the new one on all
         pdfs.append(t_new)
         moments.append((mu, c))
         counts.append(n_r)
         xs.append(xr)
         lps.append(lpr)
-    comps_out = [(pdfs[k], xs[k], lps[k], comps[k][3] if k < len(comps) else moments[k - len(comps)])
-                 for k in range(len(xs))]
+    comps_out = [
+        (pdfs[k], xs[k], lps[k], comps[k][3] if k < len(comps) else moments[k - len(comps)]) for k in range(len(xs))
+    ]
     return np.vstack(xs), np.concatenate(lps), mix_logq(), comps_out
 
 
@@ -117,7 +119,7 @@ def _add_components(model, settings, rng, comps, new, cache=None):
     at = np.cumsum([0] + [len(xr) for xr in new_x])
     out = list(comps)
     for k, (xr, (mu, c, _), f) in enumerate(zip(new_x, new, new_pdf)):
-        out.append((f, xr, lpb[at[k]:at[k + 1]], (mu, c)))
+        out.append((f, xr, lpb[at[k] : at[k + 1]], (mu, c)))
     allx = xs + new_x
     allpdf = pdfs + new_pdf
     counts = counts + [len(xr) for xr in new_x]
@@ -126,8 +128,9 @@ def _add_components(model, settings, rng, comps, new, cache=None):
     for f, xr, lq in zip(new_pdf, new_x, new_lq):
         cache.put(f, xr, lq)
     cache.fill(allpdf, allx)
-    terms = np.stack([np.log(n / n_all) + np.concatenate([cache.get(f, xb) for xb in allx])
-                      for f, n in zip(allpdf, counts)])
+    terms = np.stack(
+        [np.log(n / n_all) + np.concatenate([cache.get(f, xb) for xb in allx]) for f, n in zip(allpdf, counts)]
+    )
     top = np.max(terms, axis=0)
     top = np.where(np.isfinite(top), top, 0.0)
     with np.errstate(under="ignore", divide="ignore", invalid="ignore"):

@@ -2,6 +2,7 @@
 (``bayescap.inference.IndependenceMove`` loads it on first access) so that ``import bayescap`` does not
 import emcee: emcee's moves import scipy.stats (~0.75 s, ``python -X importtime -c "import
 bayescap.cli"``), which a fast-preset fit never needs."""
+
 from __future__ import annotations
 
 import emcee
@@ -33,7 +34,7 @@ class IndependenceMove(emcee.moves.MHMove):
         c = _proposal_cov(np.asarray(cov, float), scale)
         try:
             self.L = np.linalg.cholesky(c)
-        except np.linalg.LinAlgError:   # eigenvalue floor at 1e-14 of the largest can still fail: jitter
+        except np.linalg.LinAlgError:  # eigenvalue floor at 1e-14 of the largest can still fail: jitter
             self.L = np.linalg.cholesky(c + 1e-10 * np.max(np.diag(c)) * np.eye(c.shape[0]))
         self.n_proposed = 0
         self.n_accepted = 0

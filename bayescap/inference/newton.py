@@ -1,6 +1,7 @@
 """Newton's method on whitened finite-difference Hessians, from several starts at once: the default
 optimiser of :func:`bayescap.inference.optimize.laplace_start`, whose stopping rule also leaves a
 self-consistent Laplace covariance."""
+
 from __future__ import annotations
 
 from dataclasses import dataclass
@@ -9,7 +10,6 @@ import numpy as np
 
 from bayescap.inference.curvature import _clipped_inverse, _proposal_cov, _stencil_derivatives, _unit_stencil
 from bayescap.inference.starts import _no_finite_start
-
 
 #: :func:`newton_map`'s knobs. The stencil's half-width in whitened units (``h·α`` = 0.2 posterior sd,
 #: far above the 1e-5-1e-4 jitter of ``log_prob``, as in :func:`refine_covariance`); α, the whitening
@@ -55,17 +55,25 @@ def _same_mode(a, b):
     """Start ``a`` (lower) is within :data:`NEWTON_MERGE_SD` posterior sd of start ``b``, and its log p
     within what a Gaussian would put there (``NEWTON_MERGE_SD²/2`` nats, + 1): a start's own early
     covariance can be wide enough to take in points of another mode."""
-    if b["lp"] - a["lp"] > 0.5 * NEWTON_MERGE_SD ** 2 + 1.0:
+    if b["lp"] - a["lp"] > 0.5 * NEWTON_MERGE_SD**2 + 1.0:
         return False
     for c in (b["cov"], a["cov"]):
         r = np.linalg.solve(np.linalg.cholesky(c), a["x"] - b["x"])
-        if float(r @ r) < NEWTON_MERGE_SD ** 2:
+        if float(r @ r) < NEWTON_MERGE_SD**2:
             return True
     return False
 
 
-def newton_map(target, starts, *, max_iter: int = 60, h: float = NEWTON_H, alpha: float = NEWTON_ALPHA,
-               raw_h: float = 1e-4, max_stalls: int = 3):
+def newton_map(
+    target,
+    starts,
+    *,
+    max_iter: int = 60,
+    h: float = NEWTON_H,
+    alpha: float = NEWTON_ALPHA,
+    raw_h: float = 1e-4,
+    max_stalls: int = 3,
+):
     """Maximise ``target.log_prob`` from several starts at once by Newton's method on
     finite-difference Hessians in whitened coordinates; returns one :class:`NewtonOptimum` per
     finite start (in the order given) and the number of ``log_prob`` calls.
@@ -114,9 +122,10 @@ def newton_map(target, starts, *, max_iter: int = 60, h: float = NEWTON_H, alpha
     keep = [i for i in range(len(starts)) if np.isfinite(lp0[i])]
     if not keep:
         _no_finite_start(target, starts[0])
-    states = [dict(i=i, x=starts[i], lp=float(lp0[i]), it=0, stalls=0, walls=0, done=False, reason="", conv=False,
-                   spec=False)
-              for i in keep]
+    states = [
+        dict(i=i, x=starts[i], lp=float(lp0[i]), it=0, stalls=0, walls=0, done=False, reason="", conv=False, spec=False)
+        for i in keep
+    ]
 
     def raw_stencil(group):
         """The raw stencil at each state's point, one call: it sets the whitening (covariance with
@@ -152,8 +161,9 @@ def newton_map(target, starts, *, max_iter: int = 60, h: float = NEWTON_H, alpha
         # first finite one is used), rather than one call per level and start
         retry = [s for s in active if s["raw"] is None and not np.all(np.isfinite(s["Q"]))]
         if retry:
-            R = lp_of(np.vstack([s["x"] + (hh * Y) @ s["L"].T for s in retry
-                                 for hh in (0.1 * s["h"], 0.01 * s["h"])])).reshape(len(retry), 2, m)
+            R = lp_of(
+                np.vstack([s["x"] + (hh * Y) @ s["L"].T for s in retry for hh in (0.1 * s["h"], 0.01 * s["h"])])
+            ).reshape(len(retry), 2, m)
             for s, qq in zip(retry, R):
                 h0 = s["h"]
                 s["Q"], s["h"] = (qq[0], 0.1 * h0) if np.all(np.isfinite(qq[0])) else (qq[1], 0.01 * h0)
@@ -193,7 +203,7 @@ def newton_map(target, starts, *, max_iter: int = 60, h: float = NEWTON_H, alpha
                 s.update(done=True, reason="the covariance is not positive definite")
                 continue
             s["cov"] = cov_new
-            if gain < NEWTON_GAIN_TOL and consistent and raw is None:   # never on the raw Hessian alone
+            if gain < NEWTON_GAIN_TOL and consistent and raw is None:  # never on the raw Hessian alone
                 s.update(done=True, conv=True, reason="converged")
                 continue
             s["d"], s["L_old"], s["L"] = d, s["L"], L_new

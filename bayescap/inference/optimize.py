@@ -2,6 +2,7 @@
 :func:`find_map_scaled`) with :func:`polish_map`, and :func:`laplace_start`, the multi-start
 shared by the fast path and the MCMC, which runs Newton's method (:mod:`bayescap.inference.newton`)
 by default and the BFGS route on request."""
+
 from __future__ import annotations
 
 import time
@@ -21,7 +22,7 @@ def _vectorised_grad(model: PTCModel, x, h=1e-5):
     step = h * np.maximum(1.0, np.abs(x))
     pts = np.vstack([x, x + np.diag(step), x - np.diag(step)])
     lp = model.log_prob(pts)
-    g = (lp[1:n + 1] - lp[n + 1:]) / (2 * step)
+    g = (lp[1 : n + 1] - lp[n + 1 :]) / (2 * step)
     return lp[0], g
 
 
@@ -70,7 +71,7 @@ def _bfgs(fun, x0):
             res = optimize.minimize(watched, x0, jac=True, method="BFGS", options=dict(maxiter=2000, gtol=1e-6))
         except _Stalled:
             return best[1], best[0]
-    return res.x, res.fun             # ran to its own end: as scipy returns it
+    return res.x, res.fun  # ran to its own end: as scipy returns it
 
 
 def find_map(model: PTCModel, x0=None, *, n_restarts: int = 2):
@@ -147,7 +148,7 @@ def find_map_scaled(model: PTCModel, x0=None, *, h: float = 1e-3):
     step = h * np.maximum(1.0, np.abs(x0))
     with np.errstate(all="ignore"):
         lp = model.log_prob(np.vstack([x0, x0 + np.diag(step), x0 - np.diag(step)]))
-        hd = (lp[1:n + 1] + lp[n + 1:] - 2.0 * lp[0]) / step**2
+        hd = (lp[1 : n + 1] + lp[n + 1 :] - 2.0 * lp[0]) / step**2
     D = np.where(np.isfinite(hd) & (hd < 0), 1.0 / np.sqrt(np.abs(hd)), 1.0)
     D = np.clip(D, 1e-8, 1.0)
 
@@ -180,8 +181,17 @@ def _refine_and_polish(target, x_map, lp_map, refine_iter, polish):
 LAPLACE_OPTIMIZER = "newton"
 
 
-def laplace_start(model: PTCModel, *, n_restarts: int = 2, refine_iter: int = 6, polish: bool = True,
-                  multi_start: bool = True, coords=None, polish_both: bool = False, optimizer: str | None = None):
+def laplace_start(
+    model: PTCModel,
+    *,
+    n_restarts: int = 2,
+    refine_iter: int = 6,
+    polish: bool = True,
+    multi_start: bool = True,
+    coords=None,
+    polish_both: bool = False,
+    optimizer: str | None = None,
+):
     """MAP and a self-consistent Laplace covariance: where both the MCMC walkers and the fast path's
     importance proposals start.
 
@@ -229,7 +239,7 @@ def laplace_start(model: PTCModel, *, n_restarts: int = 2, refine_iter: int = 6,
             if np.isfinite(lp):
                 found.append((x, lp))
     best = None
-    done = []          # (x, Cholesky factor of its covariance) of the optima refined so far
+    done = []  # (x, Cholesky factor of its covariance) of the optima refined so far
     for x_map, lp_map in sorted(found, key=lambda r: -r[1]):
         if coords is not None and polish_both:
             x_map, lp_map, _ = _refine_and_polish(model, x_map, lp_map, refine_iter, polish)

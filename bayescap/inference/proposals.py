@@ -1,6 +1,7 @@
 """Proposals of the fast path beyond the Laplace t: the tail probe and the defensive components it
 calls for (the clip floor, long one-sided tails, a tail paired with the clip floor), and the
 targeted top-up's t components aimed at the interval ends whose Monte Carlo error is too large."""
+
 from __future__ import annotations
 
 import numpy as np
@@ -37,7 +38,7 @@ def _clip_floor_proposal(model, x_map, c1, nu):
         xo, lqo = student_t_draws(m_o, c_o, nu, n, rng)
         z = np.empty((n, D))
         z[:, oth] = xo
-        z[:, j] = log_a + np.log1p(-rng.random(n))      # log of a uniform on (0, 1]
+        z[:, j] = log_a + np.log1p(-rng.random(n))  # log of a uniform on (0, 1]
         return z, lqo + (z[:, j] - log_a)
 
     t_o = _t_logpdf(m_o, c_o, nu)
@@ -52,7 +53,7 @@ def _clip_floor_proposal(model, x_map, c1, nu):
 
 #: where :func:`_tail_probe` looks, in Laplace sds from the MAP, and how far a tail must reach
 _TAIL_GRID = np.array([3.0, 4.5, 6.0, 8.0, 11.0, 16.0, 24.0, 36.0])
-_TAIL_DROP = 10.0      # a tail reaches as far as log p stays within this of the MAP's (nats)
+_TAIL_DROP = 10.0  # a tail reaches as far as log p stays within this of the MAP's (nats)
 _TAIL_MIN_REACH = 6.0  # a Gaussian reaches 4.47 sd: beyond 6, the Laplace t under-covers the tail
 
 
@@ -77,7 +78,7 @@ def _tail_probe(model, x_map, lp_map, cov, skip=()):
     G = _TAIL_GRID
     rays = []
     for j in range(D):
-        line = cov[:, j] / sd[j]                     # one Laplace sd of x_j, the others conditional
+        line = cov[:, j] / sd[j]  # one Laplace sd of x_j, the others conditional
         axis = np.zeros(D)
         axis[j] = sd[j]
         dirs = [line] if np.array_equal(line, axis) else [line, axis]
@@ -98,7 +99,7 @@ def _tail_probe(model, x_map, lp_map, cov, skip=()):
         if n_in == 0:
             continue
         reach = G[n_in - 1]
-        if n_in < G.size and np.isfinite(dr[n_in]):   # linear interpolation to the crossing
+        if n_in < G.size and np.isfinite(dr[n_in]):  # linear interpolation to the crossing
             a, b = dr[n_in - 1], dr[n_in]
             reach += (G[n_in] - G[n_in - 1]) * (a + _TAIL_DROP) / (a - b)
         if reach > _TAIL_MIN_REACH and reach > best.get((j, side), (0.0, None))[0]:
@@ -117,8 +118,12 @@ def _coord_name(model, j):
 def _tail_entry(model, tail, n_draws, suffix=""):
     """A tail of :func:`_tail_probe` (or a pair with the clip floor) as the diagnostics list it."""
     j, side, _, reach = tail
-    return {"parameter": _coord_name(model, j) + suffix, "side": "lower" if side < 0 else "upper",
-            "reach_sd": round(float(reach), 2), "n_draws": int(n_draws)}
+    return {
+        "parameter": _coord_name(model, j) + suffix,
+        "side": "lower" if side < 0 else "upper",
+        "reach_sd": round(float(reach), 2),
+        "n_draws": int(n_draws),
+    }
 
 
 def _tail_proposal(x_map, c1, nu, j, direction, reach):
@@ -131,11 +136,11 @@ def _tail_proposal(x_map, c1, nu, j, direction, reach):
     D = x_map.size
     oth = np.array([i for i in range(D) if i != j], int)
     sd_j = float(np.sqrt(c1[j, j]))
-    step = np.asarray(direction, float) / direction[j]        # per unit of x_j − x_MAP,j
+    step = np.asarray(direction, float) / direction[j]  # per unit of x_j − x_MAP,j
     side = float(np.sign(direction[j]))
-    top = 1.25 * reach * sd_j                                   # the range of |x_j − x_MAP,j|
+    top = 1.25 * reach * sd_j  # the range of |x_j − x_MAP,j|
     c_o = c1[np.ix_(oth, oth)]
-    if np.count_nonzero(step[oth]):                             # the conditional line
+    if np.count_nonzero(step[oth]):  # the conditional line
         c_o = c_o - np.outer(c1[oth, j], c1[j, oth]) / c1[j, j]
     c_o = _proposal_cov(c_o, 1.0)
     zero = np.zeros(oth.size)

@@ -1,6 +1,7 @@
 """Where the optimisers start: fixed perturbations of the initial guess, the extra starts of the
 multi-start (a larger variance discrepancy, a clip spread off its prior cap), and the error raised
 when no start has a finite log posterior."""
+
 from __future__ import annotations
 
 import numpy as np
@@ -20,17 +21,23 @@ def _no_finite_start(target, x0):
             x = target.to_x(x)
         bad = model.nonfinite_observations(x)
     if not bad:
-        raise RuntimeError("no finite starting point for the optimiser: the data may be inconsistent "
-                           "with the model (check the units of the columns)")
+        raise RuntimeError(
+            "no finite starting point for the optimiser: the data may be inconsistent "
+            "with the model (check the units of the columns)"
+        )
     from bayescap.exceptions import PTCInputError
 
     block, row, column, obs, mod = bad[0]
     others = sorted({r for _, r, _, _, _ in bad[1:] if r != row})
-    more = (f"; rows {', '.join(map(str, others[:10]))}{' ...' if len(others) > 10 else ''} likewise"
-            if others else "")
-    raise PTCInputError(f"the model gives the value {obs:.6g} no finite likelihood at the optimiser's start "
-                        f"(its prediction there: {mod:.6g}), so nothing was fitted: check this row's values "
-                        f"and their units{more}", path=model.data.source, row=row, column=column)
+    more = f"; rows {', '.join(map(str, others[:10]))}{' ...' if len(others) > 10 else ''} likewise" if others else ""
+    raise PTCInputError(
+        f"the model gives the value {obs:.6g} no finite likelihood at the optimiser's start "
+        f"(its prediction there: {mod:.6g}), so nothing was fitted: check this row's values "
+        f"and their units{more}",
+        path=model.data.source,
+        row=row,
+        column=column,
+    )
 
 
 #: shifts of log f (the variance discrepancy) for the extra optimiser starts of :func:`laplace_start`:
@@ -60,7 +67,7 @@ def _map_starts(model, x0=None):
     with the row as an outlier is another local optimum, and the start decides which one a local
     optimiser finds (docs/performance.md, "Local optima"). ``x0``: the initial guess when the
     caller has it already (it costs ~3 ms on the Basler: a fast fit computed it twice)."""
-    x0 = np.array(model.initial_guess() if x0 is None else x0, dtype=float)   # a copy
+    x0 = np.array(model.initial_guess() if x0 is None else x0, dtype=float)  # a copy
     names = list(getattr(model, "names", []))
     out = []
     if "log_f" in names:

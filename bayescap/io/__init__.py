@@ -1,9 +1,17 @@
 """Input and output: the photon-transfer CSV contract and frames -> photon-transfer CSV."""
+
 from bayescap.io.atomic import atomic_write_text
 from bayescap.io.frames import Frame, read_frame
 from bayescap.io.ingest import ingest
-from bayescap.io.manifest import (ExposureLevel, FrameEntry, FrameSet, group_levels,
-                                  load_frame_set, read_emva_descriptor, read_manifest)
+from bayescap.io.manifest import (
+    ExposureLevel,
+    FrameEntry,
+    FrameSet,
+    group_levels,
+    load_frame_set,
+    read_emva_descriptor,
+    read_manifest,
+)
 from bayescap.io.ptc_csv import PTCData, read_ptc_csv, write_ptc_csv
 from bayescap.io.roi import CHANNELS, cfa_positions, parse_roi, split_cfa
 from bayescap.io.statistics import SetStatistics, pair_statistics, spatial_variance_dn2

@@ -1,4 +1,5 @@
 """Atomic text output: a file is either written whole or left as it was."""
+
 from __future__ import annotations
 
 import os

@@ -5,6 +5,7 @@ pixels in DN with the black level still in them, and what the file says about bl
 level, colour filter array and exposure time. rawpy, tifffile and Pillow are imported only
 where a file of their kind is read.
 """
+
 from __future__ import annotations
 
 import contextlib
@@ -179,40 +180,54 @@ def _read_rawpy(path: Path) -> Frame:
                 colors = np.array(raw.raw_colors_visible[:2, :2])
             shutter = float(raw.other.shutter_speed)
     except (rawpy.LibRawError, OSError, ValueError) as exc:
-        raise IngestError(f"cannot read the frame as camera RAW/DNG ({type(exc).__name__}: "
-                          f"{exc}); is the file complete and a supported format?",
-                          path=path) from exc
+        raise IngestError(
+            f"cannot read the frame as camera RAW/DNG ({type(exc).__name__}: "
+            f"{exc}); is the file complete and a supported format?",
+            path=path,
+        ) from exc
     if pixels.ndim != 2:
-        raise IngestError(f"the RAW data are {pixels.ndim}-dimensional {pixels.shape}; only "
-                          "single-plane mosaic or monochrome RAW files can be measured",
-                          path=path)
+        raise IngestError(
+            f"the RAW data are {pixels.ndim}-dimensional {pixels.shape}; only "
+            "single-plane mosaic or monochrome RAW files can be measured",
+            path=path,
+        )
     if num_colors == 1:
         cfa, black_dn = None, black[0]
     else:
         letters = "".join(desc[c] if c < len(desc) else "?" for c in colors.ravel())
         if sorted(letters) != sorted("RGGB") or pixels.shape[0] < 2 or pixels.shape[1] < 2:
-            raise IngestError(f"unsupported colour filter array (colours {desc!r}, 2x2 tile "
-                              f"{letters!r}); only 2x2 Bayer patterns are supported", path=path)
+            raise IngestError(
+                f"unsupported colour filter array (colours {desc!r}, 2x2 tile "
+                f"{letters!r}); only 2x2 Bayer patterns are supported",
+                path=path,
+            )
         cfa = letters
         black_dn = np.array([[black[c] for c in row] for row in colors], dtype=float)
     tags = _tiff_tags(path)
     make, model = _tag_text(tags.get(271)), _tag_text(tags.get(272))
     if model is None:
         model = _tag_text(tags.get(50708))  # DNG UniqueCameraModel
-    return Frame(pixels=pixels, black_level_dn=black_dn, white_level_dn=white,
-                 cfa_pattern=cfa,
-                 exposure_time_s=_round_float32_seconds(shutter) if shutter > 0 else None,
-                 path=path, adc_bits=_bits_for_white_level(white) if white > 0 else None,
-                 make=make, model=model)
+    return Frame(
+        pixels=pixels,
+        black_level_dn=black_dn,
+        white_level_dn=white,
+        cfa_pattern=cfa,
+        exposure_time_s=_round_float32_seconds(shutter) if shutter > 0 else None,
+        path=path,
+        adc_bits=_bits_for_white_level(white) if white > 0 else None,
+        make=make,
+        model=model,
+    )
 
 
 def _check_integer_image(pixels: np.ndarray, path: Path) -> int:
     if pixels.ndim != 2:
-        raise IngestError(f"the image has shape {pixels.shape}; a raw frame must be a single "
-                          "2-D plane (no RGB or multi-page images)", path=path)
+        raise IngestError(
+            f"the image has shape {pixels.shape}; a raw frame must be a single 2-D plane (no RGB or multi-page images)",
+            path=path,
+        )
     if pixels.dtype.kind not in "ui":
-        raise IngestError(f"sample type {pixels.dtype} is not an integer type; raw frames "
-                          "hold integer DN", path=path)
+        raise IngestError(f"sample type {pixels.dtype} is not an integer type; raw frames hold integer DN", path=path)
     if pixels.dtype.kind == "i" and pixels.size and int(pixels.min()) < 0:
         raise IngestError("the image holds negative values; raw frames hold DN >= 0", path=path)
     return 8 * pixels.dtype.itemsize
@@ -232,18 +247,26 @@ def _read_pillow(path: Path) -> Frame:
             mode = img.mode
             pixels = np.array(img)
     except Exception as exc:  # Pillow raises OSError, SyntaxError, ValueError, ...
-        raise IngestError(f"cannot decode the image ({type(exc).__name__}: {exc})",
-                          path=path) from exc
+        raise IngestError(f"cannot decode the image ({type(exc).__name__}: {exc})", path=path) from exc
     if mode not in ("L", "I", "I;16", "I;16B", "I;16L"):
-        raise IngestError(f"image mode {mode!r} is not a single-channel 8/16-bit grey image; "
-                          "save raw frames as greyscale PNG", path=path)
+        raise IngestError(
+            f"image mode {mode!r} is not a single-channel 8/16-bit grey image; save raw frames as greyscale PNG",
+            path=path,
+        )
     if mode == "I":
         if pixels.size and (pixels.min() < 0 or pixels.max() > 65535):
             raise IngestError("32-bit PNG values outside 0..65535", path=path)
         pixels = pixels.astype(np.uint16)
     bits = _check_integer_image(pixels, path)
-    return Frame(pixels=pixels, black_level_dn=0.0, white_level_dn=float(2 ** bits - 1),
-                 cfa_pattern=None, exposure_time_s=None, path=path, adc_bits=bits)
+    return Frame(
+        pixels=pixels,
+        black_level_dn=0.0,
+        white_level_dn=float(2**bits - 1),
+        cfa_pattern=None,
+        exposure_time_s=None,
+        path=path,
+        adc_bits=bits,
+    )
 
 
 def _read_tiff(path: Path) -> Frame:
@@ -256,20 +279,30 @@ def _read_tiff(path: Path) -> Frame:
             size = path.stat().st_size
             ends = [int(o) + int(n) for o, n in zip(page.dataoffsets, page.databytecounts)]
             if not ends or max(ends) > size:
-                raise IngestError(f"the TIFF file is truncated (image data end at byte "
-                                  f"{max(ends) if ends else 0}, the file has {size})", path=path)
+                raise IngestError(
+                    f"the TIFF file is truncated (image data end at byte "
+                    f"{max(ends) if ends else 0}, the file has {size})",
+                    path=path,
+                )
             pixels = page.asarray()
             bits = int(page.bitspersample)
     except IngestError:
         raise
     except Exception as exc:
-        raise IngestError(f"cannot read the TIFF image ({type(exc).__name__}: {exc})",
-                          path=path) from exc
+        raise IngestError(f"cannot read the TIFF image ({type(exc).__name__}: {exc})", path=path) from exc
     _check_integer_image(pixels, path)
     tags = _tiff_tags(path)
-    return Frame(pixels=pixels, black_level_dn=0.0, white_level_dn=float(2 ** bits - 1),
-                 cfa_pattern=None, exposure_time_s=_tag_seconds(tags.get(33434)), path=path,
-                 adc_bits=bits, make=_tag_text(tags.get(271)), model=_tag_text(tags.get(272)))
+    return Frame(
+        pixels=pixels,
+        black_level_dn=0.0,
+        white_level_dn=float(2**bits - 1),
+        cfa_pattern=None,
+        exposure_time_s=_tag_seconds(tags.get(33434)),
+        path=path,
+        adc_bits=bits,
+        make=_tag_text(tags.get(271)),
+        model=_tag_text(tags.get(272)),
+    )
 
 
 def _read_npy(path: Path) -> Frame:
@@ -277,12 +310,17 @@ def _read_npy(path: Path) -> Frame:
     try:
         pixels = np.load(path, allow_pickle=False)
     except Exception as exc:
-        raise IngestError(f"cannot read the .npy array ({type(exc).__name__}: {exc})",
-                          path=path) from exc
+        raise IngestError(f"cannot read the .npy array ({type(exc).__name__}: {exc})", path=path) from exc
     bits = _check_integer_image(np.asarray(pixels), path)
-    return Frame(pixels=np.asarray(pixels), black_level_dn=0.0,
-                 white_level_dn=float(2 ** bits - 1), cfa_pattern=None, exposure_time_s=None,
-                 path=path, adc_bits=bits)
+    return Frame(
+        pixels=np.asarray(pixels),
+        black_level_dn=0.0,
+        white_level_dn=float(2**bits - 1),
+        cfa_pattern=None,
+        exposure_time_s=None,
+        path=path,
+        adc_bits=bits,
+    )
 
 
 #: Reader per file-name suffix; every other suffix goes to LibRaw (:func:`_read_rawpy`).
@@ -339,6 +377,5 @@ def _exposure_time_from_file(path: Path) -> float | None:
         with rawpy.imread(str(path)) as raw:  # opening reads the metadata, not the pixels
             shutter = float(raw.other.shutter_speed)
     except (rawpy.LibRawError, OSError, ValueError) as exc:
-        raise IngestError(f"cannot read the frame as camera RAW/DNG ({type(exc).__name__}: "
-                          f"{exc})", path=path) from exc
+        raise IngestError(f"cannot read the frame as camera RAW/DNG ({type(exc).__name__}: {exc})", path=path) from exc
     return _round_float32_seconds(shutter) if shutter > 0 else None

@@ -22,6 +22,7 @@ The formulas follow EMVA Standard 1288, Release 4.0 Linear; the sections are cit
 The CSV format is the project's interface contract (photon-transfer CSV); ``docs/ingest.md``
 describes the inputs, options and formulas for users.
 """
+
 from __future__ import annotations
 
 import csv
@@ -59,8 +60,7 @@ def _fmt(value: float | int | None) -> str:
 
 
 def _table_text(metadata: dict[str, str], rows: list[dict[str, float | int | None]]) -> str:
-    columns = ["exposure_time_s", "mean_dn", "temporal_var_dn2", "dark_mean_dn",
-               "dark_temporal_var_dn2", "n_pixels"]
+    columns = ["exposure_time_s", "mean_dn", "temporal_var_dn2", "dark_mean_dn", "dark_temporal_var_dn2", "n_pixels"]
     for optional in ("photons_per_pixel", "exposure_lux_s"):
         if any(r.get(optional) is not None for r in rows):
             columns.append(optional)
@@ -79,8 +79,7 @@ def _table_text(metadata: dict[str, str], rows: list[dict[str, float | int | Non
     return buf.getvalue()
 
 
-def _output_paths(out: Path, source: Path, channels: Sequence[str],
-                  suffixed: bool) -> dict[str, Path]:
+def _output_paths(out: Path, source: Path, channels: Sequence[str], suffixed: bool) -> dict[str, Path]:
     if out.is_dir():
         stem = source.parent.name if source.name == "manifest.csv" else source.stem
         out = out / f"{stem or 'ptc'}.csv"
@@ -96,9 +95,14 @@ def _sensor_name(make: str | None, model: str | None) -> str | None:
     return model or make
 
 
-def ingest(source: os.PathLike | str, *, out: os.PathLike | str,
-           roi: str | float | Sequence[int] | None = None, channel: str = "G",
-           fmt: str = "auto") -> list[Path]:
+def ingest(
+    source: os.PathLike | str,
+    *,
+    out: os.PathLike | str,
+    roi: str | float | Sequence[int] | None = None,
+    channel: str = "G",
+    fmt: str = "auto",
+) -> list[Path]:
     """Turn a set of frames into photon-transfer CSV file(s) (the project's input contract).
 
     Parameters
@@ -148,8 +152,7 @@ def ingest(source: os.PathLike | str, *, out: os.PathLike | str,
     # The first frame decides mono vs Bayer, hence which channels are measured.
     first = reader.read(levels[0].bright[0])
     mono = first.cfa_pattern is None
-    channels = ["mono"] if mono else (list(_SINGLE_CHANNELS) if channel == "all"
-                                      else [channel])
+    channels = ["mono"] if mono else (list(_SINGLE_CHANNELS) if channel == "all" else [channel])
     stat_channels = ["G"] if mono else channels  # any name works for mono: tiles are None
 
     state: dict = {}
@@ -163,38 +166,45 @@ def ingest(source: os.PathLike | str, *, out: os.PathLike | str,
         dark = dark_cache[key]
         n_bright, n_dark = len(level.bright), len(level.dark)
         if n_bright != n_dark and max(n_bright, n_dark) > 2:
-            warnings.warn(f"{frameset.source}: at exposure_time_s={level.exposure_time_s:g} "
-                          f"the bright stack has {n_bright} frames and the dark set {n_dark}; "
-                          "the CSV gives both (n_frames, dark_n_frames), but a reader that "
-                          "knows only n_frames will misjudge the residual temporal part of "
-                          "dark_spatial_var_dn2", IngestWarning, stacklevel=2)
+            warnings.warn(
+                f"{frameset.source}: at exposure_time_s={level.exposure_time_s:g} "
+                f"the bright stack has {n_bright} frames and the dark set {n_dark}; "
+                "the CSV gives both (n_frames, dark_n_frames), but a reader that "
+                "knows only n_frames will misjudge the residual temporal part of "
+                "dark_spatial_var_dn2",
+                IngestWarning,
+                stacklevel=2,
+            )
         for c, sc in zip(channels, stat_channels):
             b, d = bright[sc], dark[sc]
-            rows[c].append({
-                "exposure_time_s": level.exposure_time_s,
-                "mean_dn": b.mean_dn, "temporal_var_dn2": b.temporal_var_dn2,
-                "dark_mean_dn": d.mean_dn, "dark_temporal_var_dn2": d.temporal_var_dn2,
-                "n_pixels": b.n_pixels,
-                "photons_per_pixel": level.photons_per_pixel,
-                "exposure_lux_s": level.exposure_lux_s,
-                "spatial_var_dn2": b.spatial_var_dn2,
-                "dark_spatial_var_dn2": d.spatial_var_dn2,
-                "n_frames": b.n_frames, "dark_n_frames": d.n_frames,
-                "frac_saturated": b.frac_saturated,
-                "_black": b.black_level_dn,
-            })
+            rows[c].append(
+                {
+                    "exposure_time_s": level.exposure_time_s,
+                    "mean_dn": b.mean_dn,
+                    "temporal_var_dn2": b.temporal_var_dn2,
+                    "dark_mean_dn": d.mean_dn,
+                    "dark_temporal_var_dn2": d.temporal_var_dn2,
+                    "n_pixels": b.n_pixels,
+                    "photons_per_pixel": level.photons_per_pixel,
+                    "exposure_lux_s": level.exposure_lux_s,
+                    "spatial_var_dn2": b.spatial_var_dn2,
+                    "dark_spatial_var_dn2": d.spatial_var_dn2,
+                    "n_frames": b.n_frames,
+                    "dark_n_frames": d.n_frames,
+                    "frac_saturated": b.frac_saturated,
+                    "_black": b.black_level_dn,
+                }
+            )
 
     ref = reader.reference
     height, width = reader.shape
     x0, y0, x1, y1 = state["roi"]
-    adc_bits = ref.adc_bits if ref.adc_bits is not None else _bits_for_white_level(
-        ref.white_level_dn)
+    adc_bits = ref.adc_bits if ref.adc_bits is not None else _bits_for_white_level(ref.white_level_dn)
     paths = _output_paths(out, frameset.source, channels, suffixed=len(channels) > 1)
     inputs = {frameset.source.resolve()} | {e.path.resolve() for e in frameset.entries}
     for p in paths.values():
         if p.resolve() in inputs:
-            raise IngestError("the output would overwrite an input file; choose another "
-                              "--out", path=p)
+            raise IngestError("the output would overwrite an input file; choose another --out", path=p)
     files = {}
     for c in channels:
         md: dict[str, str] = {}
@@ -219,6 +229,7 @@ def ingest(source: os.PathLike | str, *, out: os.PathLike | str,
     try:
         write_files_atomically(files)
     except OSError as exc:
-        raise IngestError(f"cannot write the output ({exc.strerror or exc})",
-                          path=getattr(exc, "filename", None) or next(iter(files))) from exc
+        raise IngestError(
+            f"cannot write the output ({exc.strerror or exc})", path=getattr(exc, "filename", None) or next(iter(files))
+        ) from exc
     return list(paths.values())

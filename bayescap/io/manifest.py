@@ -12,6 +12,7 @@ exposure time. The descriptor file format is that of the EMVA 1288 reference imp
 (github.com/EMVA1288/emva1288, ``emva1288.process.parser``): ``n bits width height``,
 ``b texp_ns photons``, ``d texp_ns`` and ``i path`` lines.
 """
+
 from __future__ import annotations
 
 import csv
@@ -87,19 +88,16 @@ def _local_path(text: str, base: Path) -> Path:
     return path if path.is_absolute() else base / path
 
 
-def _parse_float(text: str, *, path: Path, row: int | None, column: str,
-                 allow_empty: bool) -> float | None:
+def _parse_float(text: str, *, path: Path, row: int | None, column: str, allow_empty: bool) -> float | None:
     text = text.strip()
     if not text:
         if allow_empty:
             return None
         raise IngestError("value is missing", path=path, row=row, column=column)
     try:
-        value = float(text.replace(",", ".") if text.count(",") == 1 and "." not in text
-                      else text)
+        value = float(text.replace(",", ".") if text.count(",") == 1 and "." not in text else text)
     except ValueError:
-        raise IngestError(f"{text!r} is not a number", path=path, row=row,
-                          column=column) from None
+        raise IngestError(f"{text!r} is not a number", path=path, row=row, column=column) from None
     if not math.isfinite(value):
         raise IngestError(f"{text!r} is not a finite number", path=path, row=row, column=column)
     if value < 0:
@@ -150,8 +148,7 @@ def read_manifest(path: os.PathLike | str) -> FrameSet:
     try:
         text = path.read_bytes().decode("utf-8-sig")
     except OSError as exc:
-        raise IngestError(f"cannot read the manifest ({exc.strerror or exc})",
-                          path=path) from exc
+        raise IngestError(f"cannot read the manifest ({exc.strerror or exc})", path=path) from exc
     except UnicodeDecodeError as exc:
         raise IngestError(f"the manifest is not UTF-8 text ({exc.reason})", path=path) from exc
     base = path.parent
@@ -171,41 +168,45 @@ def read_manifest(path: os.PathLike | str) -> FrameSet:
             header = fields
             for name in _REQUIRED_MANIFEST_COLUMNS:
                 if name not in header:
-                    raise IngestError(f"the header has no '{name}' column (a manifest needs "
-                                      f"{', '.join(_REQUIRED_MANIFEST_COLUMNS)})",
-                                      path=path, row=lineno)
+                    raise IngestError(
+                        f"the header has no '{name}' column (a manifest needs {', '.join(_REQUIRED_MANIFEST_COLUMNS)})",
+                        path=path,
+                        row=lineno,
+                    )
             known = _REQUIRED_MANIFEST_COLUMNS + _OPTIONAL_MANIFEST_COLUMNS
             for name in header:
                 if name not in known:
-                    raise IngestError(f"unknown column (known columns: {', '.join(known)})",
-                                      path=path, row=lineno, column=name)
+                    raise IngestError(
+                        f"unknown column (known columns: {', '.join(known)})", path=path, row=lineno, column=name
+                    )
             if len(set(header)) != len(header):
-                raise IngestError("a column name appears twice in the header", path=path,
-                                  row=lineno)
+                raise IngestError("a column name appears twice in the header", path=path, row=lineno)
             continue
         if len(fields) != len(header):
-            raise IngestError(f"{len(fields)} fields where the header has {len(header)}",
-                              path=path, row=lineno)
+            raise IngestError(f"{len(fields)} fields where the header has {len(header)}", path=path, row=lineno)
         record = dict(zip(header, fields))
         if not record["file"]:
             raise IngestError("the file name is empty", path=path, row=lineno, column="file")
         frame_path = _local_path(record["file"], base)
         if not frame_path.is_file():
-            raise IngestError(f"{frame_path} does not exist", path=path, row=lineno,
-                              column="file")
+            raise IngestError(f"{frame_path} does not exist", path=path, row=lineno, column="file")
         kind = record["kind"].lower()
         if kind not in ("bright", "dark"):
-            raise IngestError(f"{record['kind']!r} is neither 'bright' nor 'dark'", path=path,
-                              row=lineno, column="kind")
-        texp = _parse_float(record["exposure_time_s"], path=path, row=lineno,
-                            column="exposure_time_s", allow_empty=True)
-        optional = {name: _parse_float(record.get(name, ""), path=path, row=lineno,
-                                       column=name, allow_empty=True)
-                    for name in _OPTIONAL_MANIFEST_COLUMNS}
+            raise IngestError(
+                f"{record['kind']!r} is neither 'bright' nor 'dark'", path=path, row=lineno, column="kind"
+            )
+        texp = _parse_float(
+            record["exposure_time_s"], path=path, row=lineno, column="exposure_time_s", allow_empty=True
+        )
+        optional = {
+            name: _parse_float(record.get(name, ""), path=path, row=lineno, column=name, allow_empty=True)
+            for name in _OPTIONAL_MANIFEST_COLUMNS
+        }
         if kind == "dark":
             optional = dict.fromkeys(optional)  # light measures do not describe dark frames
-        entries.append(FrameEntry(path=frame_path, kind=kind, exposure_time_s=texp,
-                                  source=path, row=lineno, **optional))
+        entries.append(
+            FrameEntry(path=frame_path, kind=kind, exposure_time_s=texp, source=path, row=lineno, **optional)
+        )
     if header is None:
         raise IngestError("the manifest has no header row", path=path)
     if not entries:
@@ -234,8 +235,7 @@ def read_emva_descriptor(path: os.PathLike | str) -> FrameSet:
     try:
         raw = path.read_bytes()
     except OSError as exc:
-        raise IngestError(f"cannot read the descriptor ({exc.strerror or exc})",
-                          path=path) from exc
+        raise IngestError(f"cannot read the descriptor ({exc.strerror or exc})", path=path) from exc
     try:
         text = raw.decode("utf-8-sig")
     except UnicodeDecodeError:
@@ -248,9 +248,12 @@ def read_emva_descriptor(path: os.PathLike | str) -> FrameSet:
 
     def close_block() -> None:
         if block is not None and len(block["images"]) < 2:
-            raise IngestError(f"the block '{block['line']}' has {len(block['images'])} image; "
-                              "every block needs at least two frames (a pair)",
-                              path=path, row=block["row"])
+            raise IngestError(
+                f"the block '{block['line']}' has {len(block['images'])} image; "
+                "every block needs at least two frames (a pair)",
+                path=path,
+                row=block["row"],
+            )
 
     for lineno, line in enumerate(text.splitlines(), start=1):
         stripped = line.strip()
@@ -262,13 +265,13 @@ def read_emva_descriptor(path: os.PathLike | str) -> FrameSet:
             metadata["emva1288_descriptor_version"] = rest.strip()
         elif command == "n":
             if len(args) != 3:
-                raise IngestError(f"'{stripped}' should be 'n bits width height'", path=path,
-                                  row=lineno)
+                raise IngestError(f"'{stripped}' should be 'n bits width height'", path=path, row=lineno)
             try:
                 bits, width, height = (int(a) for a in args)
             except ValueError:
-                raise IngestError(f"'{stripped}': bits, width and height must be integers",
-                                  path=path, row=lineno) from None
+                raise IngestError(
+                    f"'{stripped}': bits, width and height must be integers", path=path, row=lineno
+                ) from None
             metadata["adc_bits"] = str(bits)
             shape = (height, width)
         elif command in ("b", "d"):
@@ -278,32 +281,42 @@ def read_emva_descriptor(path: os.PathLike | str) -> FrameSet:
                 form = "b exposure_ns photons" if command == "b" else "d exposure_ns"
                 raise IngestError(f"'{stripped}' should be '{form}'", path=path, row=lineno)
             names = ("exposure_ns", "photons")
-            values = [_parse_float(a, path=path, row=lineno, column=name, allow_empty=False)
-                      for a, name in zip(args, names)]
-            block = {"kind": "bright" if command == "b" else "dark",
-                     "exposure_time_s": values[0] / 1e9,
-                     "photons_per_pixel": values[1] if command == "b" else None,
-                     "images": [], "line": stripped, "row": lineno}
+            values = [
+                _parse_float(a, path=path, row=lineno, column=name, allow_empty=False) for a, name in zip(args, names)
+            ]
+            block = {
+                "kind": "bright" if command == "b" else "dark",
+                "exposure_time_s": values[0] / 1e9,
+                "photons_per_pixel": values[1] if command == "b" else None,
+                "images": [],
+                "line": stripped,
+                "row": lineno,
+            }
         elif command == "i":
             if block is None:
-                raise IngestError("an 'i' line before any 'b' or 'd' line", path=path,
-                                  row=lineno)
+                raise IngestError("an 'i' line before any 'b' or 'd' line", path=path, row=lineno)
             if not rest.strip():
                 raise IngestError("'i' without an image path", path=path, row=lineno)
             image = _local_path(rest, base)
             block["images"].append(image)
-            entries.append(FrameEntry(path=image, kind=block["kind"],
-                                      exposure_time_s=block["exposure_time_s"],
-                                      photons_per_pixel=block["photons_per_pixel"],
-                                      source=path, row=lineno))
+            entries.append(
+                FrameEntry(
+                    path=image,
+                    kind=block["kind"],
+                    exposure_time_s=block["exposure_time_s"],
+                    photons_per_pixel=block["photons_per_pixel"],
+                    source=path,
+                    row=lineno,
+                )
+            )
         else:
-            warnings.warn(f"{path}: row {lineno}: unknown descriptor command {stripped!r} "
-                          "ignored", IngestWarning, stacklevel=2)
+            warnings.warn(
+                f"{path}: row {lineno}: unknown descriptor command {stripped!r} ignored", IngestWarning, stacklevel=2
+            )
     close_block()
     if not entries:
         raise IngestError("the descriptor lists no images", path=path)
-    return FrameSet(source=path, entries=entries, metadata=metadata, frame_shape_hw=shape,
-                    format="emva")
+    return FrameSet(source=path, entries=entries, metadata=metadata, frame_shape_hw=shape, format="emva")
 
 
 def _looks_like_descriptor(path: Path) -> bool:
@@ -337,12 +350,16 @@ def load_frame_set(source: os.PathLike | str, *, fmt: str = "auto") -> FrameSet:
         elif fmt in ("auto", "emva") and len(descriptors) == 1:
             source = descriptors[0]
         elif len(descriptors) > 1:
-            raise IngestError("the directory holds several EMVA descriptors ("
-                              + ", ".join(p.name for p in descriptors)
-                              + "); name the one to use", path=source)
+            raise IngestError(
+                "the directory holds several EMVA descriptors ("
+                + ", ".join(p.name for p in descriptors)
+                + "); name the one to use",
+                path=source,
+            )
         else:
-            raise IngestError("the directory holds neither a manifest.csv nor an EMVA 1288 "
-                              "descriptor (*.txt)", path=source)
+            raise IngestError(
+                "the directory holds neither a manifest.csv nor an EMVA 1288 descriptor (*.txt)", path=source
+            )
     elif not source.is_file():
         raise IngestError("no such file or directory", path=source)
     if fmt == "auto":
@@ -381,9 +398,11 @@ def _resolve_exposure_times(frameset: FrameSet) -> list[FrameEntry]:
         if entry.exposure_time_s is None:
             texp = _exposure_time_from_file(entry.path)
             if texp is None:
-                raise IngestError(f"exposure_time_s is empty and {entry.path.name} records no "
-                                  "exposure time; give it in the manifest",
-                                  column="exposure_time_s", **_where(entry))
+                raise IngestError(
+                    f"exposure_time_s is empty and {entry.path.name} records no exposure time; give it in the manifest",
+                    column="exposure_time_s",
+                    **_where(entry),
+                )
             entry = replace(entry, exposure_time_s=texp)
         resolved.append(entry)
     return resolved
@@ -428,31 +447,39 @@ def group_levels(frameset: FrameSet) -> list[ExposureLevel]:
     levels = []
     for (texp, photons, lux), members in bright.items():
         if len(members) < 2:
-            raise IngestError(f"bright frame {members[0].path.name} has no pair partner: no "
-                              f"other bright frame with exposure_time_s={texp:g}"
-                              + (f", photons_per_pixel={photons:g}" if photons is not None
-                                 else "")
-                              + (f", exposure_lux_s={lux:g}" if lux is not None else "")
-                              + " (each level needs at least two frames)",
-                              **_where(members[0]))
+            raise IngestError(
+                f"bright frame {members[0].path.name} has no pair partner: no "
+                f"other bright frame with exposure_time_s={texp:g}"
+                + (f", photons_per_pixel={photons:g}" if photons is not None else "")
+                + (f", exposure_lux_s={lux:g}" if lux is not None else "")
+                + " (each level needs at least two frames)",
+                **_where(members[0]),
+            )
         dark = [m for t, m in darks if _same_time(t, texp)]
         if not dark:
-            raise IngestError(f"no dark frames at exposure_time_s={texp:g} for bright frame "
-                              f"{members[0].path.name}; take a dark pair at every exposure "
-                              "time", **_where(members[0]))
+            raise IngestError(
+                f"no dark frames at exposure_time_s={texp:g} for bright frame "
+                f"{members[0].path.name}; take a dark pair at every exposure "
+                "time",
+                **_where(members[0]),
+            )
         if len(dark[0]) < 2:
-            raise IngestError(f"dark frame {dark[0][0].path.name} has no pair partner at "
-                              f"exposure_time_s={texp:g} (a dark set needs at least two frames)",
-                              **_where(dark[0][0]))
+            raise IngestError(
+                f"dark frame {dark[0][0].path.name} has no pair partner at "
+                f"exposure_time_s={texp:g} (a dark set needs at least two frames)",
+                **_where(dark[0][0]),
+            )
         levels.append(ExposureLevel(texp, photons, lux, tuple(members), tuple(dark[0])))
     for column in _OPTIONAL_MANIFEST_COLUMNS:  # all levels or none: the contract has no gaps
         known = [getattr(lv, column) is not None for lv in levels]
         if any(known) and not all(known):
             lacking = levels[known.index(False)].bright[0]
-            raise IngestError(f"{column} is empty for bright frame {lacking.path.name} but given "
-                              "for other levels; give it for every bright frame or for none",
-                              column=column, **_where(lacking))
+            raise IngestError(
+                f"{column} is empty for bright frame {lacking.path.name} but given "
+                "for other levels; give it for every bright frame or for none",
+                column=column,
+                **_where(lacking),
+            )
     nan_last = lambda v: (v is None, v if v is not None else 0.0)  # noqa: E731
-    levels.sort(key=lambda lv: (lv.exposure_time_s, nan_last(lv.photons_per_pixel),
-                                nan_last(lv.exposure_lux_s)))
+    levels.sort(key=lambda lv: (lv.exposure_time_s, nan_last(lv.photons_per_pixel), nan_last(lv.exposure_lux_s)))
     return levels

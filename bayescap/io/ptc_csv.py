@@ -6,6 +6,7 @@ temporal_var_dn2, dark_mean_dn, dark_temporal_var_dn2, n_pixels``; optional
 ``photons_per_pixel, exposure_lux_s, spatial_var_dn2, dark_spatial_var_dn2, n_frames,
 frac_saturated``. Every refusal raises :class:`PTCInputError` naming file, row and column.
 """
+
 from __future__ import annotations
 
 import csv
@@ -19,23 +20,52 @@ import numpy as np
 from bayescap.exceptions import PTCInputError
 from bayescap.io.atomic import atomic_write_text
 
-__all__ = ["PTCData", "PTCInputError", "read_ptc_csv", "write_ptc_csv", "REQUIRED_COLUMNS",
-           "OPTIONAL_COLUMNS", "METADATA_TYPES"]
+__all__ = [
+    "PTCData",
+    "PTCInputError",
+    "read_ptc_csv",
+    "write_ptc_csv",
+    "REQUIRED_COLUMNS",
+    "OPTIONAL_COLUMNS",
+    "METADATA_TYPES",
+]
 
-REQUIRED_COLUMNS = ("exposure_time_s", "mean_dn", "temporal_var_dn2", "dark_mean_dn",
-                    "dark_temporal_var_dn2", "n_pixels")
-OPTIONAL_COLUMNS = ("photons_per_pixel", "exposure_lux_s", "spatial_var_dn2",
-                    "dark_spatial_var_dn2", "n_frames", "frac_saturated")
+REQUIRED_COLUMNS = (
+    "exposure_time_s",
+    "mean_dn",
+    "temporal_var_dn2",
+    "dark_mean_dn",
+    "dark_temporal_var_dn2",
+    "n_pixels",
+)
+OPTIONAL_COLUMNS = (
+    "photons_per_pixel",
+    "exposure_lux_s",
+    "spatial_var_dn2",
+    "dark_spatial_var_dn2",
+    "n_frames",
+    "frac_saturated",
+)
 
 #: optional columns that may be left empty on rows where they were not measured
 SPARSE_COLUMNS = ("spatial_var_dn2", "dark_spatial_var_dn2", "n_frames")
 
 #: known metadata keys and their types (unknown keys are kept as strings)
 METADATA_TYPES = {
-    "sensor": str, "manufacturer": str, "pixel_pitch_um": float, "width_px": int,
-    "height_px": int, "adc_bits": int, "black_level_dn": float, "f_number": float,
-    "wavelength_nm": float, "fill_factor": float, "analog_gain": float, "channel": str,
-    "temperature_c": float, "crosstalk_sigma_px": float,
+    "sensor": str,
+    "manufacturer": str,
+    "pixel_pitch_um": float,
+    "width_px": int,
+    "height_px": int,
+    "adc_bits": int,
+    "black_level_dn": float,
+    "f_number": float,
+    "wavelength_nm": float,
+    "fill_factor": float,
+    "analog_gain": float,
+    "channel": str,
+    "temperature_c": float,
+    "crosstalk_sigma_px": float,
 }
 
 
@@ -107,6 +137,7 @@ class PTCData:
 
 def _replace(obj, **kw):
     from dataclasses import replace
+
     return replace(obj, **kw)
 
 
@@ -128,11 +159,13 @@ def _parse_metadata(lines, path):
             if typ is int and float(value) != int(float(value)):
                 raise ValueError
         except ValueError:
-            raise PTCInputError(f"metadata '{key}' must be {typ.__name__}, got '{value}'",
-                                path=path, row=f"metadata line {lineno}") from None
+            raise PTCInputError(
+                f"metadata '{key}' must be {typ.__name__}, got '{value}'", path=path, row=f"metadata line {lineno}"
+            ) from None
         if typ is float and not math.isfinite(v):
-            raise PTCInputError(f"metadata '{key}' must be finite, got '{value}'", path=path,
-                                row=f"metadata line {lineno}")
+            raise PTCInputError(
+                f"metadata '{key}' must be finite, got '{value}'", path=path, row=f"metadata line {lineno}"
+            )
         md[key] = v
     _check_metadata(md, path)
     return md
@@ -146,11 +179,12 @@ def _check_metadata(md, path):
     if "adc_bits" in md and not 1 <= md["adc_bits"] <= 32:
         raise PTCInputError(f"metadata 'adc_bits' must be between 1 and 32, got {md['adc_bits']}", path=path)
     if "crosstalk_sigma_px" in md and not md["crosstalk_sigma_px"] >= 0:
-        raise PTCInputError(f"metadata 'crosstalk_sigma_px' must be >= 0, got {md['crosstalk_sigma_px']}",
-                            path=path)
+        raise PTCInputError(f"metadata 'crosstalk_sigma_px' must be >= 0, got {md['crosstalk_sigma_px']}", path=path)
     if "temperature_c" in md and not md["temperature_c"] >= _ABSOLUTE_ZERO_C:
-        raise PTCInputError(f"metadata 'temperature_c' must be >= {_ABSOLUTE_ZERO_C:g} (absolute zero), "
-                            f"got {md['temperature_c']}", path=path)
+        raise PTCInputError(
+            f"metadata 'temperature_c' must be >= {_ABSOLUTE_ZERO_C:g} (absolute zero), got {md['temperature_c']}",
+            path=path,
+        )
     if "fill_factor" in md and not 0 < md["fill_factor"] <= 1:
         raise PTCInputError(f"metadata 'fill_factor' must be in (0, 1], got {md['fill_factor']}", path=path)
 
@@ -184,8 +218,7 @@ def read_ptc_csv(path, *, overrides: dict | None = None) -> PTCData:
         body_start = i
         break
     if body_start is None:
-        raise PTCInputError("empty file: expected a header row and at least two data rows",
-                            path=path_str)
+        raise PTCInputError("empty file: expected a header row and at least two data rows", path=path_str)
     md = _parse_metadata(meta_lines, path_str)
     if overrides:
         md.update({k: v for k, v in overrides.items() if v is not None})
@@ -197,9 +230,12 @@ def read_ptc_csv(path, *, overrides: dict | None = None) -> PTCData:
         raise PTCInputError(f"duplicate column(s) {', '.join(dup)} in the header", path=path_str, row="header")
     missing = [c for c in REQUIRED_COLUMNS if c not in header]
     if missing:
-        raise PTCInputError(f"missing required column(s): {', '.join(missing)} "
-                            f"(required: {', '.join(REQUIRED_COLUMNS)})", path=path_str, row="header",
-                            column=missing[0])
+        raise PTCInputError(
+            f"missing required column(s): {', '.join(missing)} (required: {', '.join(REQUIRED_COLUMNS)})",
+            path=path_str,
+            row="header",
+            column=missing[0],
+        )
     wanted = [c for c in REQUIRED_COLUMNS + OPTIONAL_COLUMNS if c in header]
     cols = {c: [] for c in wanted}
     rownums = []
@@ -211,21 +247,25 @@ def read_ptc_csv(path, *, overrides: dict | None = None) -> PTCData:
             continue
         rowno += 1
         if len(rec) != len(header):
-            raise PTCInputError(f"has {len(rec)} fields, the header has {len(header)}",
-                                path=path_str, row=rowno)
+            raise PTCInputError(f"has {len(rec)} fields, the header has {len(header)}", path=path_str, row=rowno)
         for c in wanted:
             s = rec[header.index(c)].strip()
             if s == "" and c in SPARSE_COLUMNS:
                 cols[c].append(math.nan)  # not measured at this level
                 continue
             if s == "" and c in OPTIONAL_COLUMNS:
-                raise PTCInputError("empty value in an optional column (leave the column out "
-                                    "or give every row a value)", path=path_str, row=rowno, column=c)
+                raise PTCInputError(
+                    "empty value in an optional column (leave the column out or give every row a value)",
+                    path=path_str,
+                    row=rowno,
+                    column=c,
+                )
             try:
                 v = float(s)
             except ValueError:
-                raise PTCInputError(f"expected a number, got '{s}'" if s else "missing value",
-                                    path=path_str, row=rowno, column=c) from None
+                raise PTCInputError(
+                    f"expected a number, got '{s}'" if s else "missing value", path=path_str, row=rowno, column=c
+                ) from None
             if not math.isfinite(v):
                 raise PTCInputError(f"expected a finite number, got '{s}'", path=path_str, row=rowno, column=c)
             _check_value(c, v, path_str, rowno)
@@ -249,10 +289,21 @@ _ABSOLUTE_ZERO_C = -273.15
 
 def _check_value(col, v, path, row):
     if abs(v) > _MAX_ABS_VALUE:
-        raise PTCInputError(f"{v:g} is implausibly large (above {_MAX_ABS_VALUE:g}): check the column's units",
-                            path=path, row=row, column=col)
-    nonneg = ("exposure_time_s", "temporal_var_dn2", "dark_temporal_var_dn2", "photons_per_pixel",
-              "exposure_lux_s", "spatial_var_dn2", "dark_spatial_var_dn2")
+        raise PTCInputError(
+            f"{v:g} is implausibly large (above {_MAX_ABS_VALUE:g}): check the column's units",
+            path=path,
+            row=row,
+            column=col,
+        )
+    nonneg = (
+        "exposure_time_s",
+        "temporal_var_dn2",
+        "dark_temporal_var_dn2",
+        "photons_per_pixel",
+        "exposure_lux_s",
+        "spatial_var_dn2",
+        "dark_spatial_var_dn2",
+    )
     if col in nonneg and v < 0:
         what = "variance" if "var" in col else "value"
         raise PTCInputError(f"negative {what} {v:g} is physically impossible", path=path, row=row, column=col)
@@ -271,9 +322,12 @@ def _check_consistency(d: PTCData, path):
             bad = np.nonzero(getattr(d, col) > adc + 1e-6)[0]
             if bad.size:
                 i = bad[0]
-                raise PTCInputError(f"{getattr(d, col)[i]:g} DN exceeds the ADC maximum {adc:g} "
-                                    f"of adc_bits={d.metadata['adc_bits']}", path=path,
-                                    row=d.row_label(i), column=col)
+                raise PTCInputError(
+                    f"{getattr(d, col)[i]:g} DN exceeds the ADC maximum {adc:g} of adc_bits={d.metadata['adc_bits']}",
+                    path=path,
+                    row=d.row_label(i),
+                    column=col,
+                )
         # values within [0, ADC max] have a variance of at most ADC max²/4 (a frame pair's estimate
         # at most ADC max²/2): above ADC max² a variance column is in other units or corrupt
         for col in ("temporal_var_dn2", "dark_temporal_var_dn2", "spatial_var_dn2", "dark_spatial_var_dn2"):
@@ -283,13 +337,18 @@ def _check_consistency(d: PTCData, path):
             bad = np.nonzero(v > adc * adc)[0]
             if bad.size:
                 i = bad[0]
-                raise PTCInputError(f"{v[i]:g} DN² exceeds the square of the ADC maximum ({adc:g} DN of "
-                                    f"adc_bits={d.metadata['adc_bits']}): no variance of values within the "
-                                    "ADC's range is that large; check the column's units", path=path,
-                                    row=d.row_label(i), column=col)
+                raise PTCInputError(
+                    f"{v[i]:g} DN² exceeds the square of the ADC maximum ({adc:g} DN of "
+                    f"adc_bits={d.metadata['adc_bits']}): no variance of values within the "
+                    "ADC's range is that large; check the column's units",
+                    path=path,
+                    row=d.row_label(i),
+                    column=col,
+                )
     if np.all(d.signal_dn <= 0):
-        raise PTCInputError("no row has a bright mean above its dark mean: not a photon-transfer "
-                            "series", path=path, column="mean_dn")
+        raise PTCInputError(
+            "no row has a bright mean above its dark mean: not a photon-transfer series", path=path, column="mean_dn"
+        )
     check_not_all_saturated(d, path)
 
 
@@ -313,9 +372,12 @@ def check_not_all_saturated(d: PTCData, path=None):
     at_adc = adc is not None and bool(np.all(d.mean_dn >= adc - 0.5))
     if at_adc or (fs is not None and np.all(fs >= 0.999)):
         why = f"bright means at the ADC maximum {adc:g} DN" if at_adc else "frac_saturated ≥ 0.999 on every row"
-        raise PTCInputError(f"every row is saturated ({why}): no row lies on the photon-transfer curve, so "
-                            "gain and noise cannot be measured; add exposures below saturation",
-                            path=path, column="mean_dn" if at_adc else "frac_saturated")
+        raise PTCInputError(
+            f"every row is saturated ({why}): no row lies on the photon-transfer curve, so "
+            "gain and noise cannot be measured; add exposures below saturation",
+            path=path,
+            column="mean_dn" if at_adc else "frac_saturated",
+        )
     for col in ("photons_per_pixel", "exposure_lux_s", "exposure_time_s"):
         x = getattr(d, col)
         if x is not None and np.all(np.isfinite(x)) and np.min(x) > 0:
@@ -326,11 +388,14 @@ def check_not_all_saturated(d: PTCData, path=None):
         return
     se = np.sqrt(np.maximum(d.temporal_var_dn2, 0.0) / d.n_pixels)
     if np.ptp(d.mean_dn) <= 6.0 * float(np.max(se)) + 0.5 and np.median(d.signal_dn) > 0:
-        raise PTCInputError(f"every row is saturated: the bright means stay at {np.median(d.mean_dn):.1f} DN "
-                            f"(spread {np.ptp(d.mean_dn):.2f} DN) while {col} changes "
-                            f"{np.max(x) / np.min(x):.2f}×: no row lies on the photon-transfer curve, so gain "
-                            "and noise cannot be measured; add exposures below saturation",
-                            path=path, column="mean_dn")
+        raise PTCInputError(
+            f"every row is saturated: the bright means stay at {np.median(d.mean_dn):.1f} DN "
+            f"(spread {np.ptp(d.mean_dn):.2f} DN) while {col} changes "
+            f"{np.max(x) / np.min(x):.2f}×: no row lies on the photon-transfer curve, so gain "
+            "and noise cannot be measured; add exposures below saturation",
+            path=path,
+            column="mean_dn",
+        )
 
 
 def write_ptc_csv(data_or_rows, path, *, metadata: dict | None = None, columns=None):

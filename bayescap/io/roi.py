@@ -1,4 +1,5 @@
 """Region of interest and colour-filter-array (Bayer) channels of a raw frame."""
+
 from __future__ import annotations
 
 from typing import Sequence
@@ -26,8 +27,9 @@ _SINGLE_CHANNELS = ("R", "Gr", "Gb", "B")
 _BAYER_PATTERNS = ("RGGB", "GRBG", "GBRG", "BGGR")
 
 
-def parse_roi(roi: str | float | Sequence[int] | None, shape_hw: tuple[int, int], *,
-              cfa: bool = False) -> tuple[int, int, int, int]:
+def parse_roi(
+    roi: str | float | Sequence[int] | None, shape_hw: tuple[int, int], *, cfa: bool = False
+) -> tuple[int, int, int, int]:
     """Region of interest ``(x0, y0, x1, y1)`` in pixels (x1, y1 exclusive).
 
     Parameters
@@ -55,8 +57,9 @@ def parse_roi(roi: str | float | Sequence[int] | None, shape_hw: tuple[int, int]
             else:
                 raise ValueError
         except ValueError:
-            raise IngestError(f"ROI {roi!r} is neither 'x0,y0,x1,y1' (integers) nor a centred "
-                              "fraction such as 0.5") from None
+            raise IngestError(
+                f"ROI {roi!r} is neither 'x0,y0,x1,y1' (integers) nor a centred fraction such as 0.5"
+            ) from None
     if isinstance(roi, (int, float)) and not isinstance(roi, bool):
         frac = float(roi)
         if not (0.0 < frac <= 1.0):
@@ -71,9 +74,11 @@ def parse_roi(roi: str | float | Sequence[int] | None, shape_hw: tuple[int, int]
         except (TypeError, ValueError):
             raise IngestError(f"ROI {roi!r} is not four integers x0,y0,x1,y1") from None
         if not (0 <= x0 < x1 <= width and 0 <= y0 < y1 <= height):
-            raise IngestError(f"ROI x0={x0},y0={y0},x1={x1},y1={y1} does not lie inside the "
-                              f"{width}x{height} frame (need 0 <= x0 < x1 <= width, "
-                              "0 <= y0 < y1 <= height)")
+            raise IngestError(
+                f"ROI x0={x0},y0={y0},x1={x1},y1={y1} does not lie inside the "
+                f"{width}x{height} frame (need 0 <= x0 < x1 <= width, "
+                "0 <= y0 < y1 <= height)"
+            )
     if cfa:
         x0, y0 = x0 - x0 % 2, y0 - y0 % 2
         x1, y1 = x1 - (x1 - x0) % 2, y1 - (y1 - y0) % 2
@@ -93,8 +98,7 @@ def cfa_positions(cfa_pattern: str) -> dict[str, tuple[int, int]]:
     """
     pattern = cfa_pattern.upper()
     if pattern not in _BAYER_PATTERNS:
-        raise IngestError(f"CFA pattern {cfa_pattern!r} is not one of "
-                          f"{', '.join(_BAYER_PATTERNS)}")
+        raise IngestError(f"CFA pattern {cfa_pattern!r} is not one of {', '.join(_BAYER_PATTERNS)}")
     pos = {c: [(i // 2, i % 2) for i, ch in enumerate(pattern) if ch == c] for c in "RGB"}
     red_row = pos["R"][0][0]
     gr = next(p for p in pos["G"] if p[0] == red_row)
@@ -123,5 +127,4 @@ def _channel_pixels(roi_pixels: np.ndarray, tiles: list[tuple[int, int]] | None)
     """Pixels of one channel inside the (tile-aligned) ROI, as one flat float64 array."""
     if tiles is None:
         return roi_pixels.astype(np.float64).ravel()
-    return np.concatenate([roi_pixels[i::2, j::2].astype(np.float64).ravel()
-                           for i, j in tiles])
+    return np.concatenate([roi_pixels[i::2, j::2].astype(np.float64).ravel() for i, j in tiles])

@@ -16,6 +16,7 @@ Linear (European Machine Vision Association, 2021):
   the ROI of the pixel-wise average of a stack of L frames, which still contains the residual
   temporal variance σ²_y/L (this module does not remove it; the fit does).
 """
+
 from __future__ import annotations
 
 import math
@@ -111,25 +112,30 @@ class _SetAccumulator:
     def result(self) -> SetStatistics:
         mean_dn, temporal_var_dn2 = pair_statistics(self.first, self.second)
         spatial = spatial_variance_dn2(self.total / self.n_frames)
-        return SetStatistics(mean_dn=mean_dn, temporal_var_dn2=temporal_var_dn2,
-                             spatial_var_dn2=spatial, n_frames=self.n_frames,
-                             frac_saturated=self.n_saturated / self.n_values,
-                             n_pixels=int(self.first.size),
-                             black_level_dn=float(np.mean(self.black_dn)))
+        return SetStatistics(
+            mean_dn=mean_dn,
+            temporal_var_dn2=temporal_var_dn2,
+            spatial_var_dn2=spatial,
+            n_frames=self.n_frames,
+            frac_saturated=self.n_saturated / self.n_values,
+            n_pixels=int(self.first.size),
+            black_level_dn=float(np.mean(self.black_dn)),
+        )
 
 
-def _as_override_number(metadata: dict[str, str], key: str, source: Path, *,
-                        integer: bool = False) -> float | int | None:
+def _as_override_number(
+    metadata: dict[str, str], key: str, source: Path, *, integer: bool = False
+) -> float | int | None:
     if key not in metadata or metadata[key] == "":
         return None
     text = metadata[key]
     try:
         value = int(text) if integer else float(text)
     except ValueError:
-        raise IngestError(f"metadata '# {key}: {text}' is not a "
-                          + ("whole number" if integer else "number"), path=source) from None
-    if (integer and not 1 <= value <= 32) or (not integer and not (math.isfinite(value)
-                                                                    and value >= 0)):
+        raise IngestError(
+            f"metadata '# {key}: {text}' is not a " + ("whole number" if integer else "number"), path=source
+        ) from None
+    if (integer and not 1 <= value <= 32) or (not integer and not (math.isfinite(value) and value >= 0)):
         raise IngestError(f"metadata '# {key}: {text}' is out of range", path=source)
     return value
 
@@ -150,8 +156,9 @@ class _FrameReader:
         elif cfa is not None:
             self.cfa = cfa.strip().upper()
             if self.cfa not in _BAYER_PATTERNS:
-                raise IngestError(f"metadata '# cfa_pattern: {cfa}' is not one of "
-                                  f"{', '.join(_BAYER_PATTERNS)} or mono", path=src)
+                raise IngestError(
+                    f"metadata '# cfa_pattern: {cfa}' is not one of {', '.join(_BAYER_PATTERNS)} or mono", path=src
+                )
         else:
             self.cfa = False  # no override
         self.shape = frameset.frame_shape_hw
@@ -165,7 +172,7 @@ class _FrameReader:
             changes["cfa_pattern"] = self.cfa
         if self.adc_bits is not None:
             changes["adc_bits"] = self.adc_bits
-            changes["white_level_dn"] = float(2 ** self.adc_bits - 1)
+            changes["white_level_dn"] = float(2**self.adc_bits - 1)
         if self.white_dn is not None:
             changes["white_level_dn"] = float(self.white_dn)
         cfa = changes.get("cfa_pattern", frame.cfa_pattern)
@@ -180,26 +187,38 @@ class _FrameReader:
             self.shape = frame.shape
             self.shape_from = f"the first frame ({entry.path.name})"
         if frame.shape != self.shape:
-            raise IngestError(f"frame size {frame.shape[1]}x{frame.shape[0]} differs from "
-                              f"{self.shape[1]}x{self.shape[0]} of {self.shape_from}; all "
-                              "frames of a measurement must have the same size",
-                              path=entry.path)
+            raise IngestError(
+                f"frame size {frame.shape[1]}x{frame.shape[0]} differs from "
+                f"{self.shape[1]}x{self.shape[0]} of {self.shape_from}; all "
+                "frames of a measurement must have the same size",
+                path=entry.path,
+            )
         if self.reference is None:
             self.reference = frame
         elif frame.cfa_pattern != self.reference.cfa_pattern:
-            raise IngestError(f"CFA pattern {frame.cfa_pattern} differs from "
-                              f"{self.reference.cfa_pattern} of {self.reference.path.name}",
-                              path=entry.path)
+            raise IngestError(
+                f"CFA pattern {frame.cfa_pattern} differs from "
+                f"{self.reference.cfa_pattern} of {self.reference.path.name}",
+                path=entry.path,
+            )
         elif not np.array_equal(frame.black_level_dn, self.reference.black_level_dn):
-            warnings.warn(f"{entry.path}: black level {frame.black_level_dn} differs from "
-                          f"{self.reference.black_level_dn} of {self.reference.path.name}; "
-                          "the CSV reports the first frame's", IngestWarning, stacklevel=3)
+            warnings.warn(
+                f"{entry.path}: black level {frame.black_level_dn} differs from "
+                f"{self.reference.black_level_dn} of {self.reference.path.name}; "
+                "the CSV reports the first frame's",
+                IngestWarning,
+                stacklevel=3,
+            )
         return frame
 
 
-def _set_statistics(entries: Iterable[FrameEntry], reader: _FrameReader,
-                    roi: str | float | Sequence[int] | None,
-                    channels: Sequence[str], state: dict) -> dict[str, SetStatistics]:
+def _set_statistics(
+    entries: Iterable[FrameEntry],
+    reader: _FrameReader,
+    roi: str | float | Sequence[int] | None,
+    channels: Sequence[str],
+    state: dict,
+) -> dict[str, SetStatistics]:
     """Statistics of one frame set for every requested channel (each frame read once)."""
     accumulators = {c: _SetAccumulator() for c in channels}
     for entry in entries:
@@ -210,7 +229,10 @@ def _set_statistics(entries: Iterable[FrameEntry], reader: _FrameReader,
         roi_pixels = frame.pixels[y0:y1, x0:x1]
         for c in channels:
             tiles = _channel_tiles(frame.cfa_pattern, c)
-            black = (float(frame.black_level_dn) if tiles is None
-                     else float(np.mean([frame.black_level_dn[i, j] for i, j in tiles])))
+            black = (
+                float(frame.black_level_dn)
+                if tiles is None
+                else float(np.mean([frame.black_level_dn[i, j] for i, j in tiles]))
+            )
             accumulators[c].add(_channel_pixels(roi_pixels, tiles), frame.white_level_dn, black)
     return {c: acc.result() for c, acc in accumulators.items()}

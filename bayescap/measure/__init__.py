@@ -1,4 +1,5 @@
 """Slanted-edge MTF measurement (ISO 12233 e-SFR), MTF tables and synthetic edges."""
+
 from bayescap.measure.result import SFRResult
 from bayescap.measure.sfr import LUMINANCE_WEIGHTS, measure_sfr
 from bayescap.measure.synthetic import synthetic_edge, synthetic_edge_mtf

@@ -4,6 +4,7 @@ Per-row edge location and polynomial edge fit (steps 2-4), projection of the pix
 supersampled bins along the fitted edge (step 6), and ESF -> LSF -> windowed DFT ->
 derivative correction (steps 7-10). :func:`bayescap.measure.sfr.measure_sfr` runs them.
 """
+
 from __future__ import annotations
 
 from typing import Any
@@ -130,8 +131,13 @@ def _edge_locations(a: np.ndarray, sign: float, npol: int, window: str) -> tuple
     return loc, _EdgeFit(y, loc, npol)
 
 
-def _project(a: np.ndarray, x_edge: np.ndarray, ref: _EdgeFit, nbin: int, nlin: int,
-             ) -> tuple[np.ndarray, int]:
+def _project(
+    a: np.ndarray,
+    x_edge: np.ndarray,
+    ref: _EdgeFit,
+    nbin: int,
+    nlin: int,
+) -> tuple[np.ndarray, int]:
     """ISO step 6: project pixels along the edge into 1/nbin-pixel bins (sfrmat ``project2``).
 
     ``a`` are the rows (any subset, possibly repeated) and ``x_edge`` the fitted edge
@@ -167,7 +173,7 @@ def _project(a: np.ndarray, x_edge: np.ndarray, ref: _EdgeFit, nbin: int, nlin: 
                 counts[i] = (counts[i - 1] + counts[i + 1]) / 2
                 sums[i] = (sums[i - 1] + sums[i + 1]) / 2
     with np.errstate(divide="ignore", invalid="ignore"):
-        esf = sums[start:start + nn] / counts[start:start + nn]
+        esf = sums[start : start + nn] / counts[start : start + nn]
     bad = ~np.isfinite(esf)
     if bad.any() and not bad.all():
         # Still empty after the sfrmat fill (only possible at the ends of the range, e.g.

@@ -4,6 +4,7 @@
 :func:`_crossing_cy_per_px` (MTF50) and :func:`_sampling_efficiency` summarise a curve as
 sfrmat ``findfreq`` and ``sampeff`` do.
 """
+
 from __future__ import annotations
 
 import math

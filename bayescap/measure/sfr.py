@@ -78,6 +78,7 @@ spatial frequency responses*; P. D. Burns, sfrmat5 (2023), BSD licence,
 https://github.com/t-kuha/sfrmat5 (copy of the distribution); the code here is an
 independent numpy re-implementation of the published steps.
 """
+
 from __future__ import annotations
 
 import math
@@ -87,7 +88,7 @@ from typing import Any
 import numpy as np
 
 from bayescap.exceptions import MTFInputError, MTFWarning
-from bayescap.measure.edge import _EdgeFit, _edge_locations, _esf_to_mtf, _mround, _project
+from bayescap.measure.edge import _edge_locations, _EdgeFit, _esf_to_mtf, _mround, _project
 from bayescap.measure.result import SFRResult, _crossing_cy_per_px, _sampling_efficiency
 
 __all__ = [
@@ -116,8 +117,16 @@ def _parse_channel(channel: Any, names: list[str]) -> int:
             raise MTFInputError(f"channel index {channel} out of range for channels {names}")
         return int(channel)
     key = str(channel).strip().lower()
-    aliases = {"l": "lum", "y": "lum", "luminance": "lum", "red": "r", "green": "g",
-               "blue": "b", "gray": "mono", "grey": "mono"}
+    aliases = {
+        "l": "lum",
+        "y": "lum",
+        "luminance": "lum",
+        "red": "r",
+        "green": "g",
+        "blue": "b",
+        "gray": "mono",
+        "grey": "mono",
+    }
     key = aliases.get(key, key)
     low = [n.lower() for n in names]
     if key not in low:
@@ -138,9 +147,9 @@ def _clip_fraction(img: np.ndarray, white_level: float | None) -> tuple[float, f
     return float(np.max(low.mean(axis=axes))), float(np.max(high.mean(axis=axes)))
 
 
-
-def _checked_image(image: Any, roi: tuple[int, int, int, int] | None, npol: int, nbin: int,
-                   window: str) -> tuple[np.ndarray, tuple[int, int, int, int] | None]:
+def _checked_image(
+    image: Any, roi: tuple[int, int, int, int] | None, npol: int, nbin: int, window: str
+) -> tuple[np.ndarray, tuple[int, int, int, int] | None]:
     """Check the options and the image; return the image cut to ``roi`` and the ROI."""
     if window not in ("tukey", "hamming"):
         raise MTFInputError(f"window must be 'tukey' or 'hamming', got {window!r}")
@@ -161,19 +170,23 @@ def _checked_image(image: Any, roi: tuple[int, int, int, int] | None, npol: int,
         except (TypeError, ValueError) as exc:
             raise MTFInputError(f"roi must be (x0, y0, x1, y1), got {roi!r}") from exc
         if not (0 <= x0 < x1 <= img.shape[1] and 0 <= y0 < y1 <= img.shape[0]):
-            raise MTFInputError(f"roi {roi} outside the image of {img.shape[1]}x{img.shape[0]} "
-                                "(width x height) or empty")
+            raise MTFInputError(
+                f"roi {roi} outside the image of {img.shape[1]}x{img.shape[0]} (width x height) or empty"
+            )
         img = img[y0:y1, x0:x1]
         roi = (x0, y0, x1, y1)
     if img.shape[0] < 5 or img.shape[1] < 5:
-        raise MTFInputError(f"image/ROI of {img.shape[0]} rows x {img.shape[1]} columns is too "
-                            "small for a slanted-edge measurement (need at least 5 x 5, "
-                            "typically > 50 x 20)")
+        raise MTFInputError(
+            f"image/ROI of {img.shape[0]} rows x {img.shape[1]} columns is too "
+            "small for a slanted-edge measurement (need at least 5 x 5, "
+            "typically > 50 x 20)"
+        )
     bad = ~np.isfinite(img) if np.issubdtype(img.dtype, np.floating) else None
     if bad is not None and bad.any():
         r, c = np.argwhere(bad)[0][:2]
-        raise MTFInputError(f"image contains {int(bad.sum())} non-finite (NaN/inf) values, "
-                            f"first at row {r}, column {c}")
+        raise MTFInputError(
+            f"image contains {int(bad.sum())} non-finite (NaN/inf) values, first at row {r}, column {c}"
+        )
     return img, roi
 
 
@@ -200,8 +213,10 @@ def _oriented(a: np.ndarray, npol: int) -> tuple[np.ndarray, bool]:
         a = np.rot90(a, 1, axes=(0, 1))
     nlin, npix = a.shape[:2]
     if nlin < npol + 3 or npix < 12:
-        raise MTFInputError(f"after orientation the ROI has {nlin} lines along the edge and "
-                            f"{npix} pixels across it; need >= {npol + 3} lines and >= 12 pixels")
+        raise MTFInputError(
+            f"after orientation the ROI has {nlin} lines along the edge and "
+            f"{npix} pixels across it; need >= {npol + 3} lines and >= 12 pixels"
+        )
     return a, bool(rflag)
 
 
@@ -209,7 +224,7 @@ def _edge_polarity(a: np.ndarray, warn_list: list[str]) -> float:
     """Sign that makes the edge "positive"; refuses an ROI without an edge, flags low contrast."""
     npix = a.shape[1]
     left = a[:, :5, 0]
-    right = a[:, npix - 6:, 0]
+    right = a[:, npix - 6 :, 0]
     tleft, tright = left.sum(), right.sum()
     sign = -1.0 if tleft > tright else 1.0
     step = abs(left.mean() - right.mean())
@@ -218,16 +233,19 @@ def _edge_polarity(a: np.ndarray, warn_list: list[str]) -> float:
         raise MTFInputError(
             f"no edge found: the difference between the two sides of the ROI ({step:.4g}) is "
             f"not larger than twice the pixel noise ({noise:.4g}); select an ROI that contains "
-            "one slanted edge crossing it")
+            "one slanted edge crossing it"
+        )
     contrast = abs((tleft - tright) / (tleft + tright)) if (tleft + tright) != 0 else math.inf
     if contrast < _MIN_CONTRAST:
-        warn_list.append(f"low edge contrast {100 * contrast:.1f} % (< 20 %): the SFR may be "
-                         "strongly affected by noise")
+        warn_list.append(
+            f"low edge contrast {100 * contrast:.1f} % (< 20 %): the SFR may be strongly affected by noise"
+        )
     return sign
 
 
-def _fitted_edges(a: np.ndarray, sign: float, npol: int, window: str, names: list[str],
-                  warn_list: list[str]) -> tuple[list[np.ndarray], list[_EdgeFit], float]:
+def _fitted_edges(
+    a: np.ndarray, sign: float, npol: int, window: str, names: list[str], warn_list: list[str]
+) -> tuple[list[np.ndarray], list[_EdgeFit], float]:
     """ISO steps 2-4 for every record: row locations, polynomial fits and the edge slope.
 
     The slope (dx/dy) is that of the linear fit of the last record (luminance for RGB), as
@@ -243,17 +261,19 @@ def _fitted_edges(a: np.ndarray, sign: float, npol: int, window: str, names: lis
         fits1.append(_EdgeFit(y_all, loc, 1))
         rmse = float(np.sqrt(np.mean((fit(y_all) - loc) ** 2)))
         if npol > 3 and rmse > 3:
-            warn_list.append(f"possible edge-fitting problem in record {names[k]}: "
-                             f"rms residual {rmse:.2f} px")
+            warn_list.append(f"possible edge-fitting problem in record {names[k]}: rms residual {rmse:.2f} px")
     ends = fits[-1](np.array([0.0, nlin - 1.0]))
     if np.any(ends < 0) or np.any(ends > npix + 1):
-        raise MTFInputError("no usable edge: the fitted edge does not cross the ROI from one "
-                            f"side to the other (x = {ends[0]:.1f} .. {ends[1]:.1f} px for "
-                            f"{npix} px); the edge must pass through two opposite ROI borders")
+        raise MTFInputError(
+            "no usable edge: the fitted edge does not cross the ROI from one "
+            f"side to the other (x = {ends[0]:.1f} .. {ends[1]:.1f} px for "
+            f"{npix} px); the edge must pass through two opposite ROI borders"
+        )
     slope = fits1[-1].slope0
     if slope == 0 or not math.isfinite(slope):
-        raise MTFInputError("edge is exactly aligned with the pixel grid: slanted-edge "
-                            "analysis needs a slant (ISO: about 5 degrees)")
+        raise MTFInputError(
+            "edge is exactly aligned with the pixel grid: slanted-edge analysis needs a slant (ISO: about 5 degrees)"
+        )
     return locs, fits, slope
 
 
@@ -261,16 +281,28 @@ def _phase_cycles(nlin: int, slope: float, slant_deg: float) -> tuple[int, int]:
     """ISO step 5: the number of whole phase cycles and the rows they span."""
     n_cycles = int(math.floor(nlin * abs(slope)))
     if n_cycles < 1:
-        raise MTFInputError(f"less than one phase cycle: {nlin} lines at an edge slant of "
-                            f"{slant_deg:.3f} deg (edge nearly aligned with the pixel grid; "
-                            "use a taller ROI or a larger edge angle, ISO: about 5 deg)")
+        raise MTFInputError(
+            f"less than one phase cycle: {nlin} lines at an edge slant of "
+            f"{slant_deg:.3f} deg (edge nearly aligned with the pixel grid; "
+            "use a taller ROI or a larger edge angle, ISO: about 5 deg)"
+        )
     nlin1 = int(_mround(n_cycles / abs(slope)))
     return n_cycles, min(nlin1, nlin)
 
 
-def _bootstrap_mtf(rec: np.ndarray, loc: np.ndarray, ref: _EdgeFit, *, sign: float, npol: int,
-                   nbin: int, window: str, n_cycles: int, n_boot: int, seed: int | None,
-                   ) -> np.ndarray:
+def _bootstrap_mtf(
+    rec: np.ndarray,
+    loc: np.ndarray,
+    ref: _EdgeFit,
+    *,
+    sign: float,
+    npol: int,
+    nbin: int,
+    window: str,
+    n_cycles: int,
+    n_boot: int,
+    seed: int | None,
+) -> np.ndarray:
     """Phase-cycle block bootstrap of one record: (n_boot, nn//2+1) MTF replicates.
 
     Each replicate resamples whole phase cycles of rows, refits the edge polynomial on them
@@ -291,11 +323,19 @@ def _bootstrap_mtf(rec: np.ndarray, loc: np.ndarray, ref: _EdgeFit, *, sign: flo
     return _esf_to_mtf(esfs, sign, window)
 
 
-def measure_sfr(image: Any, *, roi: tuple[int, int, int, int] | None = None, npol: int = 5,
-                nbin: int = 4, window: str = "tukey", channel: str | int | None = None,
-                n_boot: int = 200, seed: int | None = 0,
-                white_level: float | None = None,
-                correct_bin_width: bool = False) -> SFRResult:
+def measure_sfr(
+    image: Any,
+    *,
+    roi: tuple[int, int, int, int] | None = None,
+    npol: int = 5,
+    nbin: int = 4,
+    window: str = "tukey",
+    channel: str | int | None = None,
+    n_boot: int = 200,
+    seed: int | None = 0,
+    white_level: float | None = None,
+    correct_bin_width: bool = False,
+) -> SFRResult:
     """Slanted-edge MTF (ISO 12233:2023 e-SFR, as sfrmat5) with bootstrap uncertainty.
 
     Parameters
@@ -341,8 +381,10 @@ def measure_sfr(image: Any, *, roi: tuple[int, int, int, int] | None = None, npo
     warn_list: list[str] = []
     lowf, highf = _clip_fraction(img, white_level)
     if lowf > _CLIP_FRACTION_LIMIT or highf > _CLIP_FRACTION_LIMIT:
-        warn_list.append(f"clipping: {100 * lowf:.2f} % of pixels at or below 0 and "
-                         f"{100 * highf:.2f} % at or above the white level (limit 0.5 %)")
+        warn_list.append(
+            f"clipping: {100 * lowf:.2f} % of pixels at or below 0 and "
+            f"{100 * highf:.2f} % at or above the white level (limit 0.5 %)"
+        )
 
     # ---- Step 1: records, orientation --------------------------------------------------
     a, names = _records(img)
@@ -359,8 +401,10 @@ def measure_sfr(image: Any, *, roi: tuple[int, int, int, int] | None = None, npo
     slant_deg = math.degrees(math.atan(abs(slope)))
     angle_deg = math.degrees(math.atan(-slope)) + (90.0 if rflag else 0.0)
     if not (_SLANT_RANGE_DEG[0] <= slant_deg <= _SLANT_RANGE_DEG[1]):
-        warn_list.append(f"edge slant {slant_deg:.2f} deg from the pixel axis is outside the "
-                         f"usual {_SLANT_RANGE_DEG[0]:g}-{_SLANT_RANGE_DEG[1]:g} deg range")
+        warn_list.append(
+            f"edge slant {slant_deg:.2f} deg from the pixel axis is outside the "
+            f"usual {_SLANT_RANGE_DEG[0]:g}-{_SLANT_RANGE_DEG[1]:g} deg range"
+        )
 
     # ---- Step 5: whole number of phase cycles ---------------------------------------
     n_cycles, nlin1 = _phase_cycles(nlin, slope, slant_deg)
@@ -383,26 +427,37 @@ def measure_sfr(image: Any, *, roi: tuple[int, int, int, int] | None = None, npo
         mtf_by[names[k]] = _esf_to_mtf(esf, sign, window)[0, :nn2out] * bin_corr
     for name, n_empty in n_empty_by.items():
         if n_empty:
-            warn_list.append(f"{n_empty} empty projection bin(s) in record {name} were filled "
-                             "from neighbours (edge angle too small/large for the number of "
-                             "lines, or too few lines)")
+            warn_list.append(
+                f"{n_empty} empty projection bin(s) in record {name} were filled "
+                "from neighbours (edge angle too small/large for the number of "
+                "lines, or too few lines)"
+            )
     mtf50_by = {k: float(_crossing_cy_per_px(freq, v, 0.5)[0]) for k, v in mtf_by.items()}
     se_by = {k: _sampling_efficiency(freq, v) for k, v in mtf_by.items()}
     pname = names[primary]
     if not math.isfinite(mtf50_by[pname]):
-        warn_list.append("MTF does not fall below 0.5 up to "
-                         f"{freq[-1]:.3f} cy/px: MTF50 undefined (NaN)")
+        warn_list.append(f"MTF does not fall below 0.5 up to {freq[-1]:.3f} cy/px: MTF50 undefined (NaN)")
 
     # ---- Uncertainty: phase-cycle block bootstrap ------------------------------------
     n_boot = int(n_boot)
     samples = np.empty((0, nn2out))
     if n_boot > 0:
         if n_cycles < _MIN_CYCLES_FOR_BOOTSTRAP:
-            warn_list.append(f"only {n_cycles} phase cycles of rows: the bootstrap "
-                             "uncertainty is unreliable (use a taller ROI)")
-        samples = _bootstrap_mtf(a[:, :, primary], locs[primary][:nlin1], fits[primary],
-                                 sign=sign, npol=npol, nbin=nbin, window=window,
-                                 n_cycles=n_cycles, n_boot=n_boot, seed=seed)
+            warn_list.append(
+                f"only {n_cycles} phase cycles of rows: the bootstrap uncertainty is unreliable (use a taller ROI)"
+            )
+        samples = _bootstrap_mtf(
+            a[:, :, primary],
+            locs[primary][:nlin1],
+            fits[primary],
+            sign=sign,
+            npol=npol,
+            nbin=nbin,
+            window=window,
+            n_cycles=n_cycles,
+            n_boot=n_boot,
+            seed=seed,
+        )
         samples = samples[:, :nn2out] * bin_corr
     mtf50_samples = _crossing_cy_per_px(freq, samples, 0.5) if n_boot > 0 else np.empty(0)
 

@@ -1,4 +1,5 @@
 """Synthetic slanted edges with a known MTF, for testing the e-SFR measurement."""
+
 from __future__ import annotations
 
 import math
@@ -13,8 +14,9 @@ __all__ = [
 ]
 
 
-def synthetic_edge_mtf(f_cy_per_px: Any, *, sigma_px: float, fill_factor: float = 1.0,
-                       angle_deg: float = 0.0) -> np.ndarray:
+def synthetic_edge_mtf(
+    f_cy_per_px: Any, *, sigma_px: float, fill_factor: float = 1.0, angle_deg: float = 0.0
+) -> np.ndarray:
     """Analytic MTF of :func:`synthetic_edge` along the edge normal.
 
     ``|sinc(a f cos t) sinc(a f sin t)| * exp(-2 pi^2 sigma^2 f^2)`` with ``a =
@@ -26,8 +28,9 @@ def synthetic_edge_mtf(f_cy_per_px: Any, *, sigma_px: float, fill_factor: float 
     f = np.asarray(f_cy_per_px, dtype=float)
     a = math.sqrt(fill_factor)
     t = math.radians(angle_deg)
-    return (np.abs(np.sinc(a * f * math.cos(t)) * np.sinc(a * f * math.sin(t)))
-            * np.exp(-2 * np.pi ** 2 * sigma_px ** 2 * f ** 2))
+    return np.abs(np.sinc(a * f * math.cos(t)) * np.sinc(a * f * math.sin(t))) * np.exp(
+        -2 * np.pi**2 * sigma_px**2 * f**2
+    )
 
 
 def _blurred_step_antiderivative(d: np.ndarray, sigma: float) -> np.ndarray:
@@ -38,11 +41,20 @@ def _blurred_step_antiderivative(d: np.ndarray, sigma: float) -> np.ndarray:
     return sigma * (t * special.ndtr(t) + np.exp(-0.5 * t * t) / math.sqrt(2 * math.pi))
 
 
-def synthetic_edge(shape: tuple[int, int], angle_deg: float, mtf_kind: str = "gaussian", *,
-                   sigma_px: float = 0.5, fill_factor: float = 1.0, contrast: float = 0.6,
-                   mean_level: float = 0.5, noise_sd: float = 0.0, seed: int | None = 0,
-                   supersample: int = 32, center: tuple[float, float] | None = None,
-                   ) -> np.ndarray:
+def synthetic_edge(
+    shape: tuple[int, int],
+    angle_deg: float,
+    mtf_kind: str = "gaussian",
+    *,
+    sigma_px: float = 0.5,
+    fill_factor: float = 1.0,
+    contrast: float = 0.6,
+    mean_level: float = 0.5,
+    noise_sd: float = 0.0,
+    seed: int | None = 0,
+    supersample: int = 32,
+    center: tuple[float, float] | None = None,
+) -> np.ndarray:
     """Render a slanted edge with known MTF (:func:`synthetic_edge_mtf`).
 
     The scene is a unit step across a straight edge through ``center`` (default: image
@@ -88,13 +100,11 @@ def synthetic_edge(shape: tuple[int, int], angle_deg: float, mtf_kind: str = "ga
     if abs(nx) >= abs(ny):  # exact along x, sampled along y
         base = dx[..., None] * nx + (dy[..., None] + u) * ny
         lo, hi = base - a / 2 * nx, base + a / 2 * nx
-        val = (_blurred_step_antiderivative(hi, sigma_px)
-               - _blurred_step_antiderivative(lo, sigma_px)) / (a * nx)
+        val = (_blurred_step_antiderivative(hi, sigma_px) - _blurred_step_antiderivative(lo, sigma_px)) / (a * nx)
     else:  # exact along y, sampled along x
         base = (dx[..., None] + u) * nx + dy[..., None] * ny
         lo, hi = base - a / 2 * ny, base + a / 2 * ny
-        val = (_blurred_step_antiderivative(hi, sigma_px)
-               - _blurred_step_antiderivative(lo, sigma_px)) / (a * ny)
+        val = (_blurred_step_antiderivative(hi, sigma_px) - _blurred_step_antiderivative(lo, sigma_px)) / (a * ny)
     frac = val.mean(axis=-1)
     dark, bright = mean_level * (1 - contrast), mean_level * (1 + contrast)
     img = dark + (bright - dark) * frac

@@ -4,6 +4,7 @@
 :func:`write_mtf_table` writes one; :func:`read_image` reads an edge image for
 :func:`bayescap.measure.sfr.measure_sfr`.
 """
+
 from __future__ import annotations
 
 import csv
@@ -53,14 +54,18 @@ def read_mtf_table(path: str | Path, channel: str | None = None) -> SFRResult:
         text = path.read_text(encoding="utf-8-sig")
     except (OSError, UnicodeDecodeError) as exc:
         raise MTFInputError(f"{path}: cannot read MTF table ({exc})") from exc
-    rows = [(i + 1, r) for i, r in enumerate(csv.reader(text.splitlines()))
-            if r and not r[0].lstrip().startswith("#") and any(c.strip() for c in r)]
+    rows = [
+        (i + 1, r)
+        for i, r in enumerate(csv.reader(text.splitlines()))
+        if r and not r[0].lstrip().startswith("#") and any(c.strip() for c in r)
+    ]
     if not rows:
         raise MTFInputError(f"{path}: empty MTF table")
     hline, header = rows[0]
     header = [h.strip() for h in header]
-    expected = ("expected header 'freq_cy_per_px,mtf' or 'freq_cy_per_px,sfr' "
-                "(or 'freq_cy_per_px,sfr_R,sfr_G,sfr_B,sfr_Lum')")
+    expected = (
+        "expected header 'freq_cy_per_px,mtf' or 'freq_cy_per_px,sfr' (or 'freq_cy_per_px,sfr_R,sfr_G,sfr_B,sfr_Lum')"
+    )
     if header[0] != _FREQ_COL:
         raise MTFInputError(f"{path}: row {hline}, column 1: found {header[0]!r}; {expected}")
     data_cols: list[tuple[int, str]] = []
@@ -72,8 +77,7 @@ def read_mtf_table(path: str | Path, channel: str | None = None) -> SFRResult:
         elif h.startswith(("sfr_", "mtf_")) and len(h) > 4:
             data_cols.append((j, h[4:]))
         else:
-            raise MTFInputError(f"{path}: row {hline}, column {j + 1}: unexpected column "
-                                f"{h!r}; {expected}")
+            raise MTFInputError(f"{path}: row {hline}, column {j + 1}: unexpected column {h!r}; {expected}")
     if not data_cols:
         raise MTFInputError(f"{path}: row {hline}: no MTF column; {expected}")
     if len(rows) < 3:
@@ -81,35 +85,42 @@ def read_mtf_table(path: str | Path, channel: str | None = None) -> SFRResult:
     values = np.empty((len(rows) - 1, len(header)))
     for i, (lineno, r) in enumerate(rows[1:]):
         if len(r) != len(header):
-            raise MTFInputError(f"{path}: row {lineno}: {len(r)} columns, header has "
-                                f"{len(header)}")
+            raise MTFInputError(f"{path}: row {lineno}: {len(r)} columns, header has {len(header)}")
         for j, cell in enumerate(r):
             try:
                 v = float(cell)
             except ValueError:
-                raise MTFInputError(f"{path}: row {lineno}, column {j + 1} ({header[j]!r}): "
-                                    f"cannot parse {cell.strip()!r} as a number") from None
+                raise MTFInputError(
+                    f"{path}: row {lineno}, column {j + 1} ({header[j]!r}): cannot parse {cell.strip()!r} as a number"
+                ) from None
             if not math.isfinite(v) or v < 0:
-                raise MTFInputError(f"{path}: row {lineno}, column {j + 1} ({header[j]!r}): "
-                                    f"value {cell.strip()!r} must be finite and >= 0")
+                raise MTFInputError(
+                    f"{path}: row {lineno}, column {j + 1} ({header[j]!r}): "
+                    f"value {cell.strip()!r} must be finite and >= 0"
+                )
             values[i, j] = v
     freq = values[:, 0]
     dif = np.diff(freq)
     if np.any(dif <= 0):
         k = int(np.argmax(dif <= 0)) + 1
-        raise MTFInputError(f"{path}: row {rows[k + 1][0]}, column 1 ({_FREQ_COL!r}): "
-                            "frequencies must be strictly increasing")
+        raise MTFInputError(
+            f"{path}: row {rows[k + 1][0]}, column 1 ({_FREQ_COL!r}): frequencies must be strictly increasing"
+        )
     # a system MTF is 1 at zero frequency; sharpening can lift it above 1 in the band, but not tenfold:
     # a table far from that is in other units or not normalised, and its Δs (Eq. 9) would be meaningless
-    for j, name in data_cols:
+    for j, _name in data_cols:
         v = values[:, j]
         if freq[0] == 0.0 and abs(v[0] - 1.0) > 0.05:
-            raise MTFInputError(f"{path}: row {rows[1][0]}, column {j + 1} ({header[j]!r}): the MTF at 0 cy/px "
-                                f"is {v[0]:g}, not 1: normalise the table at zero frequency")
+            raise MTFInputError(
+                f"{path}: row {rows[1][0]}, column {j + 1} ({header[j]!r}): the MTF at 0 cy/px "
+                f"is {v[0]:g}, not 1: normalise the table at zero frequency"
+            )
         if np.any(v > _MTF_MAX):
             k = int(np.argmax(v > _MTF_MAX))
-            raise MTFInputError(f"{path}: row {rows[k + 1][0]}, column {j + 1} ({header[j]!r}): MTF "
-                                f"{v[k]:g} is above {_MTF_MAX:g}: not an MTF normalised to 1 at zero frequency")
+            raise MTFInputError(
+                f"{path}: row {rows[k + 1][0]}, column {j + 1} ({header[j]!r}): MTF "
+                f"{v[k]:g} is above {_MTF_MAX:g}: not an MTF normalised to 1 at zero frequency"
+            )
     by = {name: values[:, j].copy() for j, name in data_cols}
     names = list(by)
     if channel is None:
@@ -122,11 +133,20 @@ def read_mtf_table(path: str | Path, channel: str | None = None) -> SFRResult:
     mtf50 = {k: float(_crossing_cy_per_px(freq, v, 0.5)[0]) for k, v in by.items()}
     se = {k: _sampling_efficiency(freq, v) for k, v in by.items()}
     return SFRResult(
-        freq_cy_per_px=freq, mtf=by[pname], mtf_samples=np.empty((0, freq.size)),
-        mtf50_cy_per_px=mtf50[pname], mtf50_samples=np.empty(0), edge_angle_deg=math.nan,
-        sampling_efficiency=se[pname], warnings=[], channel=pname, mtf_by_channel=by,
-        mtf50_by_channel_cy_per_px=mtf50, sampling_efficiency_by_channel=se,
-        orientation="unknown", source=str(path),
+        freq_cy_per_px=freq,
+        mtf=by[pname],
+        mtf_samples=np.empty((0, freq.size)),
+        mtf50_cy_per_px=mtf50[pname],
+        mtf50_samples=np.empty(0),
+        edge_angle_deg=math.nan,
+        sampling_efficiency=se[pname],
+        warnings=[],
+        channel=pname,
+        mtf_by_channel=by,
+        mtf50_by_channel_cy_per_px=mtf50,
+        sampling_efficiency_by_channel=se,
+        orientation="unknown",
+        source=str(path),
     )
 
 

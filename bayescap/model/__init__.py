@@ -16,11 +16,19 @@ Modules, one idea each:
 
 Eq. 1 in electrons has its home in :mod:`bayescap.physics.noise`.
 """
+
 from bayescap.model.likelihood import gamma_logpdf
 from bayescap.model.parameters import PARAMETER_INFO
 from bayescap.model.ptc_model import PTCModel
 from bayescap.model.stack import PTCModelStack
 from bayescap.model.terms import ModelTerms, saturation_flags, select_terms
 
-__all__ = ["PARAMETER_INFO", "ModelTerms", "PTCModel", "PTCModelStack", "gamma_logpdf", "saturation_flags",
-           "select_terms"]
+__all__ = [
+    "PARAMETER_INFO",
+    "ModelTerms",
+    "PTCModel",
+    "PTCModelStack",
+    "gamma_logpdf",
+    "saturation_flags",
+    "select_terms",
+]

@@ -3,6 +3,7 @@ the clip (closed forms), and the latent (unclipped) mean of a row near the clip,
 inverting the clipped-mean relation with a monotone Newton iteration
 (:class:`_ClipMixin`, methods of :class:`~bayescap.model.PTCModel`).
 """
+
 from __future__ import annotations
 
 import numpy as np
@@ -42,7 +43,7 @@ _PSI_INV = _psi_inverse_table()
 def _psi_inverse_guess(L):
     """h with log ψ(h) ≈ L by linear interpolation in :data:`_PSI_INV` (clamped to its range; NaN
     gives its upper end)."""
-    t = np.fmax(np.fmin((L - _PSI_L0) / _PSI_DL, _PSI_INV.size - 1.000001), 0.0)   # fmin: NaN → top
+    t = np.fmax(np.fmin((L - _PSI_L0) / _PSI_DL, _PSI_INV.size - 1.000001), 0.0)  # fmin: NaN → top
     i = t.astype(np.intp)
     lo = _PSI_INV[i]
     return lo + (t - i) * (_PSI_INV[i + 1] - lo)
@@ -78,18 +79,21 @@ class _ClipMixin:
         h = d / sp
         Ph = ndtr(h)
         ph = np.exp(-0.5 * h * h) * 0.3989422804014327
-        mean = c - d * Ph - sp * ph          # _clip_mean's, from the same h
+        mean = c - d * Ph - sp * ph  # _clip_mean's, from the same h
         # more than 8.5 s' below the clip nothing is clipped to double precision: the temporal
         # variance itself (the difference below loses digits as h² grows). The bivariate part
         # (Owen's T, ~85 ns an element) is evaluated only where it is kept.
-        var = np.array(s2, dtype=float)      # a copy, also for 0-d input
+        var = np.array(s2, dtype=float)  # a copy, also for 0-d input
         w = ~(h > 8.5)
         if w.any():
             hw, phw, Phw, rho = h[w], ph[w], Ph[w], tau[w] * tau[w] / sp2[w]
             k = np.sqrt((1.0 - rho) / (1.0 + rho))
             P2 = Phw - 2.0 * owens_t(hw, k)
-            M = ((hw * hw + rho) * P2 + 2.0 * hw * phw * ndtr(hw * k)
-                 + np.sqrt(1.0 - rho * rho) * 0.15915494309189535 * np.exp(-hw * hw / (1.0 + rho)))
+            M = (
+                (hw * hw + rho) * P2
+                + 2.0 * hw * phw * ndtr(hw * k)
+                + np.sqrt(1.0 - rho * rho) * 0.15915494309189535 * np.exp(-hw * hw / (1.0 + rho))
+            )
             var[w] = np.maximum(sp2[w] * ((hw * hw + 1.0) * Phw + hw * phw - M), 0.0)
         return mean, var, Ph
 
@@ -130,7 +134,7 @@ class _ClipMixin:
         cc = np.broadcast_to(c[:, None], shape)
         tt_ = np.broadcast_to(tau[:, None], shape)
         mu = np.broadcast_to(m_obs, shape).copy()
-        mu_f = mu.reshape(-1)          # a view: updates land in mu
+        mu_f = mu.reshape(-1)  # a view: updates land in mu
         # the fixed inputs of each element, one row each, so that dropping the converged elements
         # is one fancy-indexing call instead of six
         P = np.empty((6,) + shape)
@@ -148,14 +152,14 @@ class _ClipMixin:
         if todo.any():
             idx, mu_a, P, s = idx[todo], mu_a[todo], P[:, todo], s[todo]
             mo_a, dm_a, k_a, pre_a, tau_a, c_a = P
-            g_obs = c_a - mo_a           # the measured shortfall (≤ 0: no root, μ → ∞)
+            g_obs = c_a - mo_a  # the measured shortfall (≤ 0: no root, μ → ∞)
             pos = g_obs > 0
             with np.errstate(divide="ignore", invalid="ignore"):
                 # first guess: ψ inverted at the variance of the measured mean, never below it
                 sp = np.sqrt(s * s + tau_a * tau_a)
                 guess = c_a - sp * _psi_inverse_guess(np.log(g_obs / sp))
             mu_a = np.where(pos & (guess > mu_a), guess, mu_a)
-            lo, hi = mo_a.copy(), np.full(mu_a.size, np.inf)   # the clipped mean is below / above
+            lo, hi = mo_a.copy(), np.full(mu_a.size, np.inf)  # the clipped mean is below / above
             with np.errstate(divide="ignore", invalid="ignore", over="ignore", under="ignore"):
                 for _ in range(30):
                     mo_a, dm_a, k_a, pre_a, tau_a, c_a = P
@@ -169,7 +173,7 @@ class _ClipMixin:
                     X = erfcx(-0.7071067811865476 * h)
                     B = 0.3989422804014327 + 0.5 * h * X
                     short = sp * e2 * B
-                    gap = short - g_obs          # = measured mean − clipped mean
+                    gap = short - g_obs  # = measured mean − clipped mean
                     # converged within 1e-9 of the noise and 1e-6 of the shortfall itself (a row
                     # deep in the clip has a shortfall far below the noise; the step taken after
                     # convergence squares that relative error)
@@ -178,8 +182,7 @@ class _ClipMixin:
                     lo = np.where(below, np.maximum(lo, mu_a), lo)
                     hi = np.where(below, hi, np.minimum(hi, mu_a))
                     # d(clipped mean)/dμ, with the growth of the shot noise with μ
-                    slope = np.maximum(e2 * (0.5 * X - 0.3989422804014327 * (mu_a > dm_a) * 0.5 / (k_a * sp)),
-                                       1e-300)
+                    slope = np.maximum(e2 * (0.5 * X - 0.3989422804014327 * (mu_a > dm_a) * 0.5 / (k_a * sp)), 1e-300)
                     step_lin = np.minimum(np.maximum(gap / slope, 0.0), 50.0 * (s + tau_a))
                     step_log = (np.log(B) - 0.5 * h * h + np.log(sp / g_obs)) * short / slope
                     new = mu_a + np.where(pos, step_log, step_lin)
@@ -193,7 +196,7 @@ class _ClipMixin:
                     mu_f[idx] = mu_a
                     if done.all():
                         break
-                    if done.any():   # drop the converged elements
+                    if done.any():  # drop the converged elements
                         keep = ~done
                         idx, mu_a, P, lo, hi, pos = idx[keep], mu_a[keep], P[:, keep], lo[keep], hi[keep], pos[keep]
         s = np.sqrt(np.maximum(mu - dm, 0.0) / K + pre_var_dn2)

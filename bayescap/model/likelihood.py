@@ -7,6 +7,7 @@ degrees of freedom around the model variance: Gamma(ν/2, 2σ²/ν) (:func:`gamm
 the blocks in :data:`ROBUST_BLOCKS` may be bad measurements: a broad component of prior weight
 :data:`OUTLIER_RATE` (Hogg, Bovy & Lang 2010) takes them.
 """
+
 from __future__ import annotations
 
 import numpy as np
@@ -46,9 +47,9 @@ def _gamma_logpdf_and_log_ratio(v, sigma2, k):
         inv = 1.0 / kk
         stirling = 0.5 * np.log(kk) - 0.5 * _LOG_2PI - inv * (1.0 / 12.0 - inv * inv * (1.0 / 360.0))
     small = ~(kk > 10.0)
-    if np.any(small):    # rare (ν = n_pixels − 1 is large): lgamma only where Stirling is not used
+    if np.any(small):  # rare (ν = n_pixels − 1 is large): lgamma only where Stirling is not used
         shape = np.broadcast_shapes(stirling.shape, core.shape)
-        stirling = np.array(np.broadcast_to(stirling, shape))      # a writable copy
+        stirling = np.array(np.broadcast_to(stirling, shape))  # a writable copy
         small = np.broadcast_to(small, shape)
         ks = np.broadcast_to(kk, shape)[small]
         with np.errstate(divide="ignore", invalid="ignore"):
@@ -112,9 +113,15 @@ class _LikelihoodMixin:
         return {name: self._block_loglik(name, *blk) for name, blk in self.predict(th).items()}
 
     #: the CSV column each likelihood block's observations come from
-    BLOCK_COLUMNS = {"dark_var": "dark_temporal_var_dn2", "bright_var": "temporal_var_dn2", "mean": "mean_dn",
-                     "clip_mean": "mean_dn", "plateau_var": "temporal_var_dn2", "spatial_var": "spatial_var_dn2",
-                     "dark_spatial_var": "dark_spatial_var_dn2"}
+    BLOCK_COLUMNS = {
+        "dark_var": "dark_temporal_var_dn2",
+        "bright_var": "temporal_var_dn2",
+        "mean": "mean_dn",
+        "clip_mean": "mean_dn",
+        "plateau_var": "temporal_var_dn2",
+        "spatial_var": "spatial_var_dn2",
+        "dark_spatial_var": "dark_spatial_var_dn2",
+    }
 
     def nonfinite_observations(self, x):
         """The observations whose log-likelihood is not finite at the point ``x`` (ndim,): a list of
@@ -164,10 +171,15 @@ class _LikelihoodMixin:
         """Data-row labels (1-based file rows) of the observations of a block."""
         d = self.data
         ok = np.nonzero(~self.full_sat)[0]
-        idx = {"dark_var": np.arange(d.n_levels), "bright_var": ok, "mean": ok,
-               "clip_mean": np.nonzero(self.full_sat)[0], "plateau_var": np.nonzero(self.full_sat)[0],
-               "spatial_var": ok[self.sp_rows],
-               "dark_spatial_var": self.spd_rows}[block]
+        idx = {
+            "dark_var": np.arange(d.n_levels),
+            "bright_var": ok,
+            "mean": ok,
+            "clip_mean": np.nonzero(self.full_sat)[0],
+            "plateau_var": np.nonzero(self.full_sat)[0],
+            "spatial_var": ok[self.sp_rows],
+            "dark_spatial_var": self.spd_rows,
+        }[block]
         return np.array([d.row_label(i) for i in idx], int)
 
     def log_likelihood(self, th):

@@ -5,6 +5,7 @@ point of a fit (:meth:`~_ParametersMixin.initial_guess`).
 
 Sampling coordinates are unconstrained (logs of scales) with the Jacobians in the priors.
 """
+
 from __future__ import annotations
 
 import numpy as np
@@ -90,8 +91,9 @@ class _ParametersMixin:
         t = np.atleast_1d(np.asarray(t, float))
         if self.terms.dark_current:
             return dark_variance_e2(p["read_noise_e"][:, None], p["dark_current_e_per_s"][:, None], t)
-        return np.broadcast_to(dark_variance_e2(dark_noise_e=p["dark_noise_e"][:, None]),
-                               (p["dark_noise_e"].size, t.shape[-1]))
+        return np.broadcast_to(
+            dark_variance_e2(dark_noise_e=p["dark_noise_e"][:, None]), (p["dark_noise_e"].size, t.shape[-1])
+        )
 
     # ------------------------------------------------------------------ prior
     def _clip_reference_dn(self, th):
@@ -226,8 +228,12 @@ class _ParametersMixin:
             th["log_f"] = np.log(0.01)
         # keep the start inside an overridden (bounded) prior
         P = self.PRIOR
-        for name, key in (("log_read", "read_log_bounds"), ("log_dc", "dark_current_log_bounds"),
-                          ("log_prnu", "prnu_log_bounds"), ("log_dsnu", "dsnu_log_bounds")):
+        for name, key in (
+            ("log_read", "read_log_bounds"),
+            ("log_dc", "dark_current_log_bounds"),
+            ("log_prnu", "prnu_log_bounds"),
+            ("log_dsnu", "dsnu_log_bounds"),
+        ):
             if name in th and P[key] is not None:
                 a, b = np.log(P[key][0]), np.log(P[key][1])
                 th[name] = float(np.clip(th[name], a + 1e-3 * (b - a), b - 1e-3 * (b - a)))

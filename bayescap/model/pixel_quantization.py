@@ -6,6 +6,7 @@ from a shipped table when the offsets are uniform.
 
 The table ``_uniform_offset_table.npz`` sits next to this module (:data:`UNIFORM_TABLE_FILE`).
 """
+
 from __future__ import annotations
 
 import os
@@ -36,7 +37,7 @@ _GH_W = _GH_W / _GH_W.sum()
 #: c ≥ 23 over s 0.02-0.75 DN, σ_o 1/32-0.7 DN), 1 024 where none does (s below ~0.005 DN). A fixed
 #: M = 32 errs by up to 1.8e-3 DN² where s and σ_o are both below ~0.05 DN, and is 2-4× more points
 #: than needed where they are not.
-_QG_M = 32                # below σ_o = 1/_QG_M (and σ_o < s/4): Gauss–Hermite nodes instead of a grid
+_QG_M = 32  # below σ_o = 1/_QG_M (and σ_o < s/4): Gauss–Hermite nodes instead of a grid
 #: the Gauss–Hermite nodes need the integrands smooth on the scale of σ_o: σ_o < s/4 (error ≤ 1.5e-13
 #: against a 4 096-point quadrature over s 0.005-0.75 DN; with σ_o between s/2 and 2s they are
 #: off by up to 1e-3 DN², 4 % of V), else the grid
@@ -49,9 +50,15 @@ _QG_J = np.arange(-6, 6)  # DN boundaries j + ½ of the Stein term
 #: :data:`_WN_K` harmonics (the next one's factor e^{−2π²·15²·0.1²} ≈ 9e-20)
 _WN_FOURIER_SO = 0.1
 _WN_K = 14
-_WN_CS = {M: np.concatenate([np.cos(2.0 * np.pi * np.arange(1, _WN_K + 1)[:, None] * x),
-                             np.sin(2.0 * np.pi * np.arange(1, _WN_K + 1)[:, None] * x)])   # (2K, M)
-          for M, x in _QG_GRIDS.items()}
+_WN_CS = {
+    M: np.concatenate(
+        [
+            np.cos(2.0 * np.pi * np.arange(1, _WN_K + 1)[:, None] * x),
+            np.sin(2.0 * np.pi * np.arange(1, _WN_K + 1)[:, None] * x),
+        ]
+    )  # (2K, M)
+    for M, x in _QG_GRIDS.items()
+}
 
 
 def _grid_size(s, so):
@@ -59,7 +66,7 @@ def _grid_size(s, so):
     a = 2.0 * np.pi**2 * so * so
     b = 0.5 * np.pi**2 * s * s
     with np.errstate(all="ignore"):
-        c1 = a * b / (a + b)                     # c for M = 1
+        c1 = a * b / (a + b)  # c for M = 1
     # NaN (a draw whose variance is not finite: its moments are NaN whatever the grid): the smallest
     M = np.where(np.isnan(c1), _QG_SIZES[0], _QG_SIZES[-1]).astype(np.intp)
     for size in reversed(_QG_SIZES[:-1]):
@@ -87,9 +94,9 @@ def _wrapped_normal_grid(delta, so, M=_QG_M):
         d = (x[:, None] - delta[~four, None, None] + np.arange(-1.0, 2.0)) / so[~four, None, None]
         w[~four] = np.exp(-0.5 * d * d).sum(-1)
     if np.any(four):
-        S, C = _harmonics(delta[four], _WN_K)                           # (K, n)
-        q = 2.0 * _gaussian_harmonics(so[four], _WN_K)                   # (K, n)
-        A = np.concatenate([(q * C).T, (q * S).T], axis=1)              # (n, 2K)
+        S, C = _harmonics(delta[four], _WN_K)  # (K, n)
+        q = 2.0 * _gaussian_harmonics(so[four], _WN_K)  # (K, n)
+        A = np.concatenate([(q * C).T, (q * S).T], axis=1)  # (n, 2K)
         w[four] = 1.0 + _rows_matmul(A, _WN_CS[M])
     return w / w.sum(-1, keepdims=True)
 
@@ -121,7 +128,7 @@ def _quantized_pixel_moments(delta, s, so):
     narrow = ~point & (so < 1.0 / _QG_M) & (so < _GH_SO_OVER_S * s)
     wide = so > 0.7
     grid = ~(point | narrow | wide)
-    if np.any(point):   # no pattern: the pixels share one offset
+    if np.any(point):  # no pattern: the pixels share one offset
         _, vp, m4p = _rounded_normal_moments(delta[point], s[point], J=5)
         V[point], E4[point], H[point] = vp, m4p + vp * vp, 0.0
     if np.any(narrow):
@@ -133,7 +140,7 @@ def _quantized_pixel_moments(delta, s, so):
         E4[narrow] = ((m4g + vg * vg) * _GH_W).sum(-1)
         em = (mg * _GH_W).sum(-1)
         H[narrow] = (mg * mg * _GH_W).sum(-1) - em * em - so[narrow] ** 2
-    if np.any(wide):    # offsets uniform modulo 1 DN: functions of s alone (tabulated)
+    if np.any(wide):  # offsets uniform modulo 1 DN: functions of s alone (tabulated)
         V[wide], E4[wide], H[wide] = _uniform_offset_moments(s[wide])
     if np.any(grid):
         gi = np.flatnonzero(grid)
@@ -142,7 +149,7 @@ def _quantized_pixel_moments(delta, s, so):
             at_M = gi[sizes == M]
             step = max(1, _QG_CHUNK_POINTS // int(M))
             for i0 in range(0, at_M.size, step):
-                _grid_moments(delta, s, so, at_M[i0:i0 + step], int(M), V, E4, H)
+                _grid_moments(delta, s, so, at_M[i0 : i0 + step], int(M), V, E4, H)
     return V, E4, H
 
 
@@ -161,8 +168,8 @@ def _grid_moments(delta, s, so, at, M, V, E4, H):
     x = _QG_GRIDS[M]
     # the moments at the grid's offsets (the grid's harmonics computed once, not per element)
     m, v, m4 = _rounded_normal_moments(x, sg[:, None], J=5)
-    h = m - x                                   # rounding bias of a pixel's mean
-    w = _wrapped_normal_grid(dl, sog, M)        # wrapped normal on the grid
+    h = m - x  # rounding bias of a pixel's mean
+    w = _wrapped_normal_grid(dl, sog, M)  # wrapped normal on the grid
     V[at] = (w * v).sum(-1)
     E4[at] = (w * (m4 + v * v)).sum(-1)
     eh = (w * h).sum(-1)
@@ -171,7 +178,7 @@ def _grid_moments(delta, s, so, at, M, V, E4, H):
     tau = np.sqrt(sg * sg + sog * sog)
     zz = (_QG_J + 0.5 - dl[:, None]) / tau[:, None]
     dens = np.exp(-0.5 * zz * zz).sum(-1) / (tau * np.sqrt(2.0 * np.pi))
-    dens = np.where(tau > 1.0, 1.0, dens)       # |Σ − 1| < 3e-9 beyond
+    dens = np.where(tau > 1.0, 1.0, dens)  # |Σ − 1| < 3e-9 beyond
     H[at] = var_h + 2.0 * sog * sog * (dens - 1.0)
 
 
@@ -194,11 +201,11 @@ def _build_uniform_offset_table():
     ls = np.linspace(np.log(1e-3), np.log(0.75), 1024)
     sg = np.exp(ls)
     u, wu = np.polynomial.legendre.leggauss(256)
-    a = np.minimum(0.5, 12.0 * sg)[:, None]          # beyond ±12 s from the boundary v = 0
-    x = 0.5 + a * u                                   # offsets about the boundary at ½ DN
+    a = np.minimum(0.5, 12.0 * sg)[:, None]  # beyond ±12 s from the boundary v = 0
+    x = 0.5 + a * u  # offsets about the boundary at ½ DN
     x = x - np.round(x)
     _, v, m4 = _rounded_normal_moments(x, sg[:, None], J=5)
-    w = a * wu                                        # ∫ over one period of length 1
+    w = a * wu  # ∫ over one period of length 1
     return {"ls": ls, "lv": np.log((w * v).sum(-1)), "le4": np.log((w * (m4 + v * v)).sum(-1))}
 
 

@@ -2,6 +2,7 @@
 Eq. 1 variances in DN, temporal and spatial apart, with the ROI's realised fixed patterns, the
 rounding to integer DN and the clip near saturation.
 """
+
 from __future__ import annotations
 
 import numpy as np
@@ -124,8 +125,9 @@ class _PredictionMixin:
         out["dark_var"] = (self.vd, vdm, 1.0 / (phi_d / self.nu_d + f2), "gamma")
         # bright temporal variances, unclipped rows: S from the measured mean
         S = np.broadcast_to(self.s_obs, rd2_ok.shape).copy()
-        vm, phi_b, hb = self._quantized_var(S / K + rd2_ok / (K * K), self.bright_frac_dn,
-                                        pa * S * S + pb / (K * K) + 2.0 * pc * S / K)
+        vm, phi_b, hb = self._quantized_var(
+            S / K + rd2_ok / (K * K), self.bright_frac_dn, pa * S * S + pb / (K * K) + 2.0 * pc * S / K
+        )
         slope = np.ones_like(vm)
         if self.clip_rows.size:
             c = p["clip_dn"]
@@ -134,8 +136,10 @@ class _PredictionMixin:
             # to double precision (_clip_mean): keep only the others. (The rule of the 9-node
             # quadrature, 8.5 s + 4.52 τ, let rows with τ ≫ s in at h ≈ 4.5: a clipped fraction 3e-6)
             # (bounds over each sensor's draws: over all draws here, per request in a PTCModelStack)
-            k_min, c_min, tau_max = (self._per_draw(self._request_reduce(f, a)) for f, a in
-                                     ((np.minimum, k), (np.minimum, c), (np.maximum, tau)))
+            k_min, c_min, tau_max = (
+                self._per_draw(self._request_reduce(f, a))
+                for f, a in ((np.minimum, k), (np.minimum, c), (np.maximum, tau))
+            )
             cr = self.clip_rows
             s_est = np.sqrt(self.v[..., cr] + self.s_obs[..., cr] / k_min)
             alpha_min = (c_min - self.m[..., cr]) / np.sqrt(s_est**2 + tau_max**2)
@@ -149,8 +153,11 @@ class _PredictionMixin:
             put = (lambda new, old: new) if keep is None else (lambda new, old: np.where(keep, new, old))
             if self.terms.clip == "well":
                 # the well clips the collected charge; read noise and quantization come after
-                dc_e2 = (p["dark_current_e_per_s"][:, None] * self.tt[..., rows]
-                         if self.terms.dark_current else np.zeros((k.size, rows.size)))
+                dc_e2 = (
+                    p["dark_current_e_per_s"][:, None] * self.tt[..., rows]
+                    if self.terms.dark_current
+                    else np.zeros((k.size, rows.size))
+                )
                 pre = dc_e2 / (K * K)
                 post = (rd2_ok[:, rows] - dc_e2) / (K * K) + 1.0 / 12.0
                 mu, var_c, sl = self._latent_clip_rows(k, pre, tau, c, rows)
@@ -184,14 +191,21 @@ class _PredictionMixin:
                 # the ADC clips the plateau's read noise too (wells just below the ADC maximum):
                 # moments of clip(N(c + τξ, σ²_post), ADC) over the well spread ξ
                 cm, cv, unclipped = self._clip_moments(
-                    np.array(cmean), np.sqrt(post_full) / K, tau_full,
-                    np.broadcast_to(self._per_draw(self.adc), vfull.shape).astype(float))
+                    np.array(cmean),
+                    np.sqrt(post_full) / K,
+                    tau_full,
+                    np.broadcast_to(self._per_draw(self.adc), vfull.shape).astype(float),
+                )
                 # only where the ADC clips a measurable part (keeps the exact rounding otherwise)
                 clipped = unclipped < 1.0 - 1e-9
                 vfull = np.where(clipped, cv + unclipped / 12.0, vfull)
                 cmean = cm
-            out["plateau_var"] = (np.maximum(self.full_v, 1e-6), np.maximum(vfull, 1e-6),
-                                  1.0 / (phi_pl / self.full_nu + f2), "gamma")
+            out["plateau_var"] = (
+                np.maximum(self.full_v, 1e-6),
+                np.maximum(vfull, 1e-6),
+                1.0 / (phi_pl / self.full_nu + f2),
+                "gamma",
+            )
         else:
             cmean = None
         if self.terms.clip in ("adc_sampled", "well") and self.full_means.size:
@@ -208,14 +222,22 @@ class _PredictionMixin:
             # realised pattern, plus what rounding adds to it below the quantization floor
             P = pa * Sr * Sr + pb / (K * K) + 2.0 * pc * Sr / K + hb[:, r]
             T = vm[:, r] / self.L_ok[..., r]
-            out["spatial_var"] = (self.sp[..., r], np.maximum(P + T, 1e-12),
-                                  self._pattern_shape(P, T, self.nu[..., r], f2), "gamma")
+            out["spatial_var"] = (
+                self.sp[..., r],
+                np.maximum(P + T, 1e-12),
+                self._pattern_shape(P, T, self.nu[..., r], f2),
+                "gamma",
+            )
         if self.spd_rows.size:
             r = self.spd_rows
             P = pb / (K * K) + hd[:, r]
             T = vdm[:, r] / self.L_all[..., r]
-            out["dark_spatial_var"] = (np.maximum(self.spd[..., r], 1e-9), np.maximum(P + T, 1e-12),
-                                       self._pattern_shape(P, T, self.nu_d[..., r], f2), "gamma")
+            out["dark_spatial_var"] = (
+                np.maximum(self.spd[..., r], 1e-9),
+                np.maximum(P + T, 1e-12),
+                self._pattern_shape(P, T, self.nu_d[..., r], f2),
+                "gamma",
+            )
         return out
 
     @staticmethod

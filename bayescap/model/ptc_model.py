@@ -45,6 +45,7 @@ every left-out term are recorded.
 (saturation) and :mod:`~bayescap.model.likelihood` (the blocks' densities); the rounding is in
 :mod:`~bayescap.model.quantization` and :mod:`~bayescap.model.pixel_quantization`.
 """
+
 from __future__ import annotations
 
 import numpy as np
@@ -74,12 +75,24 @@ class PTCModel(_ParametersMixin, _PredictionMixin, _ClipMixin, _LikelihoodMixin)
     #: [lo, hi] (QE: uniform on [lo, hi]). Override per model with ``PTCModel(data, prior={...})``
     #: or ``bayescap.fit(..., prior={...})``; ``benchmarks/sbc.py`` does so to fit with exactly
     #: the prior it draws its true sensors from (classic SBC).
-    PRIOR = dict(log_k_bounds=(np.log(1e-4), np.log(1e4)), read_scale_e=1000.0,
-                 dark_current_scale_e_per_s=1e4, prnu_scale=0.05, dsnu_scale_e=100.0,
-                 f_center=0.01, f_log_sd=1.5, g_center=0.005, g_log_sd=1.5,
-                 tau_log_sd=1.5, tau_max_frac=0.02,
-                 read_log_bounds=None, dark_current_log_bounds=None, prnu_log_bounds=None,
-                 dsnu_log_bounds=None, qe_bounds=None)
+    PRIOR = dict(
+        log_k_bounds=(np.log(1e-4), np.log(1e4)),
+        read_scale_e=1000.0,
+        dark_current_scale_e_per_s=1e4,
+        prnu_scale=0.05,
+        dsnu_scale_e=100.0,
+        f_center=0.01,
+        f_log_sd=1.5,
+        g_center=0.005,
+        g_log_sd=1.5,
+        tau_log_sd=1.5,
+        tau_max_frac=0.02,
+        read_log_bounds=None,
+        dark_current_log_bounds=None,
+        prnu_log_bounds=None,
+        dsnu_log_bounds=None,
+        qe_bounds=None,
+    )
 
     def __init__(self, data: PTCData, terms: ModelTerms | None = None, prior: dict | None = None):
         self.data = data
@@ -166,8 +179,11 @@ class PTCModel(_ParametersMixin, _PredictionMixin, _ClipMixin, _LikelihoodMixin)
         self.full_nu = d.n_pixels[self.full_sat] - 1.0
         self.t_full = self.t[self.full_sat]
         self.vd_ok = self.vd[~self.full_sat]
-        self.full_sd = np.sqrt(d.temporal_var_dn2[self.full_sat] / d.n_pixels[self.full_sat]
-                               + (1e-4 * np.maximum(self.full_means, 1.0)) ** 2 + 0.01**2)
+        self.full_sd = np.sqrt(
+            d.temporal_var_dn2[self.full_sat] / d.n_pixels[self.full_sat]
+            + (1e-4 * np.maximum(self.full_means, 1.0)) ** 2
+            + 0.01**2
+        )
         # spatial rows
         self.sp_rows = np.zeros(0, int)
         self.spd_rows = np.zeros(0, int)
@@ -187,7 +203,9 @@ class PTCModel(_ParametersMixin, _PredictionMixin, _ClipMixin, _LikelihoodMixin)
         for col in (d.spatial_var_dn2, d.dark_spatial_var_dn2):
             if col is not None:
                 sp_any |= np.isfinite(col)
-        self.nu_pattern = float(np.median(d.n_pixels[sp_any]) - 1.0) if np.any(sp_any) else float(np.median(d.n_pixels) - 1.0)
+        self.nu_pattern = (
+            float(np.median(d.n_pixels[sp_any]) - 1.0) if np.any(sp_any) else float(np.median(d.n_pixels) - 1.0)
+        )
         # fractional offsets of the measured means from the nearest integer DN (quantization)
         self.dark_frac_dn = d.dark_mean_dn - np.round(d.dark_mean_dn)
         self.bright_frac_dn = self.m - np.round(self.m)
@@ -205,7 +223,7 @@ class PTCModel(_ParametersMixin, _PredictionMixin, _ClipMixin, _LikelihoodMixin)
         model; per draw (n,) for a stacked view."""
         if self._request_ids is None:
             return ufunc.reduce(a)
-        if self._request_segments is None:     # the requests' starts and sizes, once per view
+        if self._request_segments is None:  # the requests' starts and sizes, once per view
             ids = self._request_ids
             starts = np.flatnonzero(np.concatenate(([True], ids[1:] != ids[:-1])))
             self._request_segments = (starts, np.diff(np.append(starts, ids.size)))
@@ -231,15 +249,17 @@ class PTCModel(_ParametersMixin, _PredictionMixin, _ClipMixin, _LikelihoodMixin)
 
     def _observations(self) -> int:
         """Observations per draw (the likelihood blocks' columns), counted once from one draw."""
+
         def count():
             with np.errstate(all="ignore"):
                 pred = self.predict(np.atleast_2d(self.initial_guess()))
             return int(sum(np.shape(v[1])[-1] for v in pred.values()))
+
         return self._memoized("observations", count)
 
     def _memoized(self, key, compute):
         """``compute()``, once per model (:attr:`_memo`, shared by its shallow copies)."""
-        memo = self.__dict__.setdefault("_memo", {})      # (a model unpickled from before _memo)
+        memo = self.__dict__.setdefault("_memo", {})  # (a model unpickled from before _memo)
         if key not in memo:
             memo[key] = compute()
         return memo[key]

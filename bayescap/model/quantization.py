@@ -5,6 +5,7 @@ and the offset δ whose rounded normal has a measured mean (:func:`_rounded_offs
 The averages of these moments over a population of pixels whose means are spread are in
 :mod:`bayescap.model.pixel_quantization`.
 """
+
 from __future__ import annotations
 
 import numpy as np
@@ -15,7 +16,7 @@ from scipy.special import ndtr, ndtri
 #: harmonics of each grid it is given
 _QG_SIZES = (8, 16, 32, 64, 128, 256, 512, 1024)
 _QG_GRIDS = {M: (np.arange(M) + 0.5) / M - 0.5 for M in _QG_SIZES}
-_QG_HARMONICS = {}        # (M, K) -> (sin, cos) of 2πk·x on grid M, k = 1..K (_rounded_normal_moments_fourier)
+_QG_HARMONICS = {}  # (M, K) -> (sin, cos) of 2πk·x on grid M, k = 1..K (_rounded_normal_moments_fourier)
 
 
 #: from this s (DN) up, :func:`_rounded_normal_moments` uses the Fourier series of
@@ -61,7 +62,7 @@ def _rounded_normal_moments(delta, s, J=6):
     """
     delta = np.asarray(delta, float)
     s = np.asarray(s, float)
-    if np.all(s >= _RN_FOURIER_S):                      # the common case (NaN: not), without the split
+    if np.all(s >= _RN_FOURIER_S):  # the common case (NaN: not), without the split
         return _rounded_normal_moments_fourier(delta, s, 4)
     kk = _rn_harmonics(s)
     ks = _small_unique(kk)
@@ -113,7 +114,7 @@ def _gaussian_harmonics(s, K):
     e2 = e * e
     step = e
     for k in range(1, K):
-        step = step * e2                       # e^{2k+1}
+        step = step * e2  # e^{2k+1}
         np.multiply(out[k - 1], step, out=out[k])
     return out
 
@@ -123,16 +124,26 @@ def _gaussian_harmonics(s, K):
 # _rounded_normal_moments_fourier needs (each term times q_k = 2(−1)^k e^{−ω²s²/2})
 def _rn_matrices(K):
     w = 2.0 * np.pi * np.arange(1.0, K + 1.0)
-    sin = np.stack([1.0 / w,                                   # α₁
-                    0.25 / w - 6.0 / w**3,                     # α₃
-                    2.0 / w,                                   # ω γ₂
-                    w], axis=1)                                # ω² α₁
-    cos = np.stack([np.ones(K),                                # ω α₁
-                    2.0 / w**2,                                # γ₂
-                    1.0 / w**2 - 24.0 / w**4,                  # γ₄
-                    0.25 - 6.0 / w**2,                         # ω α₃
-                    w**2], axis=1)                             # ω³ α₁
-    sign = 2.0 * np.where(np.arange(1, K + 1) % 2 == 1, -1.0, 1.0)   # 2 (−1)^k
+    sin = np.stack(
+        [
+            1.0 / w,  # α₁
+            0.25 / w - 6.0 / w**3,  # α₃
+            2.0 / w,  # ω γ₂
+            w,
+        ],
+        axis=1,
+    )  # ω² α₁
+    cos = np.stack(
+        [
+            np.ones(K),  # ω α₁
+            2.0 / w**2,  # γ₂
+            1.0 / w**2 - 24.0 / w**4,  # γ₄
+            0.25 - 6.0 / w**2,  # ω α₃
+            w**2,
+        ],
+        axis=1,
+    )  # ω³ α₁
+    sign = 2.0 * np.where(np.arange(1, K + 1) % 2 == 1, -1.0, 1.0)  # 2 (−1)^k
     return sin, cos, sign
 
 
@@ -173,15 +184,17 @@ def _rounded_normal_moments_fourier(delta, s, K=4):
     # harmonics of δ and of s each on their own (flat) elements, then broadcast: a grid of offsets
     # sharing one s per row (_quantized_pixel_moments) computes each exponential once
     rn_sin, rn_cos, rn_sign = _RN_MATRICES[K] if K in _RN_MATRICES else _rn_matrices(K)
-    if delta is _QG_GRIDS.get(delta.size):              # an offset grid's harmonics: computed once
+    if delta is _QG_GRIDS.get(delta.size):  # an offset grid's harmonics: computed once
         if (delta.size, K) not in _QG_HARMONICS:
             _QG_HARMONICS[delta.size, K] = _harmonics(delta, K)
         S, C = _QG_HARMONICS[delta.size, K]
     else:
         S, C = _harmonics(delta.reshape(-1), K)
-    pad_d = (1,) * (len(shape) - delta.ndim)            # leading axes of the broadcast shape
+    pad_d = (1,) * (len(shape) - delta.ndim)  # leading axes of the broadcast shape
     S, C = S.reshape((K,) + pad_d + delta.shape), C.reshape((K,) + pad_d + delta.shape)
-    q = (rn_sign[:, None] * _gaussian_harmonics(s.reshape(-1), K)).reshape((K,) + (1,) * (len(shape) - s.ndim) + s.shape)
+    q = (rn_sign[:, None] * _gaussian_harmonics(s.reshape(-1), K)).reshape(
+        (K,) + (1,) * (len(shape) - s.ndim) + s.shape
+    )
     v2 = s * s
     v4 = v2 * v2
     # Expanding E[Yᵐeⁿ] (E[e] = A₁, E[e²] = 1/12 + B₂, E[e³] = A₃, E[e⁴] = 1/80 + B₄, E[Ye] = v₂B₀,
@@ -193,18 +206,22 @@ def _rounded_normal_moments_fourier(delta, s, K=4):
     # with the sums V_c = 2v₂B₀ + B₂, L_c = B₄ + 4v₂B₃ + 6v₂B₂ − 4v₆B₅, P_s = 12v₄A₄ + 12v₂A₂ − 4A₃
     # and Q_c = 12v₂B₀ + 6B₂ formed from combined coefficients: 5 sums instead of 9, ~11 array
     # passes instead of ~35 (the same numbers as term by term, to rounding)
-    a1, a3, g2, w2a1 = rn_sin.T                         # α₁, α₃, ωγ₂, ω²α₁
-    b0, b2, b4, b3, b5 = rn_cos.T                       # ωα₁, γ₂, γ₄, ωα₃, ω³α₁
+    a1, a3, g2, w2a1 = rn_sin.T  # α₁, α₃, ωγ₂, ω²α₁
+    b0, b2, b4, b3, b5 = rn_cos.T  # ωα₁, γ₂, γ₄, ωα₃, ω³α₁
     if delta.ndim == 1 and s.shape == (shape[0], 1):
         # a grid of offsets sharing one s per row: Σ_k coef[row, c, k] q[k, row] S[k, x] as one
         # product of (rows·columns, K) by the grid's (K, M), without (K, rows, M) temporaries
-        r2, r4 = v2[:, 0, None], v4[:, 0, None]         # (rows, 1)
-        qr = q.reshape(K, -1).T                         # (rows, K)
-        ls = np.stack([np.broadcast_to(a1 * qr, qr.shape),
-                       (12.0 * r4 * w2a1 + 12.0 * r2 * g2 - 4.0 * a3) * qr], axis=1)
-        lc = np.stack([(2.0 * r2 * b0 + b2) * qr,
-                       (b4 + 4.0 * r2 * b3 + 6.0 * r2 * b2 - 4.0 * r4 * r2 * b5) * qr,
-                       (12.0 * r2 * b0 + 6.0 * b2) * qr], axis=1)
+        r2, r4 = v2[:, 0, None], v4[:, 0, None]  # (rows, 1)
+        qr = q.reshape(K, -1).T  # (rows, K)
+        ls = np.stack([np.broadcast_to(a1 * qr, qr.shape), (12.0 * r4 * w2a1 + 12.0 * r2 * g2 - 4.0 * a3) * qr], axis=1)
+        lc = np.stack(
+            [
+                (2.0 * r2 * b0 + b2) * qr,
+                (b4 + 4.0 * r2 * b3 + 6.0 * r2 * b2 - 4.0 * r4 * r2 * b5) * qr,
+                (12.0 * r2 * b0 + 6.0 * b2) * qr,
+            ],
+            axis=1,
+        )
         n = qr.shape[0]
         A1, P_s = _rows_matmul(ls.reshape(2 * n, K), S.reshape(K, -1)).reshape(n, 2, -1).transpose(1, 0, 2)
         V_c, L_c, Q_c = _rows_matmul(lc.reshape(3 * n, K), C.reshape(K, -1)).reshape(n, 3, -1).transpose(1, 0, 2)
@@ -233,9 +250,11 @@ def _rounded_normal_moments_fourier(delta, s, K=4):
 def _rounded_normal_moments_sums(delta, s, J=6):
     """:func:`_rounded_normal_moments` by direct sums over the integers j = −J..J."""
     j = np.arange(-J, J + 1, dtype=float)
-    b = (j[:-1] + 0.5)  # boundaries between j and j+1
+    b = j[:-1] + 0.5  # boundaries between j and j+1
     cdf = ndtr((b - delta[..., None]) / s[..., None])
-    p = np.diff(np.concatenate([np.zeros(cdf.shape[:-1] + (1,)), cdf, np.ones(cdf.shape[:-1] + (1,))], axis=-1), axis=-1)
+    p = np.diff(
+        np.concatenate([np.zeros(cdf.shape[:-1] + (1,)), cdf, np.ones(cdf.shape[:-1] + (1,))], axis=-1), axis=-1
+    )
     m = p @ j
     c = j - m[..., None]
     c2 = c * c
@@ -266,9 +285,9 @@ def _rounded_offset(frac_obs, s_tot, n_iter=12):
     shape = np.broadcast(frac_obs, s_tot).shape
     fo = np.clip(np.broadcast_to(frac_obs, shape).astype(float), -0.5, 0.5).reshape(-1)
     s = np.broadcast_to(s_tot, shape).astype(float).reshape(-1)
-    d = fo.copy()                                    # s_tot > 1.3 DN: the identity
+    d = fo.copy()  # s_tot > 1.3 DN: the identity
     four = (s >= _RO_FOURIER_S) & (s <= _RO_IDENTITY_S)
-    low = ~(s >= _RO_FOURIER_S)                      # (and NaN, as before)
+    low = ~(s >= _RO_FOURIER_S)  # (and NaN, as before)
     if np.any(four):
         d[four] = _rounded_offset_fourier(fo[four], s[four], n_iter)
     if np.any(low):
@@ -281,7 +300,7 @@ def _rounded_offset_fourier(fo, s, n_iter):
     """:func:`_rounded_offset` for 0.3 ≤ s ≤ 1.3 DN (1-D inputs): Newton on the Fourier series
     (the harmonics of each iterate by :func:`_harmonics`: one sin and one cos)."""
     k = np.arange(1.0, 5.0)[:, None]
-    qk = np.array([1.0, -1.0, 1.0, -1.0])[:, None] * _gaussian_harmonics(s, 4)   # (−1)^{k+1} e^{−2π²k²s²}
+    qk = np.array([1.0, -1.0, 1.0, -1.0])[:, None] * _gaussian_harmonics(s, 4)  # (−1)^{k+1} e^{−2π²k²s²}
     a = qk / (np.pi * k)
     b = 2.0 * qk
     d = fo.copy()
@@ -309,7 +328,7 @@ def _rounded_offset_boundaries(frac_obs, s_tot, n_iter=12, n_boundaries=6):
     small offsets need up to 22 steps (the mean is exponentially flat near 0 at small s), more
     than the 12 allowed, and the solver takes 70 % of a ``log_prob`` call of a sensor whose read
     noise is 0.1 DN."""
-    bs = [k + 0.5 for k in range(n_boundaries)]     # positive boundaries; E[round X] is odd in δ
+    bs = [k + 0.5 for k in range(n_boundaries)]  # positive boundaries; E[round X] is odd in δ
     shape = np.broadcast(frac_obs, s_tot).shape
     fo_all = np.broadcast_to(frac_obs, shape).astype(float).reshape(-1)
     s_all = np.broadcast_to(s_tot, shape).astype(float).reshape(-1)
@@ -358,7 +377,7 @@ def _rounded_offset_boundaries(frac_obs, s_tot, n_iter=12, n_boundaries=6):
         nd = d - gap / np.maximum(dm, 1e-300)
         d = np.where(done, d, np.where((nd > lo) & (nd < hi), nd, 0.5 * (lo + hi)))
         keep = ~done
-        if idx is None:                              # first pass: every element
+        if idx is None:  # first pass: every element
             d_all = d.copy()
             idx = np.flatnonzero(keep)
         else:

@@ -1,6 +1,7 @@
 """Several :class:`~bayescap.model.PTCModel` of one structure evaluated in one ``log_prob``
 call (:class:`PTCModelStack`), through a view of the model on per-draw gathered data.
 """
+
 from __future__ import annotations
 
 import copy
@@ -32,9 +33,31 @@ class PTCModelStack:
     """
 
     #: per-row data arrays (stacked along a new first axis)
-    ROW_ARRAYS = ("m", "v", "vd", "dm", "tt", "t", "nu", "nu_d", "s_obs", "mu_p", "full_means", "full_v",
-                  "full_nu", "full_sd", "sp", "spd", "L_ok", "L_all", "dark_frac_dn", "bright_frac_dn",
-                  "full_frac_dn", "t_full", "vd_ok")
+    ROW_ARRAYS = (
+        "m",
+        "v",
+        "vd",
+        "dm",
+        "tt",
+        "t",
+        "nu",
+        "nu_d",
+        "s_obs",
+        "mu_p",
+        "full_means",
+        "full_v",
+        "full_nu",
+        "full_sd",
+        "sp",
+        "spd",
+        "L_ok",
+        "L_all",
+        "dark_frac_dn",
+        "bright_frac_dn",
+        "full_frac_dn",
+        "t_full",
+        "vd_ok",
+    )
 
     def __init__(self, models):
         self.models = list(models)
@@ -43,39 +66,65 @@ class PTCModelStack:
         sig = self.signature(self.models[0])
         for i, m in enumerate(self.models[1:], 1):
             if self.signature(m) != sig:
-                raise ValueError(f"model {i} does not stack with model 0: different parameters, terms, "
-                                 "prior or block rows (group models by PTCModelStack.signature)")
+                raise ValueError(
+                    f"model {i} does not stack with model 0: different parameters, terms, "
+                    "prior or block rows (group models by PTCModelStack.signature)"
+                )
         m0 = self.models[0]
         self.ndim, self.names = m0.ndim, m0.names
         # one model stacked with itself (the ensembles of an MCMC preset in lockstep,
         # fit._run_segments): its own data serve every draw, nothing to gather
         self._same = all(m is m0 for m in self.models)
-        self._rows = {} if self._same else {a: np.stack([getattr(m, a) for m in self.models])
-                                            for a in self.ROW_ARRAYS if hasattr(m0, a)}
+        self._rows = (
+            {}
+            if self._same
+            else {a: np.stack([getattr(m, a) for m in self.models]) for a in self.ROW_ARRAYS if hasattr(m0, a)}
+        )
         self._black = np.array([m.black_dn for m in self.models], float)
         self._adc = None if m0.adc is None else np.array([m.adc for m in self.models], float)
         self._nu_pattern = np.array([m.nu_pattern for m in self.models], float)
-        self._clip_bounds = (None if m0.clip_bounds is None else
-                             tuple(np.array([m.clip_bounds[j] for m in self.models], float) for j in (0, 1)))
+        self._clip_bounds = (
+            None
+            if m0.clip_bounds is None
+            else tuple(np.array([m.clip_bounds[j] for m in self.models], float) for j in (0, 1))
+        )
 
     @staticmethod
     def signature(model: PTCModel):
         """What must agree for models to stack (a hashable tuple)."""
         tm = model.terms
-        terms = (tm.dark_current, tm.clip, tm.clip_spread, tm.quantum_efficiency, tm.prnu, tm.dsnu,
-                 tm.robust, tm.discrepancy)
+        terms = (
+            tm.dark_current,
+            tm.clip,
+            tm.clip_spread,
+            tm.quantum_efficiency,
+            tm.prnu,
+            tm.dsnu,
+            tm.robust,
+            tm.discrepancy,
+        )
         shapes = tuple((a, np.shape(getattr(model, a))) for a in PTCModelStack.ROW_ARRAYS if hasattr(model, a))
-        rows = tuple(tuple(np.asarray(getattr(model, a)).tolist()) for a in ("clip_rows", "lin_rows", "sp_rows", "spd_rows"))
+        rows = tuple(
+            tuple(np.asarray(getattr(model, a)).tolist()) for a in ("clip_rows", "lin_rows", "sp_rows", "spd_rows")
+        )
         prior = tuple(sorted((k, repr(v)) for k, v in model.PRIOR.items()))
-        return (tuple(model.names), terms, shapes, rows, int(np.sum(model.full_sat)), model.adc is None,
-                model.clip_bounds is None, prior)
+        return (
+            tuple(model.names),
+            terms,
+            shapes,
+            rows,
+            int(np.sum(model.full_sat)),
+            model.adc is None,
+            model.clip_bounds is None,
+            prior,
+        )
 
     def view(self, sensor, request=None) -> PTCModel:
         """A PTCModel whose data are those of ``sensor[i]`` for draw ``i`` (``request``: the id of
         the request each draw belongs to, for the per-request reductions)."""
         sensor = np.asarray(sensor, int)
         v = copy.copy(self.models[0])
-        v._memo = {}            # model 0's initial guess is not this view's
+        v._memo = {}  # model 0's initial guess is not this view's
         if self._same:
             # the model's own (rows,) arrays broadcast over the draws as in a single model's call;
             # only the choice of rows near the clip is per request. (With gathered (draws, rows)
@@ -99,8 +148,12 @@ class PTCModelStack:
         Draws of one request must be contiguous (the clip-row choice is per request)."""
         sensor = np.asarray(sensor, int)
         request = sensor if request is None else np.asarray(request)
-        return _log_posterior(theta, lambda good: self.view(sensor if good is None else sensor[good],
-                                                            request if good is None else request[good]))
+        return _log_posterior(
+            theta,
+            lambda good: self.view(
+                sensor if good is None else sensor[good], request if good is None else request[good]
+            ),
+        )
 
 
 class _GatheredRows:

@@ -2,6 +2,7 @@
 is recorded with its reason (:class:`ModelTerms`). :func:`saturation_flags` finds the fully
 clipped rows and whether saturation is reached.
 """
+
 from __future__ import annotations
 
 from dataclasses import dataclass, field
@@ -27,7 +28,7 @@ class ModelTerms:
     robust: bool = True
     discrepancy: bool = True
     reasons: dict = field(default_factory=dict)  # term -> why it is left out
-    how: dict = field(default_factory=dict)      # term -> how an included term enters (caveats)
+    how: dict = field(default_factory=dict)  # term -> how an included term enters (caveats)
 
     def names(self) -> list[str]:
         out = ["photon_shot", "read"]
@@ -54,7 +55,7 @@ def saturation_flags(d: PTCData):
     A row is fully clipped when ``frac_saturated`` ≥ 0.999, or when its mean sits at the top of
     the series and its temporal variance has collapsed below a tenth of the peak variance (a
     well that clips before the read-out keeps only read noise there)."""
-    check_not_all_saturated(d)   # every row on the plateau: an input error, not a fit
+    check_not_all_saturated(d)  # every row on the plateau: an input error, not a fit
     v, m = d.temporal_var_dn2, d.mean_dn
     vmax = float(v.max())
     top = m >= m.max() - max(1.0, 1e-4 * m.max())
@@ -72,9 +73,12 @@ def saturation_flags(d: PTCData):
         full = full | (d.frac_saturated >= 0.999)
         partial = (d.frac_saturated > 0) & ~full
     if np.all(full):
-        raise PTCInputError("every row is saturated (at the plateau's mean and variance): no row lies on "
-                            "the photon-transfer curve; add exposures below saturation",
-                            path=d.source, column="mean_dn")
+        raise PTCInputError(
+            "every row is saturated (at the plateau's mean and variance): no row lies on "
+            "the photon-transfer curve; add exposures below saturation",
+            path=d.source,
+            column="mean_dn",
+        )
     i_peak = int(np.argmax(np.where(full, -np.inf, v)))
     above = (~full) & (np.arange(v.size) > i_peak)
     turnover = bool(np.any(above & (v < 0.8 * v[i_peak])))
@@ -98,12 +102,16 @@ def _clip_mechanism(d: PTCData, full, reached):
         plateau_m = d.mean_dn[full]
         plateau_v = d.temporal_var_dn2[full]
         if adc is not None and np.all(plateau_m >= adc - 0.5):
-            return "adc", (f"the fully clipped rows sit at the ADC maximum {adc:g} DN: the clip level "
-                           "is the ADC's, and the photodiode's own well may be deeper")
+            return "adc", (
+                f"the fully clipped rows sit at the ADC maximum {adc:g} DN: the clip level "
+                "is the ADC's, and the photodiode's own well may be deeper"
+            )
         dark_v = float(np.median(d.dark_temporal_var_dn2))
         if np.median(plateau_v) >= 0.3 * dark_v:
-            return "well", ("the plateau keeps the read noise: the full well clips before the read-out; "
-                            "its variance also informs the read noise")
+            return "well", (
+                "the plateau keeps the read noise: the full well clips before the read-out; "
+                "its variance also informs the read noise"
+            )
         return "adc_sampled", "the plateau has no noise left: an ADC-like clip at a fitted level"
     if adc is not None:
         nf = ~full
@@ -118,16 +126,18 @@ def select_terms(d: PTCData, *, force: dict | None = None) -> ModelTerms:
     reasons, how = {}, {}
     t = d.exposure_time_s
     t_pos = t[t > 0]
-    with np.errstate(over="ignore"):     # a subnormal exposure time: the ratio is inf, still ≥ 1.5
+    with np.errstate(over="ignore"):  # a subnormal exposure time: the ratio is inf, still ≥ 1.5
         multi_t = t_pos.size >= 2 and (t_pos.max() / t_pos.min() >= 1.5)
     if not multi_t:
-        reasons["dark_current"] = ("all rows share one exposure time: only read² + D·t is "
-                                   "identifiable (reported as dark_noise_e)")
+        reasons["dark_current"] = (
+            "all rows share one exposure time: only read² + D·t is identifiable (reported as dark_noise_e)"
+        )
     full, reached = saturation_flags(d)
     clip, why = _clip_mechanism(d, full, reached)
     if clip == "none":
-        reasons["saturation"] = ("no row approaches saturation: the full well is reported as a "
-                                 "lower bound (the largest measured signal)")
+        reasons["saturation"] = (
+            "no row approaches saturation: the full well is reported as a lower bound (the largest measured signal)"
+        )
     else:
         how["saturation"] = why
     # partially clipped rows need the spread of pixel means about the clip
@@ -141,8 +151,7 @@ def select_terms(d: PTCData, *, force: dict | None = None) -> ModelTerms:
         reasons["prnu"] = "no spatial_var_dn2 column: pair differences cancel fixed-pattern noise"
     if not dsnu:
         reasons["dsnu"] = "no dark_spatial_var_dn2 column: pair differences cancel fixed-pattern noise"
-    terms = dict(dark_current=multi_t, clip=clip, clip_spread=clip_spread, quantum_efficiency=qe,
-                 prnu=prnu, dsnu=dsnu)
+    terms = dict(dark_current=multi_t, clip=clip, clip_spread=clip_spread, quantum_efficiency=qe, prnu=prnu, dsnu=dsnu)
     if force:
         terms.update(force)
     return ModelTerms(**terms, reasons=reasons, how=how)

@@ -2,6 +2,7 @@
 split of a large ``log_prob`` call into two halves, the second on a worker thread
 (:func:`_split_rows`).
 """
+
 from __future__ import annotations
 
 import os
@@ -51,12 +52,14 @@ def _allowed(env_name, default_fn) -> int:
 def n_threads() -> int:
     """Threads a large ``log_prob`` call may use (:func:`_allowed`, ``BAYESCAP_THREADS``): 2 where this
     process may run on two cores or more."""
+
     def two_if_two_cores():
         try:
             cores = len(os.sched_getaffinity(0))
-        except AttributeError:        # not on Linux
+        except AttributeError:  # not on Linux
             cores = os.cpu_count() or 1
         return 2 if cores >= 2 else 1
+
     return _allowed("BAYESCAP_THREADS", two_if_two_cores)
 
 
@@ -75,7 +78,7 @@ def _split_rows(fn, th):
 
     pid = os.getpid()
     pool = _SPLIT_POOL.get(pid)
-    if pool is None:          # one per process: a pool inherited through fork has no thread
+    if pool is None:  # one per process: a pool inherited through fork has no thread
         _SPLIT_POOL.clear()
         pool = _SPLIT_POOL[pid] = ThreadPoolExecutor(1, thread_name_prefix="bayescap-log-prob")
     # the worker runs in a copy of this context: numpy's errstate (a context variable) goes with it

@@ -16,6 +16,7 @@ on physical size (the lens) is told the pixel pitch.
 Because log2 of a product is a sum, the MTF loss Δs of Eq. 8/9 adds over components
 (:func:`bayescap.capacity.mtf_loss_bits`).
 """
+
 from __future__ import annotations
 
 from dataclasses import dataclass, field
@@ -201,9 +202,12 @@ class TabulatedMTF(MTFComponent):
         return np.clip(out, 0.0, None).reshape((self.samples.shape[0],) + f.shape)
 
     def describe(self):
-        return {"name": self.name, "n_freq": int(self.freq_cy_per_px.size),
-                "max_freq_cy_per_px": self.max_freq_cy_per_px,
-                "n_draws": 0 if self.samples is None else int(self.samples.shape[0])}
+        return {
+            "name": self.name,
+            "n_freq": int(self.freq_cy_per_px.size),
+            "max_freq_cy_per_px": self.max_freq_cy_per_px,
+            "n_draws": 0 if self.samples is None else int(self.samples.shape[0]),
+        }
 
 
 @dataclass(frozen=True)
@@ -233,8 +237,13 @@ class MTFProduct(MTFComponent):
         return {"name": self.name, "components": [c.describe() for c in self.components]}
 
 
-def default_mtf(*, fill_factor: float = 1.0, f_number: float | None = 2.8,
-                wavelength_nm: float = 555.0, pixel_pitch_um: float | None = None) -> MTFProduct:
+def default_mtf(
+    *,
+    fill_factor: float = 1.0,
+    f_number: float | None = 2.8,
+    wavelength_nm: float = 555.0,
+    pixel_pitch_um: float | None = None,
+) -> MTFProduct:
     """The core's default MTF: ideal pixel aperture x diffraction-limited lens.
 
     The lens needs the pixel pitch to convert its cut-off to cycles per pixel; without a pitch
@@ -243,8 +252,7 @@ def default_mtf(*, fill_factor: float = 1.0, f_number: float | None = 2.8,
     """
     comps = [PixelAperture(fill_factor=fill_factor)]
     if pixel_pitch_um is not None and f_number is not None:
-        comps.append(DiffractionLens(f_number=f_number, wavelength_nm=wavelength_nm,
-                                     pixel_pitch_um=pixel_pitch_um))
+        comps.append(DiffractionLens(f_number=f_number, wavelength_nm=wavelength_nm, pixel_pitch_um=pixel_pitch_um))
     return MTFProduct(components=tuple(comps))
 
 
@@ -276,8 +284,10 @@ class LShapedAperture(MTFComponent):
 
     def __post_init__(self):
         if not (0 < self.A <= 1 and 0 < self.B <= 1 and 0 <= self.a < self.A and 0 <= self.b < self.B):
-            raise ValueError("need 0 <= a < A <= 1 and 0 <= b < B <= 1 (pixel units), got "
-                             f"A={self.A}, B={self.B}, a={self.a}, b={self.b}")
+            raise ValueError(
+                "need 0 <= a < A <= 1 and 0 <= b < B <= 1 (pixel units), got "
+                f"A={self.A}, B={self.B}, a={self.a}, b={self.b}"
+            )
 
     @property
     def fill_factor(self) -> float:
@@ -290,10 +300,23 @@ class LShapedAperture(MTFComponent):
         f1 = np.asarray(fx_cy_per_px, float)
         f2 = np.asarray(fy_cy_per_px, float)
         area = A * B - a * b
-        t1 = (a * (B - b) / area * np.sinc(a * f1) * np.sinc((B - b) * f2)
-              * np.exp(1j * np.pi * a * f1) * np.exp(-1j * np.pi * (B - b) * f2))
-        t2 = ((B * (A - a)) / area * np.sinc((A - a) * f1) * np.sinc(B * f2)
-              * np.exp(-1j * np.pi * (A - a) * f1) * np.exp(-1j * 2 * np.pi * (0.5 * B - b) * f2))
+        t1 = (
+            a
+            * (B - b)
+            / area
+            * np.sinc(a * f1)
+            * np.sinc((B - b) * f2)
+            * np.exp(1j * np.pi * a * f1)
+            * np.exp(-1j * np.pi * (B - b) * f2)
+        )
+        t2 = (
+            (B * (A - a))
+            / area
+            * np.sinc((A - a) * f1)
+            * np.sinc(B * f2)
+            * np.exp(-1j * np.pi * (A - a) * f1)
+            * np.exp(-1j * 2 * np.pi * (0.5 * B - b) * f2)
+        )
         return t1 + t2
 
     def mtf2d(self, fx_cy_per_px, fy_cy_per_px):
@@ -304,8 +327,7 @@ class LShapedAperture(MTFComponent):
         return 0.5 * (self.mtf2d(f, 0.0) + self.mtf2d(0.0, f))
 
     def describe(self):
-        return {"name": self.name, "A": self.A, "B": self.B, "a": self.a, "b": self.b,
-                "fill_factor": self.fill_factor}
+        return {"name": self.name, "A": self.A, "B": self.B, "a": self.a, "b": self.b, "fill_factor": self.fill_factor}
 
 
 @dataclass(frozen=True)

@@ -14,6 +14,7 @@ Example
 >>> [p.pitch_um for p in load_table1()]
 [5.2, 3.2, 2.9, 2.2, 1.75, 1.45]
 """
+
 from __future__ import annotations
 
 import csv
@@ -74,21 +75,29 @@ class PixelSpec:
     def full_well_mid_e(self) -> float:
         return 0.5 * (self.full_well_min_e + self.full_well_max_e)
 
-    def dark_current_e_per_s(self, temperature_c: float = 25.0, *,
-                             doubling_c: float = DARK_CURRENT_DOUBLING_C) -> float:
+    def dark_current_e_per_s(
+        self, temperature_c: float = 25.0, *, doubling_c: float = DARK_CURRENT_DOUBLING_C
+    ) -> float:
         """Dark current (e⁻/s) at ``temperature_c`` from the nearest printed reference (25 or
         60 °C), doubling every ``doubling_c`` °C (Section 2.2)."""
-        refs = [(t, v) for t, v in ((25.0, self.dark_current_25c_e_per_s),
-                                    (60.0, self.dark_current_60c_e_per_s)) if np.isfinite(v)]
+        refs = [
+            (t, v)
+            for t, v in ((25.0, self.dark_current_25c_e_per_s), (60.0, self.dark_current_60c_e_per_s))
+            if np.isfinite(v)
+        ]
         if not refs:
             raise ValueError(f"pixel {self.pitch_um} µm has no dark-current value")
         t_ref, v_ref = min(refs, key=lambda tv: abs(tv[0] - temperature_c))
-        return float(dark_current_at(temperature_c, reference_e_per_s=v_ref,
-                                     reference_temperature_c=t_ref, doubling_c=doubling_c))
+        return float(
+            dark_current_at(
+                temperature_c, reference_e_per_s=v_ref, reference_temperature_c=t_ref, doubling_c=doubling_c
+            )
+        )
 
 
-def dark_current_at(temperature_c, *, reference_e_per_s, reference_temperature_c,
-                    doubling_c: float = DARK_CURRENT_DOUBLING_C):
+def dark_current_at(
+    temperature_c, *, reference_e_per_s, reference_temperature_c, doubling_c: float = DARK_CURRENT_DOUBLING_C
+):
     """Dark current (e⁻/s) at ``temperature_c`` (°C), doubling every ``doubling_c`` °C.
 
     ``D(T) = D_ref · 2^((T − T_ref)/doubling_c)`` (Section 2.2, after Rhodes et al. 2004).
@@ -123,21 +132,25 @@ def load_table1(path: str | Path | None = None) -> list[PixelSpec]:
     for i, r in enumerate(csv.DictReader(io.StringIO(text)), start=2):
         try:
             fw_lo, fw_hi = sorted((_f(r["full_well_min_ke"]), _f(r["full_well_max_ke"])))
-            rows.append(PixelSpec(
-                pitch_um=_f(r["pitch_um"]),
-                architecture=r["architecture"].strip(),
-                full_well_min_e=1e3 * fw_lo,
-                full_well_max_e=1e3 * fw_hi,
-                sensitivity_e_per_lux_s=1e3 * _f(r["sensitivity_ke_per_lux_s"]),
-                dark_current_25c_e_per_s=_f(r["dark_current_25c_e_per_s"]),
-                dark_current_60c_e_per_s=_f(r["dark_current_60c_e_per_s"]),
-                prnu_max_frac=_f(r["prnu_max_percent"]) / 100.0,
-                sources={k[len("source_"):]: v for k, v in r.items() if k.startswith("source_")},
-                as_printed={k: v for k, v in r.items() if k.endswith("_as_printed")},
-            ))
+            rows.append(
+                PixelSpec(
+                    pitch_um=_f(r["pitch_um"]),
+                    architecture=r["architecture"].strip(),
+                    full_well_min_e=1e3 * fw_lo,
+                    full_well_max_e=1e3 * fw_hi,
+                    sensitivity_e_per_lux_s=1e3 * _f(r["sensitivity_ke_per_lux_s"]),
+                    dark_current_25c_e_per_s=_f(r["dark_current_25c_e_per_s"]),
+                    dark_current_60c_e_per_s=_f(r["dark_current_60c_e_per_s"]),
+                    prnu_max_frac=_f(r["prnu_max_percent"]) / 100.0,
+                    sources={k[len("source_") :]: v for k, v in r.items() if k.startswith("source_")},
+                    as_printed={k: v for k, v in r.items() if k.endswith("_as_printed")},
+                )
+            )
         except (KeyError, ValueError) as exc:
-            raise ValueError(f"Table 1 file {path or TABLE1_PATH}, line {i}: {exc!r}; "
-                             "expected the columns of data/paper_table1_pixel_parameters.csv") from exc
+            raise ValueError(
+                f"Table 1 file {path or TABLE1_PATH}, line {i}: {exc!r}; "
+                "expected the columns of data/paper_table1_pixel_parameters.csv"
+            ) from exc
     return rows
 
 

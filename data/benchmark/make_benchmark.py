@@ -20,6 +20,7 @@ equivalent, K_m = 683 lm/W, E = h·c/λ). A ``*.truth.json`` beside each CSV hol
 
 The script is deterministic (fixed seeds); rerunning it reproduces the files byte for byte.
 """
+
 from __future__ import annotations
 
 import csv
@@ -28,9 +29,9 @@ from pathlib import Path
 
 import numpy as np
 
-from bayescap.physics.table1 import load_table1
-from bayescap.physics.photometry import photons_per_lux_s_um2
 from bayescap.io.ptc_csv import atomic_write_text, write_ptc_csv
+from bayescap.physics.photometry import photons_per_lux_s_um2
+from bayescap.physics.table1 import load_table1
 from bayescap.simulate import SensorTruth, simulate_ptc
 
 HERE = Path(__file__).resolve().parent
@@ -58,9 +59,9 @@ MANUFACTURER = {
 }
 SEEDS = {"M2_2.80um": 2801, "M2_2.20um": 2202, "M1_2.20um": 2201, "M2_1.75um": 1752, "M1_1.75um": 1751}
 
-ADC_BITS = 12          # RAW bit depth (not given by the paper; see README)
+ADC_BITS = 12  # RAW bit depth (not given by the paper; see README)
 BLACK_DN = 64.0
-ADC_HEADROOM = 1.03    # the ADC clips 3 % above the mean full well: the well clips first
+ADC_HEADROOM = 1.03  # the ADC clips 3 % above the mean full well: the well clips first
 SIM = dict(n_levels=40, shape=(100, 100), spatial_frames=16, spatial_every=8)
 
 
@@ -83,22 +84,44 @@ def table1_at(pitch_um: float) -> dict:
     }
 
 
-def _write(name, truth: SensorTruth, md: dict, seed: int, out: Path, *, pitch_um, calibrated: bool,
-           provenance: dict):
+def _write(name, truth: SensorTruth, md: dict, seed: int, out: Path, *, pitch_um, calibrated: bool, provenance: dict):
     d = simulate_ptc(truth, seed=seed, metadata=md, **SIM)
-    cols = {c: getattr(d, c) for c in ("exposure_time_s", "mean_dn", "temporal_var_dn2", "dark_mean_dn",
-                                       "dark_temporal_var_dn2", "n_pixels", "photons_per_pixel",
-                                       "spatial_var_dn2", "dark_spatial_var_dn2", "n_frames",
-                                       "frac_saturated")}
+    cols = {
+        c: getattr(d, c)
+        for c in (
+            "exposure_time_s",
+            "mean_dn",
+            "temporal_var_dn2",
+            "dark_mean_dn",
+            "dark_temporal_var_dn2",
+            "n_pixels",
+            "photons_per_pixel",
+            "spatial_var_dn2",
+            "dark_spatial_var_dn2",
+            "n_frames",
+            "frac_saturated",
+        )
+    }
     if calibrated:
         cols["exposure_lux_s"] = np.asarray(d.photons_per_pixel) / (PHOTONS_PER_LUX_S_UM2 * pitch_um**2)
     else:  # the quantum efficiency is not published: no photon or lux calibration in the file
         del cols["photons_per_pixel"]
     write_ptc_csv({k: np.asarray(v, float) for k, v in cols.items()}, out / f"{name}.csv", metadata=md)
-    atomic_write_text(out / f"{name}.truth.json", json.dumps(
-        {"name": name, "seed": seed, "truth": truth.to_dict(), "simulation": {k: list(v) if isinstance(v, tuple)
-                                                                              else v for k, v in SIM.items()},
-         "provenance": provenance, "note": SIMULATED_NOTE}, indent=2) + "\n")
+    atomic_write_text(
+        out / f"{name}.truth.json",
+        json.dumps(
+            {
+                "name": name,
+                "seed": seed,
+                "truth": truth.to_dict(),
+                "simulation": {k: list(v) if isinstance(v, tuple) else v for k, v in SIM.items()},
+                "provenance": provenance,
+                "note": SIMULATED_NOTE,
+            },
+            indent=2,
+        )
+        + "\n",
+    )
 
 
 def table2_sensors(out: Path = HERE):
@@ -109,32 +132,52 @@ def table2_sensors(out: Path = HERE):
         fw = t1["full_well_e"] * f["fw"]
         qe = sens / (PHOTONS_PER_LUX_S_UM2 * pitch**2)
         k = ADC_HEADROOM * fw / (2**ADC_BITS - 1 - BLACK_DN)
-        truth = SensorTruth(conversion_gain_e_per_dn=round(k, 4), read_noise_e=f["read_noise_e"],
-                            full_well_e=round(fw, 1), dark_current_e_per_s=round(t1["dark_current_e_per_s"], 3),
-                            quantum_efficiency=round(qe, 4), prnu_frac=round(f["prnu_of_max"] * t1["prnu_max_frac"], 5),
-                            dsnu_e=f["dsnu_e"], full_well_spread_frac=0.005, adc_bits=ADC_BITS,
-                            black_level_dn=BLACK_DN)
-        md = {"sensor": f"{name} (simulated, Table 2 of Tisse et al. 2008)", "manufacturer": manu,
-              "pixel_pitch_um": pitch, "width_px": w, "height_px": h, "adc_bits": ADC_BITS,
-              "black_level_dn": BLACK_DN, "channel": "green", "analog_gain": 1.0, "temperature_c": 25.0,
-              "optical_format": fmt, "crosstalk_sigma_px": f["crosstalk_px"],
-              "sensitivity_truth_e_per_lux_s": round(sens, 1), "simulated": "yes", "note": SIMULATED_NOTE}
-        prov = {"table1_at_pitch": t1, "manufacturer_factors": f,
-                "how": "Table 1 values for the pitch x manufacturer factors (ours); QE = sensitivity / "
-                       "(4090.7 photons/(lux.s.um^2) x pitch^2)"}
+        truth = SensorTruth(
+            conversion_gain_e_per_dn=round(k, 4),
+            read_noise_e=f["read_noise_e"],
+            full_well_e=round(fw, 1),
+            dark_current_e_per_s=round(t1["dark_current_e_per_s"], 3),
+            quantum_efficiency=round(qe, 4),
+            prnu_frac=round(f["prnu_of_max"] * t1["prnu_max_frac"], 5),
+            dsnu_e=f["dsnu_e"],
+            full_well_spread_frac=0.005,
+            adc_bits=ADC_BITS,
+            black_level_dn=BLACK_DN,
+        )
+        md = {
+            "sensor": f"{name} (simulated, Table 2 of Tisse et al. 2008)",
+            "manufacturer": manu,
+            "pixel_pitch_um": pitch,
+            "width_px": w,
+            "height_px": h,
+            "adc_bits": ADC_BITS,
+            "black_level_dn": BLACK_DN,
+            "channel": "green",
+            "analog_gain": 1.0,
+            "temperature_c": 25.0,
+            "optical_format": fmt,
+            "crosstalk_sigma_px": f["crosstalk_px"],
+            "sensitivity_truth_e_per_lux_s": round(sens, 1),
+            "simulated": "yes",
+            "note": SIMULATED_NOTE,
+        }
+        prov = {
+            "table1_at_pitch": t1,
+            "manufacturer_factors": f,
+            "how": "Table 1 values for the pitch x manufacturer factors (ours); QE = sensitivity / "
+            "(4090.7 photons/(lux.s.um^2) x pitch^2)",
+        }
         _write(name, truth, md, SEEDS[name], out, pitch_um=pitch, calibrated=True, provenance=prov)
 
 
 #: real sensors built from datasheet values: table id -> what the table does not give
 DATASHEET = {
-    "imx363_isetcam": dict(name="Sony_IMX363_1.40um", width_px=4032, height_px=3024, black_level_dn=64.0,
-                           seed=1401),
-    "imx900_lcg": dict(name="Sony_IMX900_2.25um_LCG", width_px=2064, height_px=1552, black_level_dn=240.0,
-                       seed=2251),
-    "imx455_asi6200_g0": dict(name="Sony_IMX455_3.76um_gain0", width_px=9576, height_px=6388,
-                              black_level_dn=64.0, seed=3761),
-    "imx174_pointgrey": dict(name="Sony_IMX174_5.86um", width_px=1936, height_px=1216, black_level_dn=64.0,
-                             seed=5861),
+    "imx363_isetcam": dict(name="Sony_IMX363_1.40um", width_px=4032, height_px=3024, black_level_dn=64.0, seed=1401),
+    "imx900_lcg": dict(name="Sony_IMX900_2.25um_LCG", width_px=2064, height_px=1552, black_level_dn=240.0, seed=2251),
+    "imx455_asi6200_g0": dict(
+        name="Sony_IMX455_3.76um_gain0", width_px=9576, height_px=6388, black_level_dn=64.0, seed=3761
+    ),
+    "imx174_pointgrey": dict(name="Sony_IMX174_5.86um", width_px=1936, height_px=1216, black_level_dn=64.0, seed=5861),
 }
 
 
@@ -143,8 +186,12 @@ def _num(x):
 
 
 def datasheet_sensors(out: Path = HERE / "datasheet"):
-    rows = {r["id"]: r for r in csv.DictReader(open(HERE / "sensor_specs" / "sensor_characterization_table.csv",
-                                                    newline="", encoding="utf-8"))}
+    rows = {
+        r["id"]: r
+        for r in csv.DictReader(
+            open(HERE / "sensor_specs" / "sensor_characterization_table.csv", newline="", encoding="utf-8")
+        )
+    }
     for rid, extra in DATASHEET.items():
         r = rows[rid]
         pitch = _num(r["pixel_um"])
@@ -159,33 +206,57 @@ def datasheet_sensors(out: Path = HERE / "datasheet"):
         qe = _num(r["qe_pct"])
         calibrated = qe is not None
         if not calibrated:
-            assumed.append("QE not published for this operating point: no photons_per_pixel or exposure_lux_s "
-                           "columns (TR at H0 cannot be computed)")
+            assumed.append(
+                "QE not published for this operating point: no photons_per_pixel or exposure_lux_s "
+                "columns (TR at H0 cannot be computed)"
+            )
         else:
-            assumed.append(f"QE {qe:g} % at {r['qe_nm'] or '?'} nm used as the QE at 555 nm for the lux.s "
-                           "conversion (Eq. 4)")
+            assumed.append(
+                f"QE {qe:g} % at {r['qe_nm'] or '?'} nm used as the QE at 555 nm for the lux.s conversion (Eq. 4)"
+            )
         dc = _num(r["dark_current_e_per_s"]) or 0.0
         prnu = (_num(r["prnu_pct"]) or 0.0) / 100.0
         dsnu = _num(r["dsnu_e"]) or 0.0
-        truth = SensorTruth(conversion_gain_e_per_dn=k, read_noise_e=_num(r["read_noise_e"]), full_well_e=fw,
-                            dark_current_e_per_s=dc, quantum_efficiency=(qe / 100.0) if calibrated else 0.6,
-                            prnu_frac=prnu, dsnu_e=dsnu, full_well_spread_frac=0.005, adc_bits=bits,
-                            black_level_dn=black)
+        truth = SensorTruth(
+            conversion_gain_e_per_dn=k,
+            read_noise_e=_num(r["read_noise_e"]),
+            full_well_e=fw,
+            dark_current_e_per_s=dc,
+            quantum_efficiency=(qe / 100.0) if calibrated else 0.6,
+            prnu_frac=prnu,
+            dsnu_e=dsnu,
+            full_well_spread_frac=0.005,
+            adc_bits=bits,
+            black_level_dn=black,
+        )
         name = extra["name"]
-        md = {"sensor": f"{r['sensor']} built from datasheet values ({r['operating_point']})",
-              "manufacturer": "Sony", "pixel_pitch_um": pitch, "width_px": extra["width_px"],
-              "height_px": extra["height_px"], "adc_bits": bits, "black_level_dn": black, "channel": "mono",
-              "built_from": f"datasheet values, sensor_specs/sensor_characterization_table.csv id {rid} "
-                            f"(confidence {r['confidence']}; source: {r['source']})",
-              "simulated": "yes (PTC simulated from published parameters)",
-              "note": "built from datasheet values: the parameters are published, the PTC is simulated"}
-        prov = {"table_id": rid, "table_row": r, "assumptions": assumed,
-                "resolution": "width/height from the manufacturer's public product specification (not in the table)",
-                "saturation": "the table's saturation capacity is used as the clip charge (full well)"}
+        md = {
+            "sensor": f"{r['sensor']} built from datasheet values ({r['operating_point']})",
+            "manufacturer": "Sony",
+            "pixel_pitch_um": pitch,
+            "width_px": extra["width_px"],
+            "height_px": extra["height_px"],
+            "adc_bits": bits,
+            "black_level_dn": black,
+            "channel": "mono",
+            "built_from": f"datasheet values, sensor_specs/sensor_characterization_table.csv id {rid} "
+            f"(confidence {r['confidence']}; source: {r['source']})",
+            "simulated": "yes (PTC simulated from published parameters)",
+            "note": "built from datasheet values: the parameters are published, the PTC is simulated",
+        }
+        prov = {
+            "table_id": rid,
+            "table_row": r,
+            "assumptions": assumed,
+            "resolution": "width/height from the manufacturer's public product specification (not in the table)",
+            "saturation": "the table's saturation capacity is used as the clip charge (full well)",
+        }
         _write(name, truth, md, extra["seed"], out, pitch_um=pitch, calibrated=calibrated, provenance=prov)
 
 
 if __name__ == "__main__":
     table2_sensors()
     datasheet_sensors()
-    print("wrote", sorted(p.name for p in HERE.glob("*.csv")), sorted(p.name for p in (HERE / "datasheet").glob("*.csv")))
+    print(
+        "wrote", sorted(p.name for p in HERE.glob("*.csv")), sorted(p.name for p in (HERE / "datasheet").glob("*.csv"))
+    )
