@@ -61,6 +61,13 @@ class NoiseCoefficients:
     b: np.ndarray
     c: np.ndarray
 
+    def with_quantization(self, old_step_e, new_step_e) -> "NoiseCoefficients":
+        """The same noise with the quantization term of step ``old_step_e`` (e⁻/DN, the one in
+        ``a``) replaced by that of ``new_step_e`` (e.g. the step at another analog gain); the steps
+        broadcast against ``a``."""
+        a = self.a - quantization_variance_e2(old_step_e) + quantization_variance_e2(new_step_e)
+        return NoiseCoefficients(a=a, b=self.b, c=self.c)
+
     def variance(self, s_e):
         s_e = np.asarray(s_e, float)
         return self.a + self.b * s_e + self.c * s_e * s_e
@@ -68,18 +75,14 @@ class NoiseCoefficients:
     @classmethod
     def from_parameters(cls, *, read_noise_e, dark_current_e_per_s=0.0, exposure_time_s=0.0,
                         dsnu_e=0.0, prnu_frac=0.0, conversion_gain_e_per_dn=0.0,
-                        dark_noise_e=None, dark_current_factor=1.0, quantization_e2=None):
+                        dark_noise_e=None):
         """Eq. 1 terms. ``dark_noise_e``, if given, replaces ``read² + D·t`` (used when only
-        their sum is identifiable). ``dark_current_factor`` scales the dark current (temperature).
-        ``quantization_e2``, if given, replaces ``K²/12`` (a quantization step other than the
-        conversion gain's, e.g. at another analog gain); it broadcasts against the other terms."""
+        their sum is identifiable)."""
         if dark_noise_e is None:
-            rd2 = dark_variance_e2(read_noise_e, dark_current_e_per_s, exposure_time_s,
-                                   dark_current_factor=dark_current_factor)
+            rd2 = dark_variance_e2(read_noise_e, dark_current_e_per_s, exposure_time_s)
         else:
             rd2 = np.asarray(dark_noise_e, float) ** 2
-        q = quantization_variance_e2(conversion_gain_e_per_dn) if quantization_e2 is None else quantization_e2
-        a = rd2 + np.asarray(dsnu_e, float) ** 2 + q
+        a = rd2 + np.asarray(dsnu_e, float) ** 2 + quantization_variance_e2(conversion_gain_e_per_dn)
         b = np.ones_like(a)
         c = np.asarray(prnu_frac, float) ** 2 * np.ones_like(a)
         return cls(a=np.asarray(a, float), b=b, c=c)

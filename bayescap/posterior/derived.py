@@ -30,10 +30,9 @@ class DerivedMixin:
     ``scene``, ``mtf``, ``metadata`` and ``seed``), written to ``derived``, ``mtf_info``,
     ``notes`` and ``flags``."""
 
-    def _noise_coefficients(self, p, t_s, *, quantization_e2=None):
+    def _noise_coefficients(self, p, t_s):
         """Eq. 1's coefficients per draw of the physical parameters ``p`` at exposure ``t_s`` (s)
-        and this scene's dark-current factor; ``quantization_e2`` replaces ``K²/12`` (another gain).
-        The dark variance enters as its square root (``dark_noise_e``), the rounding every fit's
+        and this scene's dark-current factor. The dark variance enters as its square root (``dark_noise_e``), the rounding every fit's
         numbers are computed with."""
         k = p["conversion_gain_e_per_dn"]
         if self.model.terms.dark_current:
@@ -44,8 +43,7 @@ class DerivedMixin:
         dsnu = p.get("dsnu_e", 0.0)
         prnu = p.get("prnu_percent", 0.0) / 100.0
         return NoiseCoefficients.from_parameters(read_noise_e=0.0, dark_noise_e=np.sqrt(rd2), dsnu_e=dsnu,
-                                                 prnu_frac=prnu, conversion_gain_e_per_dn=k,
-                                                 quantization_e2=quantization_e2)
+                                                 prnu_frac=prnu, conversion_gain_e_per_dn=k)
 
     def signal_max_e(self, p=None):
         """Largest non-saturating signal (e⁻) per draw, and whether it is only a lower bound."""

@@ -18,7 +18,7 @@ from bayescap.posterior.checks import ChecksMixin
 from bayescap.posterior.derived import _DERIVED_FLAGS, _DERIVED_NOTE_PREFIXES, DerivedMixin
 from bayescap.posterior.diagnose import _END_MCSE_FAILURE, DiagnoseMixin
 from bayescap.posterior.scene import Scene
-from bayescap.posterior.summary import _clean, summarize
+from bayescap.posterior.summary import json_safe, summarize
 
 __all__ = ["FitResult"]
 
@@ -245,7 +245,7 @@ class FitResult(DerivedMixin, DiagnoseMixin, ChecksMixin):
     def to_dict(self) -> dict:
         sensor = dict(self.metadata)
         diag = {k: v for k, v in self.diag.items()}
-        return _clean({
+        return json_safe({
             "bayescap_version": __version__,
             "input": self.model.data.source,
             "sensor": sensor,

@@ -6,7 +6,7 @@ import math
 
 import numpy as np
 
-__all__ = ["DERIVED_INFO", "summarize", "rerun_advice"]
+__all__ = ["DERIVED_INFO", "PARAMETER_ORDER", "DERIVED_ORDER", "summarize", "rerun_advice", "json_safe"]
 
 DERIVED_INFO = {
     "tonal_range_bits": ("bits", "b' = log2 TR (Eq. 7), 8-bit-equivalent grey scale"),
@@ -16,6 +16,13 @@ DERIVED_INFO = {
     "effective_pixels": ("pixels", "s' = s·2^Δs"),
     "capacity_bits": ("bits", "C = s'·b' (Eq. 6)"),
 }
+
+#: the order the reports list the physical parameters and derived quantities in
+PARAMETER_ORDER = ["conversion_gain_e_per_dn", "read_noise_e", "dark_noise_e", "dark_current_e_per_s",
+                   "full_well_e", "quantum_efficiency", "prnu_percent", "dsnu_e", "clip_spread_dn",
+                   "variance_discrepancy", "mean_discrepancy"]
+DERIVED_ORDER = ["snr_max_db", "dynamic_range_db", "tonal_range_bits", "mtf_loss_bits",
+                 "effective_pixels", "capacity_bits", "capacity_bits_per_pixel"]
 
 
 def _q(x, qs):
@@ -48,12 +55,12 @@ def rerun_advice(quality) -> str:
                  "max_rounds=40)), with dataclasses.replace and bayescap.fit.QUALITY_PRESETS)")
 
 
-def _clean(obj):
+def json_safe(obj):
     """JSON-safe: numpy scalars to Python, non-finite floats to None."""
     if isinstance(obj, dict):
-        return {str(k): _clean(v) for k, v in obj.items()}
+        return {str(k): json_safe(v) for k, v in obj.items()}
     if isinstance(obj, (list, tuple)):
-        return [_clean(v) for v in obj]
+        return [json_safe(v) for v in obj]
     if isinstance(obj, (np.bool_, bool)):
         return bool(obj)
     if isinstance(obj, (np.integer,)):
@@ -61,5 +68,5 @@ def _clean(obj):
     if isinstance(obj, (float, np.floating)):
         return _json_float(obj)
     if isinstance(obj, np.ndarray):
-        return _clean(obj.tolist())
+        return json_safe(obj.tolist())
     return obj
