@@ -32,8 +32,8 @@ class DerivedMixin:
 
     def _noise_coefficients(self, p, t_s):
         """Eq. 1's coefficients per draw of the physical parameters ``p`` at exposure ``t_s`` (s)
-        and this scene's dark-current factor. The dark variance enters as its square root (``dark_noise_e``), the rounding every fit's
-        numbers are computed with."""
+        and this scene's dark-current factor. The dark variance enters as its square root
+        (``dark_noise_e``), squared again: the rounding every fit's numbers are computed with."""
         k = p["conversion_gain_e_per_dn"]
         if self.model.terms.dark_current:
             rd2 = dark_variance_e2(p["read_noise_e"], p["dark_current_e_per_s"], t_s,

@@ -90,7 +90,8 @@ class DiagnoseMixin:
                           f"{x['n_proposals']} proposals (accept ≥ {x['min_ess_is']:g}); R-hat does not apply"),
             "per_quantity": {},
         }
-        # the importance draws' own Monte Carlo error of each 95 % interval end (:func:`bayescap.inference.fast.interval_end_mcse`):
+        # the importance draws' own Monte Carlo error of each 95 % interval end
+        # (bayescap.inference.fast.interval_end_mcse):
         # the physical parameters' from the fast path, the derived quantities' computed here
         mcse = {**(x.get("end_mcse") or {}), **self._derived_end_mcse_importance()}
         if mcse:
@@ -109,8 +110,8 @@ class DiagnoseMixin:
                                        + (f", after {x['n_topup']} more draws" if x.get("n_topup") else ""))
             p_within = x.get("end_within_probability")
             if p_within is not None:
-                # all ends at once (bayescap.inference.fast._joint_target): the chance that none is off by more than
-                # end_tolerance of its width, if the predicted errors are right
+                # all ends at once (bayescap.inference.fast._joint_target): the chance that none is off
+                # by more than end_tolerance of its width, if the predicted errors are right
                 conf = x.get("end_confidence")
                 self.diag["interval_end_within_probability"] = float(p_within)
                 self.diag["fast_path"] += (f"; predicted probability that every end is within "
@@ -122,7 +123,8 @@ class DiagnoseMixin:
             self.diag["fast_settings"] = dict(x["settings"])
         tails = x.get("tails")
         if tails is not None:
-            # long one-sided tails the probe found, each given defensive draws (bayescap.inference.fast._tail_probe)
+            # long one-sided tails the probe found, each given defensive draws
+            # (bayescap.inference.fast._tail_probe)
             self.diag["fast_path_tails"] = [dict(t) for t in tails]
             if tails:
                 self.diag["fast_path"] += ("; defensive draws for long tails: " + ", ".join(
@@ -218,12 +220,14 @@ class DiagnoseMixin:
                           f"({tau_max:.1f} steps)")
         if not np.all(c.acceptance > 0.05):
             failed.append(f"acceptance fraction {c.acceptance.min():.3f} < 0.05 in an ensemble")
-        # Monte Carlo error of every reported 95 % interval end (bayescap.inference.diagnostics.interval_end_mcse_mcmc), as
+        # Monte Carlo error of every reported 95 % interval end
+        # (bayescap.inference.diagnostics.interval_end_mcse_mcmc), as
         # run_ensembles computed it on the final chain, or here
         end = c.extra.get("end_mcse")
         if end is None:
             end = {n: interval_end_mcse_mcmc(x) for n, x in self._reported_draws((E, S, W)).items()}
-        # walkers stranded far below the mode (bayescap.inference.chains.stuck_walkers): their draws are not posterior draws
+        # walkers stranded far below the mode (bayescap.inference.chains.stuck_walkers): their draws
+        # are not posterior draws
         lp_w = np.transpose(c.log_prob, (1, 0, 2)).reshape(S, E * W)
         n_stuck = int(np.sum(stuck_walkers(lp_w, D)))
         if n_stuck:

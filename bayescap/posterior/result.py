@@ -41,7 +41,6 @@ class FitResult(DerivedMixin, DiagnoseMixin, ChecksMixin):
     diag: dict = field(default_factory=dict)
     mtf_info: dict = field(default_factory=dict)
 
-
     @classmethod
     def from_chains(cls, model: PTCModel, chains: ChainResult, *, metadata, scene, mtf, seed, quality):
         self = cls(model=model, chains=chains, metadata=metadata, scene=scene, mtf=mtf, seed=seed,
@@ -56,8 +55,8 @@ class FitResult(DerivedMixin, DiagnoseMixin, ChecksMixin):
 
     @classmethod
     def chain_check_fns(cls, model: PTCModel, *, metadata, scene, mtf, seed):
-        """``(derived_fn, reported_fn)`` for :func:`bayescap.inference.mcmc.run_ensembles`'s checks after each
-        round, each ``fn(chain) -> {name: (E, S, W) draws}``: ``derived_fn`` the derived quantities
+        """``(derived_fn, reported_fn)`` for :func:`bayescap.inference.mcmc.run_ensembles`'s checks
+        after each round, each ``fn(chain) -> {name: (E, S, W) draws}``: ``derived_fn`` the derived quantities
         whose convergence :meth:`_diagnose` checks (capacity, tonal range); ``reported_fn`` every
         quantity the result gives an interval for (physical parameters and derived quantities,
         constants left out), whose interval ends' Monte Carlo error the checks compute once the
