@@ -37,6 +37,8 @@ __all__ = [
     "mtf_loss_bits",
     "mtf_loss_bits_eq8",
     "information_capacity_bits",
+    "effective_pixels",
+    "tonal_range_bits",
     "MTFLoss",
     "NYQUIST_CY_PER_PX",
     "N_GREY_LEVELS",
@@ -299,8 +301,22 @@ def mtf_loss_bits_eq8(mtf, *, n: int = 64, f_nyquist_cy_per_px=NYQUIST_CY_PER_PX
                    f_end_cy_per_px=float(r_cut), band_cut_bits=cut_bits)
 
 
-def information_capacity_bits(n_pixels, delta_s_bits, tonal_range_levels):
+def tonal_range_bits(tonal_range_levels):
+    """``b' = log2 TR`` (bits per pixel, Eq. 6/7), with TR floored at one grey level (b' ≥ 0)."""
+    return np.log2(np.maximum(tonal_range_levels, 1.0))
+
+
+def effective_pixels(n_pixels, delta_s_bits):
+    """``s' = s · 2^Δs`` (Eq. 6): the pixel count ``s`` after the MTF loss ``Δs`` (bits)."""
+    return np.asarray(n_pixels, float) * np.exp2(np.asarray(delta_s_bits, float))
+
+
+def information_capacity_bits(n_pixels, delta_s_bits, tonal_range_levels=None, *, bits_per_pixel=None):
     """Eq. 6 with blur and noise: ``C = s' · b'`` with ``s' = s · 2^Δs`` effective pixels and
-    ``b' = log2 TR`` bits per pixel. Vectorised (arrays broadcast)."""
-    return (np.asarray(n_pixels, float) * np.exp2(np.asarray(delta_s_bits, float))
-            * np.log2(np.asarray(tonal_range_levels, float)))
+    ``b' = log2 TR`` bits per pixel (:func:`tonal_range_bits`), or ``b'`` given directly as
+    ``bits_per_pixel``. Vectorised (arrays broadcast)."""
+    if (tonal_range_levels is None) == (bits_per_pixel is None):
+        raise TypeError("give exactly one of tonal_range_levels and bits_per_pixel")
+    if bits_per_pixel is None:
+        bits_per_pixel = tonal_range_bits(np.asarray(tonal_range_levels, float))
+    return effective_pixels(n_pixels, delta_s_bits) * bits_per_pixel

@@ -16,15 +16,46 @@ from dataclasses import dataclass
 
 import numpy as np
 
-__all__ = ["NoiseCoefficients", "dark_variance_e2", "dynamic_range_db", "snr_db"]
+__all__ = ["NoiseCoefficients", "snr_db", "dynamic_range_db", "quantization_variance_e2", "dark_variance_e2",
+           "variance_terms"]
 
 
-def dark_variance_e2(read_noise_e=None, dark_current_e_per_s=0.0, exposure_time_s=0.0, *, dark_noise_e=None):
-    """σ_read² + D·t (e⁻²), the temporal dark part of Eq. 1's ``a``; ``dark_noise_e²`` when
-    ``dark_noise_e`` is given (only the sum identifiable). Broadcasts over its arguments."""
+def quantization_variance_e2(conversion_gain_e_per_dn):
+    """The quantization term of Eq. 1, ``K²/12`` (e⁻²) for a step of ``K`` e⁻/DN."""
+    k = np.asarray(conversion_gain_e_per_dn, float)
+    return k * k / 12.0
+
+
+def dark_variance_e2(read_noise_e=None, dark_current_e_per_s=0.0, exposure_time_s=0.0, *, dark_current_factor=1.0,
+                     dark_noise_e=None):
+    """``σ_read² + f·D·t`` (e⁻²): read noise and dark-current shot noise, the dark current scaled by
+    ``dark_current_factor`` ``f`` (a temperature away from the calibration's); ``dark_noise_e²`` when
+    ``dark_noise_e`` is given (only their sum identifiable). Broadcasts over its arguments."""
     if dark_noise_e is not None:
         return np.asarray(dark_noise_e, float) ** 2
-    return np.asarray(read_noise_e, float) ** 2 + np.asarray(dark_current_e_per_s, float) * exposure_time_s
+    return (np.asarray(read_noise_e, float) ** 2
+            + dark_current_factor * np.asarray(dark_current_e_per_s, float) * exposure_time_s)
+
+
+def variance_terms(signal_e, *, conversion_gain_e_per_dn, read_noise_e=None, dark_current_e_per_s=0.0,
+                   exposure_time_s=0.0, dark_current_factor=1.0, dark_noise_e=None, dsnu_e=None,
+                   prnu_frac=None) -> dict:
+    """Each term of Eq. 1 at signal ``signal_e`` (e⁻), in e⁻², in the order of the sum:
+    ``photon_shot``, then ``read`` and ``dark_current_shot`` (or ``read_plus_dark`` when
+    ``dark_noise_e`` stands for their sum), ``dsnu`` and ``prnu`` when given, ``quantization``."""
+    s = np.asarray(signal_e, float)
+    terms = {"photon_shot": s}
+    if dark_noise_e is None:
+        terms["read"] = np.asarray(read_noise_e, float) ** 2
+        terms["dark_current_shot"] = dark_current_factor * np.asarray(dark_current_e_per_s, float) * exposure_time_s
+    else:
+        terms["read_plus_dark"] = np.asarray(dark_noise_e, float) ** 2
+    if dsnu_e is not None:
+        terms["dsnu"] = np.asarray(dsnu_e, float) ** 2
+    if prnu_frac is not None:
+        terms["prnu"] = (np.asarray(prnu_frac, float) * s) ** 2
+    terms["quantization"] = quantization_variance_e2(conversion_gain_e_per_dn)
+    return terms
 
 
 @dataclass(frozen=True)
@@ -34,6 +65,13 @@ class NoiseCoefficients:
     a: np.ndarray
     b: np.ndarray
     c: np.ndarray
+
+    def with_quantization(self, old_step_e, new_step_e) -> "NoiseCoefficients":
+        """The same noise with the quantization term of step ``old_step_e`` (e⁻/DN, the one in
+        ``a``) replaced by that of ``new_step_e`` (e.g. the step at another analog gain); the steps
+        broadcast against ``a``."""
+        a = self.a - quantization_variance_e2(old_step_e) + quantization_variance_e2(new_step_e)
+        return NoiseCoefficients(a=a, b=self.b, c=self.c)
 
     def variance(self, s_e):
         s_e = np.asarray(s_e, float)
@@ -45,9 +83,11 @@ class NoiseCoefficients:
                         dark_noise_e=None):
         """Eq. 1 terms. ``dark_noise_e``, if given, replaces ``read² + D·t`` (used when only
         their sum is identifiable)."""
-        k = np.asarray(conversion_gain_e_per_dn, float)
-        rd2 = dark_variance_e2(read_noise_e, dark_current_e_per_s, exposure_time_s, dark_noise_e=dark_noise_e)
-        a = rd2 + np.asarray(dsnu_e, float) ** 2 + k * k / 12.0
+        if dark_noise_e is None:
+            rd2 = dark_variance_e2(read_noise_e, dark_current_e_per_s, exposure_time_s)
+        else:
+            rd2 = np.asarray(dark_noise_e, float) ** 2
+        a = rd2 + np.asarray(dsnu_e, float) ** 2 + quantization_variance_e2(conversion_gain_e_per_dn)
         b = np.ones_like(a)
         c = np.asarray(prnu_frac, float) ** 2 * np.ones_like(a)
         return cls(a=np.asarray(a, float), b=b, c=c)

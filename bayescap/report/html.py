@@ -18,7 +18,12 @@ import warnings
 from pathlib import Path
 
 import numpy as np
+from matplotlib.figure import Figure
 
+from bayescap.io.ptc_csv import atomic_write_text
+from bayescap.physics.capacity import tonal_range_bits
+from bayescap.physics.noise import snr_db
+from bayescap.report.plots import plot_corner, plot_ptc
 from bayescap.report.text import format_or_na
 from bayescap.studies.compare import (
     Comparison,
@@ -56,19 +61,9 @@ def _quiet(fn, *args, **kwargs):
         root.setLevel(level)
 
 
-def _plt():
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    return plt
-
-
 def _png(fig) -> str:
     buf = io.BytesIO()
     fig.savefig(buf, format="png", dpi=90)
-    _plt().close(fig)
     return base64.b64encode(buf.getvalue()).decode("ascii")
 
 
@@ -83,11 +78,11 @@ def _band(ax, x, draws, color, label):
 def plot_capacity(cmp: Comparison):
     """Fig. 8(b): capacity (Mbit) per sensor, medians with 95 % intervals, at full resolution and
     at the fixed area."""
-    plt = _plt()
     d = cmp.to_dict()
     names = [s["name"] for s in d["sensors"]]
     x = np.arange(len(names))
-    fig, ax = plt.subplots(figsize=(8, 4.2))
+    fig = Figure(figsize=(8, 4.2))
+    ax = fig.subplots()
     area = d["conventions"]["area"]
     for off, key, lab, col in ((-0.18, "capacity_full_bits", "full resolution", "C0"),
                                (0.18, "capacity_area_bits", f"at {area['name']}" if area else None, "C1")):
@@ -110,8 +105,8 @@ def plot_capacity(cmp: Comparison):
 
 def plot_tr_h0(cmp: Comparison, h_grid=H0_GRID_LUX_S):
     """Fig. 8(a): TR (bits, 8-bit-equivalent) against average exposure H₀ with 95 % bands."""
-    plt = _plt()
-    fig, ax = plt.subplots(figsize=(8, 4.2))
+    fig = Figure(figsize=(8, 4.2))
+    ax = fig.subplots()
     c = cmp.conventions
     drawn = 0
     for i, s in enumerate(cmp.sensors):
@@ -120,7 +115,7 @@ def plot_tr_h0(cmp: Comparison, h_grid=H0_GRID_LUX_S):
         idx = s.result.thin_index(_N_CURVE_DRAWS)
         tr, _ = tonal_range_at_exposure(s.result, h_grid, calibration=s.calibration, mid_grey=c["mid_grey_fraction"],
                                         idx=idx)
-        _band(ax, h_grid, np.log2(np.maximum(tr, 1.0)), f"C{i % 10}", s.name)
+        _band(ax, h_grid, tonal_range_bits(tr), f"C{i % 10}", s.name)
         drawn += 1
     ax.axvline(c["h0_lux_s"], color="k", ls=":", lw=1, label=f"H0 = {c['h0_lux_s']:g} lux·s")
     ax.set_xscale("log")
@@ -138,8 +133,8 @@ def plot_tr_h0(cmp: Comparison, h_grid=H0_GRID_LUX_S):
 
 def plot_snr_exposure(cmp: Comparison, h_grid=H0_GRID_LUX_S):
     """Figs. 5-6: SNR (dB) against photometric exposure H (lux·s), 95 % bands, up to the clip."""
-    plt = _plt()
-    fig, ax = plt.subplots(figsize=(8, 4.2))
+    fig = Figure(figsize=(8, 4.2))
+    ax = fig.subplots()
     drawn = 0
     for i, s in enumerate(cmp.sensors):
         if s.calibration is None:
@@ -162,12 +157,12 @@ def plot_snr_exposure(cmp: Comparison, h_grid=H0_GRID_LUX_S):
 
 def plot_probability_matrix(cmp: Comparison, quantity: str = "area"):
     """Heat map of ``P(C_row > C_column)``."""
-    plt = _plt()
     m = cmp.probability_matrix(quantity)
     names = [s.name for s in cmp.sensors]
     n = len(names)
     # shown half-width on the page: a compact figure with large type stays readable
-    fig, ax = plt.subplots(figsize=(0.7 * n + 2.6, 0.6 * n + 2.0))
+    fig = Figure(figsize=(0.7 * n + 2.6, 0.6 * n + 2.0))
+    ax = fig.subplots()
     im = ax.imshow(m, vmin=0, vmax=1, cmap="RdBu_r")
     for i in range(n):
         for j in range(n):
@@ -189,10 +184,8 @@ def plot_probability_matrix(cmp: Comparison, quantity: str = "area"):
 def plot_snr_sensor(s):
     """One sensor's SNR curve with its 95 % band: against exposure when calibrated, else against
     the signal in electrons."""
-    plt = _plt()
-    from bayescap.physics.noise import NoiseCoefficients, snr_db
-
-    fig, ax = plt.subplots(figsize=(6, 3.4))
+    fig = Figure(figsize=(6, 3.4))
+    ax = fig.subplots()
     r = s.result
     idx = r.thin_index(_N_CURVE_DRAWS)
     if s.calibration is not None:
@@ -203,8 +196,7 @@ def plot_snr_sensor(s):
         p = {k: v[idx] for k, v in r.draws.items()}
         clip, _ = r.signal_max_e(p)
         sig = np.geomspace(1.0, float(np.max(clip)), 80)
-        a, b, c = (x[:, None] for x in _coefficients(r, p))
-        co = NoiseCoefficients(a=a, b=b, c=c)
+        co = _coefficients(r, p)
         snr = np.where(sig[None, :] <= clip[:, None], snr_db(co, sig[None, :]), np.nan)
         _band(ax, sig, snr, "C0", "posterior median")
         ax.set_xlabel("signal (e⁻)  [no exposure calibration]")
@@ -272,8 +264,6 @@ def _is_simulated(s) -> bool:
 
 def render_html(cmp: Comparison, *, title: str = "bayescap sensor comparison") -> str:
     """The report page as a string (figures rendered now, embedded as base64 PNG)."""
-    from bayescap.report.text import plot_corner, plot_ptc
-
     d = cmp.to_dict()
     c = d["conventions"]
     area = c["area"]
@@ -396,8 +386,6 @@ def render_html(cmp: Comparison, *, title: str = "bayescap sensor comparison") -
 
 def write_report(cmp: Comparison, path, *, title: str = "bayescap sensor comparison") -> Path:
     """Render and write the page atomically (temp file in the same folder, then rename)."""
-    from bayescap.io.ptc_csv import atomic_write_text
-
     path = Path(path)
     atomic_write_text(path, render_html(cmp, title=title))
     return path

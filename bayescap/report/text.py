@@ -1,4 +1,5 @@
-"""Outputs of a fit: the text report, the JSON, plots and the InferenceData (NetCDF) file.
+"""Outputs of a fit: the text report, the JSON, the InferenceData (NetCDF) file and the set of
+files ``--out`` writes (with the plots of :mod:`bayescap.report.plots`).
 
 Every file is written atomically (temp file in the target folder, then rename).
 """
@@ -12,14 +13,10 @@ import numpy as np
 
 from bayescap.io.ptc_csv import atomic_write_text
 from bayescap.posterior import FitResult
+from bayescap.posterior.summary import DERIVED_ORDER, PARAMETER_ORDER
+from bayescap.report.plots import plot_corner, plot_ptc
 
 __all__ = ["format_text", "to_json", "write_outputs", "to_inference_data", "plot_ptc", "plot_corner"]
-
-_PARAM_ORDER = ["conversion_gain_e_per_dn", "read_noise_e", "dark_noise_e", "dark_current_e_per_s",
-                "full_well_e", "quantum_efficiency", "prnu_percent", "dsnu_e", "clip_spread_dn",
-                "variance_discrepancy", "mean_discrepancy"]
-_DERIVED_ORDER = ["snr_max_db", "dynamic_range_db", "tonal_range_bits", "mtf_loss_bits",
-                  "effective_pixels", "capacity_bits", "capacity_bits_per_pixel"]
 
 
 def _fmt(x):
@@ -89,14 +86,14 @@ def format_text(result: FitResult | dict) -> str:
     lines.append("")
     lines.append(f"  {'parameter':<28} {'median':>11}   68 % interval   95 % interval")
     params = d["parameters"]
-    for n in _PARAM_ORDER + [k for k in params if k not in _PARAM_ORDER]:
+    for n in PARAMETER_ORDER + [k for k in params if k not in PARAMETER_ORDER]:
         if n in params:
             lines.append(_row(n, params[n]))
     sc = d["scene"]
     lines.append("")
     lines.append(f"  derived at t = {sc['exposure_time_s']:.4g} s ({sc['source']})")
     der = d["derived"]
-    for n in _DERIVED_ORDER + [k for k in der if k not in _DERIVED_ORDER]:
+    for n in DERIVED_ORDER + [k for k in der if k not in DERIVED_ORDER]:
         if n in der:
             lines.append(_row(n, der[n]))
     cap = der.get("capacity_bits") or der.get("capacity_bits_per_pixel")
@@ -161,100 +158,6 @@ def to_inference_data(result: FitResult):
                          attrs={"bayescap_input": str(d.source), "seed": str(result.seed),
                                 "quality": result.quality})
     return idata
-
-
-def _posterior_predictive(result: FitResult, n_draws=300):
-    m = result.model
-    E, S, W, D = result.chains.chain.shape
-    flat = result.chains.chain.reshape(-1, D)
-    idx = result.thin_index(n_draws)
-    th = flat[idx]
-    pred = m.predict(th)
-    rng = np.random.default_rng(np.random.SeedSequence(result.seed).spawn(3)[2])
-    out = {}
-    for name in ("bright_var", "dark_var"):
-        obs, model, k, _ = pred[name]
-        k = np.broadcast_to(k, model.shape)
-        rep = rng.gamma(k, model / k)
-        out[name] = (obs, model, rep)
-    out["signal_dn"] = np.median(m._last_latent_signal_dn, axis=0)
-    return out
-
-
-def plot_ptc(result: FitResult, path=None):
-    """Photon-transfer curve: measured temporal variances against signal, the posterior
-    predictive 95 % band, and residuals relative to the posterior median model."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    m = result.model
-    pp = _posterior_predictive(result)
-    obs, model, rep = pp["bright_var"]
-    S = pp["signal_dn"]
-    med = np.median(model, axis=0)
-    lo, hi = np.quantile(rep, [0.025, 0.975], axis=0)
-    order = np.argsort(S)
-    fig, (ax, ax2) = plt.subplots(2, 1, figsize=(7, 7), sharex=True, gridspec_kw={"height_ratios": [3, 1]})
-    ax.fill_between(S[order], lo[order], hi[order], color="C0", alpha=0.3, label="posterior predictive 95 %")
-    ax.plot(S[order], med[order], "C0-", lw=1, label="model (posterior median)")
-    ax.plot(S, obs, "k.", ms=4, label="measured (bright pairs)")
-    full = m.full_sat
-    d = m.data
-    if np.any(full):
-        ax.plot(d.signal_dn[full], np.maximum(d.temporal_var_dn2[full], 1e-3), "rx", ms=5,
-                label="fully clipped rows (locate the clip only)")
-    dobs, dmodel, drep = pp["dark_var"]
-    ax.plot(np.zeros_like(dobs) + max(S.min() * 0.5, 1e-3), dobs, "g.", ms=3, label="dark pairs")
-    ax.set_ylabel("temporal variance (DN²)")
-    ax.set_title(f"photon transfer: {Path(str(d.source)).name}")
-    ax.legend(fontsize=8)
-    ax.grid(alpha=0.3)
-    res = 100 * (obs - med) / med
-    rlo = 100 * (lo - med) / med
-    rhi = 100 * (hi - med) / med
-    ax2.fill_between(S[order], rlo[order], rhi[order], color="C0", alpha=0.3)
-    ax2.axhline(0, color="C0", lw=1)
-    ax2.plot(S, res, "k.", ms=4)
-    ax2.set_xlabel("signal above dark (DN)")
-    ax2.set_ylabel("residual (%)")
-    ax2.grid(alpha=0.3)
-    fig.tight_layout()
-    if path is not None:
-        _savefig(fig, path)
-        plt.close(fig)
-    return fig
-
-
-def plot_corner(result: FitResult, path=None, n_max=20000):
-    """Corner plot of the physical parameters (corner.py)."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import corner
-    import matplotlib.pyplot as plt
-
-    names = [n for n in _PARAM_ORDER if n in result.draws and np.ptp(result.draws[n]) > 0]
-    idx = result.thin_index(n_max)
-    X = np.column_stack([result.draws[n][idx] for n in names])
-    fig = corner.corner(X, labels=names, quantiles=[0.025, 0.5, 0.975], show_titles=True,
-                        title_fmt=".4g", label_kwargs={"fontsize": 7}, title_kwargs={"fontsize": 7})
-    if path is not None:
-        _savefig(fig, path)
-        plt.close(fig)
-    return fig
-
-
-def _savefig(fig, path):
-    path = Path(path)
-    tmp = path.with_name(f".{path.stem}.tmp-{os.getpid()}{path.suffix}")
-    try:
-        fig.savefig(tmp, dpi=110)
-        os.replace(tmp, path)
-    finally:
-        if tmp.exists():
-            tmp.unlink()
 
 
 def write_outputs(result: FitResult, out_dir) -> list[Path]:

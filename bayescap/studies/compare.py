@@ -42,11 +42,12 @@ from pathlib import Path
 import numpy as np
 
 from bayescap.exceptions import CompareInputError
-from bayescap.physics.capacity import N_GREY_LEVELS, tonal_range
+from bayescap.physics.capacity import N_GREY_LEVELS, information_capacity_bits, tonal_range, tonal_range_bits
 from bayescap.physics.noise import NoiseCoefficients, snr_db
 from bayescap.physics.optics import OPTICAL_FORMATS
 from bayescap.physics.photometry import photons_per_lux_s_um2
 from bayescap.posterior import FitResult, rerun_advice, summarize
+from bayescap.posterior.summary import json_safe
 
 __all__ = [
     "OPTICAL_FORMATS",
@@ -235,9 +236,11 @@ def exposure_calibration(result: FitResult) -> ExposureCalibration | None:
     return None
 
 
-def _coefficients(result: FitResult, p):
-    c = result._noise_coefficients(p, result.scene.exposure_time_s)
-    return np.asarray(c.a, float), np.asarray(c.b, float) * np.ones_like(c.a), np.asarray(c.c, float) * np.ones_like(c.a)
+def _coefficients(result: FitResult, p) -> NoiseCoefficients:
+    """Eq. 1's coefficients of the draws ``p`` ({name: (n,)}) at the result's scene, as columns
+    (n, 1) that broadcast against a row of signals or exposures."""
+    col = {k: np.asarray(v, float)[:, None] for k, v in p.items()}
+    return result._noise_coefficients(col, result.scene.exposure_time_s)
 
 
 def tonal_range_at_exposure(result: FitResult, h0_lux_s, *, calibration: ExposureCalibration | None = None,
@@ -265,11 +268,9 @@ def tonal_range_at_exposure(result: FitResult, h0_lux_s, *, calibration: Exposur
     clip = np.asarray(clip, float)[:, None]
     with np.errstate(over="ignore"):   # an H0 of 1e308 lux·s: every pixel at the clip, as meant
         s_max = np.minimum(clip, sens * h / mid_grey)
-    a, b, c = (x[:, None] for x in _coefficients(result, p))
     k = np.asarray(p["conversion_gain_e_per_dn"], float)[:, None]
     gain = clip / s_max
-    a = a - k * k / 12.0 + (k / gain) ** 2 / 12.0
-    tr = tonal_range(NoiseCoefficients(a=a, b=b, c=c), s_max)
+    tr = tonal_range(_coefficients(result, p).with_quantization(k, k / gain), s_max)
     return np.asarray(tr, float), s_max
 
 
@@ -282,10 +283,10 @@ def snr_at_exposure(result: FitResult, h_lux_s, *, calibration: ExposureCalibrat
     sel = slice(None) if idx is None else idx
     p = {k: v[sel] for k, v in result.draws.items()}
     s = np.asarray(cal.sensitivity_e_per_lux_s)[sel][:, None] * np.atleast_1d(np.asarray(h_lux_s, float))[None, :]
-    a, b, c = (x[:, None] for x in _coefficients(result, p))
+    coeffs = _coefficients(result, p)
     clip, _ = result.signal_max_e(p)
     with np.errstate(divide="ignore", invalid="ignore"):
-        out = snr_db(NoiseCoefficients(a=a, b=b, c=c), s)
+        out = snr_db(coeffs, s)
     return np.where(s <= np.asarray(clip)[:, None], out, np.nan)
 
 
@@ -325,7 +326,7 @@ class Comparison:
     def to_dict(self) -> dict:
         from bayescap._version import __version__
 
-        return _clean({"bayescap_version": __version__, "command": "compare", "conventions": self.conventions,
+        return json_safe({"bayescap_version": __version__, "command": "compare", "conventions": self.conventions,
                        "sensors": [s.info for s in self.sensors], "pairs": self.pairs})
 
     def to_json(self) -> str:
@@ -345,22 +346,6 @@ class Comparison:
                 m[i, j] = pr[key]
                 m[j, i] = 1.0 - pr[key]
         return m
-
-
-def _clean(obj):
-    if isinstance(obj, dict):
-        return {str(k): _clean(v) for k, v in obj.items()}
-    if isinstance(obj, (list, tuple)):
-        return [_clean(v) for v in obj]
-    if isinstance(obj, (bool, np.bool_)):
-        return bool(obj)
-    if isinstance(obj, np.integer):
-        return int(obj)
-    if isinstance(obj, (float, np.floating)):
-        return float(obj) if math.isfinite(float(obj)) else None
-    if isinstance(obj, np.ndarray):
-        return _clean(obj.tolist())
-    return obj
 
 
 def _sensor(name, path, result: FitResult, seed, *, area, h0_lux_s, mid_grey, n_draws) -> SensorComparison:
@@ -392,7 +377,7 @@ def _sensor(name, path, result: FitResult, seed, *, area, h0_lux_s, mid_grey, n_
     b_use = b_full
     if cal is not None:
         tr, s_max = tonal_range_at_exposure(result, h0_lux_s, calibration=cal, mid_grey=mid_grey, idx=idx)
-        b_h0 = np.log2(np.maximum(tr[:, 0], 1.0))
+        b_h0 = tonal_range_bits(tr[:, 0])
         draws["tonal_range_bits_h0"] = b_h0
         info["exposure_calibration"] = {"source": cal.source, "sensitivity_e_per_lux_s":
                                         summarize(np.asarray(cal.sensitivity_e_per_lux_s)[idx], "e-/(lux·s)")}
@@ -409,11 +394,11 @@ def _sensor(name, path, result: FitResult, seed, *, area, h0_lux_s, mid_grey, n_
     if w and h:
         s_full = float(w) * float(h)
         info["pixels_full"] = int(s_full)
-        c_full = s_full * np.exp2(ds) * b_use
+        c_full = information_capacity_bits(s_full, ds, bits_per_pixel=b_use)
         draws["capacity_full_bits"] = c_full
         info["capacity_full_bits"] = summarize(c_full, "bits")
         if basis == "tr_at_h0":
-            c_fr = s_full * np.exp2(ds) * b_full
+            c_fr = information_capacity_bits(s_full, ds, bits_per_pixel=b_full)
             draws["capacity_full_bits_full_range"] = c_fr
             info["capacity_full_bits_full_range"] = summarize(c_fr, "bits")
     else:
@@ -424,10 +409,10 @@ def _sensor(name, path, result: FitResult, seed, *, area, h0_lux_s, mid_grey, n_
             crop = area_crop(int(w), int(h), float(pitch), area)
             info["area"] = crop.to_dict()
             s_a = float(crop.pixels)
-            draws["capacity_area_bits"] = s_a * np.exp2(ds) * b_use
+            draws["capacity_area_bits"] = information_capacity_bits(s_a, ds, bits_per_pixel=b_use)
             info["capacity_area_bits"] = summarize(draws["capacity_area_bits"], "bits")
             if basis == "tr_at_h0":
-                draws["capacity_area_bits_full_range"] = s_a * np.exp2(ds) * b_full
+                draws["capacity_area_bits_full_range"] = information_capacity_bits(s_a, ds, bits_per_pixel=b_full)
                 info["capacity_area_bits_full_range"] = summarize(draws["capacity_area_bits_full_range"], "bits")
             if crop.smaller_than_area:
                 notes.append(f"the sensor ({int(w) * float(pitch) / 1000:.2f} × {int(h) * float(pitch) / 1000:.2f} mm) "

@@ -30,7 +30,13 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from bayescap.physics.capacity import mtf_loss_bits, mtf_loss_bits_eq8, tonal_range
+from bayescap.physics.capacity import (
+    effective_pixels,
+    information_capacity_bits,
+    mtf_loss_bits,
+    mtf_loss_bits_eq8,
+    tonal_range,
+)
 from bayescap.physics.optics import (
     OPTICAL_FORMATS,
     PixelAperture,
@@ -233,7 +239,7 @@ class PixelSizeSweep:
 
     @property
     def effective_pixels(self):
-        return self.n_pixels * np.exp2(self.delta_s_bits)
+        return effective_pixels(self.n_pixels, self.delta_s_bits)
 
     @property
     def effective_pixels_optimum_um(self) -> float:
@@ -331,8 +337,6 @@ def pixel_size_sweep(pitch_um=None, *, optical_format: str = "1/4in", f_number: 
         raise ValueError("pitch_um must be uniformly spaced (the optimum is refined by a parabola)")
     n_pix = (width_mm * 1e3) * (height_mm * 1e3) / pitch**2
     ds, cut = delta_s_vs_pitch(pitch, f_number=f_number, wavelength_nm=wavelength_nm, method=method)
-    eff = n_pix * np.exp2(ds)
-
     tr_kw = dict(exposure_time_s=exposure_time_s, adc_bits=adc_bits, exposure_lux_s=exposure_lux_s)
     nom = nominal_table1(specs=specs, temperature_c=temperature_c)
     tp = nom["pitch_um"]
@@ -342,8 +346,8 @@ def pixel_size_sweep(pitch_um=None, *, optical_format: str = "1/4in", f_number: 
         tb = np.log2(table1_tonal_range_levels(draws, **tr_kw))
     tr_nom = interpolate_tr_bits(pitch, tp, tb_nom, trend_bits_per_um=tr_trend_bits_per_um)
     tr = interpolate_tr_bits(pitch, tp, tb, trend_bits_per_um=tr_trend_bits_per_um)
-    cap_nom = eff * np.maximum(tr_nom, 0.0)
-    cap = eff[None, :] * np.maximum(tr, 0.0)
+    cap_nom = information_capacity_bits(n_pix, ds, bits_per_pixel=np.maximum(tr_nom, 0.0))
+    cap = information_capacity_bits(n_pix, ds, bits_per_pixel=np.maximum(tr, 0.0))
     opt, edge = _argmax_refined(pitch, cap)
     settings = {
         "optical_format": optical_format, "imaging_area_mm": [width_mm, height_mm],

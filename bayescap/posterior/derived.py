@@ -1,0 +1,142 @@
+"""The quantities derived from every posterior draw of the noise model: DR, SNR (Eq. 1-2),
+tonal range b' (Eq. 7), MTF loss Δs (Eq. 9), effective pixels and capacity C = s'·b' (Eq. 6),
+and the noise budget. Every equation comes from :mod:`bayescap.physics`."""
+from __future__ import annotations
+
+import numpy as np
+
+from bayescap.physics.capacity import (
+    N_GREY_LEVELS,
+    effective_pixels,
+    information_capacity_bits,
+    mtf_loss_bits,
+    tonal_range,
+    tonal_range_bits,
+)
+from bayescap.physics.noise import NoiseCoefficients, dark_variance_e2, dynamic_range_db, snr_db, variance_terms
+from bayescap.posterior.summary import DERIVED_INFO, summarize
+
+__all__ = ["DerivedMixin"]
+
+#: the notes :meth:`DerivedMixin._derive` writes, dropped when a result is re-evaluated at another scene
+_DERIVED_NOTE_PREFIXES = ("width_px/height_px unknown", "no row reaches saturation", "the MTF reaches zero",
+                          "noise stays below one", "the MTF exceeds 1")
+#: the flags it sets, dropped likewise
+_DERIVED_FLAGS = ("capacity_lower_bound", "mtf_band_cut", "mtf_above_one")
+
+
+class DerivedMixin:
+    """The derived quantities of :class:`~bayescap.posterior.FitResult` (its ``model``, ``draws``,
+    ``scene``, ``mtf``, ``metadata`` and ``seed``), written to ``derived``, ``mtf_info``,
+    ``notes`` and ``flags``."""
+
+    def _noise_coefficients(self, p, t_s):
+        """Eq. 1's coefficients per draw of the physical parameters ``p`` at exposure ``t_s`` (s)
+        and this scene's dark-current factor. The dark variance enters as its square root
+        (``dark_noise_e``), squared again: the rounding every fit's numbers are computed with."""
+        k = p["conversion_gain_e_per_dn"]
+        if self.model.terms.dark_current:
+            rd2 = dark_variance_e2(p["read_noise_e"], p["dark_current_e_per_s"], t_s,
+                                   dark_current_factor=self.scene.dark_current_factor)
+        else:
+            rd2 = p["dark_noise_e"] ** 2
+        dsnu = p.get("dsnu_e", 0.0)
+        prnu = p.get("prnu_percent", 0.0) / 100.0
+        return NoiseCoefficients.from_parameters(read_noise_e=0.0, dark_noise_e=np.sqrt(rd2), dsnu_e=dsnu,
+                                                 prnu_frac=prnu, conversion_gain_e_per_dn=k)
+
+    def signal_max_e(self, p=None):
+        """Largest non-saturating signal (e⁻) per draw, and whether it is only a lower bound."""
+        p = self.draws if p is None else p
+        m = self.model
+        k = p["conversion_gain_e_per_dn"]
+        t = self.scene.exposure_time_s
+        dark_charge = 0.0
+        if m.terms.dark_current:
+            dark_charge = self.scene.dark_current_factor * p["dark_current_e_per_s"] * t
+        if "full_well_e" in p:
+            return np.maximum(p["full_well_e"] - dark_charge, 1e-9), False
+        return np.maximum((m.max_mean_ok - m.black_dn) * k - dark_charge, 1e-9), True
+
+    def _derive(self):
+        p = self.draws
+        coeffs = self._noise_coefficients(p, self.scene.exposure_time_s)
+        s_max, lower = self.signal_max_e(p)
+        tr = tonal_range(coeffs, s_max)
+        bprime = tonal_range_bits(tr)
+        ml = mtf_loss_bits(self.mtf, draws=True)
+        ds = np.asarray(ml.delta_s_bits, float)
+        if ds.ndim == 1 and ds.size > 1:
+            # MTF with its own draws (measured): pair them with posterior samples at random
+            rng = np.random.default_rng(np.random.SeedSequence(self.seed).spawn(2)[1])
+            ds = ds[rng.integers(0, ds.size, size=bprime.size)]
+        else:
+            ds = np.full_like(bprime, float(ds))
+        self.mtf_info = {"model": self.mtf.describe(), **ml.to_dict()}
+        w, h = self.metadata.get("width_px"), self.metadata.get("height_px")
+        self.derived = {
+            "tonal_range_bits": bprime,
+            "dynamic_range_db": dynamic_range_db(coeffs, s_max),
+            "snr_max_db": snr_db(coeffs, s_max),
+            "mtf_loss_bits": ds,
+        }
+        if w and h:
+            s = float(w) * float(h)
+            self.derived["effective_pixels"] = effective_pixels(s, ds)
+            self.derived["capacity_bits"] = information_capacity_bits(s, ds, bits_per_pixel=bprime)
+        else:
+            self.derived["capacity_bits_per_pixel"] = information_capacity_bits(1.0, ds, bits_per_pixel=bprime)
+            self.notes.append("width_px/height_px unknown: capacity is given per pixel "
+                              "(capacity_bits_per_pixel); add '# width_px:' and '# height_px:'")
+        if lower:
+            self.flags["capacity_lower_bound"] = True
+            self.notes.append("no row reaches saturation: the full well, DR, TR and capacity use "
+                              "the largest measured signal and are lower bounds")
+        if ml.band_cut:
+            self.flags["mtf_band_cut"] = True
+            self.notes.append(f"the MTF reaches zero at {ml.f_end_cy_per_px:.3f} cy/px, below Nyquist "
+                              f"(0.5): the band is cut there, costing {ml.band_cut_bits:.2f} bits of Δs")
+        if float(np.median(ds)) > 0.0:
+            # Eq. 8/9 are for a low-pass MTF (Δs ≤ 0, the paper); above 1 over much of the band
+            # (sharpening in the pipeline, an MTF not normalised at zero frequency) s' exceeds the
+            # pixel count, which no capacity comparison should take at face value
+            self.flags["mtf_above_one"] = True
+            self.notes.append(f"the MTF exceeds 1 over much of the band (Δs = +{float(np.median(ds)):.2f} bits): "
+                              "Eq. 9 assumes a low-pass MTF (Δs ≤ 0), so the effective pixels exceed the pixel "
+                              "count; use an MTF measured without sharpening")
+        if np.any(tr >= 0.999 * N_GREY_LEVELS * (1 - 1e-9)):
+            self.notes.append("noise stays below one 8-bit grey level over part of the range: TR is "
+                              "limited by the 8-bit-equivalent scale (the max(σ, 1) floor of Eq. 7)")
+
+
+    def noise_budget(self, fraction_of_range=0.5):
+        """Share of each Eq. 1 term in the noise variance at a signal level of the scene
+        (default mid-grey, half the largest non-saturating signal): {term: median %}."""
+        p = self.draws
+        s_max, _ = self.signal_max_e(p)
+        S = fraction_of_range * s_max
+        if self.model.terms.dark_current:
+            dark = {"read_noise_e": p["read_noise_e"], "dark_current_e_per_s": p["dark_current_e_per_s"],
+                    "exposure_time_s": self.scene.exposure_time_s,
+                    "dark_current_factor": self.scene.dark_current_factor}
+        else:
+            dark = {"dark_noise_e": p["dark_noise_e"]}
+        terms = variance_terms(S, conversion_gain_e_per_dn=p["conversion_gain_e_per_dn"], **dark,
+                               dsnu_e=p.get("dsnu_e"),
+                               prnu_frac=p["prnu_percent"] / 100.0 if "prnu_percent" in p else None)
+        total = sum(terms.values())
+        return {"signal_e": float(np.median(S)), "fraction_of_range": fraction_of_range,
+                "shares_percent": {n: float(np.median(100.0 * v / total)) for n, v in terms.items()}}
+
+    def derived_summary(self) -> dict:
+        """The contract's ``derived`` block."""
+        out = {}
+        lower = self.flags.get("capacity_lower_bound", False)
+        for name, x in self.derived.items():
+            unit = DERIVED_INFO.get(name, ("bits/pixel", ""))[0]
+            extra = {}
+            if lower and name not in ("mtf_loss_bits",):
+                extra["lower_bound"] = True
+            out[name] = summarize(x, unit, **extra)
+            out[name].pop("constrained")
+        return out

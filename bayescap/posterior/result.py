@@ -1,0 +1,264 @@
+"""The fit result: posterior draws of the noise model, their summaries, the derived quantities
+(:mod:`bayescap.posterior.derived`), the convergence diagnostics (:mod:`bayescap.posterior.diagnose`)
+and the data checks (:mod:`bayescap.posterior.checks`).
+
+``FitResult.to_dict()`` is the fit JSON of the contract (README, "Fit result JSON").
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from bayescap._version import __version__
+from bayescap.inference.chains import ChainResult
+from bayescap.inference.diagnostics import interval_end_mcse_mcmc
+from bayescap.model.ptc_model import PTCModel
+from bayescap.posterior.checks import ChecksMixin
+from bayescap.posterior.derived import _DERIVED_FLAGS, _DERIVED_NOTE_PREFIXES, DerivedMixin
+from bayescap.posterior.diagnose import _END_MCSE_FAILURE, DiagnoseMixin
+from bayescap.posterior.scene import Scene
+from bayescap.posterior.summary import json_safe, summarize
+
+__all__ = ["FitResult"]
+
+
+@dataclass
+class FitResult(DerivedMixin, DiagnoseMixin, ChecksMixin):
+    """Posterior of one sensor's noise model and everything derived from it."""
+
+    model: PTCModel
+    chains: ChainResult
+    metadata: dict
+    scene: Scene
+    mtf: object
+    seed: int | None
+    quality: str
+    draws: dict = field(default_factory=dict)        # physical name -> (n_samples,) all samples
+    derived: dict = field(default_factory=dict)      # derived name -> (n_samples,)
+    notes: list = field(default_factory=list)        # human-readable caveats, in order
+    flags: dict = field(default_factory=dict)        # machine-readable caveats
+    diag: dict = field(default_factory=dict)
+    mtf_info: dict = field(default_factory=dict)
+
+    @classmethod
+    def from_chains(cls, model: PTCModel, chains: ChainResult, *, metadata, scene, mtf, seed, quality):
+        self = cls(model=model, chains=chains, metadata=metadata, scene=scene, mtf=mtf, seed=seed,
+                   quality=quality)
+        E, S, W, D = chains.chain.shape
+        flat = chains.chain.reshape(E * S * W, D)
+        self.draws = model.physical(flat)
+        self._derive()
+        self._diagnose()
+        self._check_rows()
+        return self
+
+    @classmethod
+    def chain_check_fns(cls, model: PTCModel, *, metadata, scene, mtf, seed):
+        """``(derived_fn, reported_fn)`` for :func:`bayescap.inference.mcmc.run_ensembles`'s checks
+        after each round, each ``fn(chain) -> {name: (E, S, W) draws}``: ``derived_fn`` the derived quantities
+        whose convergence :meth:`_diagnose` checks (capacity, tonal range); ``reported_fn`` every
+        quantity the result gives an interval for (physical parameters and derived quantities,
+        constants left out), whose interval ends' Monte Carlo error the checks compute once the
+        others pass. The two share the derived draws of the last chain they were given: a round's
+        checks call both on the same chain, and each computation costs ~5–11 ms (capacity, TR, ...)."""
+        last = [None, None]
+
+        def of(chain):
+            if last[0] is not chain:
+                last[:] = [chain, cls._of_chain(model, chain, metadata=metadata, scene=scene, mtf=mtf, seed=seed)]
+            return last[1]
+
+        def derived_fn(chain):
+            tmp = of(chain)
+            return {n: tmp.derived[n].reshape(chain.shape[:3])
+                    for n in ("capacity_bits", "capacity_bits_per_pixel", "tonal_range_bits") if n in tmp.derived}
+
+        def reported_fn(chain):
+            return of(chain)._reported_draws(chain.shape[:3])
+
+        return derived_fn, reported_fn
+
+    @classmethod
+    def derived_values_fn(cls, model: PTCModel, *, metadata, scene, mtf, seed):
+        """``fn(x) -> {name: values (n,)}``: every derived quantity (capacity, TR, DR, SNR, ...) of
+        draws ``x`` (n, ndim), as the result computes them; for the fast path's top-up towards its
+        gate on the interval ends' Monte Carlo error (:func:`bayescap.inference.fast.fast_posterior`'s
+        ``derived_fn``) and the result's own check of the same errors."""
+        def fn(x):
+            x = np.asarray(x, float)
+            tmp = cls._of_chain(model, x.reshape(1, -1, 1, x.shape[-1]), metadata=metadata, scene=scene,
+                                mtf=mtf, seed=seed)
+            return {n: np.asarray(v, float) for n, v in tmp.derived.items() if np.size(v) == x.shape[0]}
+        # what it computes with: a result made with the same inputs reuses the fast path's errors of
+        # the derived quantities' interval ends (_derived_end_mcse_importance)
+        fn.inputs = (model, metadata, scene, mtf, seed)
+        return fn
+
+    def _same_derived_inputs(self, inputs) -> bool:
+        """Whether :meth:`derived_values_fn`'s ``inputs`` are this result's (the same model and MTF
+        objects, equal metadata, scene and seed)."""
+        if inputs is None:
+            return False
+        model, metadata, scene, mtf, seed = inputs
+        try:
+            return bool(model is self.model and mtf is self.mtf and seed == self.seed and scene == self.scene
+                        and metadata == self.metadata)
+        except (TypeError, ValueError):     # metadata values that do not compare (arrays)
+            return False
+
+    @classmethod
+    def _of_chain(cls, model, chain, *, metadata, scene, mtf, seed):
+        """A result without chains holding the physical draws and derived quantities of ``chain``
+        (E, S, W, D), for the checks :func:`bayescap.inference.mcmc.run_ensembles` makes after each round."""
+        E, S, W, D = chain.shape
+        tmp = cls(model=model, chains=None, metadata=metadata, scene=scene, mtf=mtf, seed=seed, quality="")
+        tmp.draws = model.physical(chain.reshape(E * S * W, D))
+        tmp._derive()
+        return tmp
+
+    def _reported_draws(self, shape):
+        """{name: draws reshaped (E, S, W)} of the physical parameters and derived quantities
+        that vary (a constant has no Monte Carlo error)."""
+        n = int(np.prod(shape))
+        out = {}
+        for name, v in list(self.draws.items()) + list(self.derived.items()):
+            v = np.asarray(v, float)
+            if v.size == n and np.ptp(v) > 0:
+                out[name] = v.reshape(shape)
+        return out
+
+    @property
+    def shape_esw(self):
+        E, S, W, _ = self.chains.chain.shape
+        return (E, S, W)
+
+    def at_scene(self, scene: "Scene") -> "FitResult":
+        """The same posterior evaluated at another scene (exposure time, temperature): derived
+        quantities, notes and noise budget are recomputed, the draws are shared."""
+        new = FitResult(model=self.model, chains=self.chains, metadata=self.metadata, scene=scene,
+                        mtf=self.mtf, seed=self.seed, quality=self.quality, draws=self.draws)
+        new.notes = [n for n in self.notes if not n.startswith(_DERIVED_NOTE_PREFIXES)]
+        new.flags = {k: v for k, v in self.flags.items() if k not in _DERIVED_FLAGS}
+        new.diag = dict(self.diag)
+        new.outliers = list(getattr(self, "outliers", []))
+        new._derive()
+        if new.diag.get("method") in ("emcee", "laplace-is") and new.diag.get("interval_end_mcse"):
+            # the derived quantities moved with the scene, and so did their interval ends' error
+            end = {k: v for k, v in new.diag["interval_end_mcse"].items() if k not in new.derived}
+            if new.diag["method"] == "emcee":
+                end.update({n: interval_end_mcse_mcmc(x) for n, x in new._reported_draws(new.shape_esw).items()
+                            if n in new.derived})
+            else:
+                end.update(new._derived_end_mcse_importance())
+            failure = new._set_end_mcse(end, new.diag.get("interval_end_mcse_target"))
+            failed = [f for f in new.diag["failed_checks"] if not f.startswith(_END_MCSE_FAILURE)]
+            new.diag["failed_checks"] = failed + ([failure] if failure else [])
+            if failure and new.diag["converged"]:
+                new.diag["converged"] = False
+                new.notes.insert(0, "NOT CONVERGED at this scene: " + failure + ". Do not use these intervals")
+            new._flag_imprecise_ends()
+        return new
+
+
+    def push(self, fn, n_max=None):
+        """Push a function of the physical-parameter dict through the posterior draws.
+
+        ``fn(draws: dict[str, ndarray]) -> ndarray`` must be vectorised over the leading axis."""
+        p = self.draws if n_max is None else {k: v[self.thin_index(n_max)] for k, v in self.draws.items()}
+        return fn(p)
+
+    def thin_index(self, n_max):
+        n = next(iter(self.draws.values())).size
+        if n <= n_max:
+            return np.arange(n)
+        return np.linspace(0, n - 1, n_max).round().astype(int)
+
+    def parameter_summary(self) -> dict:
+        """The contract's ``parameters`` block, with identifiability flags."""
+        p, m, out = self.draws, self.model, {}
+        k = p["conversion_gain_e_per_dn"]
+        out["conversion_gain_e_per_dn"] = summarize(k, "e-/DN")
+
+        def nonneg(name, x, unit, why_floor=None):
+            q = np.quantile(x, [0.025, 0.5, 0.95])
+            detected = q[0] > 0.2 * q[1] and why_floor is None
+            extra = {}
+            if not detected:
+                extra["upper_limit_95"] = float(q[2])
+                extra["note"] = why_floor or ("the posterior reaches down to zero: an upper limit, "
+                                              "not a detection")
+            out[name] = summarize(x, unit, constrained=detected, **extra)
+
+        if m.terms.dark_current:
+            rn = p["read_noise_e"]
+            floor = None
+            if np.median(rn / k) < 0.4:
+                floor = ("read noise below 0.4 DN is masked by quantization (EMVA 1288): an upper "
+                         "limit only")
+            nonneg("read_noise_e", rn, "e-", floor)
+            nonneg("dark_current_e_per_s", p["dark_current_e_per_s"], "e-/s")
+        else:
+            dn = p["dark_noise_e"]
+            t = float(np.unique(m.t[m.t > 0])[0]) if np.any(m.t > 0) else 0.0
+            out["dark_noise_e"] = summarize(dn, "e-", note=f"sqrt(read² + D·t) at t = {t:g} s: the only "
+                                            "identifiable combination with one exposure time")
+            out["read_noise_e"] = summarize(dn, "e-", constrained=False, upper_limit_95=float(np.quantile(dn, 0.95)),
+                                            note="not separable from dark current with one exposure time: "
+                                                 "the interval is that of sqrt(read² + D·t), an upper limit")
+            if t > 0:
+                dc = dn**2 / t
+                out["dark_current_e_per_s"] = summarize(dc, "e-/s", constrained=False,
+                                                        upper_limit_95=float(np.quantile(dc, 0.95)),
+                                                        note="upper limit (all dark noise attributed to D·t)")
+        if "full_well_e" in p:
+            extra = {}
+            if m.terms.clip == "adc":
+                extra = {"clip_source": "adc",
+                         "note": "the output clips at the ADC maximum: this is the charge at the clip; "
+                                 "the photodiode's own well may be deeper"}
+            else:
+                extra = {"clip_source": "full_well_or_adc"}
+            out["full_well_e"] = summarize(p["full_well_e"], "e-", **extra)
+        else:
+            lb = float(np.quantile((m.max_mean_ok - m.black_dn) * k, 0.025))
+            out["full_well_e"] = {"median": None, "ci68": [lb, None], "ci95": [lb, None], "unit": "e-",
+                                  "constrained": False, "lower_bound": lb,
+                                  "note": "no row reaches saturation: only a lower bound (the largest "
+                                          "measured signal)"}
+        if "quantum_efficiency" in p:
+            out["quantum_efficiency"] = summarize(p["quantum_efficiency"], "")
+        if "prnu_percent" in p:
+            nonneg("prnu_percent", p["prnu_percent"], "%")
+        if "dsnu_e" in p:
+            nonneg("dsnu_e", p["dsnu_e"], "e-")
+        if m.terms.discrepancy:
+            out["variance_discrepancy"] = summarize(p["variance_discrepancy"], "",
+                                                    note="fractional scatter of the variances beyond statistics")
+        if "clip_spread_dn" in p:
+            out["clip_spread_dn"] = summarize(p["clip_spread_dn"], "DN", note="spread of pixel means at the clip")
+        if "mean_discrepancy" in p:
+            out["mean_discrepancy"] = summarize(p["mean_discrepancy"], "", note="fractional non-linearity scatter")
+        return out
+
+    def to_dict(self) -> dict:
+        sensor = dict(self.metadata)
+        diag = {k: v for k, v in self.diag.items()}
+        return json_safe({
+            "bayescap_version": __version__,
+            "input": self.model.data.source,
+            "sensor": sensor,
+            "scene": self.scene.to_dict(),
+            "parameters": self.parameter_summary(),
+            "derived": self.derived_summary(),
+            "model_terms": self.model.terms.names(),
+            "terms_left_out": dict(self.model.terms.reasons),
+            "term_notes": dict(self.model.terms.how),
+            "mtf": self.mtf_info,
+            "noise_budget_mid_grey": self.noise_budget(),
+            "outliers": list(getattr(self, "outliers", [])),
+            **({"model_selection": self.model_selection} if getattr(self, "model_selection", None) else {}),
+            "notes": list(self.notes),
+            "flags": dict(self.flags),
+            "diagnostics": diag,
+        })
