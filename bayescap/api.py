@@ -5,6 +5,7 @@
 >>> result = bayescap.fit(data, seed=1)                           # doctest: +SKIP
 >>> result.to_dict()["derived"]["capacity_bits"]                  # doctest: +SKIP
 """
+
 from __future__ import annotations
 
 import warnings
@@ -51,12 +52,15 @@ def mtf_from_metadata(metadata: dict, notes: list | None = None):
     md = {**METADATA_DEFAULTS, **metadata}
     pitch = metadata.get("pixel_pitch_um")
     if pitch is None and notes is not None:
-        notes.append("pixel_pitch_um unknown: the lens (diffraction) MTF is left out of Δs; "
-                     "give '# pixel_pitch_um:' or --pixel-pitch-um")
-    mtf = default_mtf(fill_factor=md["fill_factor"], f_number=md["f_number"],
-                      wavelength_nm=md["wavelength_nm"], pixel_pitch_um=pitch)
+        notes.append(
+            "pixel_pitch_um unknown: the lens (diffraction) MTF is left out of Δs; "
+            "give '# pixel_pitch_um:' or --pixel-pitch-um"
+        )
+    mtf = default_mtf(
+        fill_factor=md["fill_factor"], f_number=md["f_number"], wavelength_nm=md["wavelength_nm"], pixel_pitch_um=pitch
+    )
     sigma = metadata.get("crosstalk_sigma_px")
-    if sigma is not None:   # typed and checked (finite, >= 0) by the CSV reader
+    if sigma is not None:  # typed and checked (finite, >= 0) by the CSV reader
         mtf = MTFProduct(components=tuple(mtf.components) + (GaussianCrosstalk(sigma_px=float(sigma)),))
     return mtf
 
@@ -85,8 +89,7 @@ def measured_mtf(path, *, seed: int = 0, n_boot: int = 200):
 def _result_kw(data: PTCData, *, mtf, scene: Scene | None, seed):
     """What :class:`~bayescap.posterior.FitResult` computes the derived quantities with: the
     metadata with its defaults, the scene (:func:`default_scene` if None), the MTF and the seed."""
-    return dict(metadata={**METADATA_DEFAULTS, **data.metadata}, scene=scene or default_scene(data), mtf=mtf,
-                seed=seed)
+    return dict(metadata={**METADATA_DEFAULTS, **data.metadata}, scene=scene or default_scene(data), mtf=mtf, seed=seed)
 
 
 def _check_mtf_passes(mtf, data: PTCData, given: bool):
@@ -103,16 +106,30 @@ def _check_mtf_passes(mtf, data: PTCData, given: bool):
             src = f"the MTF given ({name})" if name else "the MTF given"
         else:
             keys = ("crosstalk_sigma_px", "pixel_pitch_um", "f_number", "wavelength_nm", "fill_factor")
-            src = "the metadata's MTF (" + ", ".join(f"{k} {data.metadata[k]:g}" for k in keys
-                                                    if k in data.metadata) + ")"
+            src = (
+                "the metadata's MTF ("
+                + ", ".join(f"{k} {data.metadata[k]:g}" for k in keys if k in data.metadata)
+                + ")"
+            )
         raise PTCInputError(f"{e} with {src}: no capacity can be computed", path=data.source) from None
 
 
-def fit(data: PTCData | PTCModel | str, *, seed: int | None = None,
-        quality: str | SamplerSettings = "standard", mtf=None, scene: Scene | None = None,
-        progress: bool = False, terms=None, n_jobs: int | None = None, fast_settings=None,
-        fallback: bool = True, fallback_quality: str = "fast", prior: dict | None = None,
-        fast_result=None) -> FitResult:
+def fit(
+    data: PTCData | PTCModel | str,
+    *,
+    seed: int | None = None,
+    quality: str | SamplerSettings = "standard",
+    mtf=None,
+    scene: Scene | None = None,
+    progress: bool = False,
+    terms=None,
+    n_jobs: int | None = None,
+    fast_settings=None,
+    fallback: bool = True,
+    fallback_quality: str = "fast",
+    prior: dict | None = None,
+    fast_result=None,
+) -> FitResult:
     """Fit the Eq. 1 noise model to photon-transfer data and propagate to capacity.
 
     Parameters
@@ -164,8 +181,11 @@ def fit(data: PTCData | PTCModel | str, *, seed: int | None = None,
         # with a gate on the interval ends' Monte Carlo error, the top-up covers the derived
         # quantities too (else one above the gate would send the fit to MCMC below)
         derived_fn = None if fs.end_mcse_max is None else FitResult.derived_values_fn(model, **kw)
-        chains, fd = (fast_result if fast_result is not None
-                      else fast_posterior(model, seed=seed, settings=fs, derived_fn=derived_fn))
+        chains, fd = (
+            fast_result
+            if fast_result is not None
+            else fast_posterior(model, seed=seed, settings=fs, derived_fn=derived_fn)
+        )
         res = None
         if fd["accepted"] and fallback:
             # the result can still fail: with a gate on the interval ends' Monte Carlo error
@@ -184,30 +204,50 @@ def fit(data: PTCData | PTCModel | str, *, seed: int | None = None,
         if res is None:
             settings = QUALITY_PRESETS[fallback_quality]
             check_derived, check_reported = FitResult.chain_check_fns(model, **kw)
-            mc = run_ensembles(model, settings=settings, seed=seed, progress=progress, n_jobs=n_jobs,
-                               derived_fn=check_derived, reported_fn=check_reported)
-            mc.wall_s += fd["wall_s"]          # the rejected attempt is part of the cost
+            mc = run_ensembles(
+                model,
+                settings=settings,
+                seed=seed,
+                progress=progress,
+                n_jobs=n_jobs,
+                derived_fn=check_derived,
+                reported_fn=check_reported,
+            )
+            mc.wall_s += fd["wall_s"]  # the rejected attempt is part of the cost
             res = FitResult.from_chains(model, mc, quality="fast", **kw)
-            res.diag.update({
-                "fast_path": (f"fast path (Laplace–IS) rejected ({fd['reason']}): fell back to MCMC, "
-                              f"preset '{fallback_quality}' ({settings.n_ensembles} ensembles, "
-                              f"ESS target {settings.ess_target:g})"),
-                "fast_path_accepted": False,
-                "fallback_reason": fd["reason"],
-                "fallback_quality": fallback_quality,
-                "fast_path_khat": fd["khat"],
-                "fast_path_ess_is": fd["ess_is"],
-                "fast_path_wall_s": fd["wall_s"],
-                "fast_settings": dict(fd["settings"]) if fd.get("settings") is not None else None,
-            })
-            res.notes.append(f"the Laplace–IS fast path was rejected ({fd['reason']}): the result comes "
-                             f"from the MCMC '{fallback_quality}' preset")
+            res.diag.update(
+                {
+                    "fast_path": (
+                        f"fast path (Laplace–IS) rejected ({fd['reason']}): fell back to MCMC, "
+                        f"preset '{fallback_quality}' ({settings.n_ensembles} ensembles, "
+                        f"ESS target {settings.ess_target:g})"
+                    ),
+                    "fast_path_accepted": False,
+                    "fallback_reason": fd["reason"],
+                    "fallback_quality": fallback_quality,
+                    "fast_path_khat": fd["khat"],
+                    "fast_path_ess_is": fd["ess_is"],
+                    "fast_path_wall_s": fd["wall_s"],
+                    "fast_settings": dict(fd["settings"]) if fd.get("settings") is not None else None,
+                }
+            )
+            res.notes.append(
+                f"the Laplace–IS fast path was rejected ({fd['reason']}): the result comes "
+                f"from the MCMC '{fallback_quality}' preset"
+            )
     else:
         settings = QUALITY_PRESETS[quality] if isinstance(quality, str) else quality
         qname = quality if isinstance(quality, str) else "custom"
         check_derived, check_reported = FitResult.chain_check_fns(model, **kw)
-        chains = run_ensembles(model, settings=settings, seed=seed, progress=progress, n_jobs=n_jobs,
-                               derived_fn=check_derived, reported_fn=check_reported)
+        chains = run_ensembles(
+            model,
+            settings=settings,
+            seed=seed,
+            progress=progress,
+            n_jobs=n_jobs,
+            derived_fn=check_derived,
+            reported_fn=check_reported,
+        )
         res = FitResult.from_chains(model, chains, quality=qname, **kw)
     res.notes.extend(notes)
     if defaults_used:
@@ -215,13 +255,31 @@ def fit(data: PTCData | PTCModel | str, *, seed: int | None = None,
     return res
 
 
-def fast_fit(data_or_model, *, seed, settings: FastSettings = FastSettings(), mtf=None, scene=None,
-             fallback: bool = True, fallback_quality: str = "fast", terms=None):
+def fast_fit(
+    data_or_model,
+    *,
+    seed,
+    settings: FastSettings = FastSettings(),
+    mtf=None,
+    scene=None,
+    fallback: bool = True,
+    fallback_quality: str = "fast",
+    terms=None,
+):
     """``bayescap.fit(..., quality="fast")`` with explicit fast-path knobs (a thin wrapper).
 
     ``data_or_model``: a PTCData, a contract CSV path or a :class:`~bayescap.model.PTCModel`.
     ``fallback=False`` returns a rejected fast result (flagged NOT CONVERGED) instead of running
     the MCMC ``fallback_quality`` preset. See :func:`bayescap.api.fit`.
     """
-    return fit(data_or_model, seed=seed, quality="fast", fast_settings=settings, mtf=mtf, scene=scene,
-               fallback=fallback, fallback_quality=fallback_quality, terms=terms)
+    return fit(
+        data_or_model,
+        seed=seed,
+        quality="fast",
+        fast_settings=settings,
+        mtf=mtf,
+        scene=scene,
+        fallback=fallback,
+        fallback_quality=fallback_quality,
+        terms=terms,
+    )

@@ -22,6 +22,7 @@ run where the fast path rejected its draws, one sensor at a time (:func:`bayesca
 is free once the process that rejected it has run its fast paths: the rejections fall unevenly between
 the processes' shares (on the 1 000-ROI batch, 9 of one process's 501 sensors and 16 of the other's 499).
 """
+
 from __future__ import annotations
 
 import csv
@@ -47,9 +48,12 @@ def sensor_seeds(seed, n):
 
 def _summary(res):
     dg = res.diag
-    out = {"accepted": bool(dg.get("fast_path_accepted", dg.get("converged"))),   # the fast path's own check
-           "converged": bool(dg.get("converged")),                                 # of the result returned
-           "khat": dg.get("khat", dg.get("fast_path_khat")), "method": dg.get("method", "")}
+    out = {
+        "accepted": bool(dg.get("fast_path_accepted", dg.get("converged"))),  # the fast path's own check
+        "converged": bool(dg.get("converged")),  # of the result returned
+        "khat": dg.get("khat", dg.get("fast_path_khat")),
+        "method": dg.get("method", ""),
+    }
     if not out["accepted"]:
         # why the fast path refused (its reason; with the fallback, the reason it fell back)
         out["reason"] = dg.get("fallback_reason") or "; ".join(dg.get("failed_checks") or [])
@@ -89,6 +93,7 @@ def _mtf_cache():
         if key not in mtfs:
             mtfs[key] = mtf_from_metadata(m.data.metadata)
         return mtfs[key]
+
     return mtf_of
 
 
@@ -101,8 +106,9 @@ def _finish(m, seed, settings, mtf, fallback, fast_result, summary_only):
     try:
         if isinstance(fast_result, BaseException):
             raise fast_result
-        r = fit(m, seed=seed, quality="fast", fast_settings=settings, mtf=mtf, fallback=fallback,
-                fast_result=fast_result)
+        r = fit(
+            m, seed=seed, quality="fast", fast_settings=settings, mtf=mtf, fallback=fallback, fast_result=fast_result
+        )
     except Exception as e:
         return {"error": f"{type(e).__name__}: {e}"} if summary_only else e
     return _summary(r) if summary_only else r
@@ -128,9 +134,12 @@ def _fit_groups(args):
             dfs = []
             for i in ix:
                 try:
-                    dfs.append(FitResult.derived_values_fn(models[i], **_result_kw(
-                        models[i].data, mtf=mtf_of(models[i]), scene=None, seed=seeds[i])))
-                except Exception:      # reported by fit() below, as without the gate
+                    dfs.append(
+                        FitResult.derived_values_fn(
+                            models[i], **_result_kw(models[i].data, mtf=mtf_of(models[i]), scene=None, seed=seeds[i])
+                        )
+                    )
+                except Exception:  # reported by fit() below, as without the gate
                     dfs.append(None)
         fast = _fast_paths([models[i] for i in ix], [seeds[i] for i in ix], settings, stack_size, dfs)
         for i, fr in zip(ix, fast):
@@ -142,8 +151,17 @@ def _fit_groups(args):
 
 
 @one_blas_thread
-def fit_many(datas, *, quality: str = "fast", seed, n_jobs: int = 1, fallback: bool = True,
-             settings: FastSettings = FastSettings(), summary_only: bool = False, stack_size: int = 64):
+def fit_many(
+    datas,
+    *,
+    quality: str = "fast",
+    seed,
+    n_jobs: int = 1,
+    fallback: bool = True,
+    settings: FastSettings = FastSettings(),
+    summary_only: bool = False,
+    stack_size: int = 64,
+):
     """Fit many sensors with the Laplace–IS fast path (MCMC fallback per sensor if ``fallback``),
     vectorised across sensors (module docstring).
 
@@ -192,11 +210,12 @@ def fit_many(datas, *, quality: str = "fast", seed, n_jobs: int = 1, fallback: b
             models.append(None)
             out[i] = {"error": f"{type(e).__name__}: {e}"} if summary_only else e
     n_jobs = max(1, int(n_jobs))
-    parts = stack_groups(models, n_jobs)      # [group][part] -> indices
+    parts = stack_groups(models, n_jobs)  # [group][part] -> indices
     stack_size = max(1, int(stack_size))
     if n_jobs == 1 or sum(len(g) for g in parts) < 2:
-        done = _fit_groups((models, seeds, [ix for g in parts for ix in g], settings, fallback,
-                            summary_only, stack_size, False))
+        done = _fit_groups(
+            (models, seeds, [ix for g in parts for ix in g], settings, fallback, summary_only, stack_size, False)
+        )
     else:
         from concurrent.futures import ProcessPoolExecutor, as_completed
 
@@ -218,8 +237,9 @@ def fit_many(datas, *, quality: str = "fast", seed, n_jobs: int = 1, fallback: b
                 part = fut.result()
                 done.update(part)
                 for i in sorted(i for i, r in part.items() if isinstance(r, _Deferred)):
-                    fallbacks.append((i, ex.submit(_fallback_fit, (models[i], seeds[i], part[i].diag, settings,
-                                                                   summary_only))))
+                    fallbacks.append(
+                        (i, ex.submit(_fallback_fit, (models[i], seeds[i], part[i].diag, settings, summary_only)))
+                    )
             for i, fut in fallbacks:
                 done[i] = fut.result()
     for i, r in done.items():
@@ -238,10 +258,15 @@ def gpixel_truths(path=GPIXEL_CSV):
     out = []
     with open(path, newline="") as fh:
         for row in csv.DictReader(fh):
-            t = SensorTruth(conversion_gain_e_per_dn=float(row["S_e_per_DN"]),
-                            read_noise_e=float(row["temporal_dark_noise_e"]),
-                            full_well_e=float(row["full_well_e"]), quantum_efficiency=0.6,
-                            prnu_frac=0.005, full_well_spread_frac=0.005, adc_bits=12)
+            t = SensorTruth(
+                conversion_gain_e_per_dn=float(row["S_e_per_DN"]),
+                read_noise_e=float(row["temporal_dark_noise_e"]),
+                full_well_e=float(row["full_well_e"]),
+                quantum_efficiency=0.6,
+                prnu_frac=0.005,
+                full_well_spread_frac=0.005,
+                adc_bits=12,
+            )
             out.append(((int(row["roi_index"]), int(row["gain_index"])), t))
     return out
 
@@ -259,7 +284,18 @@ def gpixel_sensors(*, n_max=None, seed=0, shape=(32, 32), n_levels=30):
     kids = np.random.SeedSequence(seed).spawn(len(tr))
     datas = []
     for ((roi, g), t), k in zip(tr, kids):
-        datas.append(simulate_ptc(t, n_levels=n_levels, shape=shape, seed=k,
-                                  metadata={"sensor": f"Gpixel GSPRINT4521 ROI {roi} gain {g} (simulated)",
-                                            "pixel_pitch_um": 4.5, "width_px": 5120, "height_px": 4096}))
+        datas.append(
+            simulate_ptc(
+                t,
+                n_levels=n_levels,
+                shape=shape,
+                seed=k,
+                metadata={
+                    "sensor": f"Gpixel GSPRINT4521 ROI {roi} gain {g} (simulated)",
+                    "pixel_pitch_um": 4.5,
+                    "width_px": 5120,
+                    "height_px": 4096,
+                },
+            )
+        )
     return datas, [t for _, t in tr]

@@ -22,7 +22,7 @@ from pathlib import Path
 import numpy as np
 from _machine import describe_machine, emit
 
-from bayescap.validation import (
+from bayescap.validation.moves import (
     BANANA_B,
     BANANA_S1,
     NDIM,

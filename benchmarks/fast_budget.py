@@ -142,7 +142,7 @@ def main(argv=None):
             f"| {r['is_lp']:.0f} ({r['is_rows']}) / {r['is_wall'] - r['is_lp']:.0f} | {r['lp'] / r['wall']:.0%} "
             f"| {r['lp']:.0f} | {r['wall'] - r['lp'] * (1 - 1 / x):.0f} |"
         )
-    med = lambda k: float(np.median([r[k] for r in rows]))  # noqa: E731
+    med = lambda k: float(np.median([r[k] for r in rows]))
     bound = [r["wall"] - r["lp"] * (1 - 1 / x) for r in rows]
     L += [
         "",

@@ -32,7 +32,7 @@ from bayescap.physics.optics import DiffractionLens, GaussianCrosstalk, MTFProdu
 
 OUT = Path(__file__).resolve().parent / "results" / "integral_accuracy.md"
 
-from bayescap.validation import TR_CASES, ds_reference, tr_reference, tr_simpson  # noqa: E402
+from bayescap.validation.integrals import TR_CASES, ds_reference, tr_reference, tr_simpson  # noqa: E402
 
 
 def mtf_cases():

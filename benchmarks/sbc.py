@@ -9,18 +9,18 @@ autocorrelation time. If the posterior is calibrated the ranks are uniform on ``
 **Classic SBC (``--truths prior``, the default).** Classic SBC needs truths drawn from the prior
 the fit uses. The production prior (``PTCModel.PRIOR``) is deliberately wide (log K uniform on
 1e-4..1e4 e⁻/DN, read noise of scale 1000 e⁻, ...): most of its draws are not sensors. So the SBC
-uses a proper, realistic prior ``bayescap.validation.SBC_PRIOR`` for every model parameter, draws
-the truths from it (``validation.draw_sensor_prior``) and fits with exactly it
+uses a proper, realistic prior ``bayescap.validation.sbc.SBC_PRIOR`` for every model parameter, draws
+the truths from it (``validation.sbc.draw_sensor_prior``) and fits with exactly it
 (``bayescap.fit(prior=SBC_PRIOR)``). The
 simulator has no systematics, so the variance and mean discrepancies f and g are drawn from their
 priors and injected into the simulated data as the likelihood describes them
-(``validation.inject_discrepancies``). What is *not* from the fit's prior, because it is not a model
+(``validation.sbc.inject_discrepancies``). What is *not* from the fit's prior, because it is not a model
 parameter: the full well and ADC range (the clip level's prior is uniform between data-derived
 bounds), black level, and the per-pixel well spread (drawn from the clip-spread prior expressed
 as a fraction of the full well); those parts are likelihood-dominated. ``docs/calibration.md``
 lists the details.
 
-**Realistic-range variant (``--truths realistic``).** Truths from ``validation.draw_sensor``, fitted with
+**Realistic-range variant (``--truths realistic``).** Truths from ``validation.sbc.draw_sensor``, fitted with
 the production priors: uniform ranks then hold only where the likelihood dominates the prior.
 
 The coverage of the equal-tailed 50/68/95 % intervals (from all kept draws, as a user sees them)
@@ -32,7 +32,7 @@ terms the fit includes (a PRNU/DSNU the fit cannot see is not in its capacity es
 
     python benchmarks/sbc.py --n 200 --seed 1 --quality standard --jobs 1 --truths prior --levels 50
 
-The simulate-fit-rank loop of one sensor is ``bayescap.validation.run_one`` (the test suite runs it on
+The simulate-fit-rank loop of one sensor is ``bayescap.validation.sbc.run_one`` (the test suite runs it on
 30 sensors: tests/test_coverage.py, tests/test_sbc_small.py). Writes ``benchmarks/results/sbc.md``
 and the rank histograms beside it, ``benchmarks/results/sbc_ranks.png`` (and the raw per-sensor
 records as JSON lines to ``--raw``, default in the system temp directory; ``--from-raw`` rebuilds
@@ -59,7 +59,7 @@ from scipy import stats  # noqa: E402
 
 RESULTS = Path(__file__).resolve().parent / "results"
 
-#: ranked quantities (names of ``FitResult.draws`` / ``derived``; truths: ``validation.truth_values``)
+#: ranked quantities (names of ``FitResult.draws`` / ``derived``; truths: ``validation.sbc.truth_values``)
 PARAMS = [
     "conversion_gain_e_per_dn",
     "read_noise_e",
@@ -77,7 +77,7 @@ LEVELS = (0.50, 0.68, 0.95)
 
 from _machine import describe_machine  # noqa: E402
 
-from bayescap.validation import SBC_LEVELS, SBC_SETTINGS, run_one, sensor_seeds  # noqa: E402
+from bayescap.validation.sbc import SBC_LEVELS, SBC_SETTINGS, run_one, sensor_seeds  # noqa: E402
 
 
 # --------------------------------------------------------------------------- statistics

@@ -1,6 +1,7 @@
 """The package's shape: no import cycle between modules, no module past the size where it stops
 reading as one idea, no lab-notebook date stamps in the code. (The layers themselves are
 import-linter's contract in pyproject.toml, run by .ci/run.)"""
+
 import re
 from pathlib import Path
 
@@ -46,8 +47,11 @@ def _strongly_connected(graph, modules):
 def test_no_import_cycle():
     graph = grimp.build_graph("bayescap")
     # a package's __init__ re-exporting its modules is not a cycle of ideas: leave packages out
-    modules = {m for m in graph.modules if m.startswith("bayescap.") and not (PACKAGE.parent / (
-        m.replace(".", "/") + "/__init__.py")).exists()}
+    modules = {
+        m
+        for m in graph.modules
+        if m.startswith("bayescap.") and not (PACKAGE.parent / (m.replace(".", "/") + "/__init__.py")).exists()
+    }
     assert _strongly_connected(graph, modules) == []
 
 
@@ -58,6 +62,10 @@ def test_no_module_over_the_size_limit():
 
 def test_no_date_stamps_in_code():
     stamp = re.compile(r"\b20\d\d-\d\d-\d\d\b")
-    hits = [f"{p.relative_to(PACKAGE.parent)}:{i}" for p in PACKAGE.rglob("*.py")
-            for i, line in enumerate(p.read_text().splitlines(), 1) if stamp.search(line)]
+    hits = [
+        f"{p.relative_to(PACKAGE.parent)}:{i}"
+        for p in PACKAGE.rglob("*.py")
+        for i, line in enumerate(p.read_text().splitlines(), 1)
+        if stamp.search(line)
+    ]
     assert hits == []

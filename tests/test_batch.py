@@ -2,14 +2,15 @@
 
 The claim under test is exact: a stacked evaluation returns each sensor's own ``log_prob`` bit
 for bit, so a batch gives every sensor the result of its own ``bayescap.fit``."""
+
 import warnings
 
 import numpy as np
 import pytest
 
 import bayescap
-from bayescap.inference.lockstep import Lockstep, stack_groups
 from bayescap.batch import fit_many, gpixel_sensors
+from bayescap.inference.lockstep import Lockstep, stack_groups
 from bayescap.model import PTCModel, PTCModelStack
 from bayescap.simulate import SensorTruth, simulate_ptc
 
@@ -19,18 +20,26 @@ def _stackable_sets():
     with spatial columns (PRNU, DSNU and their latents) at several seeds, 8-bit (ADC clip)."""
     datas, _ = gpixel_sensors(n_max=24, seed=2)
     sets = [[PTCModel(d) for d in datas]]
-    for t in (SensorTruth(conversion_gain_e_per_dn=2.0, read_noise_e=3.0, full_well_e=8000, prnu_frac=0.01,
-                          dsnu_e=2.0, adc_bits=12),
-              SensorTruth(conversion_gain_e_per_dn=20.0, read_noise_e=1.0, full_well_e=1e5, prnu_frac=0.01,
-                          dsnu_e=0.5, adc_bits=8)):
-        sets.append([PTCModel(simulate_ptc(t, n_levels=20, shape=(32, 32), seed=s, spatial_frames=4,
-                                           spatial_every=2)) for s in range(6)])
+    for t in (
+        SensorTruth(
+            conversion_gain_e_per_dn=2.0, read_noise_e=3.0, full_well_e=8000, prnu_frac=0.01, dsnu_e=2.0, adc_bits=12
+        ),
+        SensorTruth(
+            conversion_gain_e_per_dn=20.0, read_noise_e=1.0, full_well_e=1e5, prnu_frac=0.01, dsnu_e=0.5, adc_bits=8
+        ),
+    ):
+        sets.append(
+            [
+                PTCModel(simulate_ptc(t, n_levels=20, shape=(32, 32), seed=s, spatial_frames=4, spatial_every=2))
+                for s in range(6)
+            ]
+        )
     return sets
 
 
 def _points(m, n, rng):
     x = m.initial_guess() + 0.01 * rng.standard_normal((n, m.ndim))
-    x[0, 0] = 50.0                      # outside the prior: −inf, filtered before the likelihood
+    x[0, 0] = 50.0  # outside the prior: −inf, filtered before the likelihood
     return x
 
 
@@ -48,7 +57,7 @@ def test_stacked_log_prob_equals_each_models_own_bit_for_bit():
             sensor = np.repeat(np.arange(len(group)), [len(t) for t in ths])
             lp = stack.log_prob(np.vstack(ths), sensor)
             solo = np.concatenate([m.log_prob(t) for m, t in zip(group, ths)])
-            assert np.array_equal(lp, solo)            # −inf included
+            assert np.array_equal(lp, solo)  # −inf included
             starts = np.r_[0, np.cumsum([len(t) for t in ths])[:-1]]
             assert np.all(np.isneginf(lp[starts]))
             # the comparison covers the likelihood: every sensor has draws inside the support
@@ -68,7 +77,7 @@ def test_a_model_stacked_with_itself_equals_its_own_calls_bit_for_bit():
         assert stack._same
         x0 = m.initial_guess()
         ths = [_points(m, 30, rng), x0 + 0.2 * rng.standard_normal((17, m.ndim)), _points(m, 5, rng)]
-        ths[1][:, m.idx["log_k"]] += rng.normal(0.0, 0.5, 17)      # gains far apart: clip rows differ
+        ths[1][:, m.idx["log_k"]] += rng.normal(0.0, 0.5, 17)  # gains far apart: clip rows differ
         sensor = np.repeat(np.arange(3), [len(t) for t in ths])
         lp = stack.log_prob(np.vstack(ths), sensor)
         solo = np.concatenate([m.log_prob(t) for t in ths])
@@ -109,14 +118,15 @@ def test_lockstep_returns_each_fit_its_values_and_isolates_a_failure():
             if k == 3:
                 raise RuntimeError("sensor 3 failed")
             return [float(log_prob(np.full((1, 2), k + j))[0]) for j in range(k + 1)]
+
         return fn
 
     before = list(warnings.filters)
     out = ls.run([fit(k) for k in range(5)], concurrency=2)
-    assert warnings.filters == before                   # the caller's filters are restored
+    assert warnings.filters == before  # the caller's filters are restored
     assert isinstance(out[3], RuntimeError)
     for k in (0, 1, 2, 4):
-        assert out[k] == [-(k + j) ** 2 for j in range(k + 1)]
+        assert out[k] == [-((k + j) ** 2) for j in range(k + 1)]
     # 2 at a time, each request waits for the other running fit: fewer calls than requests
     assert ls.n_requests == sum(k + 1 for k in (0, 1, 2, 4))
     assert toy.calls == ls.n_calls < ls.n_requests
@@ -136,7 +146,7 @@ def test_fit_many_gives_each_sensor_its_own_fit():
     datas, _ = gpixel_sensors(n_max=6, seed=5)
     seeds = [int(c.generate_state(1)[0]) for c in np.random.SeedSequence(9).spawn(len(datas))]
     with warnings.catch_warnings():
-        warnings.simplefilter("ignore")              # rejected sensors warn NOT CONVERGED
+        warnings.simplefilter("ignore")  # rejected sensors warn NOT CONVERGED
         batch = fit_many(datas, seed=9, fallback=False)
         one_by_one = fit_many(datas, seed=9, fallback=False, stack_size=1)
         two_procs = fit_many(datas, seed=9, fallback=False, n_jobs=2, summary_only=True)
@@ -145,11 +155,12 @@ def test_fit_many_gives_each_sensor_its_own_fit():
             assert np.array_equal(r.chains.chain, own.chains.chain)
             assert np.array_equal(r1.chains.chain, own.chains.chain)
             assert r2["conversion_gain_e_per_dn"] == tuple(
-                float(v) for v in np.quantile(own.draws["conversion_gain_e_per_dn"], [0.025, 0.5, 0.975]))
+                float(v) for v in np.quantile(own.draws["conversion_gain_e_per_dn"], [0.025, 0.5, 0.975])
+            )
             assert r.diag["khat"] == own.diag["khat"]
     groups = [len(ix) for g in stack_groups([PTCModel(d) for d in datas]) for ix in g]
     assert sorted(r.chains.extra["stacked"]["sensors"] for r in batch) == sorted(n for n in groups for _ in range(n))
-    assert max(groups) >= 2                          # some sensors were evaluated stacked
+    assert max(groups) >= 2  # some sensors were evaluated stacked
 
 
 def test_fit_many_fallbacks_shared_out_across_processes_are_each_sensors_own():
@@ -168,13 +179,15 @@ def test_fit_many_fallbacks_shared_out_across_processes_are_each_sensors_own():
             own = bayescap.fit(d, seed=s, quality="fast", fast_settings=fs)
             assert own.diag["method"] == "emcee" and r["method"] == "emcee" and not r["accepted"]
             assert r["conversion_gain_e_per_dn"] == tuple(
-                float(v) for v in np.quantile(own.draws["conversion_gain_e_per_dn"], [0.025, 0.5, 0.975]))
+                float(v) for v in np.quantile(own.draws["conversion_gain_e_per_dn"], [0.025, 0.5, 0.975])
+            )
             assert r["converged"] == own.diag["converged"]
 
 
 def test_fit_many_mcmc_preset_reports_a_bad_sensor_instead_of_stopping():
     """quality="standard" fits one sensor at a time (MCMC); a refused input is reported in its
     place, as with the fast preset."""
-    res = fit_many(["data/simulated/sim_phone_1p75um_10bit.csv", "no_such_file.csv"], quality="standard",
-                   seed=1, summary_only=True)
+    res = fit_many(
+        ["data/simulated/sim_phone_1p75um_10bit.csv", "no_such_file.csv"], quality="standard", seed=1, summary_only=True
+    )
     assert res[0]["converged"] and "file not found" in res[1]["error"]

@@ -1,13 +1,14 @@
 """BLAS thread pools are held to one thread inside the sampling entry points (bayescap/_blas.py)."""
+
 import numpy as np
 import pytest
 
 threadpoolctl = pytest.importorskip("threadpoolctl")
 
-from bayescap.inference import fast  # noqa: E402
 from bayescap._blas import one_blas_thread  # noqa: E402
-from bayescap.model.ptc_model import PTCModel  # noqa: E402
+from bayescap.inference import fast  # noqa: E402
 from bayescap.io.ptc_csv import read_ptc_csv  # noqa: E402
+from bayescap.model.ptc_model import PTCModel  # noqa: E402
 
 
 def _blas_threads():

@@ -5,6 +5,7 @@ Monte Carlo comparisons use fixed seeds; each tolerance is a multiple of the sta
 Monte Carlo estimate computed from the same sample (z ≤ 5: a correct formula fails with
 probability < 1e-6 per comparison), never a fixed widening.
 """
+
 import numpy as np
 import pytest
 from scipy import stats
@@ -12,8 +13,13 @@ from scipy import stats
 import bayescap
 from bayescap.model import PTCModel
 from bayescap.model.pixel_quantization import _quantized_pixel_moments, _uniform_offset_moments
-from bayescap.model.prediction import _chi2_over_nu, _QUANT_EXACT_S2, _QUANT_TEMPORAL_S2
-from bayescap.model.quantization import _rounded_normal_moments, _rounded_normal_moments_fourier, _rounded_normal_moments_sums, _rounded_offset
+from bayescap.model.prediction import _QUANT_EXACT_S2, _QUANT_TEMPORAL_S2, _chi2_over_nu
+from bayescap.model.quantization import (
+    _rounded_normal_moments,
+    _rounded_normal_moments_fourier,
+    _rounded_normal_moments_sums,
+    _rounded_offset,
+)
 from bayescap.simulate import SensorTruth, simulate_ptc
 
 CASES = [(0.0, 0.12), (0.1, 0.2), (0.4, 0.3), (-0.3, 0.45), (0.5, 0.25), (0.2, 0.68)]
@@ -53,13 +59,15 @@ def test_rounded_normal_moments_fourier_equals_the_sums():
     rng = np.random.default_rng(11)
     d = rng.uniform(-0.8, 0.8, 20000)
     s = rng.uniform(0.3, 1.0, d.size)
-    for a, b, tol in zip(_rounded_normal_moments_fourier(d, s), _rounded_normal_moments_sums(d, s, J=12),
-                         (1e-14, 1e-14, 1e-12)):
+    for a, b, tol in zip(
+        _rounded_normal_moments_fourier(d, s), _rounded_normal_moments_sums(d, s, J=12), (1e-14, 1e-14, 1e-12)
+    ):
         assert np.max(np.abs(a - b)) < tol
     x = np.broadcast_to((np.arange(32) + 0.5) / 32 - 0.5, (40, 32))
     sg = rng.uniform(0.3, 0.7, (40, 1))
-    for a, b in zip(_rounded_normal_moments_fourier(x, sg),
-                    _rounded_normal_moments_sums(x, np.broadcast_to(sg, x.shape), J=12)):
+    for a, b in zip(
+        _rounded_normal_moments_fourier(x, sg), _rounded_normal_moments_sums(x, np.broadcast_to(sg, x.shape), J=12)
+    ):
         assert a.shape == (40, 32) and np.max(np.abs(a - b)) < 1e-12
     mixed = np.r_[rng.uniform(0.05, 0.3, 50), rng.uniform(0.3, 0.7, 50)]
     dm = rng.uniform(-0.5, 0.5, mixed.size)
@@ -126,13 +134,15 @@ def test_rounded_normal_moments_series_below_0p3_dn_equal_the_sums():
     d = rng.uniform(-0.5, 0.5, 40000)
     s = np.exp(rng.uniform(np.log(0.01), np.log(1.0), d.size))
     assert set(np.unique(_rn_harmonics(s))) == {0, 4, 8, 16, 32}
-    for a, b, tol in zip(_rounded_normal_moments(d, s, J=5), _rounded_normal_moments_sums(d, s, J=40),
-                         (1e-14, 1e-14, 1e-12)):
+    for a, b, tol in zip(
+        _rounded_normal_moments(d, s, J=5), _rounded_normal_moments_sums(d, s, J=40), (1e-14, 1e-14, 1e-12)
+    ):
         assert np.max(np.abs(a - b)) < tol
     sg = np.exp(rng.uniform(np.log(0.02), np.log(0.5), (300, 1)))
     grid = _rounded_normal_moments(_QG_X, sg, J=5)
-    for a, b, tol in zip(grid, _rounded_normal_moments_sums(_QG_X, np.broadcast_to(sg, (300, 32)), J=40),
-                         (1e-14, 1e-14, 1e-12)):
+    for a, b, tol in zip(
+        grid, _rounded_normal_moments_sums(_QG_X, np.broadcast_to(sg, (300, 32)), J=40), (1e-14, 1e-14, 1e-12)
+    ):
         assert a.shape == (300, 32) and np.max(np.abs(a - b)) < tol
     for n in (1, 3, 7, 8, 29, 64, 129):
         idx = np.sort(rng.choice(300, n, replace=False))
@@ -168,9 +178,12 @@ def test_wrapped_normal_grid_equals_the_sum_of_its_images():
     full = _quantized_pixel_moments(dl, s, so_all)
     for m in (1, 7, 64, 129):
         idx = np.sort(rng.choice(n, m, replace=False))
-        assert all(np.array_equal(a[idx], b) for a, b in zip(full, _quantized_pixel_moments(dl[idx], s[idx], so_all[idx])))
+        assert all(
+            np.array_equal(a[idx], b) for a, b in zip(full, _quantized_pixel_moments(dl[idx], s[idx], so_all[idx]))
+        )
     # the grid in chunks (model._QG_CHUNK_POINTS) of any size: the same numbers
     import bayescap.model.pixel_quantization as bm
+
     default = bm._QG_CHUNK_POINTS
     try:
         for points in (1, 100, 1000):
@@ -207,7 +220,7 @@ def test_quantized_pixel_moments_grid_matches_a_256_point_grid():
     tau = np.sqrt(sg * sg + sog * sog)
     zz = (_QG_J + 0.5 - dl[:, None]) / tau[:, None]
     dens = np.where(tau > 1.0, 1.0, np.exp(-0.5 * zz * zz).sum(-1) / (tau * np.sqrt(2.0 * np.pi)))
-    H_ref = varh_ref + 2.0 * sog * sog * (dens - 1.0)      # the Stein term, as the model adds it
+    H_ref = varh_ref + 2.0 * sog * sog * (dens - 1.0)  # the Stein term, as the model adds it
     V, E4, H = _quantized_pixel_moments(dl, sg, sog)
     assert np.max(np.abs(V - V_ref)) < 2e-12
     assert np.max(np.abs(E4 - E4_ref)) < 2e-12
@@ -233,12 +246,17 @@ def test_quantized_pixel_moments_narrow_spreads_match_a_fine_quadrature():
         w /= w.sum()
         m, v, m4 = _rounded_normal_moments_sums(o, np.full(o.size, s), J=12)
         em = (w * m).sum()
-        ref.append(((w * v).sum(), (w * (m4 + v * v)).sum(),
-                    (w * m * m).sum() - em * em - ((w * o * o).sum() - (w * o).sum() ** 2)))
+        ref.append(
+            (
+                (w * v).sum(),
+                (w * (m4 + v * v)).sum(),
+                (w * m * m).sum() - em * em - ((w * o * o).sum() - (w * o).sum() ** 2),
+            )
+        )
     ref = np.array(ref).T
     got = np.array(_quantized_pixel_moments(dl, sg, sog))
     assert np.max(np.abs(got - ref)) < 1e-12
-    assert np.sum((sog > 0.5 * sg) & (sog < 2.0 * sg)) >= 20      # the formerly wrong band is sampled
+    assert np.sum((sog > 0.5 * sg) & (sog < 2.0 * sg)) >= 20  # the formerly wrong band is sampled
 
 
 def test_sheppard_fails_for_the_temporal_variance_below_its_threshold():
@@ -291,17 +309,31 @@ def test_pattern_below_the_quantization_floor_at_the_truth():
     model without these terms misses both (z = −13.7 and a residual of +0.017 DN²)."""
     from bayescap.simulate import _FixedPattern
 
-    tr = SensorTruth(conversion_gain_e_per_dn=8.0, read_noise_e=1.2, full_well_e=20000,
-                     dark_current_e_per_s=2.0, quantum_efficiency=0.5, prnu_frac=0.005, dsnu_e=6.4,
-                     adc_bits=14, black_level_dn=64)
+    tr = SensorTruth(
+        conversion_gain_e_per_dn=8.0,
+        read_noise_e=1.2,
+        full_well_e=20000,
+        dark_current_e_per_s=2.0,
+        quantum_efficiency=0.5,
+        prnu_frac=0.005,
+        dsnu_e=6.4,
+        adc_bits=14,
+        black_level_dn=64,
+    )
     seed, shape = 4, (100, 100)
     d = simulate_ptc(tr, seed=seed, n_levels=40, spatial_frames=8, spatial_every=2, shape=shape)
     fp = _FixedPattern(tr, shape, np.random.default_rng(seed))  # the simulator's maps (same stream)
     m = PTCModel(d)
     th = m.initial_guess()
     K = tr.conversion_gain_e_per_dn
-    for name, val in (("log_k", K), ("log_read", tr.read_noise_e), ("log_dc", tr.dark_current_e_per_s),
-                      ("log_dsnu", tr.dsnu_e), ("log_prnu", tr.prnu_frac), ("log_f", 1e-6)):
+    for name, val in (
+        ("log_k", K),
+        ("log_read", tr.read_noise_e),
+        ("log_dc", tr.dark_current_e_per_s),
+        ("log_dsnu", tr.dsnu_e),
+        ("log_prnu", tr.prnu_frac),
+        ("log_f", 1e-6),
+    ):
         th[m.idx[name]] = np.log(val)
     nu = m.nu_pattern
     b = fp.dsnu.var(ddof=1)
@@ -330,8 +362,15 @@ def test_pattern_below_the_quantization_floor_at_the_truth():
 
 
 def _lowread_sensor(seed=3):
-    tr = SensorTruth(conversion_gain_e_per_dn=6.0, read_noise_e=1.5, full_well_e=20000,
-                     dark_current_e_per_s=5.0, quantum_efficiency=0.5, adc_bits=14, black_level_dn=64)
+    tr = SensorTruth(
+        conversion_gain_e_per_dn=6.0,
+        read_noise_e=1.5,
+        full_well_e=20000,
+        dark_current_e_per_s=5.0,
+        quantum_efficiency=0.5,
+        adc_bits=14,
+        black_level_dn=64,
+    )
     return tr, simulate_ptc(tr, seed=seed, n_levels=40)
 
 
@@ -395,9 +434,16 @@ def test_pattern_latents_reproduce_the_realised_pattern_statistics():
 def test_spatial_rows_share_one_pattern_draw():
     """A spatial stack gives one PRNU/DSNU pattern per ROI: the model carries its realised
     variances as latents (three with PRNU, one with DSNU alone), with standard-normal priors."""
-    tr = SensorTruth(conversion_gain_e_per_dn=2.0, read_noise_e=5.0, full_well_e=20000,
-                     dark_current_e_per_s=5.0, quantum_efficiency=0.5, prnu_frac=0.01, dsnu_e=5.0,
-                     adc_bits=14)
+    tr = SensorTruth(
+        conversion_gain_e_per_dn=2.0,
+        read_noise_e=5.0,
+        full_well_e=20000,
+        dark_current_e_per_s=5.0,
+        quantum_efficiency=0.5,
+        prnu_frac=0.01,
+        dsnu_e=5.0,
+        adc_bits=14,
+    )
     d = simulate_ptc(tr, seed=1, n_levels=20, spatial_frames=8, spatial_every=5)
     m = PTCModel(d)
     assert m.pattern_latents == ["z_roi_dsnu", "z_roi_prnu", "z_roi_cross"]
@@ -439,8 +485,9 @@ def test_rounded_offset_boundary_solver_converges_within_three_steps():
     rng = np.random.default_rng(11)
     n = 20000
     s = np.exp(rng.uniform(np.log(0.01), np.log(0.3), 2 * n))
-    fo = np.concatenate([rng.uniform(-0.5, 0.5, n),
-                         rng.choice([-1.0, 1.0], n) * np.exp(rng.uniform(np.log(1e-12), np.log(0.5), n))])
+    fo = np.concatenate(
+        [rng.uniform(-0.5, 0.5, n), rng.choice([-1.0, 1.0], n) * np.exp(rng.uniform(np.log(1e-12), np.log(0.5), n))]
+    )
     d3 = _rounded_offset_boundaries(fo, s, n_iter=3)
     m, _, _ = _rounded_normal_moments_sums(d3, s, J=40)
     assert np.max(np.abs(m - fo)) < 1e-9

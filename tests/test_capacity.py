@@ -1,4 +1,5 @@
 """Eq. 2, 7, 9 against closed forms and independent quadrature."""
+
 import numpy as np
 import pytest
 from scipy import integrate
@@ -9,25 +10,29 @@ from bayescap.physics.optics import DiffractionLens, MTFProduct, PixelAperture, 
 
 
 def _quad(a, b, c, s1, s2, floor=0.0):
-    f = lambda s: 1.0 / max(np.sqrt(a + b * s + c * s * s), floor)  # noqa: E731
+    f = lambda s: 1.0 / max(np.sqrt(a + b * s + c * s * s), floor)
     pts = []
     if floor > 0:
         disc = b * b - 4 * c * (a - floor**2)
         if a < floor**2:
             pts = [(-2 * (a - floor**2)) / (b + np.sqrt(disc))]
-    return integrate.quad(f, s1, s2, points=[p for p in pts if s1 < p < s2] or None,
-                          limit=500, epsabs=0, epsrel=1e-12)[0]
+    return integrate.quad(f, s1, s2, points=[p for p in pts if s1 < p < s2] or None, limit=500, epsabs=0, epsrel=1e-12)[
+        0
+    ]
 
 
-@pytest.mark.parametrize("a,b,c,s1,s2,floor", [
-    (100.0, 1.0, 1e-4, 10.0, 1e4, 0.0),        # read + shot + PRNU
-    (100.0, 1.0, 0.0, 10.0, 1e4, 0.0),         # no PRNU (c = 0 branch)
-    (100.0, 1.0, 1e-14, 10.0, 1e4, 0.0),       # negligible PRNU: no cancellation
-    (100.0, 1.0, 1e-4, 10.0, 1e4, 40.0),       # with the max(σ, 1) floor
-    (4e4, 1.0, 0.01, 200.0, 1e5, 1000.0),      # floor below σ everywhere
-    (1e-6, 1.0, 0.0, 0.0, 100.0, 0.5),         # tiny read noise, integral from 0
-    (2.5e-3, 1.0, 2.5e-5, 0.05, 1e6, 3906.25), # read noise 0.05 e-, huge well, 8-bit floor
-])
+@pytest.mark.parametrize(
+    "a,b,c,s1,s2,floor",
+    [
+        (100.0, 1.0, 1e-4, 10.0, 1e4, 0.0),  # read + shot + PRNU
+        (100.0, 1.0, 0.0, 10.0, 1e4, 0.0),  # no PRNU (c = 0 branch)
+        (100.0, 1.0, 1e-14, 10.0, 1e4, 0.0),  # negligible PRNU: no cancellation
+        (100.0, 1.0, 1e-4, 10.0, 1e4, 40.0),  # with the max(σ, 1) floor
+        (4e4, 1.0, 0.01, 200.0, 1e5, 1000.0),  # floor below σ everywhere
+        (1e-6, 1.0, 0.0, 0.0, 100.0, 0.5),  # tiny read noise, integral from 0
+        (2.5e-3, 1.0, 2.5e-5, 0.05, 1e6, 3906.25),  # read noise 0.05 e-, huge well, 8-bit floor
+    ],
+)
 def test_tonal_integral_matches_quadrature(a, b, c, s1, s2, floor):
     got = integral_inv_sqrt_quadratic(a, b, c, s1, s2, floor)
     ref = _quad(a, b, c, s1, s2, floor)
@@ -50,16 +55,25 @@ def test_tonal_range_eight_bit_scale_and_vectorised():
     # vectorised over draws, finite at extremes
     n = 1000
     rng = np.random.default_rng(0)
-    co = NoiseCoefficients.from_parameters(read_noise_e=rng.uniform(0.05, 200, n), prnu_frac=rng.uniform(0, 0.02, n),
-                                           conversion_gain_e_per_dn=rng.uniform(0.01, 100, n))
+    co = NoiseCoefficients.from_parameters(
+        read_noise_e=rng.uniform(0.05, 200, n),
+        prnu_frac=rng.uniform(0, 0.02, n),
+        conversion_gain_e_per_dn=rng.uniform(0.01, 100, n),
+    )
     s_max = rng.uniform(1e3, 1e6, n)
     tr = tonal_range(co, s_max)
     assert tr.shape == (n,) and np.all(np.isfinite(tr)) and np.all((tr > 0) & (tr <= 256))
 
 
 def test_snr_and_dr_definitions():
-    co = NoiseCoefficients.from_parameters(read_noise_e=10.0, dark_current_e_per_s=100.0, exposure_time_s=0.01,
-                                           conversion_gain_e_per_dn=2.0, prnu_frac=0.01, dsnu_e=1.0)
+    co = NoiseCoefficients.from_parameters(
+        read_noise_e=10.0,
+        dark_current_e_per_s=100.0,
+        exposure_time_s=0.01,
+        conversion_gain_e_per_dn=2.0,
+        prnu_frac=0.01,
+        dsnu_e=1.0,
+    )
     a = 100 + 1 + 1 + 4 / 12
     assert co.a == pytest.approx(a)
     assert dynamic_range_db(co, 1e4) == pytest.approx(20 * np.log10(1e4 / np.sqrt(a)))
@@ -99,11 +113,15 @@ def test_band_cut_below_nyquist_is_finite_and_reported():
     # f/8 with 1.4 µm pixels: diffraction cut-off 0.32 cy/px < 0.5
     res = mtf_loss_bits(default_mtf(pixel_pitch_um=1.4, f_number=8.0))
     assert res.band_cut and res.f_end_cy_per_px == pytest.approx(1.4e-3 / (555e-6 * 8.0))
-    assert np.isfinite(res.delta_s_bits) and res.delta_s_bits < mtf_loss_bits(default_mtf(pixel_pitch_um=1.4)).delta_s_bits
+    assert (
+        np.isfinite(res.delta_s_bits) and res.delta_s_bits < mtf_loss_bits(default_mtf(pixel_pitch_um=1.4)).delta_s_bits
+    )
     assert res.band_cut_bits == pytest.approx(2 * np.log2(res.f_end_cy_per_px / 0.5))
     # the lost band dominates smoothly: no jump as the cut-off crosses Nyquist
     just_in = mtf_loss_bits(DiffractionLens(f_number=2.8, wavelength_nm=555, pixel_pitch_um=0.5 * 555e-3 * 2.8 * 0.999))
-    just_out = mtf_loss_bits(DiffractionLens(f_number=2.8, wavelength_nm=555, pixel_pitch_um=0.5 * 555e-3 * 2.8 * 1.001))
+    just_out = mtf_loss_bits(
+        DiffractionLens(f_number=2.8, wavelength_nm=555, pixel_pitch_um=0.5 * 555e-3 * 2.8 * 1.001)
+    )
     assert just_in.band_cut and not just_out.band_cut
     assert abs(just_in.delta_s_bits - just_out.delta_s_bits) < 0.05
 

@@ -1,4 +1,5 @@
 """The other subcommands: mtf, fit --mtf, sweep, ingest registration."""
+
 import json
 import subprocess
 import sys
@@ -38,8 +39,14 @@ def test_fit_with_measured_edge_carries_sharpness_uncertainty(tmp_path):
     from bayescap.simulate import SensorTruth, simulate_ptc
 
     csv = tmp_path / "s.csv"
-    simulate_ptc(SensorTruth(conversion_gain_e_per_dn=2.0, read_noise_e=3.0, full_well_e=8000.0), seed=3,
-                 shape=(50, 50), n_levels=20, path=csv, metadata={"pixel_pitch_um": 2.2})
+    simulate_ptc(
+        SensorTruth(conversion_gain_e_per_dn=2.0, read_noise_e=3.0, full_well_e=8000.0),
+        seed=3,
+        shape=(50, 50),
+        n_levels=20,
+        path=csv,
+        metadata={"pixel_pitch_um": 2.2},
+    )
     r = _run("fit", csv, "--json", "--seed", "1", "--quality", "fast", "--mtf", EDGE)
     assert r.returncode == 0, r.stderr
     d = json.loads(r.stdout)
@@ -129,18 +136,25 @@ def test_fast_tolerance_and_confidence_flags(tmp_path):
     r = _run("report", *bench, "--fast-confidence", "7", "-o", tmp_path / "r.html")
     assert r.returncode == 2 and "--fast-confidence must be" in r.stderr and not (tmp_path / "r.html").exists()
 
-    for bad, msg in ((("--fast-tolerance", "0.1"), "apply to --quality fast only"),
-                     (("--quality", "fast", "--fast-tolerance", "1.5"), "--fast-tolerance must be"),
-                     (("--quality", "fast", "--fast-confidence", "high"), "--fast-confidence must be")):
+    for bad, msg in (
+        (("--fast-tolerance", "0.1"), "apply to --quality fast only"),
+        (("--quality", "fast", "--fast-tolerance", "1.5"), "--fast-tolerance must be"),
+        (("--quality", "fast", "--fast-confidence", "high"), "--fast-confidence must be"),
+    ):
         r = _run("fit", basler, *bad)
         assert r.returncode == 2 and msg in r.stderr and "Traceback" not in r.stderr, r.stderr
 
 
-@pytest.mark.parametrize("args, fragment", [
-    (["--f-number", "0"], "--f-number must be"), (["--f-number", "nan"], "--f-number must be"),
-    (["--draws", "0"], "--draws must be at least 1"), (["--wavelength-nm", "-5"], "--wavelength-nm"),
-    (["--f-number", "1e308"], "capacity is zero at every pitch"),
-])
+@pytest.mark.parametrize(
+    "args, fragment",
+    [
+        (["--f-number", "0"], "--f-number must be"),
+        (["--f-number", "nan"], "--f-number must be"),
+        (["--draws", "0"], "--draws must be at least 1"),
+        (["--wavelength-nm", "-5"], "--wavelength-nm"),
+        (["--f-number", "1e308"], "capacity is zero at every pitch"),
+    ],
+)
 def test_sweep_bad_numbers_exit_2_one_line(args, fragment):
     """Found 2026-11-25: a zero or NaN f-number ended in a traceback, --draws 0 in exit 1, and an
     f/1e308 lens printed an 'optimal pitch' among capacities that were all zero."""
@@ -153,8 +167,9 @@ def test_sweep_bad_numbers_exit_2_one_line(args, fragment):
 BASLER = Path(__file__).parents[1] / "data" / "emva1288_basler_ccd12.csv"
 
 
-@pytest.mark.parametrize("cmd", [["fit", BASLER], ["compare", BASLER, BASLER], ["report", BASLER],
-                                 ["sweep", "pixel-size"], ["mtf", EDGE]])
+@pytest.mark.parametrize(
+    "cmd", [["fit", BASLER], ["compare", BASLER, BASLER], ["report", BASLER], ["sweep", "pixel-size"], ["mtf", EDGE]]
+)
 def test_negative_seed_is_a_usage_error_not_a_traceback(cmd):
     """Found 2026-11-25: --seed -1 reached numpy's SeedSequence and ended in a traceback."""
     r = _run(*cmd, "--seed", "-1")

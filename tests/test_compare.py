@@ -3,6 +3,7 @@
 The benchmark files are simulated (data/benchmark/README.md); fits use quality="fast" except
 where a test is about accuracy.
 """
+
 from __future__ import annotations
 
 import argparse
@@ -20,8 +21,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from bayescap.studies import compare as C
 from bayescap.cli import compare as cli_compare
+from bayescap.studies import area, exposure
+from bayescap.studies import compare as C
 
 ROOT = Path(__file__).resolve().parents[1]
 BENCH = ROOT / "data" / "benchmark"
@@ -31,40 +33,40 @@ M2 = BENCH / "M2_1.75um.csv"
 
 # ------------------------------------------------------------------------------ area
 def test_optical_format_table_and_parsing():
-    a = C.parse_area("1/4in")
+    a = area.parse_area("1/4in")
     assert (a.width_mm, a.height_mm) == (3.6, 2.7) and math.isclose(a.diagonal_mm, 4.5)
-    assert C.parse_area('1/3.2"').width_mm == 4.54 and C.parse_area("1/3").height_mm == 3.6
-    b = C.parse_area("5x4mm")
+    assert area.parse_area('1/3.2"').width_mm == 4.54 and area.parse_area("1/3").height_mm == 3.6
+    b = area.parse_area("5x4mm")
     assert (b.width_mm, b.height_mm) == (5.0, 4.0)
-    assert C.parse_area("none") is None
+    assert area.parse_area("none") is None
     with pytest.raises(C.CompareInputError):
-        C.parse_area("1/9.9in")
+        area.parse_area("1/9.9in")
 
 
 def test_area_crop_arithmetic():
-    q = C.parse_area("1/4in")
+    q = area.parse_area("1/4in")
     # 2.20 µm, 2056 x 1544 (Table 2): floor(3600/2.2) = 1636, floor(2700/2.2) = 1227
-    c = C.area_crop(2056, 1544, 2.2, q)
+    c = area.area_crop(2056, 1544, 2.2, q)
     assert (c.width_px, c.height_px, c.pixels, c.cropped, c.smaller_than_area) == (1636, 1227, 1636 * 1227, True, False)
     # 2.80 µm, 1600 x 1200: floor(3600/2.8) = 1285, floor(2700/2.8) = 964
-    c = C.area_crop(1600, 1200, 2.8, q)
+    c = area.area_crop(1600, 1200, 2.8, q)
     assert (c.width_px, c.height_px) == (1285, 964)
     # 1.75 µm, 2048 x 1536 is 3.584 x 2.688 mm: fills 1/4" within the 2 % tolerance, not cropped
-    c = C.area_crop(2048, 1536, 1.75, q)
+    c = area.area_crop(2048, 1536, 1.75, q)
     assert (c.width_px, c.height_px, c.cropped, c.smaller_than_area) == (2048, 1536, False, False)
     assert math.isclose(c.covered_fraction, 3.584 * 2.688 / (3.6 * 2.7))
     # a VGA 3 µm sensor (1.92 x 1.44 mm) is smaller than 1/4": keeps its size, flagged
-    c = C.area_crop(640, 480, 3.0, q)
+    c = area.area_crop(640, 480, 3.0, q)
     assert (c.width_px, c.height_px, c.cropped, c.smaller_than_area) == (640, 480, False, True)
     # portrait sensors get a portrait area
-    c = C.area_crop(1544, 2056, 2.2, q)
+    c = area.area_crop(1544, 2056, 2.2, q)
     assert (c.width_px, c.height_px) == (1227, 1636)
 
 
 # ------------------------------------------------------------------------------ probabilities
 def test_prob_greater_exact_cases():
     x = np.random.default_rng(1).normal(size=3000)
-    assert C.prob_greater(x, x) == 0.5                       # ties count one half
+    assert C.prob_greater(x, x) == 0.5  # ties count one half
     assert C.prob_greater(x + 100, x) == 1.0 and C.prob_greater(x, x + 100) == 0.0
     # N(δ,1) vs N(0,1): P = Φ(δ/√2); sd of the estimate ≈ sqrt(P(1-P)·(1/n+1/m)·(2/3)) < 0.008
     y = np.random.default_rng(2).normal(size=3000)
@@ -98,16 +100,16 @@ def test_tr_at_h0_limits_and_vectorisation(cmp12):
     r = s.result
     idx = r.thin_index(500)
     h = np.geomspace(1e-3, 100, 40)
-    tr, smax = C.tonal_range_at_exposure(r, h, calibration=s.calibration, idx=idx)
+    tr, smax = exposure.tonal_range_at_exposure(r, h, calibration=s.calibration, idx=idx)
     assert tr.shape == smax.shape == (idx.size, h.size)
     b = np.log2(np.maximum(tr, 1.0))
-    assert np.all(np.diff(b, axis=1) >= -1e-9)                # TR never falls as H0 rises
+    assert np.all(np.diff(b, axis=1) >= -1e-9)  # TR never falls as H0 rises
     # at a bright H0 the sensor is at base gain: TR over the full range, the fit's own number
     np.testing.assert_allclose(b[:, -1], r.derived["tonal_range_bits"][idx], rtol=1e-10)
     # below the knee S_max = sensitivity·H0/0.18
     sens = s.calibration.sensitivity_e_per_lux_s[idx]
     np.testing.assert_allclose(smax[:, 0], sens * 1e-3 / 0.18)
-    snr = C.snr_at_exposure(r, h, calibration=s.calibration, idx=idx)
+    snr = exposure.snr_at_exposure(r, h, calibration=s.calibration, idx=idx)
     assert snr.shape == (idx.size, h.size) and np.all(np.isnan(snr[:, -1]))  # 100 lux·s clips
 
 
@@ -137,9 +139,10 @@ def test_fit_and_compare_use_the_same_mtf(cmp12):
     sigma = md["crosstalk_sigma_px"]
     assert sigma == 0.3
     with_xt = float(mtf_loss_bits(mtf_from_metadata(md)).delta_s_bits)
-    without = float(mtf_loss_bits(mtf_from_metadata({k: v for k, v in md.items()
-                                                       if k != "crosstalk_sigma_px"})).delta_s_bits)
-    assert with_xt - without == pytest.approx(-math.pi**3 * sigma**2 * 0.25 / (2 * math.log(2)), rel=1e-9)
+    without = float(
+        mtf_loss_bits(mtf_from_metadata({k: v for k, v in md.items() if k != "crosstalk_sigma_px"})).delta_s_bits
+    )
+    assert with_xt - without == pytest.approx(-(math.pi**3) * sigma**2 * 0.25 / (2 * math.log(2)), rel=1e-9)
     # the compare result carries exactly that Δs (same function, same metadata)
     dsm = cmp12.sensors[0].result.derived["mtf_loss_bits"]
     assert np.allclose(dsm, with_xt, rtol=1e-12)
@@ -180,8 +183,12 @@ def test_cli_benchmark_runtime_and_json_equals_text(tmp_path):
     assert len(files) == 5
     before = resource.getrusage(resource.RUSAGE_CHILDREN)
     t0 = time.perf_counter()
-    proc = subprocess.run([sys.executable, "-m", "bayescap.cli", "compare", *files, "--json", "--out", str(tmp_path)],
-                          capture_output=True, text=True, cwd=ROOT)
+    proc = subprocess.run(
+        [sys.executable, "-m", "bayescap.cli", "compare", *files, "--json", "--out", str(tmp_path)],
+        capture_output=True,
+        text=True,
+        cwd=ROOT,
+    )
     wall = time.perf_counter() - t0
     after = resource.getrusage(resource.RUSAGE_CHILDREN)
     cpu = (after.ru_utime - before.ru_utime) + (after.ru_stime - before.ru_stime)
@@ -206,12 +213,15 @@ def test_cli_benchmark_runtime_and_json_equals_text(tmp_path):
         assert f"{p['p_a_greater_area']:.3f}" in nums
 
 
-@pytest.mark.parametrize("argv, what", [
-    (["missing.csv"], "missing.csv"),
-    ([str(M1), "--area", "1/9in"], "--area"),
-    ([str(M1), "--h0", "-1"], "--h0"),
-    ([str(M1), "--mid-grey", "1.5"], "--mid-grey"),
-])
+@pytest.mark.parametrize(
+    "argv, what",
+    [
+        (["missing.csv"], "missing.csv"),
+        ([str(M1), "--area", "1/9in"], "--area"),
+        ([str(M1), "--h0", "-1"], "--h0"),
+        ([str(M1), "--mid-grey", "1.5"], "--mid-grey"),
+    ],
+)
 def test_bad_input_exits_2_with_one_line(argv, what, capsys):
     args = _parser(cli_compare.add_compare_arguments).parse_args(argv)
     assert cli_compare.run_compare(args) == 2
@@ -224,14 +234,14 @@ def test_bad_csv_exits_2(tmp_path, capsys):
     lines = M1.read_text().splitlines()
     i = next(k for k, ln in enumerate(lines) if ln.startswith("exposure_time_s"))
     cells = lines[i + 2].split(",")
-    cells[2] = "-5"                                            # negative temporal variance
+    cells[2] = "-5"  # negative temporal variance
     lines[i + 2] = ",".join(cells)
     bad.write_text("\n".join(lines) + "\n")
     args = _parser(cli_compare.add_compare_arguments).parse_args([str(M1), str(bad), "--out", str(tmp_path / "o")])
     assert cli_compare.run_compare(args) == 2
     err = capsys.readouterr().err.strip()
     assert err.count("\n") == 0 and "bad.csv" in err and "temporal_var_dn2" in err
-    assert not (tmp_path / "o").exists()                       # nothing written on refusal
+    assert not (tmp_path / "o").exists()  # nothing written on refusal
 
 
 # ------------------------------------------------------------------------------ HTML
@@ -253,7 +263,7 @@ def test_html_report_structure(cmp12, tmp_path):
 
     out = write_report(cmp12, tmp_path / "report.html")
     text = out.read_text(encoding="utf-8")
-    assert not list(tmp_path.glob(".*tmp*"))                   # atomic: no temp file left
+    assert not list(tmp_path.glob(".*tmp*"))  # atomic: no temp file left
     p = _Collect()
     p.feed(text)
     assert set(SECTION_IDS) <= set(p.ids)
@@ -264,7 +274,7 @@ def test_html_report_structure(cmp12, tmp_path):
         assert src.startswith("data:image/png;base64,")
         png = base64.b64decode(src.split(",", 1)[1], validate=True)
         assert png[:8] == b"\x89PNG\r\n\x1a\n" and len(png) > 2000
-    assert "http://" not in text and "https://" not in text    # self-contained
+    assert "http://" not in text and "https://" not in text  # self-contained
     assert "Simulated data" in text
     for name in ("M1_1.75um", "M2_1.75um"):
         assert name in text

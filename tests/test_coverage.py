@@ -1,6 +1,6 @@
 """Frequentist coverage of the 95 % intervals on simulated sensors with known truth (issue 2).
 
-30 sensors are drawn from the proper prior of the classic SBC (``bayescap.validation.SBC_PRIOR``,
+30 sensors are drawn from the proper prior of the classic SBC (``bayescap.validation.sbc.SBC_PRIOR``,
 ``draw_sensor_prior``: K log-uniform 0.5–8 e⁻/DN, read noise log-uniform 1–20 e⁻, dark current
 log-uniform 1–200 e⁻/s, QE uniform 0.3–0.8, 40 % with PRNU/DSNU and spatial stacks, variance and
 mean discrepancies f, g injected; full well log-uniform 3 000–60 000 e⁻ with ADC bits chosen so
@@ -21,6 +21,7 @@ pytest's base temp directory with a file lock, so with pytest-xdist the workers 
 instead of each refitting (the pattern of the pytest-xdist docs for once-only session fixtures). Set ``BAYESCAP_FIT_CACHE`` to a directory to
 keep them across sessions (only while the code and seeds are unchanged).
 """
+
 from __future__ import annotations
 
 import fcntl
@@ -32,15 +33,23 @@ import numpy as np
 import pytest
 from scipy import stats
 
-from bayescap.validation import run_one, sensor_seeds
+from bayescap.validation.sbc import run_one, sensor_seeds
 
 SEED = 20240602
 N_SENSORS = 30
 ALPHA = 0.01
 QUALITY = "standard"
-COVERAGE_PARAMS = ["conversion_gain_e_per_dn", "read_noise_e", "full_well_e", "quantum_efficiency",
-                   "dark_current_e_per_s", "prnu_percent", "dsnu_e", "capacity_bits"]
-TRUTHS = "prior"  # classic SBC truths (bayescap.validation.run_one, as benchmarks/sbc.py --truths prior)
+COVERAGE_PARAMS = [
+    "conversion_gain_e_per_dn",
+    "read_noise_e",
+    "full_well_e",
+    "quantum_efficiency",
+    "dark_current_e_per_s",
+    "prnu_percent",
+    "dsnu_e",
+    "capacity_bits",
+]
+TRUTHS = "prior"  # classic SBC truths (bayescap.validation.sbc.run_one, as benchmarks/sbc.py --truths prior)
 N_LEVELS = 50
 
 pytestmark = pytest.mark.slow
@@ -63,6 +72,7 @@ def fit_records(seed, n, quality, tmp_path_factory, tag):
         jobs = min(2, os.cpu_count() or 1)
         if jobs > 1:
             import multiprocessing as mp
+
             with mp.get_context("fork").Pool(jobs) as pool:
                 recs = list(pool.imap(run_one, tasks))
         else:
@@ -116,8 +126,10 @@ def test_95_interval_coverage(coverage_records, name):
     # (benchmarks/results/sbc.md) is the real check for them
     assert n >= (5 if name in ("prnu_percent", "dsnu_e") else 20), f"only {n} sensors report {name} constrained"
     lo, hi = acceptance_band(n)
-    assert lo <= k <= hi, (f"{name}: {k}/{n} 95 % intervals contain the truth (accept {lo}..{hi}); "
-                           f"misses (sensor, posterior CDF at truth, clip): {misses}")
+    assert lo <= k <= hi, (
+        f"{name}: {k}/{n} 95 % intervals contain the truth (accept {lo}..{hi}); "
+        f"misses (sensor, posterior CDF at truth, clip): {misses}"
+    )
 
 
 POOLED = ["conversion_gain_e_per_dn", "read_noise_e", "full_well_e"]
@@ -147,8 +159,7 @@ def test_read_noise_below_the_quantization_floor(coverage_records):
     truth): their 95 % intervals must contain the truth as often as Binomial(n, 0.95) allows
     (two-sided band, false-alarm probability ≤ 1 %), and so must the 95 % upper limits
     (one-sided)."""
-    used = [r for r in coverage_records
-            if r["truth"]["read_noise_e"] / r["truth"]["conversion_gain_e_per_dn"] < 0.4]
+    used = [r for r in coverage_records if r["truth"]["read_noise_e"] / r["truth"]["conversion_gain_e_per_dn"] < 0.4]
     assert len(used) >= 3, f"only {len(used)} sensors below 0.4 DN of read noise in this sample"
     k = sum(r["q"]["read_noise_e"]["in95"] for r in used)
     lo, hi = acceptance_band(len(used))

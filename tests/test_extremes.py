@@ -11,6 +11,7 @@ own check rejects the draws, the test checks that the result says so (``converge
 NOT CONVERGED note) and that the numbers are still finite and near the truth. Two cases also run
 the short MCMC preset (``QUALITY_PRESETS["fast"]``, the fast path's fallback), marked slow.
 """
+
 import warnings
 
 import numpy as np
@@ -18,14 +19,14 @@ import pytest
 
 import bayescap
 from bayescap.api import fast_fit
+from bayescap.exceptions import PTCInputError
 from bayescap.inference.presets import QUALITY_PRESETS
 from bayescap.physics.optics import DiffractionLens, MTFProduct, PixelAperture
-from bayescap.exceptions import PTCInputError
 from bayescap.report.text import format_text
 from bayescap.simulate import SensorTruth, exposure_series, simulate_ptc
 
 T = SensorTruth
-SHAPE = (64, 64)   # 4096 pixels per frame: variance rel. sd 2 %, fast to simulate
+SHAPE = (64, 64)  # 4096 pixels per frame: variance rel. sd 2 %, fast to simulate
 
 #: id -> (truth, options)
 CASES = {
@@ -95,19 +96,25 @@ SLOWEST = {"read_noise_200e", "gain_0.01e_per_dn_16bit", "full_well_1e6_16bit"}
 
 #: known failures of the sanity check, each with its diagnosis. Not strict: this one passes or
 #: fails with the last digits of log p (below), so neither outcome says the defect is fixed.
-KNOWN = {"noise_below_one_dn_everywhere": pytest.mark.xfail(strict=False, reason=(
-    "K = 1000 e-/DN, 8 bits, read noise 0.005 DN: the fast path rejects itself (k̂ 1.32) and its "
-    "draws put K's median at 570 (43 % low; the check allows 30 % for a rejected result). Its "
-    "optimum (log p 823, f = 0.6) is thousands of nats below the highest point the MCMC reaches "
-    "(5 001, with log f → −135), and the standard MCMC does not converge either (R-hat 1.14 after "
-    "154 s; K median 1016, 95 % [898, 2151]). It passed before 2026-11-23 evening at 29.6 %, by the "
-    "luck of where a polish step landed; the closed-form clip moments (model._clip_mean, "
-    "_clip_moments) moved that point. It passes again since 2026-11-23 night (model._rounded_offset "
-    "stops each element on its own; rounding-level changes to log p): the fast path still rejected "
-    "itself (k̂ 1.15), and its draws happened to put K's median at 1024. Later changes flip it either "
-    "way (with the tail probe, 2026-11-23 late night: failed, draws on one point at K 1430; with the "
-    "rounded offset's Fourier branch, commit 373a5a4: passed again); the fast path rejects itself "
-    "throughout"))}
+KNOWN = {
+    "noise_below_one_dn_everywhere": pytest.mark.xfail(
+        strict=False,
+        reason=(
+            "K = 1000 e-/DN, 8 bits, read noise 0.005 DN: the fast path rejects itself (k̂ 1.32) and its "
+            "draws put K's median at 570 (43 % low; the check allows 30 % for a rejected result). Its "
+            "optimum (log p 823, f = 0.6) is thousands of nats below the highest point the MCMC reaches "
+            "(5 001, with log f → −135), and the standard MCMC does not converge either (R-hat 1.14 after "
+            "154 s; K median 1016, 95 % [898, 2151]). It passed before 2026-11-23 evening at 29.6 %, by the "
+            "luck of where a polish step landed; the closed-form clip moments (model._clip_mean, "
+            "_clip_moments) moved that point. It passes again since 2026-11-23 night (model._rounded_offset "
+            "stops each element on its own; rounding-level changes to log p): the fast path still rejected "
+            "itself (k̂ 1.15), and its draws happened to put K's median at 1024. Later changes flip it either "
+            "way (with the tail probe, 2026-11-23 late night: failed, draws on one point at K 1430; with the "
+            "rounded offset's Fourier branch, commit 373a5a4: passed again); the fast path rejects itself "
+            "throughout"
+        ),
+    )
+}
 
 
 def _case_param(c):
@@ -150,7 +157,7 @@ def test_noise_below_one_dn_gives_upper_limit_not_detection():
 def test_mtf_zero_inside_the_band():
     truth, opt = CASES["single_exposure_time"]
     d = simulate(truth, {}, seed=3)
-    lens = MTFProduct((PixelAperture(1.0), DiffractionLens(16.0, 555.0, 1.0)))   # cut-off 0.113 cy/px
+    lens = MTFProduct((PixelAperture(1.0), DiffractionLens(16.0, 555.0, 1.0)))  # cut-off 0.113 cy/px
     r = fast_fit(d, seed=1, mtf=lens, fallback=False)
     assert r.flags["mtf_band_cut"] and r.mtf_info["band_cut"]
     ds = r.derived["mtf_loss_bits"]
@@ -174,8 +181,8 @@ def test_all_rows_saturated_is_a_clear_input_error(mechanism, tmp_path, capsys):
     """Before: K came out 105x (ADC) or 3.7x (well) off with no input error. Now refused from
     the API (in-memory data and PTCModel), and by the CLI with exit status 2, one line, nothing written."""
     from bayescap.cli import main
-    from bayescap.model.ptc_model import PTCModel
     from bayescap.io.ptc_csv import write_ptc_csv
+    from bayescap.model.ptc_model import PTCModel
 
     d = _all_saturated(ALL_SATURATED[mechanism])
     with pytest.raises(PTCInputError, match="every row is saturated") as e:
@@ -214,7 +221,7 @@ def test_mcmc_fast_preset_at_the_extremes(case):
     d = simulate(truth, opt)
     with warnings.catch_warnings(record=True) as w:
         warnings.simplefilter("always")
-        r = bayescap.fit(d, seed=1, quality=QUALITY_PRESETS["fast"])   # the MCMC preset itself
+        r = bayescap.fit(d, seed=1, quality=QUALITY_PRESETS["fast"])  # the MCMC preset itself
     assert _all_finite(r) == []
     assert len(w) <= 3, [str(x.message)[:120] for x in w]
     k = r.to_dict()["parameters"]["conversion_gain_e_per_dn"]

@@ -1,8 +1,9 @@
 """Laplace–IS fast path, PSIS weights, emcee move calibration, batch fitting (issue 7)."""
+
 import json
-from dataclasses import replace
 import sys
 import warnings
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -10,14 +11,13 @@ import pytest
 from scipy import stats
 
 import bayescap
-from bayescap import validation
-from bayescap.inference import FastSettings, fast_posterior
-from bayescap.inference.importance import psis_weights, student_t_draws, student_t_logpdf
 from bayescap.api import fast_fit
 from bayescap.exceptions import ConvergenceWarning
+from bayescap.inference import FastSettings, fast_posterior
+from bayescap.inference.importance import psis_weights, student_t_draws, student_t_logpdf
 from bayescap.posterior import FitResult
 from bayescap.report.text import format_text
-
+from bayescap.validation import moves as validation
 
 
 class GaussianModel:
@@ -113,8 +113,9 @@ def test_adaptive_rounds_on_a_banana():
     ess = {1: [], 3: []}
     for seed in range(5):
         for rounds in (1, 3):
-            ch, dg = fast_posterior(model, seed=seed, settings=FastSettings(adapt_rounds=rounds, retry_restarts=0,
-                                                                            wide_fraction=0.0))
+            ch, dg = fast_posterior(
+                model, seed=seed, settings=FastSettings(adapt_rounds=rounds, retry_restarts=0, wide_fraction=0.0)
+            )
             ess[rounds].append(dg["ess_is"])
             if rounds == 3 and dg["accepted"]:
                 c = ch.chain.reshape(-1, 3)[:, 1]
@@ -145,7 +146,7 @@ def test_fast_fit_accepted(phone_fast):
     assert {"khat", "ess_is", "fast_path", "converged"} <= set(dg)
     assert dg["rhat_max"] is None and dg["rhat_applicable"] is False
     assert dg["converged"] == (dg["khat"] < dg["khat_max"] and dg["ess_is"] >= dg["ess_target"])
-    assert dg["converged"], dg                      # accepted by its own check
+    assert dg["converged"], dg  # accepted by its own check
     txt = format_text(r)
     assert f"Pareto k̂ {dg['khat']:.2f}" in txt and "capacity C =" in txt
 
@@ -160,7 +161,7 @@ def test_fast_fit_basler_is_coherent(basler_csv):
         r = bayescap.fit(basler_csv, seed=2, quality="fast")
     d = r.to_dict()
     k = d["parameters"]["conversion_gain_e_per_dn"]["median"]
-    assert abs(k / 3.571 - 1) < 0.02                 # emva1288 1.0.2 reference value
+    assert abs(k / 3.571 - 1) < 0.02  # emva1288 1.0.2 reference value
     dg = d["diagnostics"]
     if dg["method"] == "laplace-is":
         assert dg["khat"] < dg["khat_max"] and dg["converged"]
@@ -182,8 +183,9 @@ def test_fast_fit_wrapper_and_api_give_the_same_numbers(phone_fast):
 def test_plain_fitresult_diagnoses_fast_chains(phone_fast):
     """posterior.FitResult itself (no subclass) reports k̂ and IS ESS for Laplace–IS chains."""
     r = phone_fast
-    again = FitResult.from_chains(r.model, r.chains, metadata=r.metadata, scene=r.scene, mtf=r.mtf,
-                                  seed=2, quality="fast")
+    again = FitResult.from_chains(
+        r.model, r.chains, metadata=r.metadata, scene=r.scene, mtf=r.mtf, seed=2, quality="fast"
+    )
     assert again.diag["method"] == "laplace-is"
     assert again.diag["khat"] == r.chains.extra["khat"] and again.diag["converged"]
 
@@ -203,9 +205,15 @@ def test_result_reuses_the_fast_paths_derived_end_errors_only_for_the_same_input
         wd["derived_fn"] = fn
     assert reused and reused == fresh and "capacity_bits" in fresh
     assert r.diag["interval_end_mcse"]["capacity_bits"] == fresh["capacity_bits"]
-    other = FitResult.from_chains(r.model, r.chains, metadata=r.metadata,
-                                  scene=replace(r.scene, exposure_time_s=2 * r.scene.exposure_time_s),
-                                  mtf=r.mtf, seed=2, quality="fast")
+    other = FitResult.from_chains(
+        r.model,
+        r.chains,
+        metadata=r.metadata,
+        scene=replace(r.scene, exposure_time_s=2 * r.scene.exposure_time_s),
+        mtf=r.mtf,
+        seed=2,
+        quality="fast",
+    )
     assert not other._same_derived_inputs(fn.inputs)
     assert other.diag["interval_end_mcse"]["capacity_bits"] != fresh["capacity_bits"]
 
@@ -220,8 +228,7 @@ def test_fast_fit_rejection_is_flagged_without_fallback(basler_csv):
 
 @pytest.mark.slow
 def test_fast_fit_falls_back_to_mcmc(basler_csv):
-    r = bayescap.fit(basler_csv, seed=2, quality="fast",
-                     fast_settings=FastSettings(khat_max=-1.0, retry_restarts=0))
+    r = bayescap.fit(basler_csv, seed=2, quality="fast", fast_settings=FastSettings(khat_max=-1.0, retry_restarts=0))
     assert r.diag["method"] == "emcee" and r.diag["quality"] == "fast"
     assert "fell back to MCMC" in r.diag["fast_path"] and "preset 'fast'" in r.diag["fast_path"]
     assert r.diag["fast_path_accepted"] is False and "k̂" in r.diag["fallback_reason"]
@@ -255,9 +262,15 @@ def test_move_calibrated_on_known_gaussian(name):
     assert abs(mean_ratio - 1) < tol, (mean_ratio, tol)
 
 
-@pytest.mark.parametrize("name", ["Indep 0.5 (exact Σ) + DE/stretch", "Indep 0.5 (shifted, 0.6 sd) + DE/stretch",
-                                  "Indep 1.0 (exact Σ)",
-                                  "Indep 0.7 ν4 ×1.3 (shifted, 0.6 sd) + DE/stretch (standard)"])
+@pytest.mark.parametrize(
+    "name",
+    [
+        "Indep 0.5 (exact Σ) + DE/stretch",
+        "Indep 0.5 (shifted, 0.6 sd) + DE/stretch",
+        "Indep 1.0 (exact Σ)",
+        "Indep 0.7 ν4 ×1.3 (shifted, 0.6 sd) + DE/stretch (standard)",
+    ],
+)
 def test_independence_move_calibrated_on_known_gaussian(name):
     """bayescap's IndependenceMove (t proposal), alone and mixed with DE/stretch, also when its
     proposal is off (mean 1 sd away, sds × 0.6: it then misses the tails)."""
@@ -275,8 +288,9 @@ def test_independence_move_on_a_skewed_bounded_target():
     1 % quantile Bonferroni-corrected for the 28 numbers."""
     from scipy.stats import t
 
-    b = validation.check_banana(lambda m, c: validation.independence_moves(m, c, 0.7, nu=4.0, scale=1.3),
-                                 seeds=range(1, 7), n_steps=1500)
+    b = validation.check_banana(
+        lambda m, c: validation.independence_moves(m, c, 0.7, nu=4.0, scale=1.3), seeds=range(1, 7), n_steps=1500
+    )
     assert b["z_max"] < t.ppf(1 - 0.005 / 28, 5), (b["z_max"], b["err"], b["se"])
 
 
@@ -288,12 +302,16 @@ def test_vectorised_integrated_time_equals_emcee():
     rng = np.random.default_rng(3)
     for steps in (64, 101):
         x = np.cumsum(rng.standard_normal((steps, 20, 5)), axis=0) * 0.2 + rng.standard_normal((steps, 20, 5))
-        np.testing.assert_allclose(_emcee_integrated_time(x), emcee.autocorr.integrated_time(x, quiet=True, tol=0),
-                                   rtol=1e-12)
+        np.testing.assert_allclose(
+            _emcee_integrated_time(x), emcee.autocorr.integrated_time(x, quiet=True, tol=0), rtol=1e-12
+        )
 
 
-@pytest.mark.xfail(strict=True, reason="emcee 3.1.6 DESnookerMove returns sds 12-17 % too small on a "
-                   "correlated 6-D Gaussian (acceptance ~0.03; benchmarks/check_moves.py)")
+@pytest.mark.xfail(
+    strict=True,
+    reason="emcee 3.1.6 DESnookerMove returns sds 12-17 % too small on a "
+    "correlated 6-D Gaussian (acceptance ~0.03; benchmarks/check_moves.py)",
+)
 def test_desnooker_calibrated_on_known_gaussian():
     mean_ratio, tol = _sd_ratio_and_tol(validation.moves_registry()["DESnookerMove"], seed=5, n_steps=2000)
     assert abs(mean_ratio - 1) < tol, (mean_ratio, tol)
@@ -319,7 +337,7 @@ def test_fit_many_gpixel_and_a_bad_sensor():
         assert lo < med < hi and abs(med / t.conversion_gain_e_per_dn - 1) < 0.1
     # reproducible
     with warnings.catch_warnings():
-        warnings.simplefilter("ignore", ConvergenceWarning)   # the same rejections as above
+        warnings.simplefilter("ignore", ConvergenceWarning)  # the same rejections as above
         res2 = fit_many(datas, seed=4, summary_only=True, fallback=False)
     assert res2[0]["conversion_gain_e_per_dn"] == res[0]["conversion_gain_e_per_dn"]
 
@@ -333,7 +351,7 @@ def test_fast_diagnostics_equal_arviz(ties):
 
     rng = np.random.default_rng(7)
     x = np.cumsum(rng.standard_normal((4, 200, 24)), axis=1) * 0.1 + rng.standard_normal((4, 200, 24))
-    x[1] += 0.05                                            # a little between-ensemble difference
+    x[1] += 0.05  # a little between-ensemble difference
     if ties:
         rep = rng.random(x.shape) < 0.6
         for s in range(1, x.shape[1]):
@@ -373,8 +391,8 @@ def test_sampler_coordinates_round_trip_and_jacobian():
     LogClipCoordinates, the class's old name, is the same class."""
     from bayescap.batch import gpixel_sensors
     from bayescap.inference.coordinates import LogClipCoordinates, SamplerCoordinates
-    from bayescap.model.ptc_model import PTCModel
     from bayescap.io.ptc_csv import read_ptc_csv
+    from bayescap.model.ptc_model import PTCModel
 
     assert LogClipCoordinates is SamplerCoordinates
     m = PTCModel(gpixel_sensors(n_max=1, seed=1)[0][0])
@@ -454,19 +472,23 @@ def test_clip_floor_proposal_reaches_the_shelf_below_the_clip_mode():
     grid = np.linspace(1e-9, 10, 2_000_001)
     cdf = np.cumsum(model.clip_density(grid))
     q025 = float(np.interp(0.025, cdf / cdf[-1], grid))
-    assert 0.2 < q025 < 0.8                    # inside the shelf
+    assert 0.2 < q025 < 0.8  # inside the shelf
     accepted_without = []
     for seed in (1, 2, 3):
         # (tail_fraction 0 too: the tail probe finds the shelf as well, and its uniform ray alone puts
         # 1.6-1.9 % of the draws below the quantile on these seeds, short of the floor's 2.5 %)
         # (and wide_fraction 0: the wide defensive t's draws reach the shelf too, so that k̂ then
         # rejects all three runs instead of accepting them short)
-        ch, dg = fast_posterior(model, seed=seed, settings=FastSettings(clip_floor_fraction=0.0, tail_fraction=0.0,
-                                                                       wide_fraction=0.0, retry_restarts=0))
+        ch, dg = fast_posterior(
+            model,
+            seed=seed,
+            settings=FastSettings(clip_floor_fraction=0.0, tail_fraction=0.0, wide_fraction=0.0, retry_restarts=0),
+        )
         if dg["accepted"]:
             accepted_without.append(np.mean(ch.chain[..., 1] < q025))
-        _, dw = fast_posterior(model, seed=seed, settings=FastSettings(clip_floor_fraction=0.0, tail_fraction=0.0,
-                                                                       retry_restarts=0))
+        _, dw = fast_posterior(
+            model, seed=seed, settings=FastSettings(clip_floor_fraction=0.0, tail_fraction=0.0, retry_restarts=0)
+        )
         assert not dw["accepted"]
         ch, dg = fast_posterior(model, seed=seed)
         assert dg["accepted"] and dg["coordinates"] == "log(clip_dn - lower bound)"
@@ -536,7 +558,7 @@ def test_end_mcse_gate_tops_up_the_draws_until_the_ends_are_accurate(topup):
     for seed in (1, 2, 3):
         _, d0 = fast_posterior(model, seed=seed, settings=base)
         assert d0["n_topup"] == 0 and d0["n_proposals"] == base.n_proposals and d0["n_draws"] == base.n_draws
-        target = 0.6 * max(d0["end_mcse"].values())        # out of reach of the default draws
+        target = 0.6 * max(d0["end_mcse"].values())  # out of reach of the default draws
         ch, dg = fast_posterior(model, seed=seed, settings=replace(base, end_mcse_max=target))
         assert dg["accepted"], dg["reason"]
         assert dg["n_topup"] > 0 and dg["n_proposals"] == base.n_proposals + dg["n_topup"] <= base.max_proposals
@@ -573,7 +595,7 @@ def test_targeted_top_up_needs_fewer_draws_and_aims_beyond_the_ends():
     xk, wk, vals = _end_values(model, x, w)
     mcse = {n: interval_end_mcse(v, wk) for n, v in vals.items()}
     comps = _end_components(xk, wk, {"p0": vals["p0"]}, mcse, 0.0, None, 1.2, 4)
-    assert len(comps) == 2                                  # both ends of p0, different regions
+    assert len(comps) == 2  # both ends of p0, different regions
     o = np.argsort(xk[:, 0])
     F = np.cumsum(wk[o]) / np.sum(wk)
     q05, q95 = np.interp([0.05, 0.95], F, xk[o, 0])
@@ -598,6 +620,7 @@ def test_density_cache_evaluates_each_proposal_once_on_the_batches_it_has_not_se
         def g(x):
             calls.append(len(x))
             return f(x)
+
         return g
 
     fs = [counted(_t_logpdf(rng.standard_normal(3), np.eye(3) * (1 + i), 4.0)) for i in range(3)]
@@ -606,7 +629,7 @@ def test_density_cache_evaluates_each_proposal_once_on_the_batches_it_has_not_se
     cache.put(fs[0], batches[0], fs[0](batches[0]))
     calls.clear()
     cache.fill(fs, batches)
-    assert sorted(calls) == [18, 23, 23]                # fs[0] lacked two batches, the others three
+    assert sorted(calls) == [18, 23, 23]  # fs[0] lacked two batches, the others three
     for f in fs:
         for xb in batches:
             assert np.allclose(cache.get(f, xb), f(xb), rtol=1e-13, atol=0)
@@ -629,8 +652,8 @@ def test_joint_target_keeps_every_end_within_the_tolerance_with_the_confidence()
     z20 = ndtri(0.5 * (1 + 0.9 ** (1 / 20)))
     assert _joint_target([0.04] * 20, tol, 0.9, 1.0) == pytest.approx(tol / z20, rel=1e-9)
     assert _joint_target([0.001] * 19 + [0.04], tol, 0.9, 1.0) == pytest.approx(tol / ndtri(0.95), rel=1e-6)
-    assert _joint_target([0.01, 0.02], tol, 0.9, 0.035) == 0.035          # holds at the cap
-    assert _joint_target([0.04] * 20, tol, None, 0.035) == 0.035          # no joint criterion
+    assert _joint_target([0.01, 0.02], tol, 0.9, 0.035) == 0.035  # holds at the cap
+    assert _joint_target([0.04] * 20, tol, None, 0.035) == 0.035  # no joint criterion
     g = _joint_target([0.03, 0.02, 0.01, 0.04], tol, 0.95, 0.035)
     assert np.exp(_within_logprob(np.minimum([0.03, 0.02, 0.01, 0.04], g), tol)) == pytest.approx(0.95, abs=1e-9)
     assert _within_logprob([0.0, 0.0], tol) == 0.0 and _within_logprob([np.nan], tol) == -np.inf
@@ -648,8 +671,8 @@ def test_joint_end_criterion_tops_up_until_all_ends_are_likely_within_tolerance(
     base = FastSettings(retry_restarts=0, end_mcse_max=None)
     for seed in (1, 2, 3):
         _, d0 = fast_posterior(model, seed=seed, settings=base)
-        tol = 1.5 * max(d0["end_mcse"].values())       # six ends near 1.5 sd of it: P ~ 0.5 at first
-        assert np.exp(_within_logprob(list(d0["end_mcse"].values()), tol)) < 0.9    # the worse ends alone
+        tol = 1.5 * max(d0["end_mcse"].values())  # six ends near 1.5 sd of it: P ~ 0.5 at first
+        assert np.exp(_within_logprob(list(d0["end_mcse"].values()), tol)) < 0.9  # the worse ends alone
         st = replace(base, end_mcse_max=1.0, end_tolerance=tol, end_confidence=0.9)
         ch, dg = fast_posterior(model, seed=seed, settings=st)
         assert dg["accepted"], dg["reason"]
@@ -754,8 +777,9 @@ def test_tail_probe_finds_the_long_one_sided_tail_and_its_draws_cover_it():
     rejected_without = 0
     for seed in (1, 2, 3):
         # (wide_fraction 0 too: the wide defensive t alone reaches the tail as well)
-        _, d0 = fast_posterior(model, seed=seed, settings=FastSettings(tail_fraction=0.0, wide_fraction=0.0,
-                                                                       retry_restarts=0))
+        _, d0 = fast_posterior(
+            model, seed=seed, settings=FastSettings(tail_fraction=0.0, wide_fraction=0.0, retry_restarts=0)
+        )
         rejected_without += not d0["accepted"]
         ch, dg = fast_posterior(model, seed=seed, settings=FastSettings(retry_restarts=0))
         assert [(t["parameter"], t["side"]) for t in dg["tails"]] == [("log_s", "lower")]
@@ -806,7 +830,7 @@ def test_pair_proposal_is_a_normalised_density_and_draws_from_it():
     U, V, Z = np.meshgrid(u, v, z, indexing="ij")
     q = np.exp(logpdf(np.column_stack([U.ravel(), V.ravel(), Z.ravel()]))).reshape(U.shape)
     total = np.trapezoid(np.trapezoid(np.trapezoid(q, z, axis=2), v, axis=1), u)
-    assert total == pytest.approx(1.0, abs=1e-2)     # trapezoids lose ~half a cell at each of the 3 cut-offs (0.006)
+    assert total == pytest.approx(1.0, abs=1e-2)  # trapezoids lose ~half a cell at each of the 3 cut-offs (0.006)
     assert np.all(q[u > 0.5 + 1e-9] == 0.0) and np.all(q[..., z > log_a + 1e-9] == 0.0)
     x, lq = draw(500, np.random.default_rng(5))
     assert np.all(x[:, 0] <= 0.5) and np.all(x[:, 2] <= log_a) and np.allclose(lq, logpdf(x))
@@ -831,10 +855,12 @@ def test_fast_result_reports_the_derived_quantities_end_mcse(basler_csv):
     wd = chains.extra["weighted_draws"]
     assert wd["n_resampled"] == chains.chain.shape[1]
     assert wd["w"].sum() == pytest.approx(1.0, abs=1e-9)
-    tmp = FitResult._of_chain(model, wd["x"][None, :, None, :], metadata=r.metadata, scene=r.scene, mtf=r.mtf,
-                              seed=r.seed)
-    assert end["capacity_bits"] == interval_end_mcse(tmp.derived["capacity_bits"], wd["w"],
-                                                     n_resampled=wd["n_resampled"])
+    tmp = FitResult._of_chain(
+        model, wd["x"][None, :, None, :], metadata=r.metadata, scene=r.scene, mtf=r.mtf, seed=r.seed
+    )
+    assert end["capacity_bits"] == interval_end_mcse(
+        tmp.derived["capacity_bits"], wd["w"], n_resampled=wd["n_resampled"]
+    )
     # the weighted draws' capacity reproduces the resampled draws' interval to a few of its MC errors
     lo, hi = np.quantile(r.derived["capacity_bits"], [0.025, 0.975])
     o = np.argsort(tmp.derived["capacity_bits"])
@@ -876,7 +902,6 @@ def test_fast_gate_failed_by_a_derived_quantity_falls_back(basler_csv):
     assert "Monte Carlo error of a 95 % interval end" in fb.diag["fallback_reason"]
 
 
-
 def test_gate_top_up_covers_the_derived_quantities(monkeypatch, basler_csv):
     """``fast_posterior(derived_fn=...)``: the derived quantities' interval-end errors join the
     parameters' in ``end_mcse`` and drive the top-up towards ``end_mcse_max``. A stand-in derived
@@ -891,13 +916,13 @@ def test_gate_top_up_covers_the_derived_quantities(monkeypatch, basler_csv):
     real = end_errors_mod._end_errors
 
     def stand_in(values, w, probs=(0.025, 0.975), n_resampled=None):
-        if np.min(values) > 1e5:          # the probe below
+        if np.min(values) > 1e5:  # the probe below
             return [0.08 * np.sqrt(6000.0 / np.size(values))] * len(probs)
         return real(values, w, probs, n_resampled)
 
     monkeypatch.setattr(end_errors_mod, "_end_errors", stand_in)
-    probe = lambda x: {"probe": 1e6 + x[:, 0]}        # noqa: E731
-    gate = FastSettings(end_mcse_max=0.06, end_confidence=None)     # the per-end gate alone
+    probe = lambda x: {"probe": 1e6 + x[:, 0]}
+    gate = FastSettings(end_mcse_max=0.06, end_confidence=None)  # the per-end gate alone
     _, plain = fast_posterior(model, seed=1, settings=gate)
     assert plain["accepted"] and plain["n_topup"] == 0 and "probe" not in plain["end_mcse"]
     _, dg = fast_posterior(model, seed=1, settings=gate, derived_fn=probe)
@@ -919,16 +944,17 @@ def test_gate_top_up_covers_the_derived_quantities(monkeypatch, basler_csv):
     assert {"capacity_bits", "tonal_range_bits"} <= set(d)
     assert {"capacity_bits", "tonal_range_bits"} <= set(r.diag["interval_end_mcse"])
     bayescap.fit(model, seed=1, quality="fast")
-    assert seen["derived_fn"] is not None        # the default gate (0.035) covers them too
+    assert seen["derived_fn"] is not None  # the default gate (0.035) covers them too
     bayescap.fit(model, seed=1, quality="fast", fast_settings=FastSettings(end_mcse_max=None))
-    assert seen["derived_fn"] is None            # no gate: nothing to top up for
+    assert seen["derived_fn"] is None  # no gate: nothing to top up for
+
 
 def test_end_mcse_of_non_finite_draws_is_nan_and_the_worst():
     """A parameter with a non-finite draw gets NaN for its interval-end error, as the MCMC side
     (fit.interval_end_mcse_mcmc) does, instead of being left out of the report and the gate; NaN
     is the worst; a constant parameter is still left out (no interval)."""
-    from bayescap.inference.end_errors import _end_mcse, _worst_end_mcse, interval_end_mcse
     from bayescap.inference.diagnostics import interval_end_mcse_mcmc
+    from bayescap.inference.end_errors import _end_mcse, _worst_end_mcse, interval_end_mcse
 
     rng = np.random.default_rng(0)
     x = rng.standard_normal((500, 3))
@@ -964,7 +990,8 @@ def test_fast_fit_does_not_import_emcee(basler_csv):
         "print(sorted(m for m in ('emcee', 'scipy.stats', 'scipy.optimize') if m in sys.modules))\n"
         "from bayescap.inference.moves import IndependenceMove, _Sampler\n"
         "import emcee\n"
-        "print(issubclass(IndependenceMove, emcee.moves.MHMove), issubclass(_Sampler, emcee.EnsembleSampler))\n")
+        "print(issubclass(IndependenceMove, emcee.moves.MHMove), issubclass(_Sampler, emcee.EnsembleSampler))\n"
+    )
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=300)
     assert out.returncode == 0, out.stderr
     lines = out.stdout.strip().splitlines()
@@ -983,7 +1010,7 @@ def test_joint_check_never_rejects_with_draws_to_spare():
     from bayescap.model import PTCModel, select_terms
 
     datas, _ = gpixel_sensors(n_max=150, seed=1)
-    seeds = sensor_seeds(1, 150)                         # fit_many(seed=1)'s
+    seeds = sensor_seeds(1, 150)  # fit_many(seed=1)'s
     fs = FastSettings()
     for i in (89, 116, 149):
         m = PTCModel(datas[i], terms=select_terms(datas[i]))

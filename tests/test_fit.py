@@ -1,14 +1,14 @@
 """Whole fits: the real EMVA 1288 reference set, reproducibility, the CLI outputs."""
+
 import json
-from pathlib import Path
 import subprocess
 import sys
+from pathlib import Path
 
 import numpy as np
 import pytest
 
 import bayescap
-from bayescap.report.text import format_text
 from bayescap.inference import chains as inf_chains
 from bayescap.inference import coordinates as inf_coordinates
 from bayescap.inference import curvature as inf_curvature
@@ -19,9 +19,10 @@ from bayescap.inference import newton as inf_newton
 from bayescap.inference import optimize as inf_optimize
 from bayescap.inference import presets as inf_presets
 from bayescap.inference import starts as inf_starts
+from bayescap.report.text import format_text
 
-EMVA_K_E_PER_DN = 3.571     # emva1288 1.0.2 on the full set: 1/K = 1/0.2801
-EMVA_READ_NOISE_E = 10.92   # sigma_d = sigma_y.dark / K
+EMVA_K_E_PER_DN = 3.571  # emva1288 1.0.2 on the full set: 1/K = 1/0.2801
+EMVA_READ_NOISE_E = 10.92  # sigma_d = sigma_y.dark / K
 
 
 @pytest.fixture(scope="module")
@@ -57,8 +58,14 @@ def test_contract_json_shape(basler_fit):
         assert {"median", "ci68", "ci95", "unit", "constrained"} <= set(s), name
         if s["median"] is not None:
             assert s["ci95"][0] <= s["ci68"][0] <= s["median"] <= s["ci68"][1] <= s["ci95"][1], name
-    for name in ("tonal_range_bits", "dynamic_range_db", "snr_max_db", "mtf_loss_bits", "effective_pixels",
-                 "capacity_bits"):
+    for name in (
+        "tonal_range_bits",
+        "dynamic_range_db",
+        "snr_max_db",
+        "mtf_loss_bits",
+        "effective_pixels",
+        "capacity_bits",
+    ):
         assert {"median", "ci68", "ci95", "unit"} <= set(d["derived"][name]), name
     dg = d["diagnostics"]
     assert {"method", "converged", "rhat_max", "ess_min"} <= set(dg)
@@ -81,19 +88,46 @@ def test_same_seed_same_numbers(tmp_path):
         d["diagnostics"].pop("wall_s")
     assert json.dumps(a, sort_keys=True) == json.dumps(b, sort_keys=True)
     c = bayescap.fit(data, seed=6, quality="fast").to_dict()
-    assert c["parameters"]["conversion_gain_e_per_dn"]["median"] != a["parameters"]["conversion_gain_e_per_dn"]["median"]
+    assert (
+        c["parameters"]["conversion_gain_e_per_dn"]["median"] != a["parameters"]["conversion_gain_e_per_dn"]["median"]
+    )
 
 
 def test_cli_json_and_out_dir(tmp_path):
     csv = tmp_path / "s.csv"
-    truth = bayescap.simulate.SensorTruth(conversion_gain_e_per_dn=2.0, read_noise_e=3.0, full_well_e=8000.0,
-                                         prnu_frac=0.01, dsnu_e=1.0)
-    bayescap.simulate.simulate_ptc(truth, seed=2, shape=(50, 50), n_levels=25, spatial_frames=8,
-                                   spatial_every=6, path=csv, metadata={"pixel_pitch_um": 2.2})
+    truth = bayescap.simulate.SensorTruth(
+        conversion_gain_e_per_dn=2.0, read_noise_e=3.0, full_well_e=8000.0, prnu_frac=0.01, dsnu_e=1.0
+    )
+    bayescap.simulate.simulate_ptc(
+        truth,
+        seed=2,
+        shape=(50, 50),
+        n_levels=25,
+        spatial_frames=8,
+        spatial_every=6,
+        path=csv,
+        metadata={"pixel_pitch_um": 2.2},
+    )
     before = csv.read_bytes()
     out = tmp_path / "out"
-    r = subprocess.run([sys.executable, "-m", "bayescap.cli", "fit", str(csv), "--json", "--seed", "3",
-                        "--quality", "fast", "--out", str(out)], capture_output=True, text=True)
+    r = subprocess.run(
+        [
+            sys.executable,
+            "-m",
+            "bayescap.cli",
+            "fit",
+            str(csv),
+            "--json",
+            "--seed",
+            "3",
+            "--quality",
+            "fast",
+            "--out",
+            str(out),
+        ],
+        capture_output=True,
+        text=True,
+    )
     assert r.returncode == 0, r.stderr
     d = json.loads(r.stdout)
     assert d["input"] == str(csv)
@@ -141,8 +175,15 @@ def test_stranded_walker_is_reported_not_averaged_in(basler_fit):
     bad = dataclasses.replace(c, log_prob=lp)
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
-        r = FitResult.from_chains(basler_fit.model, bad, metadata=basler_fit.metadata, scene=basler_fit.scene,
-                                  mtf=basler_fit.mtf, seed=11, quality="standard")
+        r = FitResult.from_chains(
+            basler_fit.model,
+            bad,
+            metadata=basler_fit.metadata,
+            scene=basler_fit.scene,
+            mtf=basler_fit.mtf,
+            seed=11,
+            quality="standard",
+        )
     assert not r.diag["converged"] and r.diag["walkers_stuck"] == 1
     assert any("stuck" in f for f in r.diag["failed_checks"])
     assert basler_fit.diag["walkers_stuck"] == 0
@@ -151,8 +192,15 @@ def test_stranded_walker_is_reported_not_averaged_in(basler_fit):
     assert r.notes[0].startswith("NOT CONVERGED") and r.notes[0].endswith("rerun with --quality accurate")
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
-        ra = FitResult.from_chains(basler_fit.model, bad, metadata=basler_fit.metadata, scene=basler_fit.scene,
-                                   mtf=basler_fit.mtf, seed=11, quality="accurate")
+        ra = FitResult.from_chains(
+            basler_fit.model,
+            bad,
+            metadata=basler_fit.metadata,
+            scene=basler_fit.scene,
+            mtf=basler_fit.mtf,
+            seed=11,
+            quality="accurate",
+        )
     assert not ra.diag["converged"] and "--quality accurate" not in ra.notes[0]
     assert "max_rounds=" in ra.notes[0]
 
@@ -183,13 +231,16 @@ def test_walkers_stranded_in_burn_in_are_moved():
 
     # the reset itself, with DE/stretch moves only (the standard preset's IndependenceMove proposals
     # usually pull such walkers back before the check, so it would not be exercised)
-    for settings, must_reset in ((replace(inf_presets.QUALITY_PRESETS["standard"], independence_fraction=0.0), True),
-                                 (inf_presets.QUALITY_PRESETS["standard"], False)):
+    for settings, must_reset in (
+        (replace(inf_presets.QUALITY_PRESETS["standard"], independence_fraction=0.0), True),
+        (inf_presets.QUALITY_PRESETS["standard"], False),
+    ):
         rstate = np.random.RandomState(11).get_state()
         inf_mcmc._WORKER_MODEL = model
         try:
-            _, chain, lp, *_, n_reset, _ = inf_mcmc._run_segment((0, p0.copy(), None, rstate, 100, 400, settings,
-                                                           (x_map, cov)))
+            _, chain, lp, *_, n_reset, _ = inf_mcmc._run_segment(
+                (0, p0.copy(), None, rstate, 100, 400, settings, (x_map, cov))
+            )
         finally:
             inf_mcmc._WORKER_MODEL = None
         if must_reset:
@@ -210,7 +261,7 @@ def test_rhat_halves_are_split_in_time():
     rng = np.random.default_rng(5)
     E, S, W = 4, 200, 32
     x = rng.standard_normal((E, S, W))
-    drifted = x + np.where(np.arange(S) < S // 2, 0.5, 0.0)[None, :, None]   # half an sd, first half only
+    drifted = x + np.where(np.arange(S) < S // 2, 0.5, 0.0)[None, :, None]  # half an sd, first half only
     # with ~E*S*W/2 independent draws per half, a 0.5 sd shift gives R-hat ≈ 1 + 0.5²/8 ≈ 1.03
     for a in (fast_diagnostics(drifted), diagnostics(drifted)):
         assert a["rhat"] > 1.02
@@ -228,10 +279,16 @@ def _sim00():
     bits = int(rng.choice([10, 12, 12, 14]))
     k = float(np.exp(rng.uniform(np.log(0.3), np.log(10.0))))
     fw = float(np.exp(rng.uniform(np.log(0.3), np.log(1.5))) * (2**bits - 1 - 64) * k)
-    truth = SensorTruth(conversion_gain_e_per_dn=k, read_noise_e=float(np.exp(rng.uniform(np.log(1), np.log(30)))),
-                        full_well_e=fw, dark_current_e_per_s=float(rng.choice([0.0, 30.0, 300.0])),
-                        quantum_efficiency=float(rng.uniform(0.3, 0.8)), prnu_frac=0.005,
-                        full_well_spread_frac=0.005, adc_bits=bits)
+    truth = SensorTruth(
+        conversion_gain_e_per_dn=k,
+        read_noise_e=float(np.exp(rng.uniform(np.log(1), np.log(30)))),
+        full_well_e=fw,
+        dark_current_e_per_s=float(rng.choice([0.0, 30.0, 300.0])),
+        quantum_efficiency=float(rng.uniform(0.3, 0.8)),
+        prnu_frac=0.005,
+        full_well_spread_frac=0.005,
+        adc_bits=bits,
+    )
     assert truth.adc_bits == 10 and abs(truth.conversion_gain_e_per_dn - 0.64) < 0.01
     return simulate_ptc(truth, n_levels=50, seed=seed)
 
@@ -244,6 +301,7 @@ def test_laplace_start_finds_the_higher_optimum():
     coordinates, where mcmc_start and the fast path optimise a free clip level."""
 
     from bayescap.model.ptc_model import PTCModel
+
     m = PTCModel(_sim00())
     c = inf_coordinates._sampler_coordinates(m)
 
@@ -276,8 +334,11 @@ class _Gaussians:
         out = []
         for m, C, w in zip(self.means, self.covs, self.w):
             d = x - m
-            out.append(np.log(w) - 0.5 * np.einsum("ij,jk,ik->i", d, np.linalg.inv(C), d)
-                       - 0.5 * np.linalg.slogdet(2 * np.pi * C)[1])
+            out.append(
+                np.log(w)
+                - 0.5 * np.einsum("ij,jk,ik->i", d, np.linalg.inv(C), d)
+                - 0.5 * np.linalg.slogdet(2 * np.pi * C)[1]
+            )
         return np.logaddexp.reduce(np.array(out), axis=0)
 
 
@@ -301,7 +362,7 @@ def test_newton_map_finds_a_gaussian_mode_and_its_covariance():
     g = WithWall([m], [C], [1.0])
     starts = [m + L @ rng.normal(0, 3, n), m + L @ rng.normal(0, 5, n), np.full(n, 2e3)]
     ends, n_calls = inf_newton.newton_map(g, starts)
-    assert len(ends) == 2                       # the start beyond the wall is not an optimum
+    assert len(ends) == 2  # the start beyond the wall is not an optimum
     best = max(ends, key=lambda o: o.lp)
     assert best.converged and best.reason == "converged"
     # The point returned is where the last whitened stencil was taken. On a quadratic the step from
@@ -355,7 +416,7 @@ def test_newton_map_next_to_a_wall_retries_the_stencil_at_smaller_steps():
     np.testing.assert_allclose(o.x, m, atol=1e-6)
     np.testing.assert_allclose(o.cov, C, rtol=1e-6, atol=1e-12)
     stencil = n * n + n + 1
-    assert 2 * stencil in sizes          # the retry: both smaller steps in one call
+    assert 2 * stencil in sizes  # the retry: both smaller steps in one call
     assert n_calls == len(sizes)
 
 
@@ -400,19 +461,23 @@ def test_laplace_covariance_is_exact_for_a_quadratic_and_second_order_otherwise(
     rng = np.random.default_rng(5)
     n = 7
     B = rng.standard_normal((n, n))
-    A = B @ B.T + n * np.eye(n)          # eigenvalues ≥ n > 1: below laplace_covariance's sd cap
+    A = B @ B.T + n * np.eye(n)  # eigenvalues ≥ n > 1: below laplace_covariance's sd cap
     m = rng.normal(0, 3, n)
     cov = inf_curvature.laplace_covariance(_Quadratic(A, m), m, h=1e-2)
     np.testing.assert_allclose(cov, np.linalg.inv(A), rtol=1e-6, atol=1e-9)
     # with a quartic term the error is O(h²): the second difference of c·d⁴ is 12 c d² + 2 c h²
     x = m + 0.3
     exact = np.linalg.inv(A - np.diag([12 * 2.0 * 0.3**2] + [0] * (n - 1)))
-    errs = [np.max(np.abs(inf_curvature.laplace_covariance(_Quadratic(A, m, c=2.0), x, h=hh) - exact)) for hh in (3e-2, 3e-3)]
-    assert 50 < errs[0] / errs[1] < 200                       # 100× for a 10× smaller step
-    e0 = 3e-2 * max(1.0, abs(x[0]))                           # the step along x₀
+    errs = [
+        np.max(np.abs(inf_curvature.laplace_covariance(_Quadratic(A, m, c=2.0), x, h=hh) - exact))
+        for hh in (3e-2, 3e-3)
+    ]
+    assert 50 < errs[0] / errs[1] < 200  # 100× for a 10× smaller step
+    e0 = 3e-2 * max(1.0, abs(x[0]))  # the step along x₀
     predicted = np.linalg.inv(A - np.diag([12 * 2.0 * 0.3**2 + 2 * 2.0 * e0**2] + [0] * (n - 1)))
-    np.testing.assert_allclose(inf_curvature.laplace_covariance(_Quadratic(A, m, c=2.0), x, h=3e-2), predicted,
-                               rtol=1e-6, atol=1e-9)
+    np.testing.assert_allclose(
+        inf_curvature.laplace_covariance(_Quadratic(A, m, c=2.0), x, h=3e-2), predicted, rtol=1e-6, atol=1e-9
+    )
 
 
 def test_ensembles_in_lockstep_give_the_chains_of_one_after_the_other():
@@ -421,6 +486,7 @@ def test_ensembles_in_lockstep_give_the_chains_of_one_after_the_other():
     for each ensemble in turn, bit for bit."""
 
     from bayescap.model.ptc_model import PTCModel
+
     model = PTCModel(bayescap.load(Path(__file__).resolve().parents[1] / "data" / "emva1288_basler_ccd12.csv"))
     x_map, _, cov, _ = inf_optimize.laplace_start(model, n_restarts=0)
     settings = inf_presets.QUALITY_PRESETS["standard"]
@@ -438,7 +504,7 @@ def test_ensembles_in_lockstep_give_the_chains_of_one_after_the_other():
     for a, b in zip(together, alone):
         assert a[0] == b[0]
         for u, v in zip(a[1:6], b[1:6]):
-            if isinstance(u, tuple):              # the RandomState state
+            if isinstance(u, tuple):  # the RandomState state
                 assert all(np.array_equal(p, q) for p, q in zip(u, v))
             else:
                 assert np.array_equal(u, v)
@@ -453,7 +519,7 @@ def test_convergence_check_in_the_pool_decides_as_one_after_the_other(shift):
     rng = np.random.default_rng(9)
     E, S, W, D = 4, 400, 24, 5
     chain = rng.standard_normal((E, S, W, D))
-    chain[:, : S // 2, :, 2] += shift          # a drift in parameter 2: R-hat fails there
+    chain[:, : S // 2, :, 2] += shift  # a drift in parameter 2: R-hat fails there
     settings = inf_presets.QUALITY_PRESETS["standard"]
 
     def derived(ch):
@@ -468,9 +534,8 @@ def test_convergence_check_in_the_pool_decides_as_one_after_the_other(shift):
         pool.close()
     assert a == b == (shift == 0.0)
     assert serial.keys() == pooled.keys()
-    for k in serial:        # diagnostics dicts, and the τ of every parameter ("_tau", an array)
-        assert (np.array_equal(serial[k], pooled[k]) if isinstance(serial[k], np.ndarray)
-                else serial[k] == pooled[k]), k
+    for k in serial:  # diagnostics dicts, and the τ of every parameter ("_tau", an array)
+        assert np.array_equal(serial[k], pooled[k]) if isinstance(serial[k], np.ndarray) else serial[k] == pooled[k], k
 
 
 def _ar1_walkers(rng, E, S, W, phi):
@@ -488,7 +553,8 @@ def test_quantile_mcse_is_arviz_quantile_mcse_with_walkers_as_chains():
     mcse(method="quantile") on the (walkers, steps) layout of the tail ESS, to rounding."""
 
     import arviz as az
-    x = np.exp(0.5 * _ar1_walkers(np.random.default_rng(3), 4, 200, 48, 0.8))   # skewed
+
+    x = np.exp(0.5 * _ar1_walkers(np.random.default_rng(3), 4, 200, 48, 0.8))  # skewed
     by_walker = np.transpose(x, (0, 2, 1)).reshape(4 * 48, 200)
     ours = inf_diagnostics.quantile_mcse(x, [0.025, 0.975])
     theirs = [float(az.mcse(by_walker, method="quantile", prob=p)) for p in (0.025, 0.975)]
@@ -524,12 +590,13 @@ def test_a_walker_that_never_moved_fails_the_length_check_and_extends_the_run():
     fails _default_converged, which asks for a round of extend_steps (before 2026-11-24 it passed
     there and failed only in FitResult's check, so the run stopped NOT CONVERGED unextended)."""
     import dataclasses
+
     rng = np.random.default_rng(5)
     chain = np.stack([_ar1_walkers(rng, 4, 100, 24, 0.3) for _ in range(3)], axis=-1)
     settings = dataclasses.replace(inf_presets.QUALITY_PRESETS["standard"], adaptive_extend=True)
     cache = {}
     assert inf_mcmc._default_converged(chain, settings, cache)
-    chain[2, :, 7, :] = chain[2, 0, 7, :]            # walker 7 of ensemble 2 never moves
+    chain[2, :, 7, :] = chain[2, 0, 7, :]  # walker 7 of ensemble 2 never moves
     assert not np.all(np.isfinite(inf_diagnostics.integrated_time(chain)))
     cache = {}
     assert not inf_mcmc._default_converged(chain, settings, cache)
@@ -543,9 +610,10 @@ def test_end_mcse_target_extends_the_run_until_the_ends_are_accurate():
     the next round from the 1/√n law; the error of every reported quantity lands in the cache
     either way, and the pool shares the work out without changing it."""
     import dataclasses
+
     rng = np.random.default_rng(5)
     chain = np.stack([_ar1_walkers(rng, 4, 400, 24, 0.3) for _ in range(3)], axis=-1)
-    reported = lambda ch: {"a": ch[..., 0], "b": np.exp(ch[..., 1]), "c": ch[..., 2]}  # noqa: E731
+    reported = lambda ch: {"a": ch[..., 0], "b": np.exp(ch[..., 1]), "c": ch[..., 2]}
     base = dataclasses.replace(inf_presets.QUALITY_PRESETS["standard"], adaptive_extend=True)
     cache = {}
     assert inf_mcmc._default_converged(chain, base, cache, reported_fn=reported)
@@ -577,7 +645,7 @@ def test_mcmc_result_reports_its_interval_ends_monte_carlo_error(basler_fit):
     dg = basler_fit.to_dict()["diagnostics"]
     end = dg["interval_end_mcse"]
     varying = [n for n, v in list(basler_fit.draws.items()) + list(basler_fit.derived.items()) if np.ptp(v) > 0]
-    assert set(end) == set(varying) and "capacity_bits" in end and "clip_dn" not in end   # the ADC's: fixed
+    assert set(end) == set(varying) and "capacity_bits" in end and "clip_dn" not in end  # the ADC's: fixed
     assert dg["interval_end_mcse_max"] == max(end.values()) == end[dg["interval_end_mcse_worst"]]
     assert dg["interval_end_mcse_target"] is None
     # the same numbers as computing them afresh from the result's draws
@@ -611,7 +679,7 @@ def test_mcmc_result_reports_its_interval_ends_monte_carlo_error(basler_fit):
     at = strict.at_scene(Scene(exposure_time_s=0.5))
     assert not at.diag["converged"] and at.notes[0].startswith("NOT CONVERGED")
     assert [f for f in at.diag["failed_checks"] if f.startswith("Monte Carlo error of a 95 % interval end")]
-    assert basler_fit.diag["converged"] and not basler_fit.diag["failed_checks"]      # the original untouched
+    assert basler_fit.diag["converged"] and not basler_fit.diag["failed_checks"]  # the original untouched
 
 
 def test_imprecise_interval_ends_are_flagged_where_no_check_bounds_them(basler_fit):
@@ -636,7 +704,7 @@ def test_imprecise_interval_ends_are_flagged_where_no_check_bounds_them(basler_f
     note = [n for n in r.notes if n.startswith("imprecise interval ends")]
     assert len(note) == 1 and "read_noise_e" in note[0] and "0.31" in note[0]
     assert note[0] in format_text(r) and r.to_dict()["flags"]["imprecise_interval_ends"] == {"read_noise_e": 0.31}
-    r._flag_imprecise_ends()                             # idempotent: one note
+    r._flag_imprecise_ends()  # idempotent: one note
     assert len([n for n in r.notes if n.startswith("imprecise interval ends")]) == 1
     other = r.at_scene(Scene(exposure_time_s=0.5))
     assert other.flags["imprecise_interval_ends"] == {"read_noise_e": 0.31}
@@ -645,7 +713,7 @@ def test_imprecise_interval_ends_are_flagged_where_no_check_bounds_them(basler_f
     r._flag_imprecise_ends()
     assert "imprecise_interval_ends" not in r.flags
     assert not [n for n in r.notes if n.startswith("imprecise interval ends")]
-    assert "imprecise_interval_ends" not in basler_fit.flags                       # the original untouched
+    assert "imprecise_interval_ends" not in basler_fit.flags  # the original untouched
 
 
 def test_sampler_subclass_gives_emcee_chains_across_rounds():
@@ -655,6 +723,7 @@ def test_sampler_subclass_gives_emcee_chains_across_rounds():
     do), and returns the same random state; NaN log-probabilities are refused as emcee does."""
 
     import emcee
+
     cov = np.array([[1.0, 0.5, 0.0], [0.5, 2.0, 0.3], [0.0, 0.3, 0.5]])
     prec = np.linalg.inv(cov)
 
@@ -667,7 +736,7 @@ def test_sampler_subclass_gives_emcee_chains_across_rounds():
         rstate = np.random.RandomState(11).get_state()
         chains = []
         state = emcee.State(p0, random_state=rstate)
-        for _ in range(3):                   # three rounds, each a new sampler
+        for _ in range(3):  # three rounds, each a new sampler
             moves = [(emcee.moves.DEMove(), 0.8), (emcee.moves.StretchMove(), 0.2)]
             s = cls(16, 3, log_prob, vectorize=True, moves=moves)
             state = s.run_mcmc(state, 25, progress=False)
@@ -693,8 +762,7 @@ def test_round_checks_compute_the_derived_draws_once_per_chain(monkeypatch, basl
     kw = dict(metadata=r.metadata, scene=r.scene, mtf=r.mtf, seed=r.seed)
     calls = []
     orig = FitResult._of_chain.__func__
-    monkeypatch.setattr(FitResult, "_of_chain",
-                        classmethod(lambda cls, *a, **k: calls.append(1) or orig(cls, *a, **k)))
+    monkeypatch.setattr(FitResult, "_of_chain", classmethod(lambda cls, *a, **k: calls.append(1) or orig(cls, *a, **k)))
     derived_fn, reported_fn = FitResult.chain_check_fns(r.model, **kw)
     chain = r.chains.chain[:, -20:]
     d, rep = derived_fn(chain), reported_fn(chain)
@@ -704,4 +772,4 @@ def test_round_checks_compute_the_derived_draws_once_per_chain(monkeypatch, basl
     np.testing.assert_array_equal(rep["capacity_bits"].ravel(), fresh.derived["capacity_bits"])
     np.testing.assert_array_equal(d["tonal_range_bits"].ravel(), fresh.derived["tonal_range_bits"])
     derived_fn(chain[:, -10:])
-    assert len(calls) == 2          # a new chain: computed again
+    assert len(calls) == 2  # a new chain: computed again

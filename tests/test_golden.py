@@ -28,8 +28,11 @@ SENSORS = {
 BENCHMARK = sorted(str(p.relative_to(ROOT)) for p in (ROOT / "data" / "benchmark").glob("M*.csv"))
 
 CASES = {
-    **{f"fit_{name}_{q}": ["fit", path, "--seed", "1", "--quality", q, "--json"]
-       for name, path in SENSORS.items() for q in ("standard", "fast")},
+    **{
+        f"fit_{name}_{q}": ["fit", path, "--seed", "1", "--quality", q, "--json"]
+        for name, path in SENSORS.items()
+        for q in ("standard", "fast")
+    },
     "fit_batch_benchmark_fast": ["fit", *BENCHMARK, "--seed", "3", "--quality", "fast", "--json"],
     "compare_benchmark_fast": ["compare", *BENCHMARK, "--seed", "2", "--json"],
 }

@@ -1,14 +1,15 @@
 """Integral accuracy (issue 7, item 4): TR closed form vs quadrature, Δs Gauss–Legendre vs
 closed forms, and the cost of propagating 10 000 draws."""
+
 import time
 
 import numpy as np
 import pytest
 
-from bayescap.physics.noise import NoiseCoefficients
 from bayescap.physics.capacity import integral_inv_sqrt_quadratic, mtf_loss_bits, tonal_range
+from bayescap.physics.noise import NoiseCoefficients
 from bayescap.physics.optics import DiffractionLens, GaussianCrosstalk
-from bayescap.validation import TR_CASES, ds_reference, tr_reference, tr_simpson
+from bayescap.validation.integrals import TR_CASES, ds_reference, tr_reference, tr_simpson
 
 
 @pytest.mark.parametrize("case", TR_CASES, ids=[c[0] for c in TR_CASES])
@@ -35,7 +36,7 @@ def test_delta_s_closed_forms():
         assert v == pytest.approx(0.5 * np.pi * np.log2(0.3), abs=1e-13)
         s = 0.7
         v = float(mtf_loss_bits(GaussianCrosstalk(sigma_px=s), n_nodes=n).delta_s_bits)
-        assert v == pytest.approx(-np.pi**3 * s * s * 0.25 / (2 * np.log(2)), abs=1e-12)
+        assert v == pytest.approx(-(np.pi**3) * s * s * 0.25 / (2 * np.log(2)), abs=1e-12)
 
 
 def test_delta_s_with_band_cut_converges_slowly():
@@ -43,19 +44,20 @@ def test_delta_s_with_band_cut_converges_slowly():
     lens = DiffractionLens(8.0, 555.0, 1.4)
     ref = ds_reference(lens)
     e = {n: abs(float(mtf_loss_bits(lens, n_nodes=n).delta_s_bits) - ref) for n in (64, 256)}
-    assert e[256] < 1e-4                       # the default n = 256: good to 1e-4 bits
-    assert 8 < e[64] / e[256] < 32             # algebraic (≈ 16 = 4²), not geometric, convergence
+    assert e[256] < 1e-4  # the default n = 256: good to 1e-4 bits
+    assert 8 < e[64] / e[256] < 32  # algebraic (≈ 16 = 4²), not geometric, convergence
 
 
 def test_propagating_10k_draws_is_fast():
     rng = np.random.default_rng(0)
     n = 10_000
-    coeffs = NoiseCoefficients.from_parameters(read_noise_e=rng.uniform(2, 10, n), dsnu_e=1.0,
-                                               prnu_frac=0.005, conversion_gain_e_per_dn=rng.uniform(1, 3, n))
+    coeffs = NoiseCoefficients.from_parameters(
+        read_noise_e=rng.uniform(2, 10, n), dsnu_e=1.0, prnu_frac=0.005, conversion_gain_e_per_dn=rng.uniform(1, 3, n)
+    )
     smax = rng.uniform(8e3, 1.2e4, n)
     tonal_range(coeffs, smax)
     t = time.perf_counter()
     for _ in range(5):
         tr = tonal_range(coeffs, smax)
-    assert (time.perf_counter() - t) / 5 < 0.05     # generous: measured ≈ 0.5 ms here
+    assert (time.perf_counter() - t) / 5 < 0.05  # generous: measured ≈ 0.5 ms here
     assert np.all(np.isfinite(tr)) and np.all(tr <= 256)

@@ -1,4 +1,5 @@
 """The likelihood pieces and the data-driven term selection."""
+
 import warnings
 
 import numpy as np
@@ -49,8 +50,14 @@ def test_clipped_moments_match_monte_carlo():
 
 
 def _sim(**kw):
-    truth = SensorTruth(conversion_gain_e_per_dn=2.0, read_noise_e=4.0, full_well_e=6000.0,
-                        dark_current_e_per_s=100.0, quantum_efficiency=0.6, adc_bits=12)
+    truth = SensorTruth(
+        conversion_gain_e_per_dn=2.0,
+        read_noise_e=4.0,
+        full_well_e=6000.0,
+        dark_current_e_per_s=100.0,
+        quantum_efficiency=0.6,
+        adc_bits=12,
+    )
     args = dict(seed=5, shape=(64, 64), n_levels=20)
     args.update(kw)
     return truth, simulate_ptc(truth, **args)
@@ -93,8 +100,9 @@ def test_latent_signal_inverts_the_clipped_mean():
     pre = np.zeros((1, rows.size)) + 1e-3
     mu, var, slope = m._latent_clip_rows(k, pre, p["clip_spread_dn"], p["clip_dn"], rows)
     s = np.sqrt(np.maximum(mu - m.dm[rows], 0) / k[:, None] + pre)
-    mean, _ = m._clip_mean(mu, s, np.broadcast_to(p["clip_spread_dn"][:, None], mu.shape),
-                           np.broadcast_to(p["clip_dn"][:, None], mu.shape))
+    mean, _ = m._clip_mean(
+        mu, s, np.broadcast_to(p["clip_spread_dn"][:, None], mu.shape), np.broadcast_to(p["clip_dn"][:, None], mu.shape)
+    )
     np.testing.assert_allclose(mean, m.m[rows][None, :], atol=1e-5 * s.max())
     assert np.all(mu >= m.m[rows] - 1e-9)
 
@@ -107,12 +115,17 @@ def test_latent_clip_solver_reaches_roots_deep_in_the_clip():
     on the clipped mean stopped once it was within 1e-9 s of the measured one, which at a
     shortfall of 1e-8 DN put the root at h = −5.84 instead of −5.96."""
     import types
+
     from bayescap.model.clipping import _log_shortfall
 
     g = np.array([300, 30, 5, 1, 0.1, 1e-2, 1e-4, 1e-8, 1e-12, 0.0, -0.5])
     c0, dark = 1000.0, 10.0
-    fake = types.SimpleNamespace(m=c0 - g, dm=np.full(g.size, dark), _clip_mean=PTCModel._clip_mean,
-                                 _clip_moments=lambda mu, s, t, c: PTCModel._clip_moments(None, mu, s, t, c))
+    fake = types.SimpleNamespace(
+        m=c0 - g,
+        dm=np.full(g.size, dark),
+        _clip_mean=PTCModel._clip_mean,
+        _clip_moments=lambda mu, s, t, c: PTCModel._clip_moments(None, mu, s, t, c),
+    )
     k, tau, c = np.array([0.5, 4.0, 50.0]), np.array([0.0, 3.0, 40.0]), np.full(3, c0)
     pre = np.full((3, g.size), 2.0)
     with warnings.catch_warnings():
@@ -189,14 +202,15 @@ def test_robust_blocks_are_the_two_component_mixture():
     against the mixture written out with scipy: (1 − ε) Gamma(k, σ²/k) + ε LogNormal(log σ², 0.3) for
     the variances, (1 − ε) N(m, sd) + ε N(m, √(sd² + (0.3 m)²)) for the means; and the outlier
     probabilities ε·bad / mixture."""
-    from bayescap.model.likelihood import OUTLIER_RATE as eps, OUTLIER_REL_SD as rs
+    from bayescap.model.likelihood import OUTLIER_RATE as eps
+    from bayescap.model.likelihood import OUTLIER_REL_SD as rs
 
     truth = SensorTruth(conversion_gain_e_per_dn=2.0, read_noise_e=5.0, full_well_e=8000.0, adc_bits=12)
     m = PTCModel(simulate_ptc(truth, seed=3, shape=(64, 64), n_levels=20))
     assert m.terms.robust
     rng = np.random.default_rng(5)
     obs = rng.uniform(1.0, 400.0, 30)
-    model = obs[None, :] * np.exp(rng.normal(0.0, 0.6, (4, 30)))     # up to ~4 sd of the outlier law
+    model = obs[None, :] * np.exp(rng.normal(0.0, 0.6, (4, 30)))  # up to ~4 sd of the outlier law
     k = rng.uniform(0.8, 5e4, (4, 30))
     ll, prob = m._block_loglik("bright_var", obs, model, k, "gamma", with_outlier_prob=True)
     good = np.log1p(-eps) + stats.gamma.logpdf(obs, a=k, scale=model / k)
@@ -207,8 +221,9 @@ def test_robust_blocks_are_the_two_component_mixture():
     sd = rng.uniform(0.1, 20.0, (4, 30))
     mu = obs[None, :] + rng.normal(0.0, 1.0, (4, 30)) * sd * rng.choice([1.0, 30.0], (4, 30))
     ll = m._block_loglik("mean", obs, mu, sd, "normal")
-    ref = np.logaddexp(np.log1p(-eps) + stats.norm.logpdf(obs, mu, sd),
-                       np.log(eps) + stats.norm.logpdf(obs, mu, np.hypot(sd, rs * mu)))
+    ref = np.logaddexp(
+        np.log1p(-eps) + stats.norm.logpdf(obs, mu, sd), np.log(eps) + stats.norm.logpdf(obs, mu, np.hypot(sd, rs * mu))
+    )
     np.testing.assert_allclose(ll, ref, rtol=1e-12, atol=1e-9)
 
 
@@ -234,7 +249,7 @@ def test_clip_moments_far_below_the_clip_is_the_temporal_variance():
     far = (c - mu) / np.hypot(s, tau) > 8.5
     assert far.sum() == 2 and np.all(var[far] == s[far] ** 2)
     for i in range(6):
-        one = PTCModel._clip_moments(None, mu[i:i + 1], s[i:i + 1], tau[i:i + 1], c[i:i + 1])
+        one = PTCModel._clip_moments(None, mu[i : i + 1], s[i : i + 1], tau[i : i + 1], c[i : i + 1])
         assert (one[0][0], one[1][0], one[2][0]) == (mean[i], var[i], slope[i])
     ref_mean, ref_slope = PTCModel._clip_mean(mu, s, tau, c)
     np.testing.assert_array_equal(mean, ref_mean)
@@ -246,6 +261,7 @@ def _split_case():
     m = PTCModel(d)
     x = m.initial_guess()
     from bayescap.model.threads import SPLIT_MIN_ELEMENTS
+
     n = SPLIT_MIN_ELEMENTS // m._observations() + 101
     assert n >= 1000
     X = x + 0.01 * np.random.default_rng(3).standard_normal((n, m.ndim))
@@ -289,6 +305,7 @@ def test_split_log_prob_thread_keeps_the_callers_errstate(monkeypatch):
 
 def _child_split(args):
     import bayescap.model.threads as T
+
     m, X = args
     return T.n_threads(), m.log_prob(X)
 
@@ -306,7 +323,7 @@ def test_pool_workers_use_one_thread_and_a_forked_child_rebuilds_the_pool(monkey
         n, lp = pool.apply(_child_split, ((m, X),))
     assert n == 1
     monkeypatch.setenv("BAYESCAP_THREADS", "2")
-    ref = m.log_prob(X)              # the parent's pool exists now
+    ref = m.log_prob(X)  # the parent's pool exists now
     with ctx.Pool(1) as pool:
         res = pool.apply_async(_child_split, ((m, X),))
         n2, lp2 = res.get(timeout=60)

@@ -4,6 +4,7 @@ Real data: Peter D. Burns' sfrmat3 example edges with SFRs computed by his ISO 1
 reference code sfrmat5 (tests/data/slanted_edge/README.md).  Synthetic data: edges rendered
 by :func:`bayescap.mtf.synthetic_edge` with a known analytic MTF.
 """
+
 from __future__ import annotations
 
 import dataclasses
@@ -54,7 +55,7 @@ _GL_WF = 0.5 * NYQUIST_CY_PER_PX * _GL_W
 
 def _mtf_loss_bits(mtf_at_gl: np.ndarray) -> np.ndarray:
     """Eq. 9 from MTF values at the Gauss-Legendre nodes ``_GL_F`` (last axis)."""
-    return np.pi / NYQUIST_CY_PER_PX ** 2 * np.sum(_GL_WF * _GL_F * np.log2(mtf_at_gl), axis=-1)
+    return np.pi / NYQUIST_CY_PER_PX**2 * np.sum(_GL_WF * _GL_F * np.log2(mtf_at_gl), axis=-1)
 
 
 # ---------------------------------------------------------------------------------------
@@ -117,12 +118,15 @@ def test_h_edge_detected_horizontal_and_consistent_with_v_edge(v_mono):
 # ---------------------------------------------------------------------------------------
 @pytest.mark.parametrize(
     "sigma_px, fill_factor, angle_deg, shape",
-    [(0.5, 1.0, 5.0, (200, 100)), (0.8, 1.0, -4.0, (200, 100)), (0.6, 0.7, 85.0, (100, 200)),
-     (0.4, 1.0, 7.0, (150, 80))],
+    [
+        (0.5, 1.0, 5.0, (200, 100)),
+        (0.8, 1.0, -4.0, (200, 100)),
+        (0.6, 0.7, 85.0, (100, 200)),
+        (0.4, 1.0, 7.0, (150, 80)),
+    ],
 )
 def test_synthetic_mtf50_within_2_percent(sigma_px, fill_factor, angle_deg, shape):
-    img = synthetic_edge(shape, angle_deg, sigma_px=sigma_px, fill_factor=fill_factor,
-                         noise_sd=0.002, seed=1)
+    img = synthetic_edge(shape, angle_deg, sigma_px=sigma_px, fill_factor=fill_factor, noise_sd=0.002, seed=1)
     r = _quiet_measure(img, n_boot=0)
     tilt = angle_deg if abs(angle_deg) < 45 else angle_deg - 90
     assert r.edge_angle_deg == pytest.approx(angle_deg, abs=0.05)
@@ -167,8 +171,9 @@ def test_bootstrap_interval_coverage_on_synthetic_edges():
     cover50 = cover_ds = 0
     z50, zds = [], []
     for i in range(n_edges):
-        img = synthetic_edge((200, 100), angles[i], sigma_px=sigmas[i], contrast=0.6,
-                             mean_level=0.5, noise_sd=0.01, seed=i)
+        img = synthetic_edge(
+            (200, 100), angles[i], sigma_px=sigmas[i], contrast=0.6, mean_level=0.5, noise_sd=0.01, seed=i
+        )
         r = _quiet_measure(img, npol=5, n_boot=200, seed=i, correct_bin_width=True)
         t50 = _true_mtf50(sigmas[i], 1.0, angles[i])
         lo, hi = r.mtf50_ci(0.95)
@@ -181,9 +186,11 @@ def test_bootstrap_interval_coverage_on_synthetic_edges():
         zds.append((_mtf_loss_bits(r.mtf_at(_GL_F)) - tds) / np.std(ds_samples))
     k_min = stats.binom.ppf(0.005, n_edges, 0.95)
     chi_lo, chi_hi = stats.chi2.ppf([0.005, 0.995], n_edges)
-    print(f"coverage MTF50 {cover50}/{n_edges}, MTF loss {cover_ds}/{n_edges} (k_min {k_min:.0f});"
-          f" sum z^2 MTF50 {np.sum(np.square(z50)):.1f}, loss {np.sum(np.square(zds)):.1f} "
-          f"(chi2 range {chi_lo:.1f}-{chi_hi:.1f})")
+    print(
+        f"coverage MTF50 {cover50}/{n_edges}, MTF loss {cover_ds}/{n_edges} (k_min {k_min:.0f});"
+        f" sum z^2 MTF50 {np.sum(np.square(z50)):.1f}, loss {np.sum(np.square(zds)):.1f} "
+        f"(chi2 range {chi_lo:.1f}-{chi_hi:.1f})"
+    )
     assert cover50 >= k_min
     assert cover_ds >= k_min
     assert chi_lo < np.sum(np.square(z50)) < chi_hi
@@ -314,7 +321,7 @@ def test_edge_not_crossing_roi_rejected():
 
 def test_warnings_clipping_contrast_angle_bins():
     # clipping: 8-bit edge saturating the bright side
-    img = np.clip(synthetic_edge((150, 80), 5.0, contrast=0.8, mean_level=170) , 0, 255)
+    img = np.clip(synthetic_edge((150, 80), 5.0, contrast=0.8, mean_level=170), 0, 255)
     with pytest.warns(MTFWarning, match="clipping"):
         r = measure_sfr(np.round(img).astype(np.uint8), n_boot=0)
     assert any("clipping" in w for w in r.warnings)
@@ -329,8 +336,7 @@ def test_warnings_clipping_contrast_angle_bins():
     assert any("phase cycles" in m for m in msgs)
     # 26.57 deg (slope 1/2): only two sub-pixel phases -> half of the 4x bins stay empty
     with pytest.warns(MTFWarning) as rec:
-        r = measure_sfr(synthetic_edge((150, 150), math.degrees(math.atan(0.5)),
-                                       noise_sd=0.001), n_boot=0)
+        r = measure_sfr(synthetic_edge((150, 150), math.degrees(math.atan(0.5)), noise_sd=0.001), n_boot=0)
     assert any("empty projection bin" in str(w.message) for w in rec)
     assert any("empty projection bin" in w for w in r.warnings)
 

@@ -2,6 +2,7 @@
 
 The kernel is this interpreter (the ``python3_kernel`` fixture in conftest.py).
 """
+
 from __future__ import annotations
 
 import time
@@ -17,18 +18,24 @@ NOTEBOOKS = Path(__file__).resolve().parent.parent / "notebooks"
 
 #: notebook -> (execution timeout per cell in s, fragments its printed output must contain)
 EXPECTED = {
-    "paper_reproduction.ipynb": (90, [
-        # a few of the numbers the markdown states
-        "photons per lux·s per µm² 4090.7",
-        "lens limits at Nyquist below 2.68 µm",
-        "Eq. 9 optimum 1.20",
-    ]),
-    "manufacturer_comparison.ipynb": (150, [
-        "compare: 5 sensors",
-        "compare: 3 sensors",
-        "P(C[M1_1.75um] > C[M2_1.75um])",
-        "P(C[M1_1.75um] > C[M1_2.20um]) at 1/4\"",
-    ]),
+    "paper_reproduction.ipynb": (
+        90,
+        [
+            # a few of the numbers the markdown states
+            "photons per lux·s per µm² 4090.7",
+            "lens limits at Nyquist below 2.68 µm",
+            "Eq. 9 optimum 1.20",
+        ],
+    ),
+    "manufacturer_comparison.ipynb": (
+        150,
+        [
+            "compare: 5 sensors",
+            "compare: 3 sensors",
+            "P(C[M1_1.75um] > C[M2_1.75um])",
+            'P(C[M1_1.75um] > C[M1_2.20um]) at 1/4"',
+        ],
+    ),
 }
 
 
@@ -49,8 +56,9 @@ def test_notebook_committed_without_outputs(name):
 def test_notebook_executes(name, python3_kernel):
     timeout, fragments = EXPECTED[name]
     nb = nbformat.read(NOTEBOOKS / name, as_version=4)
-    client = nbclient.NotebookClient(nb, kernel_name=python3_kernel, timeout=timeout,
-                                     resources={"metadata": {"path": str(NOTEBOOKS)}})
+    client = nbclient.NotebookClient(
+        nb, kernel_name=python3_kernel, timeout=timeout, resources={"metadata": {"path": str(NOTEBOOKS)}}
+    )
     t0 = time.perf_counter()
     client.execute()
     print(f"{name} executed in {time.perf_counter() - t0:.1f} s")

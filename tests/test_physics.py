@@ -5,6 +5,7 @@ unless a quadrature with a logarithmic singularity is involved, where the tolera
 from the measured convergence between n and 4n nodes); printed paper values at half a unit of
 their last printed digit.
 """
+
 from __future__ import annotations
 
 import argparse
@@ -14,16 +15,27 @@ import numpy as np
 import pytest
 from scipy import integrate, optimize
 
-from bayescap.physics import table1 as paper, photometry
-from bayescap.studies import sweep
-from bayescap.physics.capacity import mtf_loss_bits, mtf_loss_bits_eq8
-from bayescap.physics.optics import DiffractionLens, GaussianCrosstalk, LShapedAperture, MTFProduct, PixelAperture, TabulatedMTF, default_mtf, mtf50_cy_per_px
 from bayescap.cli import sweep as cli_sweep
+from bayescap.physics import photometry
+from bayescap.physics import table1 as paper
+from bayescap.physics.capacity import mtf_loss_bits, mtf_loss_bits_eq8
+from bayescap.physics.optics import (
+    DiffractionLens,
+    GaussianCrosstalk,
+    LShapedAperture,
+    MTFProduct,
+    PixelAperture,
+    TabulatedMTF,
+    default_mtf,
+    mtf50_cy_per_px,
+)
+from bayescap.studies import sweep
 
 H_PLANCK, C_LIGHT = 6.62607015e-34, 299_792_458.0
 
 
 # ---------------------------------------------------------------- photometry (Eq. 4, 5)
+
 
 def test_photon_energy_and_paper_typo():
     e = photometry.photon_energy_j(555.0)
@@ -61,13 +73,20 @@ def test_exposure_eq5_fig2a_numbers():
 
 # ---------------------------------------------------------------- Table 1
 
+
 def test_table1_loader_values():
     rows = paper.load_table1()
     assert [r.pitch_um for r in rows] == [5.2, 3.2, 2.9, 2.2, 1.75, 1.45]
     assert [r.architecture for r in rows] == ["4T", "2.5T", "2.5T", "2.5T", "1.75T", "1.5T"]
     assert [r.sensitivity_e_per_lux_s for r in rows] == [57e3, 22e3, 16e3, 9.3e3, 5e3, 3e3]
     assert [(r.full_well_min_e, r.full_well_max_e) for r in rows] == [
-        (28e3, 38e3), (22e3, 33e3), (19e3, 25e3), (12e3, 21e3), (8e3, 9e3), (4e3, 7e3)]
+        (28e3, 38e3),
+        (22e3, 33e3),
+        (19e3, 25e3),
+        (12e3, 21e3),
+        (8e3, 9e3),
+        (4e3, 7e3),
+    ]
     assert [r.dark_current_60c_e_per_s for r in rows] == [2000, 360, 300, 270, 25, 15]
     np.testing.assert_array_equal([r.dark_current_25c_e_per_s for r in rows][:4], [22, 12, 10, 9])
     assert np.isnan(rows[4].dark_current_25c_e_per_s) and np.isnan(rows[5].dark_current_25c_e_per_s)
@@ -92,8 +111,7 @@ def test_dark_current_reading_is_consistent_with_six_degree_law():
     rhodes = [r for r in rows if np.isfinite(r.dark_current_25c_e_per_s)]
     doubling = [35.0 / np.log2(r.dark_current_60c_e_per_s / r.dark_current_25c_e_per_s) for r in rhodes]
     assert all(5.0 < d < 7.5 for d in doubling)
-    other = [r.dark_current_60c_e_per_s / float(r.as_printed["dark_current_unassigned_as_printed"])
-             for r in rows]
+    other = [r.dark_current_60c_e_per_s / float(r.as_printed["dark_current_unassigned_as_printed"]) for r in rows]
     assert min(other) < 1.0
 
 
@@ -110,9 +128,14 @@ def test_dark_current_law():
 
 # ---------------------------------------------------------------- SNR (Eq. 1, Fig. 2b)
 
+
 def _pixel(r):
-    return dict(sensitivity_e_per_lux_s=r.sensitivity_e_per_lux_s, full_well_e=r.full_well_mid_e,
-                dark_current_e_per_s=r.dark_current_e_per_s(25.0), prnu_frac=r.prnu_max_frac)
+    return dict(
+        sensitivity_e_per_lux_s=r.sensitivity_e_per_lux_s,
+        full_well_e=r.full_well_mid_e,
+        dark_current_e_per_s=r.dark_current_e_per_s(25.0),
+        prnu_frac=r.prnu_max_frac,
+    )
 
 
 def _shares(px, h):
@@ -181,8 +204,9 @@ def test_mpe30_closed_form_matches_root():
         root = optimize.brentq(lambda x: float(photometry.snr_vs_exposure_db(x, **px)) - 30.0, 1e-5, h * 1.5)
         assert h == pytest.approx(root, rel=1e-9)
     # unreachable 30 dB: PRNU above 1/sqrt(1000)
-    assert np.isinf(photometry.mpe30_lux_s(sensitivity_e_per_lux_s=1e4, full_well_e=1e6,
-                                           dark_current_e_per_s=0.0, prnu_frac=0.04))
+    assert np.isinf(
+        photometry.mpe30_lux_s(sensitivity_e_per_lux_s=1e4, full_well_e=1e6, dark_current_e_per_s=0.0, prnu_frac=0.04)
+    )
 
 
 def test_farrell_tradeoff_monotone():
@@ -196,13 +220,15 @@ def test_farrell_tradeoff_monotone():
 
 # ---------------------------------------------------------------- MTF components
 
+
 def _l_mask_ft(ap, fx, fy, n=1600):
     """Brute-force midpoint-rule Fourier transform of the L-shaped mask (pixel units)."""
     x = (np.arange(n) + 0.5) / n * 2 - 1
     X, Y = np.meshgrid(x, x, indexing="ij")
     # rect 1: x in [-a, 0], y in [0, B-b]; rect 2: x in [0, A-a], y in [-b, B-b]
-    m = (((X >= -ap.a) & (X < 0) & (Y >= 0) & (Y < ap.B - ap.b))
-         | ((X >= 0) & (X < ap.A - ap.a) & (Y >= -ap.b) & (Y < ap.B - ap.b)))
+    m = ((X >= -ap.a) & (X < 0) & (Y >= 0) & (Y < ap.B - ap.b)) | (
+        (X >= 0) & (X < ap.A - ap.a) & (Y >= -ap.b) & (Y < ap.B - ap.b)
+    )
     ph = np.exp(-2j * np.pi * (fx * X[m] + fy * Y[m]))
     return abs(ph.sum()) / m.sum()
 
@@ -232,8 +258,12 @@ def test_gaussian_crosstalk():
     g = GaussianCrosstalk(s)
     f = np.linspace(0, 1, 11)
     # Fourier transform of a unit-area Gaussian of sd s (numerically)
-    ft = [integrate.quad(lambda x: np.exp(-x * x / (2 * s * s)) / np.sqrt(2 * np.pi) / s
-                         * np.cos(2 * np.pi * fi * x), -10, 10)[0] for fi in f]
+    ft = [
+        integrate.quad(
+            lambda x: np.exp(-x * x / (2 * s * s)) / np.sqrt(2 * np.pi) / s * np.cos(2 * np.pi * fi * x), -10, 10
+        )[0]
+        for fi in f
+    ]
     np.testing.assert_allclose(g.radial(f), ft, atol=1e-10)
     an = GaussianCrosstalk(0.2, sigma_y_px=0.5)
     assert an.mtf2d(0.3, 0.0) > an.mtf2d(0.0, 0.3)
@@ -250,11 +280,13 @@ def test_fig3_diffraction_vs_detector():
 
 def test_mtf50():
     assert mtf50_cy_per_px(PixelAperture()) == pytest.approx(
-        optimize.brentq(lambda f: np.sinc(f) - 0.5, 0.1, 0.9), abs=1e-10)
+        optimize.brentq(lambda f: np.sinc(f) - 0.5, 0.1, 0.9), abs=1e-10
+    )
     assert np.isnan(mtf50_cy_per_px(lambda f: np.ones_like(f)))
 
 
 # ---------------------------------------------------------------- Eq. 8 vs Eq. 9
+
 
 class _Const:
     cutoff_cy_per_px = np.inf
@@ -274,12 +306,18 @@ def test_constant_mtf_eq8_vs_eq9(m):
     assert float(mtf_loss_bits_eq8(_Const(m)).delta_s_bits) == pytest.approx(2 * np.log2(m), rel=1e-12)
     assert float(mtf_loss_bits(_Const(m)).delta_s_bits) == pytest.approx(np.pi / 2 * np.log2(m), rel=1e-12)
     assert float(mtf_loss_bits_eq8(_Const(m), domain="disc").delta_s_bits) == pytest.approx(
-        np.pi / 2 * np.log2(m), rel=1e-12)
+        np.pi / 2 * np.log2(m), rel=1e-12
+    )
 
 
-@pytest.mark.parametrize("comp", [DiffractionLens(pixel_pitch_um=1.45, wavelength_nm=550),
-                                  DiffractionLens(pixel_pitch_um=0.6, wavelength_nm=550),  # cut band
-                                  GaussianCrosstalk(0.35)])
+@pytest.mark.parametrize(
+    "comp",
+    [
+        DiffractionLens(pixel_pitch_um=1.45, wavelength_nm=550),
+        DiffractionLens(pixel_pitch_um=0.6, wavelength_nm=550),  # cut band
+        GaussianCrosstalk(0.35),
+    ],
+)
 def test_eq8_on_disc_equals_eq9_for_isotropic(comp):
     e8 = mtf_loss_bits_eq8(comp, domain="disc", n=256)
     e9 = mtf_loss_bits(comp, n_nodes=256)
@@ -292,14 +330,17 @@ def test_gaussian_closed_forms():
     s, fn = 0.4, 0.5
     g = GaussianCrosstalk(s)
     eq8 = -8 * np.pi**2 * s**2 * fn**2 / (3 * np.log(2))  # mean of log2 G² over the square
-    eq9 = -np.pi**3 * s**2 * fn**2 / (2 * np.log(2))
+    eq9 = -(np.pi**3) * s**2 * fn**2 / (2 * np.log(2))
     assert float(mtf_loss_bits_eq8(g).delta_s_bits) == pytest.approx(eq8, rel=1e-12)
     assert float(mtf_loss_bits(g).delta_s_bits) == pytest.approx(eq9, rel=1e-12)
 
 
 def test_eq8_adds_over_components():
-    comps = (LShapedAperture(), GaussianCrosstalk(0.3, sigma_y_px=0.2),
-             DiffractionLens(pixel_pitch_um=2.8, wavelength_nm=550))
+    comps = (
+        LShapedAperture(),
+        GaussianCrosstalk(0.3, sigma_y_px=0.2),
+        DiffractionLens(pixel_pitch_um=2.8, wavelength_nm=550),
+    )
     total = float(mtf_loss_bits_eq8(MTFProduct(components=comps)).delta_s_bits)
     parts = [float(mtf_loss_bits_eq8(c).delta_s_bits) for c in comps]
     assert total == pytest.approx(sum(parts), rel=1e-12)
@@ -338,7 +379,8 @@ def test_eq8_band_cut_where_lens_cuts_inside_square():
     assert float(sq.delta_s_bits - dc.delta_s_bits) == pytest.approx(np.log2(np.pi / 4), rel=1e-12)
     # convergence at the logarithmic end-point singularity: n=64 vs 256 within 1e-3 bit
     assert float(mtf_loss_bits_eq8(lens, n=64).delta_s_bits) == pytest.approx(
-        float(mtf_loss_bits_eq8(lens, n=256).delta_s_bits), abs=1e-3)
+        float(mtf_loss_bits_eq8(lens, n=256).delta_s_bits), abs=1e-3
+    )
 
 
 def test_eq8_tabulated_zero_region_and_interior_zero_lines():
@@ -356,6 +398,7 @@ def test_eq8_tabulated_zero_region_and_interior_zero_lines():
 
 
 # ---------------------------------------------------------------- Fig. 4 sweep
+
 
 @pytest.fixture(scope="module")
 def sweep_eq9():
@@ -418,15 +461,20 @@ def test_interpolate_tr_least_squares_trend():
 
 def test_cli_json(capsys):
     parser = cli_sweep.add_sweep_arguments(argparse.ArgumentParser())
-    args = parser.parse_args(["pixel-size", "--format", "1/4in", "--f-number", "2.8", "--json",
-                              "--seed", "5", "--draws", "200"])
+    args = parser.parse_args(
+        ["pixel-size", "--format", "1/4in", "--f-number", "2.8", "--json", "--seed", "5", "--draws", "200"]
+    )
     assert cli_sweep.run_sweep(args) == 0
     out = json.loads(capsys.readouterr().out)
     o = out["optimal_pitch"]
     assert o["ci95_um"][0] <= o["ci68_um"][0] <= o["median_um"] <= o["ci68_um"][1] <= o["ci95_um"][1]
     assert out["settings"]["imaging_area_mm"] == [3.6, 2.7]
-    assert out["settings"]["draws"] == {"n": 200, "seed": 5, "full_well": "uniform within the Table 1 range",
-                                        "prnu": "uniform in [0, bound]"}
+    assert out["settings"]["draws"] == {
+        "n": 200,
+        "seed": 5,
+        "full_well": "uniform within the Table 1 range",
+        "prnu": "uniform in [0, bound]",
+    }
     args = parser.parse_args(["pixel-size", "--draws", "50"])
     assert cli_sweep.run_sweep(args) == 0
     assert "optimal pitch: median" in capsys.readouterr().out

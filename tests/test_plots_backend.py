@@ -39,8 +39,12 @@ def test_report_figures_keep_the_backend(svg_backend):
     from bayescap.report.html import _png, plot_capacity, plot_snr_sensor, plot_tr_h0
     from bayescap.studies.compare import compare
 
-    cmp = compare([ROOT / "data/benchmark/M1_1.75um.csv", ROOT / "data/benchmark/M2_1.75um.csv"], seed=1,
-                  quality="fast", n_draws=500)
+    cmp = compare(
+        [ROOT / "data/benchmark/M1_1.75um.csv", ROOT / "data/benchmark/M2_1.75um.csv"],
+        seed=1,
+        quality="fast",
+        n_draws=500,
+    )
     rc = dict(matplotlib.rcParams)
     for fig in (plot_capacity(cmp), plot_tr_h0(cmp), plot_snr_sensor(cmp.sensors[0])):
         assert _png(fig)

@@ -1,4 +1,5 @@
 """Reading photon-transfer CSVs: the contract, and clear refusals (file, row, column; exit 2)."""
+
 import subprocess
 import sys
 
@@ -19,8 +20,14 @@ def _write(tmp_path, text, name="s.csv"):
 
 
 def test_reads_metadata_rows_and_sorts(tmp_path):
-    p = _write(tmp_path, "# sensor: demo\n# adc_bits: 12\n# pixel_pitch_um: 1.75\n# custom: kept\n"
-               + HEADER + "\n" + "\n".join(reversed(GOOD_ROWS)) + "\n")
+    p = _write(
+        tmp_path,
+        "# sensor: demo\n# adc_bits: 12\n# pixel_pitch_um: 1.75\n# custom: kept\n"
+        + HEADER
+        + "\n"
+        + "\n".join(reversed(GOOD_ROWS))
+        + "\n",
+    )
     d = read_ptc_csv(p)
     assert d.metadata == {"sensor": "demo", "adc_bits": 12, "pixel_pitch_um": 1.75, "custom": "kept"}
     assert list(d.mean_dn) == [100, 200, 300]
@@ -37,42 +44,66 @@ def test_overrides_replace_metadata(tmp_path):
 
 
 def test_round_trip_with_sparse_spatial_columns(tmp_path):
-    cols = {"exposure_time_s": [0.1, 0.2], "mean_dn": [100.0, 200.0], "temporal_var_dn2": [30.0, 55.0],
-            "dark_mean_dn": [10.0, 10.0], "dark_temporal_var_dn2": [5.0, 5.0], "n_pixels": [100, 100],
-            "spatial_var_dn2": [np.nan, 12.5], "n_frames": [np.nan, 16]}
+    cols = {
+        "exposure_time_s": [0.1, 0.2],
+        "mean_dn": [100.0, 200.0],
+        "temporal_var_dn2": [30.0, 55.0],
+        "dark_mean_dn": [10.0, 10.0],
+        "dark_temporal_var_dn2": [5.0, 5.0],
+        "n_pixels": [100, 100],
+        "spatial_var_dn2": [np.nan, 12.5],
+        "n_frames": [np.nan, 16],
+    }
     write_ptc_csv({k: np.asarray(v, float) for k, v in cols.items()}, tmp_path / "x.csv", metadata={"sensor": "a"})
     d = read_ptc_csv(tmp_path / "x.csv")
     assert np.isnan(d.spatial_var_dn2[0]) and d.spatial_var_dn2[1] == 12.5 and d.n_frames[1] == 16
 
 
 BAD = {
-    "missing column": (HEADER.replace(",n_pixels", "") + "\n0.001,100,30,10,5\n0.002,200,55,10,5\n",
-                       ["missing required column", "n_pixels"]),
-    "text in a number": (HEADER + "\n0.001,100,abc,10,5,10000\n" + GOOD_ROWS[1] + "\n",
-                         ["row 1", "temporal_var_dn2", "expected a number", "'abc'"]),
+    "missing column": (
+        HEADER.replace(",n_pixels", "") + "\n0.001,100,30,10,5\n0.002,200,55,10,5\n",
+        ["missing required column", "n_pixels"],
+    ),
+    "text in a number": (
+        HEADER + "\n0.001,100,abc,10,5,10000\n" + GOOD_ROWS[1] + "\n",
+        ["row 1", "temporal_var_dn2", "expected a number", "'abc'"],
+    ),
     "NaN": (HEADER + "\n" + GOOD_ROWS[0] + "\n0.002,nan,55,10,5,10000\n", ["row 2", "mean_dn", "finite"]),
-    "negative variance": (HEADER + "\n" + GOOD_ROWS[0] + "\n0.002,200,-55,10,5,10000\n",
-                          ["row 2", "temporal_var_dn2", "negative variance"]),
+    "negative variance": (
+        HEADER + "\n" + GOOD_ROWS[0] + "\n0.002,200,-55,10,5,10000\n",
+        ["row 2", "temporal_var_dn2", "negative variance"],
+    ),
     "one row": (HEADER + "\n" + GOOD_ROWS[0] + "\n", ["at least 2 data rows"]),
     "empty file": ("", ["empty file"]),
-    "negative exposure": (HEADER + "\n-0.001,100,30,10,5,10000\n" + GOOD_ROWS[1] + "\n",
-                          ["row 1", "exposure_time_s", "negative"]),
+    "negative exposure": (
+        HEADER + "\n-0.001,100,30,10,5,10000\n" + GOOD_ROWS[1] + "\n",
+        ["row 1", "exposure_time_s", "negative"],
+    ),
     "n_pixels < 2": (HEADER + "\n0.001,100,30,10,5,1\n" + GOOD_ROWS[1] + "\n", ["row 1", "n_pixels"]),
     "short row": (HEADER + "\n0.001,100,30\n" + GOOD_ROWS[1] + "\n", ["row 1", "fields"]),
     "bad metadata": ("# adc_bits: twelve\n" + HEADER + "\n" + "\n".join(GOOD_ROWS), ["adc_bits", "metadata line 1"]),
-    "negative crosstalk": ("# crosstalk_sigma_px: -0.3\n" + HEADER + "\n" + "\n".join(GOOD_ROWS),
-                           ["crosstalk_sigma_px", ">= 0"]),
-    "mean above ADC max": ("# adc_bits: 8\n" + HEADER + "\n" + GOOD_ROWS[0] + "\n0.002,300,55,10,5,10000\n",
-                           ["row 2", "mean_dn", "ADC maximum"]),
+    "negative crosstalk": (
+        "# crosstalk_sigma_px: -0.3\n" + HEADER + "\n" + "\n".join(GOOD_ROWS),
+        ["crosstalk_sigma_px", ">= 0"],
+    ),
+    "mean above ADC max": (
+        "# adc_bits: 8\n" + HEADER + "\n" + GOOD_ROWS[0] + "\n0.002,300,55,10,5,10000\n",
+        ["row 2", "mean_dn", "ADC maximum"],
+    ),
     # found by corrupting the Basler CSV value by value (2026-11-25): these reached the optimiser,
     # whose overflow ended in a traceback
-    "implausibly large value": (HEADER + "\n" + GOOD_ROWS[0] + "\n1e308,200,55,10,5,10000\n",
-                                ["row 2", "exposure_time_s", "implausibly large"]),
-    "variance beyond the ADC's range": ("# adc_bits: 8\n" + HEADER + "\n" + GOOD_ROWS[0]
-                                        + "\n0.002,200,70000,10,5,10000\n",
-                                        ["row 2", "temporal_var_dn2", "square of the ADC maximum"]),
-    "temperature below absolute zero": ("# temperature_c: -300\n" + HEADER + "\n" + "\n".join(GOOD_ROWS),
-                                        ["temperature_c", "absolute zero"]),
+    "implausibly large value": (
+        HEADER + "\n" + GOOD_ROWS[0] + "\n1e308,200,55,10,5,10000\n",
+        ["row 2", "exposure_time_s", "implausibly large"],
+    ),
+    "variance beyond the ADC's range": (
+        "# adc_bits: 8\n" + HEADER + "\n" + GOOD_ROWS[0] + "\n0.002,200,70000,10,5,10000\n",
+        ["row 2", "temporal_var_dn2", "square of the ADC maximum"],
+    ),
+    "temperature below absolute zero": (
+        "# temperature_c: -300\n" + HEADER + "\n" + "\n".join(GOOD_ROWS),
+        ["temperature_c", "absolute zero"],
+    ),
 }
 
 
@@ -88,14 +119,16 @@ def test_malformed_csv_refused_with_location(tmp_path, case):
         assert frag in msg, (frag, msg)
 
 
-@pytest.mark.parametrize("case", ["missing column", "text in a number", "NaN", "negative variance",
-                                  "one row", "empty file"])
+@pytest.mark.parametrize(
+    "case", ["missing column", "text in a number", "NaN", "negative variance", "one row", "empty file"]
+)
 def test_cli_refuses_bad_csv_exit_2_one_line_no_traceback(tmp_path, case):
     text, fragments = BAD[case]
     p = _write(tmp_path, text)
     out = tmp_path / "out"
-    r = subprocess.run([sys.executable, "-m", "bayescap.cli", "fit", str(p), "--out", str(out)],
-                       capture_output=True, text=True)
+    r = subprocess.run(
+        [sys.executable, "-m", "bayescap.cli", "fit", str(p), "--out", str(out)], capture_output=True, text=True
+    )
     assert r.returncode == 2
     assert r.stdout == ""
     lines = r.stderr.strip().splitlines()
@@ -105,8 +138,9 @@ def test_cli_refuses_bad_csv_exit_2_one_line_no_traceback(tmp_path, case):
 
 
 def test_cli_missing_file(tmp_path):
-    r = subprocess.run([sys.executable, "-m", "bayescap.cli", "fit", str(tmp_path / "nope.csv")],
-                       capture_output=True, text=True)
+    r = subprocess.run(
+        [sys.executable, "-m", "bayescap.cli", "fit", str(tmp_path / "nope.csv")], capture_output=True, text=True
+    )
     assert r.returncode == 2 and "file not found" in r.stderr and "Traceback" not in r.stderr
 
 
@@ -121,18 +155,22 @@ def _basler_variant(basler_csv, tmp_path, edit, meta=""):
     strings) and ``meta`` lines added: the path, and the file row label of each data row."""
     lines = basler_csv.read_text().splitlines()
     k = next(i for i, ln in enumerate(lines) if not ln.startswith("#"))
-    header, rows = lines[k].split(","), [ln.split(",") for ln in lines[k + 1:] if ln.strip()]
+    header, rows = lines[k].split(","), [ln.split(",") for ln in lines[k + 1 :] if ln.strip()]
     edit(header, rows)
     p = tmp_path / "variant.csv"
-    p.write_text("\n".join(lines[:k] + ([meta] if meta else []) + [",".join(header)]
-                           + [",".join(r) for r in rows]) + "\n")
+    p.write_text(
+        "\n".join(lines[:k] + ([meta] if meta else []) + [",".join(header)] + [",".join(r) for r in rows]) + "\n"
+    )
     return p
 
 
 def _cli_fit_refuses(p, tmp_path, fragments):
     out = tmp_path / "out"
-    r = subprocess.run([sys.executable, "-m", "bayescap.cli", "fit", str(p), "--quality", "fast", "--seed", "1",
-                        "--out", str(out)], capture_output=True, text=True)
+    r = subprocess.run(
+        [sys.executable, "-m", "bayescap.cli", "fit", str(p), "--quality", "fast", "--seed", "1", "--out", str(out)],
+        capture_output=True,
+        text=True,
+    )
     assert r.returncode == 2, r.stderr
     assert r.stdout == "" and "Traceback" not in r.stderr and not out.exists()
     lines = r.stderr.strip().splitlines()
@@ -145,8 +183,10 @@ def test_value_no_parameter_can_explain_is_refused_with_its_row(tmp_path, basler
     """A spatial variance of 0 on an unsaturated row (the reader accepts it: a dark one can be 0)
     has no finite likelihood anywhere; the optimiser had stopped with a RuntimeError and a
     traceback. Now: exit 2, the file, the row and the column (fit._no_finite_start)."""
+
     def zero_spatial(header, rows):
-        rows[17][header.index("spatial_var_dn2")] = "0"      # file row 18
+        rows[17][header.index("spatial_var_dn2")] = "0"  # file row 18
+
     p = _basler_variant(basler_csv, tmp_path, zero_spatial)
     _cli_fit_refuses(p, tmp_path, [str(p), "row 18", "column 'spatial_var_dn2'", "no finite likelihood"])
 
@@ -161,11 +201,16 @@ def test_mtf_zero_at_every_frequency_is_refused_before_fitting(tmp_path, basler_
 def test_batch_names_an_input_error_once(tmp_path, basler_csv):
     """``bayescap fit A.csv B.csv``: a sensor whose value no parameter can explain is reported as the
     input error it is (file, row, column), once per line, and the batch exits 1."""
+
     def zero_spatial(header, rows):
         rows[17][header.index("spatial_var_dn2")] = "0"
+
     p = _basler_variant(basler_csv, tmp_path, zero_spatial)
-    r = subprocess.run([sys.executable, "-m", "bayescap.cli", "fit", str(p), str(p), "--quality", "fast"],
-                       capture_output=True, text=True)
+    r = subprocess.run(
+        [sys.executable, "-m", "bayescap.cli", "fit", str(p), str(p), "--quality", "fast"],
+        capture_output=True,
+        text=True,
+    )
     assert r.returncode == 1 and "Traceback" not in r.stderr
     lines = r.stderr.strip().splitlines()
     assert len(lines) == 2
@@ -182,16 +227,35 @@ def test_mtf_above_one_is_flagged_and_an_all_zero_table_refused(tmp_path, basler
 
     sharp = tmp_path / "sharp.csv"
     sharp.write_text("freq_cy_per_px,mtf\n0.05,1.6\n0.5,1.4\n")
-    r = subprocess.run([sys.executable, "-m", "bayescap.cli", "fit", str(basler_csv), "--quality", "fast",
-                        "--seed", "1", "--mtf", str(sharp), "--json"], capture_output=True, text=True)
+    r = subprocess.run(
+        [
+            sys.executable,
+            "-m",
+            "bayescap.cli",
+            "fit",
+            str(basler_csv),
+            "--quality",
+            "fast",
+            "--seed",
+            "1",
+            "--mtf",
+            str(sharp),
+            "--json",
+        ],
+        capture_output=True,
+        text=True,
+    )
     assert r.returncode == 0, r.stderr
     d = json.loads(r.stdout)
     assert d["flags"].get("mtf_above_one") is True
     assert any(n.startswith("the MTF exceeds 1") for n in d["notes"])
     zeros = tmp_path / "zeros.csv"
     zeros.write_text("freq_cy_per_px,mtf\n0.05,0\n0.5,0\n")
-    r = subprocess.run([sys.executable, "-m", "bayescap.cli", "fit", str(basler_csv), "--quality", "fast",
-                        "--mtf", str(zeros)], capture_output=True, text=True)
+    r = subprocess.run(
+        [sys.executable, "-m", "bayescap.cli", "fit", str(basler_csv), "--quality", "fast", "--mtf", str(zeros)],
+        capture_output=True,
+        text=True,
+    )
     assert r.returncode == 2 and "Traceback" not in r.stderr
     lines = r.stderr.strip().splitlines()
     assert len(lines) == 1 and "MTF is zero at every frequency" in lines[0] and "zeros.csv" in lines[0]

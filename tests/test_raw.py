@@ -3,6 +3,7 @@
 Real data: EMVA 1288 Reference Set 001 (Basler AG, Dr. Marco Grimm 2011, CC BY-SA 3.0; see
 tests/data/emva1288_basler/README.md).
 """
+
 from __future__ import annotations
 
 import argparse
@@ -18,8 +19,8 @@ from PIL import Image
 from scipy import stats
 
 import bayescap.io as raw
-from bayescap.exceptions import IngestError
 from bayescap.cli import ingest as cli_ingest
+from bayescap.exceptions import IngestError
 
 DATA = Path(__file__).parent / "data" / "emva1288_basler"
 N_CROP = 128 * 128
@@ -32,24 +33,38 @@ def write_png(path: Path, pixels: np.ndarray) -> None:
     Image.fromarray(np.ascontiguousarray(pixels)).save(path, compress_level=1)
 
 
-def write_dng(path: Path, pixels: np.ndarray, *, pattern: str | None, black=0, white=4095,
-              exposure=(1, 125), make="ACME", model="Test Cam") -> None:
+def write_dng(
+    path: Path,
+    pixels: np.ndarray,
+    *,
+    pattern: str | None,
+    black=0,
+    white=4095,
+    exposure=(1, 125),
+    make="ACME",
+    model="Test Cam",
+) -> None:
     """A DNG that LibRaw reads: CFA (photometric 32803) or monochrome LinearRaw (34892)."""
-    tags = [(50706, "B", 4, (1, 4, 0, 0), True),            # DNGVersion
-            (50717, "H", 1, white, True),                    # WhiteLevel
-            (33434, "2I", 1, exposure, True),                # ExposureTime
-            (271, "s", 0, make, True), (272, "s", 0, model, True)]
+    tags = [
+        (50706, "B", 4, (1, 4, 0, 0), True),  # DNGVersion
+        (50717, "H", 1, white, True),  # WhiteLevel
+        (33434, "2I", 1, exposure, True),  # ExposureTime
+        (271, "s", 0, make, True),
+        (272, "s", 0, model, True),
+    ]
     if pattern is None:
-        tags.append((50714, "H", 1, int(black), True))       # BlackLevel
+        tags.append((50714, "H", 1, int(black), True))  # BlackLevel
         tifffile.imwrite(path, pixels, photometric="minisblack", extratags=tags)
-        with tifffile.TiffFile(path, mode="r+b") as tif:     # minisblack -> LinearRaw
+        with tifffile.TiffFile(path, mode="r+b") as tif:  # minisblack -> LinearRaw
             tif.pages[0].tags[262].overwrite(34892)
     else:
         code = {"R": 0, "G": 1, "B": 2}
-        tags += [(33421, "H", 2, (2, 2), True),                              # CFARepeatPatternDim
-                 (33422, "B", 4, tuple(code[c] for c in pattern), True),    # CFAPattern
-                 (50713, "H", 2, (2, 2), True),                              # BlackLevelRepeatDim
-                 (50714, "H", 4, tuple(int(b) for b in np.ravel(black)), True)]
+        tags += [
+            (33421, "H", 2, (2, 2), True),  # CFARepeatPatternDim
+            (33422, "B", 4, tuple(code[c] for c in pattern), True),  # CFAPattern
+            (50713, "H", 2, (2, 2), True),  # BlackLevelRepeatDim
+            (50714, "H", 4, tuple(int(b) for b in np.ravel(black)), True),
+        ]
         tifffile.imwrite(path, pixels, photometric=32803, extratags=tags)
 
 
@@ -63,13 +78,17 @@ def read_ptc_csv(path: Path) -> tuple[dict[str, str], dict[str, np.ndarray]]:
         else:
             body.append(line)
     rows = list(csv.DictReader(io.StringIO("\n".join(body))))
-    cols = {k: np.array([float(r[k]) if r[k] != "" else np.nan for r in rows])
-            for k in rows[0]}
+    cols = {k: np.array([float(r[k]) if r[k] != "" else np.nan for r in rows]) for k in rows[0]}
     return meta, cols
 
 
-def write_manifest(path: Path, rows: list[tuple], *, metadata: dict | None = None,
-                   header=("file", "kind", "exposure_time_s", "photons_per_pixel")) -> Path:
+def write_manifest(
+    path: Path,
+    rows: list[tuple],
+    *,
+    metadata: dict | None = None,
+    header=("file", "kind", "exposure_time_s", "photons_per_pixel"),
+) -> Path:
     lines = [f"# {k}: {v}" for k, v in (metadata or {}).items()]
     lines.append(",".join(header))
     lines += [",".join("" if v is None else str(v) for v in row) for row in rows]
@@ -86,8 +105,7 @@ def pair_numpy(a: np.ndarray, b: np.ndarray) -> tuple[float, float]:
 
 
 def nothing_written(directory: Path, out: Path) -> bool:
-    return not out.exists() and not any(p.name.startswith(f".{out.name}")
-                                        for p in directory.iterdir())
+    return not out.exists() and not any(p.name.startswith(f".{out.name}") for p in directory.iterdir())
 
 
 @pytest.fixture(scope="module")
@@ -112,8 +130,9 @@ def png_pairs(crops, tmp_path_factory) -> Path:
             name = f"img/d_{step:03d}_{f}.png"
             write_png(root / name, crops["dark_pairs"][step, f])
             rows.append((name, "dark", repr(float(crops["dark_texp_ns"][step] / 1e9)), ""))
-    write_manifest(root / "manifest.csv", rows,
-                   metadata={"adc_bits": 12, "sensor": "Basler CCD (EMVA 1288 RefSet 001)"})
+    write_manifest(
+        root / "manifest.csv", rows, metadata={"adc_bits": 12, "sensor": "Basler CCD (EMVA 1288 RefSet 001)"}
+    )
     return root
 
 
@@ -144,7 +163,7 @@ def coded_mosaic(pattern: str, shape=(64, 96)) -> np.ndarray:
     """A mosaic whose values say which channel each pixel belongs to (R 1xxx, Gr 2xxx, ...)."""
     rng = np.random.default_rng(7)
     mosaic = np.zeros(shape, dtype=np.uint16)
-    for k, (name, (i, j)) in enumerate(EXPECTED_POSITIONS[pattern].items()):
+    for k, (_name, (i, j)) in enumerate(EXPECTED_POSITIONS[pattern].items()):
         plane = mosaic[i::2, j::2]
         plane[...] = 1000 * (k + 1) + rng.integers(0, 1000, plane.shape)
     return mosaic
@@ -216,11 +235,10 @@ def test_bayer_dng_set_gives_one_csv_per_channel(tmp_path):
                 plane = mosaic[i::2, j::2]
                 plane[...] = black[i, j] + rng.poisson(signal + 20, plane.shape)
             frames[kind, f] = mosaic.astype(np.uint16)
-            write_dng(tmp_path / f"{kind}_{f}.dng", frames[kind, f], pattern=pattern,
-                      black=black, exposure=(1, 100))
-    manifest = write_manifest(tmp_path / "manifest.csv",
-                              [(f"{k}_{f}.dng", k, "", "") for k in ("bright", "dark")
-                               for f in range(2)])
+            write_dng(tmp_path / f"{kind}_{f}.dng", frames[kind, f], pattern=pattern, black=black, exposure=(1, 100))
+    manifest = write_manifest(
+        tmp_path / "manifest.csv", [(f"{k}_{f}.dng", k, "", "") for k in ("bright", "dark") for f in range(2)]
+    )
     out = tmp_path / "out" / "ptc.csv"
     paths = raw.ingest(manifest, out=out, channel="all")  # default ROI: centred 50 %
     assert [p.name for p in paths] == ["ptc_R.csv", "ptc_Gr.csv", "ptc_Gb.csv", "ptc_B.csv"]
@@ -246,9 +264,10 @@ def test_bayer_dng_set_gives_one_csv_per_channel(tmp_path):
     raw.ingest(manifest, out=out_g, channel="G")
     _, cols = read_ptc_csv(out_g)
     (gi, gj), (bi, bj) = EXPECTED_POSITIONS[pattern]["Gr"], EXPECTED_POSITIONS[pattern]["Gb"]
-    pooled = [np.concatenate([frames["bright", f][roi][gi::2, gj::2].ravel(),
-                              frames["bright", f][roi][bi::2, bj::2].ravel()])
-              for f in range(2)]
+    pooled = [
+        np.concatenate([frames["bright", f][roi][gi::2, gj::2].ravel(), frames["bright", f][roi][bi::2, bj::2].ravel()])
+        for f in range(2)
+    ]
     mean, var = pair_numpy(*pooled)
     np.testing.assert_allclose(cols["mean_dn"], [mean], rtol=1e-12)
     np.testing.assert_allclose(cols["temporal_var_dn2"], [var], rtol=1e-10)
@@ -271,8 +290,7 @@ def test_parse_roi():
 def test_png_set_matches_numpy_on_the_crops(png_result, crops):
     meta, cols = png_result
     assert len(cols["mean_dn"]) == 50
-    np.testing.assert_allclose(cols["exposure_time_s"], crops["bright_texp_ns"] / 1e9,
-                               rtol=1e-15)
+    np.testing.assert_allclose(cols["exposure_time_s"], crops["bright_texp_ns"] / 1e9, rtol=1e-15)
     np.testing.assert_array_equal(cols["photons_per_pixel"], crops["bright_photons_per_pixel"])
     for step in range(50):
         mean, var = pair_numpy(*crops["bright_pairs"][step])
@@ -315,7 +333,7 @@ def test_crop_variances_agree_with_the_full_frame_table(png_result):
     assert unsat.sum() == 37 and z.size == 87
     limit = stats.norm.isf(0.01 / (2 * z.size))
     assert np.max(np.abs(z)) < limit, (np.max(np.abs(z)), limit)
-    assert stats.chi2.sf(np.sum(z ** 2), z.size) > 1e-3
+    assert stats.chi2.sf(np.sum(z**2), z.size) > 1e-3
 
 
 def test_crop_means_agree_with_the_full_frame_table(png_result, crops):
@@ -340,17 +358,19 @@ def test_crop_means_agree_with_the_full_frame_table(png_result, crops):
     signal_crop = cols["mean_dn"][unsat] - cols["dark_mean_dn"][unsat]
     signal_full = full["mean_DN"][unsat] - full["dark_mean_DN"][unsat]
     ratio = signal_crop / signal_full
-    err = np.array([np.hypot(mean_error(crops["bright_pairs"][s]),
-                             mean_error(crops["dark_pairs"][s])) for s in unsat]) / signal_full
-    r = np.average(ratio, weights=err ** -2)
+    err = (
+        np.array([np.hypot(mean_error(crops["bright_pairs"][s]), mean_error(crops["dark_pairs"][s])) for s in unsat])
+        / signal_full
+    )
+    r = np.average(ratio, weights=err**-2)
     z = (ratio - r) / err
     assert abs(r - 1) < 0.03
     assert np.max(np.abs(z)) < stats.norm.isf(0.01 / (2 * z.size))
-    assert stats.chi2.sf(np.sum(z ** 2), z.size - 1) > 1e-3
+    assert stats.chi2.sf(np.sum(z**2), z.size - 1) > 1e-3
     # the dark means differ by a constant fixed-pattern offset, within the same errors
     dark_err = np.array([mean_error(crops["dark_pairs"][s]) for s in range(50)])
     delta = cols["dark_mean_dn"] - full["dark_mean_DN"]
-    offset = np.average(delta, weights=dark_err ** -2)
+    offset = np.average(delta, weights=dark_err**-2)
     zd = (delta - offset) / dark_err
     assert np.max(np.abs(zd)) < stats.norm.isf(0.01 / (2 * zd.size))
     # full-frame saturation is reached where the crop saturates too
@@ -363,20 +383,25 @@ def test_spatial_stacks_give_spatial_variance(crops, tmp_path):
     texp = crops["spatial_bright_texp_ns"] / 1e9
     photons = crops["spatial_bright_photons_per_pixel"]
     rows = []
-    for kind, stack in (("bright", crops["spatial_bright_stack"]),
-                        ("dark", crops["spatial_dark_stack"])):
+    for kind, stack in (("bright", crops["spatial_bright_stack"]), ("dark", crops["spatial_dark_stack"])):
         for f, image in enumerate(stack):
             write_png(tmp_path / f"{kind}_{f:02d}.png", image)
-            rows.append((f"{kind}_{f:02d}.png", kind, repr(float(texp)),
-                         repr(float(photons)) if kind == "bright" else ""))
+            rows.append(
+                (f"{kind}_{f:02d}.png", kind, repr(float(texp)), repr(float(photons)) if kind == "bright" else "")
+            )
     centre = (slice(32, 96), slice(32, 96))  # a pair level cut to the stacks' 64x64
     pair_texp = repr(float(crops["bright_texp_ns"][10] / 1e9))
     for kind, key in (("bright", "bright_pairs"), ("dark", "dark_pairs")):
         for f in range(2):
             write_png(tmp_path / f"pair_{kind}_{f}.png", crops[key][10, f][centre])
-            rows.append((f"pair_{kind}_{f}.png", kind, pair_texp,
-                         repr(float(crops["bright_photons_per_pixel"][10]))
-                         if kind == "bright" else ""))
+            rows.append(
+                (
+                    f"pair_{kind}_{f}.png",
+                    kind,
+                    pair_texp,
+                    repr(float(crops["bright_photons_per_pixel"][10])) if kind == "bright" else "",
+                )
+            )
     write_manifest(tmp_path / "manifest.csv", rows, metadata={"adc_bits": 12})
     out = tmp_path / "stack.csv"
     raw.ingest(tmp_path, out=out, roi=1.0)  # a directory with manifest.csv inside
@@ -396,10 +421,10 @@ def test_spatial_stacks_give_spatial_variance(crops, tmp_path):
     # row 0: the pair (2.9 ms) carries the spatial variance of its two-frame average
     assert cols["n_frames"][0] == 2 and cols["dark_n_frames"][0] == 2
     pair = crops["bright_pairs"][10][:, centre[0], centre[1]].astype(np.float64)
-    np.testing.assert_allclose(cols["spatial_var_dn2"][0], np.var(pair.mean(axis=0), ddof=1),
-                               rtol=1e-10)
+    np.testing.assert_allclose(cols["spatial_var_dn2"][0], np.var(pair.mean(axis=0), ddof=1), rtol=1e-10)
     # the project's own contract reader takes the table as it is
     from bayescap.io.ptc_csv import read_ptc_csv as contract_reader
+
     data = contract_reader(out)
     assert data.n_levels == 2 and data.metadata["adc_bits"] == 12
 
@@ -410,15 +435,13 @@ def test_dng_crops_through_a_manifest(crops, tmp_path):
     rows = []
     for step in (0, 5, 10, 20, 30, 36):
         photons = crops["bright_photons_per_pixel"][step]
-        rows += [(str(dng / f"bright_step{step:03d}_{f}.dng"), "bright", "", repr(float(photons)))
-                 for f in "ab"]
+        rows += [(str(dng / f"bright_step{step:03d}_{f}.dng"), "bright", "", repr(float(photons))) for f in "ab"]
         if step == 0:
             rows += [(str(dng / f"dark_step000_{f}.dng"), "dark", "", "") for f in "ab"]
         else:
             for f in range(2):
                 write_png(tmp_path / f"d_{step}_{f}.png", crops["dark_pairs"][step, f])
-                rows.append((f"d_{step}_{f}.png", "dark",
-                             repr(float(crops["dark_texp_ns"][step] / 1e9)), ""))
+                rows.append((f"d_{step}_{f}.png", "dark", repr(float(crops["dark_texp_ns"][step] / 1e9)), ""))
     manifest = write_manifest(tmp_path / "dng.csv", rows)
     out = tmp_path / "dng_ptc.csv"
     raw.ingest(manifest, out=out, roi="0,0,128,128", channel="all")  # mono: channel ignored
@@ -440,25 +463,21 @@ def test_emva_descriptor_with_png_frames(crops, tmp_path):
     steps = (3, 17, 33)
     lines = ["# test descriptor in the EMVA 1288 reference-set layout", "v 3.0", "n 12 128 128"]
     for step in steps:
-        lines.append(f"b {crops['bright_texp_ns'][step]:.1f} "
-                     f"{crops['bright_photons_per_pixel'][step]:.1f}")
+        lines.append(f"b {crops['bright_texp_ns'][step]:.1f} {crops['bright_photons_per_pixel'][step]:.1f}")
         for f in range(2):
-            write_png(tmp_path / "images" / f"b_{step:03d}_snap_{f}.png",
-                      crops["bright_pairs"][step, f])
+            write_png(tmp_path / "images" / f"b_{step:03d}_snap_{f}.png", crops["bright_pairs"][step, f])
             lines.append(f"i images\\b_{step:03d}_snap_{f}.png")
     for step in steps:
         lines.append(f"d {crops['dark_texp_ns'][step]:.1f}")
         for f in range(2):
-            write_png(tmp_path / "images" / f"d_{step:03d}_snap_{f}.png",
-                      crops["dark_pairs"][step, f])
+            write_png(tmp_path / "images" / f"d_{step:03d}_snap_{f}.png", crops["dark_pairs"][step, f])
             lines.append(f"i images\\d_{step:03d}_snap_{f}.png")
     (tmp_path / "EMVA1288_Data.txt").write_bytes("\r\n".join(lines).encode() + b"\r\n")
     out = tmp_path / "out.csv"
     raw.ingest(tmp_path, out=out, roi="0,0,128,128")  # directory -> the *.txt descriptor
     meta, cols = read_ptc_csv(out)
     assert meta["adc_bits"] == "12" and meta["emva1288_descriptor_version"] == "3.0"
-    np.testing.assert_allclose(cols["photons_per_pixel"],
-                               crops["bright_photons_per_pixel"][list(steps)])
+    np.testing.assert_allclose(cols["photons_per_pixel"], crops["bright_photons_per_pixel"][list(steps)])
     for k, step in enumerate(steps):
         mean, var = pair_numpy(*crops["bright_pairs"][step])
         np.testing.assert_allclose(cols["mean_dn"][k], mean, rtol=1e-13)
@@ -524,9 +543,17 @@ def case_photons_on_some_levels(root, crops, rows):
     return rows, "row 6, column 'photons_per_pixel': photons_per_pixel is empty for bright frame b_1_0.png"
 
 
-@pytest.mark.parametrize("case", [case_mismatched_size, case_missing_partner, case_truncated,
-                                  case_text_exposure, case_missing_dark,
-                                  case_photons_on_some_levels])
+@pytest.mark.parametrize(
+    "case",
+    [
+        case_mismatched_size,
+        case_missing_partner,
+        case_truncated,
+        case_text_exposure,
+        case_missing_dark,
+        case_photons_on_some_levels,
+    ],
+)
 def test_bad_input_is_refused_naming_the_file(crops, tmp_path, case):
     rows = small_png_set(tmp_path, crops)
     rows, expected = case(tmp_path, crops, rows)
@@ -609,8 +636,10 @@ def test_ingested_crops_fit_to_the_full_frame_gain(png_csv):
     sd = np.hypot(kc.std(), kf.std())
     diff = np.median(kc) - np.median(kf)
     assert crop.diag["converged"] and full.diag["converged"]
-    assert abs(diff) < 3 * sd, (f"K crop {np.median(kc):.4f} ± {kc.std():.4f}, full {np.median(kf):.4f} ± "
-                                f"{kf.std():.4f} e-/DN: difference {diff:.4f} vs 3 sd {3 * sd:.4f}")
+    assert abs(diff) < 3 * sd, (
+        f"K crop {np.median(kc):.4f} ± {kc.std():.4f}, full {np.median(kf):.4f} ± "
+        f"{kf.std():.4f} e-/DN: difference {diff:.4f} vs 3 sd {3 * sd:.4f}"
+    )
     # the crop's error is the larger one, as its pixel count says
     assert kc.std() > kf.std()
 
@@ -634,8 +663,11 @@ def test_broken_tiff_frame_is_one_line_of_error(tmp_path):
     rows[1] = "broken.tif," + rows[1].split(",", 1)[1]
     (tmp_path / "manifest.csv").write_text("# adc_bits: 12\n" + "\n".join(rows) + "\n")
     out = tmp_path / "ptc.csv"
-    r = subprocess.run([sys.executable, "-m", "bayescap.cli", "ingest", str(tmp_path / "manifest.csv"),
-                        "-o", str(out)], capture_output=True, text=True)
+    r = subprocess.run(
+        [sys.executable, "-m", "bayescap.cli", "ingest", str(tmp_path / "manifest.csv"), "-o", str(out)],
+        capture_output=True,
+        text=True,
+    )
     assert r.returncode == 2 and not out.exists()
     lines = r.stderr.strip().splitlines()
     assert len(lines) == 1 and lines[0].startswith("bayescap ingest: error:") and "broken.tif" in lines[0], r.stderr
@@ -646,8 +678,10 @@ def test_raw_file_without_rawpy_is_one_line_naming_the_extra(tmp_path, monkeypat
     what to install, not an ImportError traceback."""
     import sys
 
-    monkeypatch.setitem(sys.modules, "rawpy", None)      # import rawpy now raises ImportError
+    monkeypatch.setitem(sys.modules, "rawpy", None)  # import rawpy now raises ImportError
     f = tmp_path / "a.dng"
     f.write_bytes(b"not read")
-    with pytest.raises(IngestError, match=r"a\.dng: reading a RAW or DNG file needs rawpy: pip install 'bayescap\[raw\]'"):
+    with pytest.raises(
+        IngestError, match=r"a\.dng: reading a RAW or DNG file needs rawpy: pip install 'bayescap\[raw\]'"
+    ):
         raw.read_frame(f)

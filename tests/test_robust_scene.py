@@ -1,14 +1,20 @@
 """Issue 6 behaviours: identifiability, unsaturated series, outlier rows, scenes."""
+
 import numpy as np
 import pytest
 
 import bayescap
-from bayescap.posterior import Scene
 from bayescap.io.ptc_csv import write_ptc_csv
+from bayescap.posterior import Scene
 from bayescap.simulate import SensorTruth, simulate_ptc
 
-TRUTH = SensorTruth(conversion_gain_e_per_dn=2.0, read_noise_e=4.0, full_well_e=9000.0, dark_current_e_per_s=30.0,
-                    quantum_efficiency=0.6)
+TRUTH = SensorTruth(
+    conversion_gain_e_per_dn=2.0,
+    read_noise_e=4.0,
+    full_well_e=9000.0,
+    dark_current_e_per_s=30.0,
+    quantum_efficiency=0.6,
+)
 
 
 def test_single_exposure_time_reports_only_the_combination():
@@ -38,9 +44,19 @@ def test_unsaturated_series_gives_a_lower_bound_for_full_well():
 def clean_and_corrupted(tmp_path_factory):
     tmp = tmp_path_factory.mktemp("corrupt")
     d = simulate_ptc(TRUTH, seed=7, path=tmp / "clean.csv", shape=(100, 100))
-    cols = {c: np.array(getattr(d, c)) for c in ("exposure_time_s", "mean_dn", "temporal_var_dn2", "dark_mean_dn",
-                                                 "dark_temporal_var_dn2", "n_pixels", "photons_per_pixel",
-                                                 "frac_saturated")}
+    cols = {
+        c: np.array(getattr(d, c))
+        for c in (
+            "exposure_time_s",
+            "mean_dn",
+            "temporal_var_dn2",
+            "dark_mean_dn",
+            "dark_temporal_var_dn2",
+            "n_pixels",
+            "photons_per_pixel",
+            "frac_saturated",
+        )
+    }
     # two bad rows: a lamp flicker (+40 %) and a dropped frame (-40 %) in the bright variance
     bad_idx = [10, 25]
     cols["temporal_var_dn2"][bad_idx] *= [1.4, 0.6]
@@ -81,8 +97,11 @@ def test_cli_scene_requires_reference_temperature(tmp_path):
 
     p = tmp_path / "s.csv"
     simulate_ptc(TRUTH, seed=1, path=p, shape=(40, 40), n_levels=12)
-    r = subprocess.run([sys.executable, "-m", "bayescap.cli", "fit", str(p), "--scene", "temperature_c=40"],
-                       capture_output=True, text=True)
+    r = subprocess.run(
+        [sys.executable, "-m", "bayescap.cli", "fit", str(p), "--scene", "temperature_c=40"],
+        capture_output=True,
+        text=True,
+    )
     assert r.returncode == 2 and "temperature_c" in r.stderr and "Traceback" not in r.stderr
 
 
@@ -92,9 +111,19 @@ def test_model_selection_by_loo_keeps_the_mixture_for_corrupted_rows(tmp_path):
     from bayescap.studies.selection import select_model
 
     d = simulate_ptc(TRUTH, seed=7, shape=(100, 100))
-    cols = {c: np.array(getattr(d, c)) for c in ("exposure_time_s", "mean_dn", "temporal_var_dn2", "dark_mean_dn",
-                                                 "dark_temporal_var_dn2", "n_pixels", "photons_per_pixel",
-                                                 "frac_saturated")}
+    cols = {
+        c: np.array(getattr(d, c))
+        for c in (
+            "exposure_time_s",
+            "mean_dn",
+            "temporal_var_dn2",
+            "dark_mean_dn",
+            "dark_temporal_var_dn2",
+            "n_pixels",
+            "photons_per_pixel",
+            "frac_saturated",
+        )
+    }
     cols["temporal_var_dn2"][[10, 25]] *= [1.4, 0.6]
     write_ptc_csv(cols, tmp_path / "bad.csv", metadata=d.metadata)
     r_bad, s_bad = select_model(bayescap.load(tmp_path / "bad.csv"), seed=1, quality="fast")
@@ -124,8 +153,15 @@ def test_dark_pixels_clipped_at_zero_are_flagged():
     from bayescap.simulate import SensorTruth, simulate_ptc
 
     for black, expect in ((8.0, True), (64.0, False)):
-        tr = SensorTruth(conversion_gain_e_per_dn=2.0, read_noise_e=6.0, full_well_e=8000,
-                         dsnu_e=8.0, prnu_frac=0.005, adc_bits=12, black_level_dn=black)
+        tr = SensorTruth(
+            conversion_gain_e_per_dn=2.0,
+            read_noise_e=6.0,
+            full_well_e=8000,
+            dsnu_e=8.0,
+            prnu_frac=0.005,
+            adc_bits=12,
+            black_level_dn=black,
+        )
         d = simulate_ptc(tr, seed=2, n_levels=12, shape=(40, 40), spatial_frames=4, spatial_every=3)
         res = SimpleNamespace(model=PTCModel(d), flags={}, notes=[], DARK_FLOOR_SD=FitResult.DARK_FLOOR_SD)
         FitResult._check_dark_floor(res)
@@ -142,9 +178,13 @@ def test_scene_refuses_exposures_and_temperatures_out_of_range():
     ValueError into its one-line error)."""
     import math
 
-    for kw in ({"exposure_time_s": -1.0}, {"exposure_time_s": math.nan}, {"exposure_time_s": 1e308},
-               {"exposure_time_s": 1.0, "temperature_c": -300.0, "reference_temperature_c": 25.0},
-               {"exposure_time_s": 1.0, "temperature_c": 25.0, "reference_temperature_c": math.inf}):
+    for kw in (
+        {"exposure_time_s": -1.0},
+        {"exposure_time_s": math.nan},
+        {"exposure_time_s": 1e308},
+        {"exposure_time_s": 1.0, "temperature_c": -300.0, "reference_temperature_c": 25.0},
+        {"exposure_time_s": 1.0, "temperature_c": 25.0, "reference_temperature_c": math.inf},
+    ):
         with pytest.raises(ValueError, match="scene"):
             Scene(**kw)
     assert Scene(exposure_time_s=0.0).exposure_time_s == 0.0

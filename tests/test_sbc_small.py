@@ -1,7 +1,7 @@
 """Small seeded simulation-based calibration (issue 6); the full run is ``benchmarks/sbc.py``.
 
 The 30 seeded sensors of ``tests/test_coverage.py``: classic SBC, the truths drawn from the proper
-prior ``bayescap.validation.SBC_PRIOR`` that every fit uses (``draw_sensor_prior``; variance and
+prior ``bayescap.validation.sbc.SBC_PRIOR`` that every fit uses (``draw_sensor_prior``; variance and
 mean discrepancies injected into the simulated data), fitted once per session with the
 ``standard`` sampler. For every parameter and for capacity the statistic is the posterior CDF at
 the truth, u = the fraction of all the fit's draws below it: with truths from the fit's own prior,
@@ -22,11 +22,11 @@ Multinomial(n, ¼, ¼, ¼, ¼) counts (seeded, 200 000 draws) instead of trustin
 with expected counts of 3–8. A calibrated posterior fails each quantity's test with probability
 ≤ 1 %.
 """
+
 from __future__ import annotations
 
 import numpy as np
 import pytest
-
 from test_coverage import N_SENSORS, SEED, TRUTHS, fit_records
 
 N_BINS = 4
@@ -59,13 +59,23 @@ def exact_p_value(counts, n_sim=200_000, seed=0):
 
 def test_exact_p_value_matches_chi2_for_large_n():
     from scipy import stats
+
     counts = np.array([60, 45, 50, 45])
     assert exact_p_value(counts) == pytest.approx(stats.chi2.sf(chi2_stat(counts), 3), abs=0.01)
 
 
-QUANTITIES = ["conversion_gain_e_per_dn", "read_noise_e", "dark_current_e_per_s", "full_well_e",
-              "quantum_efficiency", "prnu_percent", "dsnu_e", "variance_discrepancy",
-              "mean_discrepancy", "capacity_bits"]
+QUANTITIES = [
+    "conversion_gain_e_per_dn",
+    "read_noise_e",
+    "dark_current_e_per_s",
+    "full_well_e",
+    "quantum_efficiency",
+    "prnu_percent",
+    "dsnu_e",
+    "variance_discrepancy",
+    "mean_discrepancy",
+    "capacity_bits",
+]
 
 
 def cdf_bin_counts(u, n_bins=N_BINS):
@@ -86,5 +96,7 @@ def test_posterior_cdf_at_truth_uniform(sbc_records, name):
     u = np.array([r["q"][name]["u"] for r in recs])
     counts = cdf_bin_counts(u)
     p = exact_p_value(counts)
-    assert p > ALPHA, (f"{name}: posterior CDF at the truth binned in quarters {counts.tolist()} over "
-                       f"{len(recs)} sensors, exact χ² p = {p:.4f}; mean {u.mean():.3f} (> 0.5: fit below truth)")
+    assert p > ALPHA, (
+        f"{name}: posterior CDF at the truth binned in quarters {counts.tolist()} over "
+        f"{len(recs)} sensors, exact χ² p = {p:.4f}; mean {u.mean():.3f} (> 0.5: fit below truth)"
+    )

@@ -5,12 +5,14 @@
 
 Bad input prints one line naming file, row and column, and exits with status 2.
 """
+
 from __future__ import annotations
 
 import argparse
 import sys
 import warnings
 
+from bayescap._heap import retain_freed_memory
 from bayescap.cli.common import (
     EXIT_INPUT,
     _add_metadata_overrides,
@@ -19,7 +21,6 @@ from bayescap.cli.common import (
 )
 from bayescap.cli.fit import _cmd_fit
 from bayescap.cli.mtf import _cmd_mtf
-from bayescap._heap import retain_freed_memory
 from bayescap.exceptions import InputError
 
 __all__ = ["main", "build_parser"]
@@ -31,65 +32,115 @@ def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
         prog="bayescap",
         description="Bayesian image-sensor characterization: photon-transfer data -> noise-model "
-                    "posterior -> image information capacity with credible intervals.")
+        "posterior -> image information capacity with credible intervals.",
+    )
     parser.add_argument("--version", action="version", version=f"bayescap {__version__}")
     sub = parser.add_subparsers(dest="command", metavar="COMMAND")
     sub.required = True
 
-    p = sub.add_parser("fit", help="fit a photon-transfer CSV and report capacity with intervals",
-                       description="Fit the Eq. 1 noise model to a photon-transfer CSV by MCMC and "
-                                   "report every parameter, the derived figures and the information "
-                                   "capacity with 68 %% and 95 %% credible intervals.")
-    p.add_argument("csv", nargs="+", help="photon-transfer CSV (format: README, 'Photon-transfer CSV'); several "
-                                         "CSVs are fitted as a batch (bayescap.batch.fit_many: the fast "
-                                         "preset is vectorised across sensors)")
-    p.add_argument("--json", action="store_true", help="print the result as JSON (the contract's fit JSON; "
-                                                       "a JSON array of them for several CSVs)")
-    p.add_argument("--jobs", type=int, default=1, metavar="N",
-                   help="several CSVs: worker processes for the batch (default 1)")
+    p = sub.add_parser(
+        "fit",
+        help="fit a photon-transfer CSV and report capacity with intervals",
+        description="Fit the Eq. 1 noise model to a photon-transfer CSV by MCMC and "
+        "report every parameter, the derived figures and the information "
+        "capacity with 68 %% and 95 %% credible intervals.",
+    )
+    p.add_argument(
+        "csv",
+        nargs="+",
+        help="photon-transfer CSV (format: README, 'Photon-transfer CSV'); several "
+        "CSVs are fitted as a batch (bayescap.batch.fit_many: the fast "
+        "preset is vectorised across sensors)",
+    )
+    p.add_argument(
+        "--json",
+        action="store_true",
+        help="print the result as JSON (the contract's fit JSON; a JSON array of them for several CSVs)",
+    )
+    p.add_argument(
+        "--jobs", type=int, default=1, metavar="N", help="several CSVs: worker processes for the batch (default 1)"
+    )
     p.add_argument("--seed", type=seed_arg, default=None, help="random seed: the same seed gives the same numbers")
-    p.add_argument("--out", metavar="DIR", help="also write result.json, report.txt, posterior.nc "
-                                               "(ArviZ InferenceData), ptc.png and corner.png into DIR "
-                                               "(several CSVs: into DIR/<csv name>/)")
-    p.add_argument("--quality", choices=("fast", "standard", "accurate"), default="standard",
-                   help="speed/accuracy preset (README, 'Performance'; docs/performance.md, 'Presets and "
-                        "knobs'); default standard")
+    p.add_argument(
+        "--out",
+        metavar="DIR",
+        help="also write result.json, report.txt, posterior.nc "
+        "(ArviZ InferenceData), ptc.png and corner.png into DIR "
+        "(several CSVs: into DIR/<csv name>/)",
+    )
+    p.add_argument(
+        "--quality",
+        choices=("fast", "standard", "accurate"),
+        default="standard",
+        help="speed/accuracy preset (README, 'Performance'; docs/performance.md, 'Presets and "
+        "knobs'); default standard",
+    )
     add_fast_arguments(p)
-    p.add_argument("--scene", default=None, metavar="KEY=VALUE,...",
-                   help="evaluate TR and capacity for a scene: exposure_s=<s>, temperature_c=<°C> "
-                        "(dark current doubles every 6 °C from the CSV's temperature_c); e.g. "
-                        "--scene exposure_s=0.1,temperature_c=45")
-    p.add_argument("--scene-exposure-s", type=float, default=None,
-                   help="exposure time (s) at which TR and capacity are evaluated "
-                        "(default: median exposure time of the unclipped rows)")
-    p.add_argument("--temperature-c", type=float, default=None,
-                   help="sensor temperature of the scene (°C); needs the measurement's temperature_c")
-    p.add_argument("--mtf", metavar="FILE", default=None,
-                   help="measured system MTF for Δs: a CSV table (freq_cy_per_px,mtf) or a slanted-edge "
-                        "image (ISO 12233, with bootstrap draws so capacity carries sharpness uncertainty); "
-                        "default: ideal pixel aperture x diffraction-limited lens from the metadata")
-    p.add_argument("--select-model", action="store_true",
-                   help="fit the nested likelihood variants (plain χ², + discrepancy, + outlier mixture) "
-                        "and keep the one PSIS-LOO prefers (README, 'Model selection')")
-    p.add_argument("--progress", dest="progress", action="store_true", default=None,
-                   help="show a progress bar (default: when stderr is a terminal)")
+    p.add_argument(
+        "--scene",
+        default=None,
+        metavar="KEY=VALUE,...",
+        help="evaluate TR and capacity for a scene: exposure_s=<s>, temperature_c=<°C> "
+        "(dark current doubles every 6 °C from the CSV's temperature_c); e.g. "
+        "--scene exposure_s=0.1,temperature_c=45",
+    )
+    p.add_argument(
+        "--scene-exposure-s",
+        type=float,
+        default=None,
+        help="exposure time (s) at which TR and capacity are evaluated "
+        "(default: median exposure time of the unclipped rows)",
+    )
+    p.add_argument(
+        "--temperature-c",
+        type=float,
+        default=None,
+        help="sensor temperature of the scene (°C); needs the measurement's temperature_c",
+    )
+    p.add_argument(
+        "--mtf",
+        metavar="FILE",
+        default=None,
+        help="measured system MTF for Δs: a CSV table (freq_cy_per_px,mtf) or a slanted-edge "
+        "image (ISO 12233, with bootstrap draws so capacity carries sharpness uncertainty); "
+        "default: ideal pixel aperture x diffraction-limited lens from the metadata",
+    )
+    p.add_argument(
+        "--select-model",
+        action="store_true",
+        help="fit the nested likelihood variants (plain χ², + discrepancy, + outlier mixture) "
+        "and keep the one PSIS-LOO prefers (README, 'Model selection')",
+    )
+    p.add_argument(
+        "--progress",
+        dest="progress",
+        action="store_true",
+        default=None,
+        help="show a progress bar (default: when stderr is a terminal)",
+    )
     p.add_argument("--no-progress", dest="progress", action="store_false")
     _add_metadata_overrides(p)
     p.set_defaults(func=_cmd_fit)
 
     from bayescap.cli.ingest import add_ingest_arguments, run_ingest
 
-    p = sub.add_parser("ingest", help="frames (RAW/DNG/TIFF/PNG/npy) -> photon-transfer CSV",
-                       description="Compute a photon-transfer CSV from flat-field and dark frames "
-                                   "described by a manifest CSV or an EMVA 1288 descriptor "
-                                   "(docs/ingest.md).")
+    p = sub.add_parser(
+        "ingest",
+        help="frames (RAW/DNG/TIFF/PNG/npy) -> photon-transfer CSV",
+        description="Compute a photon-transfer CSV from flat-field and dark frames "
+        "described by a manifest CSV or an EMVA 1288 descriptor "
+        "(docs/ingest.md).",
+    )
     add_ingest_arguments(p)
     p.set_defaults(func=run_ingest)
 
-    p = sub.add_parser("mtf", help="slanted-edge MTF (ISO 12233:2023) with bootstrap intervals",
-                       description="Measure the MTF of a slanted edge following ISO 12233:2023 (Burns' "
-                                   "sfrmat5 steps), with bootstrap draws over phase cycles of rows "
-                                   "(docs/mtf.md).")
+    p = sub.add_parser(
+        "mtf",
+        help="slanted-edge MTF (ISO 12233:2023) with bootstrap intervals",
+        description="Measure the MTF of a slanted edge following ISO 12233:2023 (Burns' "
+        "sfrmat5 steps), with bootstrap draws over phase cycles of rows "
+        "(docs/mtf.md).",
+    )
     p.add_argument("image", help="edge image: TIFF, PNG, JPEG or .npy (linear data)")
     p.add_argument("--roi", default=None, help="x0,y0,x1,y1 in pixels (end-exclusive); default whole image")
     p.add_argument("--npol", type=int, choices=range(1, 6), default=5, help="edge polynomial order (default 5)")
@@ -97,33 +148,44 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--window", choices=("tukey", "hamming"), default="tukey")
     p.add_argument("--n-boot", type=int, default=200, help="bootstrap draws (default 200)")
     p.add_argument("--seed", type=seed_arg, default=0)
-    p.add_argument("--correct-bin-width", action="store_true",
-                   help="divide out the 1/4-pixel binning (recommended for Δs; off = ISO output)")
+    p.add_argument(
+        "--correct-bin-width",
+        action="store_true",
+        help="divide out the 1/4-pixel binning (recommended for Δs; off = ISO output)",
+    )
     p.add_argument("--json", action="store_true", help="print the result as JSON")
     p.add_argument("--out", metavar="FILE.csv", help="write freq_cy_per_px,mtf,mtf_ci95_low,mtf_ci95_high")
     p.set_defaults(func=_cmd_mtf)
 
     from bayescap.cli.compare import add_compare_arguments, run_compare
 
-    p = sub.add_parser("compare", help="compare sensors: capacity at full resolution and fixed area, "
-                                       "TR at H0, pairwise P(C_A > C_B)",
-                       description="Fit each sensor and compare capacities with credible intervals and "
-                                   "pairwise probabilities (docs/compare.md).")
+    p = sub.add_parser(
+        "compare",
+        help="compare sensors: capacity at full resolution and fixed area, TR at H0, pairwise P(C_A > C_B)",
+        description="Fit each sensor and compare capacities with credible intervals and "
+        "pairwise probabilities (docs/compare.md).",
+    )
     add_compare_arguments(p)
     p.set_defaults(func=run_compare)
 
     from bayescap.cli.report import add_report_arguments, run_report
 
-    p = sub.add_parser("report", help="self-contained HTML report of one or more sensors",
-                       description="Fit the sensors and write one self-contained HTML page (docs/compare.md).")
+    p = sub.add_parser(
+        "report",
+        help="self-contained HTML report of one or more sensors",
+        description="Fit the sensors and write one self-contained HTML page (docs/compare.md).",
+    )
     add_report_arguments(p)
     p.set_defaults(func=run_report)
 
     from bayescap.cli.sweep import add_sweep_arguments, run_sweep
 
-    p = sub.add_parser("sweep", help="what-if studies from the paper (capacity vs pixel size, Fig. 4)",
-                       description="Capacity vs pixel pitch at a fixed optical format with Table 1's "
-                                   "parameter ranges drawn (docs/physics.md).")
+    p = sub.add_parser(
+        "sweep",
+        help="what-if studies from the paper (capacity vs pixel size, Fig. 4)",
+        description="Capacity vs pixel pitch at a fixed optical format with Table 1's "
+        "parameter ranges drawn (docs/physics.md).",
+    )
     add_sweep_arguments(p)
     p.set_defaults(func=run_sweep)
     return parser

@@ -1,4 +1,5 @@
 """``python -m bayescap.cli``: the command line."""
+
 import sys
 
 from bayescap.cli import main

@@ -1,4 +1,5 @@
 """What the commands share: the seed and fast-path options, metadata overrides, the exit status of an input error."""
+
 from __future__ import annotations
 
 import argparse
@@ -23,14 +24,23 @@ def seed_arg(text: str) -> int:
 def add_fast_arguments(p):
     """``--fast-tolerance``, ``--fast-confidence`` (``fit``, ``compare``, ``report``): the fast preset's
     check, read back by :func:`fast_settings_from_args`."""
-    p.add_argument("--fast-tolerance", type=float, default=None, metavar="FRAC",
-                   help="--quality fast: the error, as a fraction of each 95 %% interval's width, every "
-                        "interval end should stay within (default 0.05; the per-end Monte Carlo error "
-                        "gate is 0.7 x this). Larger is faster and looser (README, Performance, 'The fast "
-                        "preset's knob')")
-    p.add_argument("--fast-confidence", default=None, metavar="P",
-                   help="--quality fast: accept when every end is predicted within --fast-tolerance with "
-                        "at least this probability (default 0.9; 'none': each end on its own gate only)")
+    p.add_argument(
+        "--fast-tolerance",
+        type=float,
+        default=None,
+        metavar="FRAC",
+        help="--quality fast: the error, as a fraction of each 95 %% interval's width, every "
+        "interval end should stay within (default 0.05; the per-end Monte Carlo error "
+        "gate is 0.7 x this). Larger is faster and looser (README, Performance, 'The fast "
+        "preset's knob')",
+    )
+    p.add_argument(
+        "--fast-confidence",
+        default=None,
+        metavar="P",
+        help="--quality fast: accept when every end is predicted within --fast-tolerance with "
+        "at least this probability (default 0.9; 'none': each end on its own gate only)",
+    )
 
 
 def _add_metadata_overrides(p):
@@ -45,8 +55,16 @@ def _add_metadata_overrides(p):
     g.add_argument("--sensor-name", dest="sensor")
 
 
-_OVERRIDE_KEYS = ("pixel_pitch_um", "width_px", "height_px", "adc_bits", "f_number", "wavelength_nm",
-                  "fill_factor", "sensor")
+_OVERRIDE_KEYS = (
+    "pixel_pitch_um",
+    "width_px",
+    "height_px",
+    "adc_bits",
+    "f_number",
+    "wavelength_nm",
+    "fill_factor",
+    "sensor",
+)
 
 
 def fast_settings_from_args(args):
@@ -57,8 +75,9 @@ def fast_settings_from_args(args):
     if tol is None and conf is None:
         return None
     if args.quality != "fast":
-        raise InputError("--fast-tolerance and --fast-confidence apply to --quality fast only "
-                         f"(got --quality {args.quality})")
+        raise InputError(
+            f"--fast-tolerance and --fast-confidence apply to --quality fast only (got --quality {args.quality})"
+        )
     from dataclasses import replace
 
     from bayescap.inference import FastSettings
@@ -68,8 +87,11 @@ def fast_settings_from_args(args):
         if not 0.0 < tol < 1.0:
             raise InputError(f"--fast-tolerance must be a fraction of the interval width in (0, 1), got {tol:g}")
         # the per-end gate keeps its default ratio to the tolerance (0.035 for 0.05)
-        fs = replace(fs, end_tolerance=float(tol),
-                     end_mcse_max=float(tol) * FastSettings.end_mcse_max / FastSettings.end_tolerance)
+        fs = replace(
+            fs,
+            end_tolerance=float(tol),
+            end_mcse_max=float(tol) * FastSettings.end_mcse_max / FastSettings.end_tolerance,
+        )
     if conf is not None:
         if str(conf).strip().lower() == "none":
             fs = replace(fs, end_confidence=None)

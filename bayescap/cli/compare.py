@@ -1,4 +1,5 @@
 """``bayescap compare``: fit each sensor and compare capacities."""
+
 from __future__ import annotations
 
 import argparse
@@ -11,28 +12,47 @@ from bayescap.exceptions import CompareInputError
 from bayescap.studies.compare import (
     DEFAULT_AREA,
     DEFAULT_H0_LUX_S,
-    DEFAULT_MID_GREY,
     DEFAULT_QUALITY,
     compare,
     format_compare_text,
 )
+from bayescap.studies.exposure import DEFAULT_MID_GREY
 
 
 def add_compare_arguments(p: argparse.ArgumentParser) -> None:
     from bayescap.cli.common import seed_arg
 
     p.add_argument("csv", nargs="+", help="photon-transfer CSVs, one per sensor")
-    p.add_argument("--area", default=DEFAULT_AREA,
-                   help="fixed imaging area: an optical format (1/4in, 1/3.2in, 1/3in, 2/3in, ...), WxHmm, "
-                        "or none (default 1/4in)")
-    p.add_argument("--h0", type=float, default=DEFAULT_H0_LUX_S, metavar="LUX_S",
-                   help="average photometric exposure H0 (lux·s) for TR, as Fig. 8(a) (default 0.4)")
-    p.add_argument("--mid-grey", type=float, default=DEFAULT_MID_GREY, dest="mid_grey",
-                   help="fraction of the top of the signal range where the scene's mean is placed (default 0.18)")
-    p.add_argument("--seed", type=seed_arg, default=0, help="random seed of the run (each sensor's seed derives from it)")
-    p.add_argument("--quality", choices=("fast", "standard", "accurate"), default=DEFAULT_QUALITY,
-                   help="sampler preset for every fit (default fast: several sensors are fitted; "
-                        "use standard or accurate for final numbers)")
+    p.add_argument(
+        "--area",
+        default=DEFAULT_AREA,
+        help="fixed imaging area: an optical format (1/4in, 1/3.2in, 1/3in, 2/3in, ...), WxHmm, "
+        "or none (default 1/4in)",
+    )
+    p.add_argument(
+        "--h0",
+        type=float,
+        default=DEFAULT_H0_LUX_S,
+        metavar="LUX_S",
+        help="average photometric exposure H0 (lux·s) for TR, as Fig. 8(a) (default 0.4)",
+    )
+    p.add_argument(
+        "--mid-grey",
+        type=float,
+        default=DEFAULT_MID_GREY,
+        dest="mid_grey",
+        help="fraction of the top of the signal range where the scene's mean is placed (default 0.18)",
+    )
+    p.add_argument(
+        "--seed", type=seed_arg, default=0, help="random seed of the run (each sensor's seed derives from it)"
+    )
+    p.add_argument(
+        "--quality",
+        choices=("fast", "standard", "accurate"),
+        default=DEFAULT_QUALITY,
+        help="sampler preset for every fit (default fast: several sensors are fitted; "
+        "use standard or accurate for final numbers)",
+    )
     from bayescap.cli.common import add_fast_arguments
 
     add_fast_arguments(p)
@@ -48,15 +68,22 @@ def run_compare(args) -> int:
 
     try:
         fs = fast_settings_from_args(args)
-    except InputError as e:    # handled here: under `python -m bayescap.cli` main's InputError is another class
+    except InputError as e:  # handled here: under `python -m bayescap.cli` main's InputError is another class
         print(f"bayescap: error: {e}", file=sys.stderr)
         return 2
     try:
         with warnings.catch_warnings():
             warnings.filterwarnings("ignore", category=ConvergenceWarning)  # reported in the output
             warnings.filterwarnings("ignore", category=FutureWarning)
-            cmp = compare(args.csv, area=args.area, h0_lux_s=args.h0, mid_grey=args.mid_grey, seed=args.seed,
-                          quality=args.quality, fit_kwargs=None if fs is None else {"fast_settings": fs})
+            cmp = compare(
+                args.csv,
+                area=args.area,
+                h0_lux_s=args.h0,
+                mid_grey=args.mid_grey,
+                seed=args.seed,
+                quality=args.quality,
+                fit_kwargs=None if fs is None else {"fast_settings": fs},
+            )
     except (PTCInputError, CompareInputError) as e:
         print(f"bayescap: error: {e}", file=sys.stderr)
         return 2

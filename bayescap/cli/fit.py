@@ -1,4 +1,5 @@
 """``bayescap fit``: one CSV, or several as a batch."""
+
 from __future__ import annotations
 
 import sys
@@ -37,11 +38,25 @@ def _cmd_fit(args) -> int:
         if args.select_model:
             from bayescap.studies.selection import select_model
 
-            result, _ = select_model(data, seed=args.seed, quality=args.quality, progress=progress, scene=scene,
-                                     mtf=mtf, fast_settings=fast_settings)
+            result, _ = select_model(
+                data,
+                seed=args.seed,
+                quality=args.quality,
+                progress=progress,
+                scene=scene,
+                mtf=mtf,
+                fast_settings=fast_settings,
+            )
         else:
-            result = fit(data, seed=args.seed, quality=args.quality, scene=scene, progress=progress, mtf=mtf,
-                         fast_settings=fast_settings)
+            result = fit(
+                data,
+                seed=args.seed,
+                quality=args.quality,
+                scene=scene,
+                progress=progress,
+                mtf=mtf,
+                fast_settings=fast_settings,
+            )
     except PTCInputError as e:
         raise InputError(str(e)) from None
     if args.out:
@@ -66,9 +81,13 @@ def _cmd_fit_many(args, overrides, fast_settings=None) -> int:
     from bayescap.exceptions import PTCInputError
     from bayescap.report.text import format_text, write_outputs
 
-    for opt, name in ((args.select_model, "--select-model"), (args.mtf, "--mtf"), (args.scene, "--scene"),
-                      (args.scene_exposure_s is not None, "--scene-exposure-s"),
-                      (args.temperature_c is not None, "--temperature-c")):
+    for opt, name in (
+        (args.select_model, "--select-model"),
+        (args.mtf, "--mtf"),
+        (args.scene, "--scene"),
+        (args.scene_exposure_s is not None, "--scene-exposure-s"),
+        (args.temperature_c is not None, "--temperature-c"),
+    ):
         if opt:
             raise InputError(f"{name} applies to one CSV at a time: fit the CSVs one by one to use it")
     if args.jobs < 1:
@@ -98,13 +117,16 @@ def _cmd_fit_many(args, overrides, fast_settings=None) -> int:
     if args.json:
         import json
 
-        docs = [r.to_dict() if not isinstance(r, BaseException) else {"input": p, "error": f"{type(r).__name__}: {r}"}
-                for p, r in zip(args.csv, results)]
+        docs = [
+            r.to_dict() if not isinstance(r, BaseException) else {"input": p, "error": f"{type(r).__name__}: {r}"}
+            for p, r in zip(args.csv, results)
+        ]
         sys.stdout.write(json.dumps(docs, indent=2, ensure_ascii=False, allow_nan=False) + "\n")
     else:
         for p, r in zip(args.csv, results):
-            sys.stdout.write(f"bayescap: error: {_failure(p, r)}\n\n" if isinstance(r, BaseException)
-                             else format_text(r) + "\n")
+            sys.stdout.write(
+                f"bayescap: error: {_failure(p, r)}\n\n" if isinstance(r, BaseException) else format_text(r) + "\n"
+            )
         sys.stdout.write(_batch_table(args.csv, results))
     for p, r in failed:
         print(f"bayescap: error: {_failure(p, r)}", file=sys.stderr)
@@ -119,16 +141,20 @@ def _batch_table(paths, results) -> str:
         lo, med, hi = np.quantile(x, [0.025, 0.5, 0.975])
         return f"{med:.4g} [{lo:.4g}, {hi:.4g}]"
 
-    lines = [f"batch summary ({len(paths)} CSVs): median [95 % interval]",
-             "csv | method | converged | conversion_gain_e_per_dn | capacity_bits"]
+    lines = [
+        f"batch summary ({len(paths)} CSVs): median [95 % interval]",
+        "csv | method | converged | conversion_gain_e_per_dn | capacity_bits",
+    ]
     for p, r in zip(paths, results):
         if isinstance(r, BaseException):
             lines.append(f"{p} | error | - | - | -")
             continue
         dg = r.diag
         cap = q(r.derived["capacity_bits"]) if "capacity_bits" in r.derived else "n/a"
-        lines.append(f"{p} | {dg.get('method', 'mcmc')} | {'yes' if dg.get('converged') else 'NO'} | "
-                     f"{q(r.draws['conversion_gain_e_per_dn'])} | {cap}")
+        lines.append(
+            f"{p} | {dg.get('method', 'mcmc')} | {'yes' if dg.get('converged') else 'NO'} | "
+            f"{q(r.draws['conversion_gain_e_per_dn'])} | {cap}"
+        )
     return "\n".join(lines) + "\n"
 
 
@@ -160,12 +186,15 @@ def _scene_from_args(args, data):
     temp = spec.get("temperature_c")
     ref = data.metadata.get("temperature_c")
     src = "--scene" if args.scene else ("--scene-exposure-s" if "exposure_s" in spec else base.source)
-    try:        # Scene checks the exposure time and the temperature
-        scene = Scene(exposure_time_s=t, source=src, temperature_c=temp,
-                      reference_temperature_c=ref if temp is not None else None)
+    try:  # Scene checks the exposure time and the temperature
+        scene = Scene(
+            exposure_time_s=t, source=src, temperature_c=temp, reference_temperature_c=ref if temp is not None else None
+        )
     except ValueError as e:
         raise InputError(str(e)) from None
     if temp is not None and ref is None:
-        raise InputError(f"{data.source}: a scene temperature needs the measurement's temperature: add "
-                         "'# temperature_c: <°C>' to the CSV")
+        raise InputError(
+            f"{data.source}: a scene temperature needs the measurement's temperature: add "
+            "'# temperature_c: <°C>' to the CSV"
+        )
     return scene

@@ -1,4 +1,5 @@
 """``bayescap ingest``: frames (RAW/DNG/TIFF/PNG/npy) to a photon-transfer CSV."""
+
 from __future__ import annotations
 
 import argparse
@@ -13,19 +14,36 @@ from bayescap.io import CHANNELS, ingest
 # --------------------------------------------------------------------------------------------
 def add_ingest_arguments(parser: argparse.ArgumentParser) -> argparse.ArgumentParser:
     """Add the options of ``bayescap ingest`` to ``parser`` (and return it)."""
-    parser.add_argument("source", help="manifest CSV, EMVA 1288 descriptor (*.txt), or a "
-                        "directory holding manifest.csv or one descriptor")
-    parser.add_argument("-o", "--out", required=True,
-                        help="photon-transfer CSV to write (with --channel all: one file per "
-                        "channel, _R/_Gr/_Gb/_B added before the suffix)")
-    parser.add_argument("--roi", default=None,
-                        help="region of interest: x0,y0,x1,y1 in pixels (x1, y1 exclusive) or "
-                        "a centred fraction of each dimension (default 0.5)")
-    parser.add_argument("--channel", choices=CHANNELS, default="G",
-                        help="Bayer channel; G pools Gr and Gb, all writes four files "
-                        "(ignored for monochrome sensors; default G)")
-    parser.add_argument("--format", dest="format", choices=("auto", "manifest", "emva"),
-                        default="auto", help="how to read SOURCE (default auto)")
+    parser.add_argument(
+        "source",
+        help="manifest CSV, EMVA 1288 descriptor (*.txt), or a directory holding manifest.csv or one descriptor",
+    )
+    parser.add_argument(
+        "-o",
+        "--out",
+        required=True,
+        help="photon-transfer CSV to write (with --channel all: one file per "
+        "channel, _R/_Gr/_Gb/_B added before the suffix)",
+    )
+    parser.add_argument(
+        "--roi",
+        default=None,
+        help="region of interest: x0,y0,x1,y1 in pixels (x1, y1 exclusive) or "
+        "a centred fraction of each dimension (default 0.5)",
+    )
+    parser.add_argument(
+        "--channel",
+        choices=CHANNELS,
+        default="G",
+        help="Bayer channel; G pools Gr and Gb, all writes four files (ignored for monochrome sensors; default G)",
+    )
+    parser.add_argument(
+        "--format",
+        dest="format",
+        choices=("auto", "manifest", "emva"),
+        default="auto",
+        help="how to read SOURCE (default auto)",
+    )
     return parser
 
 
@@ -33,8 +51,7 @@ def run_ingest(args: argparse.Namespace) -> int:
     """Run ``bayescap ingest``: 0 on success (paths printed), 2 on an input error (one line on
     standard error, nothing written)."""
     try:
-        paths = ingest(args.source, out=args.out, roi=args.roi, channel=args.channel,
-                       fmt=args.format)
+        paths = ingest(args.source, out=args.out, roi=args.roi, channel=args.channel, fmt=args.format)
     except IngestError as exc:
         print(f"bayescap ingest: error: {exc}", file=sys.stderr)
         return 2

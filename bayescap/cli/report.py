@@ -1,4 +1,5 @@
 """``bayescap report``: a self-contained HTML report of one or more sensors."""
+
 from __future__ import annotations
 
 import argparse
@@ -10,10 +11,10 @@ from bayescap.report.html import write_report
 from bayescap.studies.compare import (
     DEFAULT_AREA,
     DEFAULT_H0_LUX_S,
-    DEFAULT_MID_GREY,
     DEFAULT_QUALITY,
     compare,
 )
+from bayescap.studies.exposure import DEFAULT_MID_GREY
 
 
 def add_report_arguments(p: argparse.ArgumentParser) -> None:
@@ -22,13 +23,27 @@ def add_report_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("csv", nargs="+", help="photon-transfer CSVs, one per sensor")
     p.add_argument("-o", "--output", default="report.html", help="HTML file to write (default report.html)")
     p.add_argument("--area", default=DEFAULT_AREA, help="fixed imaging area (as for compare; default 1/4in)")
-    p.add_argument("--h0", type=float, default=DEFAULT_H0_LUX_S, metavar="LUX_S",
-                   help="average exposure H0 (lux·s) for TR and capacity (default 0.4)")
-    p.add_argument("--mid-grey", type=float, default=DEFAULT_MID_GREY, dest="mid_grey",
-                   help="fraction of the top of the range where the scene's mean is placed (default 0.18)")
+    p.add_argument(
+        "--h0",
+        type=float,
+        default=DEFAULT_H0_LUX_S,
+        metavar="LUX_S",
+        help="average exposure H0 (lux·s) for TR and capacity (default 0.4)",
+    )
+    p.add_argument(
+        "--mid-grey",
+        type=float,
+        default=DEFAULT_MID_GREY,
+        dest="mid_grey",
+        help="fraction of the top of the range where the scene's mean is placed (default 0.18)",
+    )
     p.add_argument("--seed", type=seed_arg, default=0, help="random seed of the run")
-    p.add_argument("--quality", choices=("fast", "standard", "accurate"), default=DEFAULT_QUALITY,
-                   help="sampler preset (default fast)")
+    p.add_argument(
+        "--quality",
+        choices=("fast", "standard", "accurate"),
+        default=DEFAULT_QUALITY,
+        help="sampler preset (default fast)",
+    )
     p.add_argument("--title", default="bayescap sensor comparison")
     from bayescap.cli.common import add_fast_arguments
 
@@ -42,15 +57,22 @@ def run_report(args) -> int:
 
     try:
         fs = fast_settings_from_args(args)
-    except InputError as e:    # handled here: under `python -m bayescap.cli` main's InputError is another class
+    except InputError as e:  # handled here: under `python -m bayescap.cli` main's InputError is another class
         print(f"bayescap: error: {e}", file=sys.stderr)
         return 2
     try:
         with warnings.catch_warnings():
             warnings.filterwarnings("ignore", category=ConvergenceWarning)
             warnings.filterwarnings("ignore", category=FutureWarning)
-            cmp = compare(args.csv, area=args.area, h0_lux_s=args.h0, mid_grey=args.mid_grey, seed=args.seed,
-                          quality=args.quality, fit_kwargs=None if fs is None else {"fast_settings": fs})
+            cmp = compare(
+                args.csv,
+                area=args.area,
+                h0_lux_s=args.h0,
+                mid_grey=args.mid_grey,
+                seed=args.seed,
+                quality=args.quality,
+                fit_kwargs=None if fs is None else {"fast_settings": fs},
+            )
             out = write_report(cmp, args.output, title=args.title)
     except (PTCInputError, CompareInputError, OSError) as e:
         print(f"bayescap: error: {e}", file=sys.stderr)

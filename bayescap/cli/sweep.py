@@ -1,4 +1,5 @@
 """``bayescap sweep``: the paper's what-if studies (capacity vs pixel size, Fig. 4)."""
+
 from __future__ import annotations
 
 import argparse
@@ -20,19 +21,36 @@ def add_sweep_arguments(parser: argparse.ArgumentParser) -> argparse.ArgumentPar
     """Arguments of ``bayescap sweep``: ``pixel-size --format 1/4in --f-number 2.8 ...``."""
     from bayescap.cli.common import seed_arg
 
-    parser.add_argument("study", choices=["pixel-size"],
-                        help="pixel-size: image information capacity vs pixel pitch (paper Fig. 4)")
-    parser.add_argument("--format", dest="optical_format", default="1/4in", choices=sorted(FORMATS_MM),
-                        help="optical format (fixed imaging area); 1/4in = 3.6 x 2.7 mm (default)")
+    parser.add_argument(
+        "study", choices=["pixel-size"], help="pixel-size: image information capacity vs pixel pitch (paper Fig. 4)"
+    )
+    parser.add_argument(
+        "--format",
+        dest="optical_format",
+        default="1/4in",
+        choices=sorted(FORMATS_MM),
+        help="optical format (fixed imaging area); 1/4in = 3.6 x 2.7 mm (default)",
+    )
     parser.add_argument("--f-number", type=float, default=2.8, help="ideal lens f-number (default 2.8)")
     parser.add_argument("--wavelength-nm", type=float, default=555.0, help="wavelength (default 555 nm)")
-    parser.add_argument("--method", choices=["eq9", "eq8"], default="eq9",
-                        help="MTF loss: eq9 (radial, the paper's Fig. 4; default) or eq8 (2-D square)")
-    parser.add_argument("--tr-trend", type=float, default=PAPER_TR_TREND_BITS_PER_UM,
-                        help="TR slope below 1.45 um in bit/um (default 0.35, the paper's); "
-                             "a negative value fits it per draw")
-    parser.add_argument("--exposure-lux-s", type=float, default=None,
-                        help="evaluate TR at this exposure instead of over the dynamic range")
+    parser.add_argument(
+        "--method",
+        choices=["eq9", "eq8"],
+        default="eq9",
+        help="MTF loss: eq9 (radial, the paper's Fig. 4; default) or eq8 (2-D square)",
+    )
+    parser.add_argument(
+        "--tr-trend",
+        type=float,
+        default=PAPER_TR_TREND_BITS_PER_UM,
+        help="TR slope below 1.45 um in bit/um (default 0.35, the paper's); a negative value fits it per draw",
+    )
+    parser.add_argument(
+        "--exposure-lux-s",
+        type=float,
+        default=None,
+        help="evaluate TR at this exposure instead of over the dynamic range",
+    )
     parser.add_argument("--draws", type=int, default=2000, help="Table 1 draws (default 2000)")
     parser.add_argument("--seed", type=seed_arg, default=0, help="random seed (default 0)")
     parser.add_argument("--json", action="store_true", help="print JSON instead of a table")
@@ -43,6 +61,7 @@ def run_sweep(args: argparse.Namespace) -> int:
     """Run ``bayescap sweep`` from parsed arguments; prints a table or JSON; returns 0."""
     if args.study != "pixel-size":  # pragma: no cover - argparse restricts the choices
         raise ValueError(f"unknown study {args.study!r}")
+
     def refuse(msg):
         print(f"bayescap: error: {msg}", file=sys.stderr)
         return 2
@@ -57,15 +76,22 @@ def run_sweep(args: argparse.Namespace) -> int:
         return refuse(f"--tr-trend must be a finite number (negative: no trend), got {args.tr_trend}")
     if args.exposure_lux_s is not None and not (0.0 < args.exposure_lux_s < math.inf):
         return refuse(f"--exposure-lux-s must be a finite number > 0, got {args.exposure_lux_s}")
-    res = pixel_size_sweep(optical_format=args.optical_format, f_number=args.f_number,
-                           wavelength_nm=args.wavelength_nm, n_draws=args.draws, seed=args.seed,
-                           method=args.method,
-                           tr_trend_bits_per_um=None if args.tr_trend < 0 else args.tr_trend,
-                           exposure_lux_s=args.exposure_lux_s)
+    res = pixel_size_sweep(
+        optical_format=args.optical_format,
+        f_number=args.f_number,
+        wavelength_nm=args.wavelength_nm,
+        n_draws=args.draws,
+        seed=args.seed,
+        method=args.method,
+        tr_trend_bits_per_um=None if args.tr_trend < 0 else args.tr_trend,
+        exposure_lux_s=args.exposure_lux_s,
+    )
     if not np.any(np.asarray(res.capacity_nominal_bits) > 0):
         # every pitch's capacity underflows (an f/1e308 lens passes no detail): no optimum to report
-        return refuse(f"the capacity is zero at every pitch (Δs down to {float(np.min(res.delta_s_bits)):.0f} bits "
-                      f"at f/{args.f_number:g}, {args.wavelength_nm:g} nm): no optimal pitch exists")
+        return refuse(
+            f"the capacity is zero at every pitch (Δs down to {float(np.min(res.delta_s_bits)):.0f} bits "
+            f"at f/{args.f_number:g}, {args.wavelength_nm:g} nm): no optimal pitch exists"
+        )
     if args.json:
         print(json.dumps(res.to_dict(), indent=2))
     else:

@@ -188,7 +188,7 @@ def fast_diagnostics(x_esw):
     rf[o2] = _sorted_ranks(fold[o2])
     zf = np.empty(n)
     zf[order] = _blom(rf)
-    to_ens = lambda a: _split(np.transpose(a.reshape(E, W, S), (0, 2, 1)).reshape(E, S * W))  # noqa: E731
+    to_ens = lambda a: _split(np.transpose(a.reshape(E, W, S), (0, 2, 1)).reshape(E, S * W))
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
         rhat = float(max(_rhat(to_ens(z)), _rhat(to_ens(zf))))

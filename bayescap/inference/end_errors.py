@@ -50,7 +50,7 @@ def _end_errors(values, w, probs=(0.025, 0.975), n_resampled=None):
     F = np.cumsum(ws)
     F_tot = F[-1]
     F /= F_tot
-    Q = lambda p: np.interp(p, F, v)  # noqa: E731
+    Q = lambda p: np.interp(p, F, v)
     width = Q(0.975) - Q(0.025)
     if not width > 0:
         return [0.0 for _ in probs]

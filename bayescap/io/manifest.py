@@ -480,6 +480,6 @@ def group_levels(frameset: FrameSet) -> list[ExposureLevel]:
                 column=column,
                 **_where(lacking),
             )
-    nan_last = lambda v: (v is None, v if v is not None else 0.0)  # noqa: E731
+    nan_last = lambda v: (v is None, v if v is not None else 0.0)
     levels.sort(key=lambda lv: (lv.exposure_time_s, nan_last(lv.photons_per_pixel), nan_last(lv.exposure_lux_s)))
     return levels

@@ -55,7 +55,7 @@ class _ParametersMixin:
     def physical(self, theta) -> dict:
         """Named physical parameters for draws ``theta`` (n, ndim)."""
         th = np.atleast_2d(theta)
-        g = lambda n: th[:, self.idx[n]]  # noqa: E731
+        g = lambda n: th[:, self.idx[n]]
         k = np.exp(g("log_k"))
         out = {"conversion_gain_e_per_dn": k}
         if self.terms.dark_current:
@@ -110,7 +110,7 @@ class _ParametersMixin:
 
     def log_prior(self, th):
         P = self.PRIOR
-        g = lambda n: th[:, self.idx[n]]  # noqa: E731
+        g = lambda n: th[:, self.idx[n]]
         lk = g("log_k")
         lp = np.where((lk > P["log_k_bounds"][0]) & (lk < P["log_k_bounds"][1]), 0.0, -np.inf)
         if self.terms.dark_current:

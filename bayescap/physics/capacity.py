@@ -22,6 +22,7 @@ Conventions (also in the README, "How capacity is computed"):
   the integral runs over ``[0, f_c]`` and the lost band costs ``log2((f_c/f_N)²)`` bits, the
   fraction of the Nyquist disc that survives. The result stays finite, and the report says so.
 """
+
 from __future__ import annotations
 
 from dataclasses import dataclass
@@ -116,8 +117,11 @@ class MTFLoss:
     band_cut_bits: float
 
     def to_dict(self):
-        return {"band_cut": self.band_cut, "band_end_cy_per_px": self.f_end_cy_per_px,
-                "band_cut_bits": self.band_cut_bits}
+        return {
+            "band_cut": self.band_cut,
+            "band_end_cy_per_px": self.f_end_cy_per_px,
+            "band_cut_bits": self.band_cut_bits,
+        }
 
 
 @lru_cache(maxsize=32)
@@ -134,8 +138,9 @@ def _gauss_legendre(n, lo, hi):
     return 0.5 * (hi - lo) * x + 0.5 * (hi + lo), 0.5 * (hi - lo) * w
 
 
-def mtf_loss_bits(mtf, *, n_nodes: int = 256, f_nyquist_cy_per_px: float = NYQUIST_CY_PER_PX,
-                  draws: bool = False) -> MTFLoss:
+def mtf_loss_bits(
+    mtf, *, n_nodes: int = 256, f_nyquist_cy_per_px: float = NYQUIST_CY_PER_PX, draws: bool = False
+) -> MTFLoss:
     """MTF loss Δs by Eq. 9 (bits, ≤ 0) for a radial MTF.
 
     ``mtf`` is an MTF component (``.radial(f)``, ``.cutoff_cy_per_px``) or a plain callable of
@@ -165,13 +170,13 @@ def mtf_loss_bits(mtf, *, n_nodes: int = 256, f_nyquist_cy_per_px: float = NYQUI
         f_zero = float(f[zero_idx])
         if zero_idx == 0:
             raise ValueError("the MTF is zero at every frequency: no image information passes")
-        return mtf_loss_bits(_CutAt(mtf, f_zero), n_nodes=n_nodes,
-                             f_nyquist_cy_per_px=f_nyquist_cy_per_px, draws=draws)
+        return mtf_loss_bits(_CutAt(mtf, f_zero), n_nodes=n_nodes, f_nyquist_cy_per_px=f_nyquist_cy_per_px, draws=draws)
     integral = np.sum(w * f * np.log2(np.maximum(m, tiny)), axis=-1)
     ds = np.pi / f_nyquist_cy_per_px**2 * integral
     cut_bits = 2.0 * np.log2(f_end / f_nyquist_cy_per_px) if band_cut else 0.0
-    return MTFLoss(delta_s_bits=ds + cut_bits, band_cut=bool(band_cut), f_end_cy_per_px=float(f_end),
-                   band_cut_bits=float(cut_bits))
+    return MTFLoss(
+        delta_s_bits=ds + cut_bits, band_cut=bool(band_cut), f_end_cy_per_px=float(f_end), band_cut_bits=float(cut_bits)
+    )
 
 
 class _CutAt:
@@ -192,6 +197,7 @@ class _CutAt:
 # --------------------------------------------------------------------------------------------
 # Eq. 8: the 2-D MTF loss over the Nyquist rectangle (anisotropic MTFs)
 # --------------------------------------------------------------------------------------------
+
 
 def _quadrant_breaks(fn1, fn2, r_cut):
     """Angles in [0, π/2] where r_max(θ) = min(fn1/|cos θ|, fn2/|sin θ|, r_cut) has a kink."""
@@ -225,8 +231,10 @@ def _polar_nodes(fn1, fn2, r_cut, domain, n):
     c, s = np.abs(np.cos(th)), np.abs(np.sin(th))
     if domain == "square":
         with np.errstate(divide="ignore"):
-            rmax = np.minimum(np.where(c > 0, fn1 / np.where(c > 0, c, 1), np.inf),
-                              np.where(s > 0, fn2 / np.where(s > 0, s, 1), np.inf))
+            rmax = np.minimum(
+                np.where(c > 0, fn1 / np.where(c > 0, c, 1), np.inf),
+                np.where(s > 0, fn2 / np.where(s > 0, s, 1), np.inf),
+            )
     else:  # inscribed disc
         rmax = np.full_like(th, min(fn1, fn2))
     rmax = np.minimum(rmax, r_cut)
@@ -238,8 +246,7 @@ def _polar_nodes(fn1, fn2, r_cut, domain, n):
     return r * np.cos(th)[:, None], r * np.sin(th)[:, None], w, area
 
 
-def mtf_loss_bits_eq8(mtf, *, n: int = 64, f_nyquist_cy_per_px=NYQUIST_CY_PER_PX,
-                      domain: str = "square") -> MTFLoss:
+def mtf_loss_bits_eq8(mtf, *, n: int = 64, f_nyquist_cy_per_px=NYQUIST_CY_PER_PX, domain: str = "square") -> MTFLoss:
     """MTF loss Δs by Eq. 8 (bits, ≤ 0): the mean of ``log2 MTF²(f1, f2)`` over the Nyquist band.
 
     ``Δs = (4 f_N1 f_N2)⁻¹ ∬ log2 MTF²(f1, f2) df1 df2`` over ``[−f_N1, f_N1] × [−f_N2, f_N2]``,
@@ -270,8 +277,11 @@ def mtf_loss_bits_eq8(mtf, *, n: int = 64, f_nyquist_cy_per_px=NYQUIST_CY_PER_PX
     """
     if domain not in ("square", "disc"):
         raise ValueError(f"domain must be 'square' or 'disc', got {domain!r}")
-    fn1, fn2 = (float(f_nyquist_cy_per_px),) * 2 if np.ndim(f_nyquist_cy_per_px) == 0 else \
-        tuple(float(x) for x in f_nyquist_cy_per_px)
+    fn1, fn2 = (
+        (float(f_nyquist_cy_per_px),) * 2
+        if np.ndim(f_nyquist_cy_per_px) == 0
+        else tuple(float(x) for x in f_nyquist_cy_per_px)
+    )
     if not (fn1 > 0 and fn2 > 0):
         raise ValueError(f"Nyquist frequencies must be positive, got {f_nyquist_cy_per_px}")
     if domain == "disc" and fn1 != fn2:
@@ -297,8 +307,12 @@ def mtf_loss_bits_eq8(mtf, *, n: int = 64, f_nyquist_cy_per_px=NYQUIST_CY_PER_PX
     ds = integral / (4.0 * fn1 * fn2)
     band_cut = area < full_area * (1.0 - 1e-12)
     cut_bits = float(np.log2(area / full_area)) if band_cut else 0.0
-    return MTFLoss(delta_s_bits=np.asarray(ds + cut_bits), band_cut=bool(band_cut),
-                   f_end_cy_per_px=float(r_cut), band_cut_bits=cut_bits)
+    return MTFLoss(
+        delta_s_bits=np.asarray(ds + cut_bits),
+        band_cut=bool(band_cut),
+        f_end_cy_per_px=float(r_cut),
+        band_cut_bits=cut_bits,
+    )
 
 
 def tonal_range_bits(tonal_range_levels):

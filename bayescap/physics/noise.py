@@ -10,14 +10,21 @@ integrals (:mod:`bayescap.physics.capacity`), the photometry (:mod:`bayescap.phy
 and the comparisons use this one definition; the likelihood (:mod:`bayescap.model`) takes its dark
 part σ_read² + D·t from :func:`dark_variance_e2`.
 """
+
 from __future__ import annotations
 
 from dataclasses import dataclass
 
 import numpy as np
 
-__all__ = ["NoiseCoefficients", "snr_db", "dynamic_range_db", "quantization_variance_e2", "dark_variance_e2",
-           "variance_terms"]
+__all__ = [
+    "NoiseCoefficients",
+    "snr_db",
+    "dynamic_range_db",
+    "quantization_variance_e2",
+    "dark_variance_e2",
+    "variance_terms",
+]
 
 
 def quantization_variance_e2(conversion_gain_e_per_dn):
@@ -26,20 +33,32 @@ def quantization_variance_e2(conversion_gain_e_per_dn):
     return k * k / 12.0
 
 
-def dark_variance_e2(read_noise_e=None, dark_current_e_per_s=0.0, exposure_time_s=0.0, *, dark_current_factor=1.0,
-                     dark_noise_e=None):
+def dark_variance_e2(
+    read_noise_e=None, dark_current_e_per_s=0.0, exposure_time_s=0.0, *, dark_current_factor=1.0, dark_noise_e=None
+):
     """``σ_read² + f·D·t`` (e⁻²): read noise and dark-current shot noise, the dark current scaled by
     ``dark_current_factor`` ``f`` (a temperature away from the calibration's); ``dark_noise_e²`` when
     ``dark_noise_e`` is given (only their sum identifiable). Broadcasts over its arguments."""
     if dark_noise_e is not None:
         return np.asarray(dark_noise_e, float) ** 2
-    return (np.asarray(read_noise_e, float) ** 2
-            + dark_current_factor * np.asarray(dark_current_e_per_s, float) * exposure_time_s)
+    return (
+        np.asarray(read_noise_e, float) ** 2
+        + dark_current_factor * np.asarray(dark_current_e_per_s, float) * exposure_time_s
+    )
 
 
-def variance_terms(signal_e, *, conversion_gain_e_per_dn, read_noise_e=None, dark_current_e_per_s=0.0,
-                   exposure_time_s=0.0, dark_current_factor=1.0, dark_noise_e=None, dsnu_e=None,
-                   prnu_frac=None) -> dict:
+def variance_terms(
+    signal_e,
+    *,
+    conversion_gain_e_per_dn,
+    read_noise_e=None,
+    dark_current_e_per_s=0.0,
+    exposure_time_s=0.0,
+    dark_current_factor=1.0,
+    dark_noise_e=None,
+    dsnu_e=None,
+    prnu_frac=None,
+) -> dict:
     """Each term of Eq. 1 at signal ``signal_e`` (e⁻), in e⁻², in the order of the sum:
     ``photon_shot``, then ``read`` and ``dark_current_shot`` (or ``read_plus_dark`` when
     ``dark_noise_e`` stands for their sum), ``dsnu`` and ``prnu`` when given, ``quantization``."""
@@ -78,9 +97,17 @@ class NoiseCoefficients:
         return self.a + self.b * s_e + self.c * s_e * s_e
 
     @classmethod
-    def from_parameters(cls, *, read_noise_e, dark_current_e_per_s=0.0, exposure_time_s=0.0,
-                        dsnu_e=0.0, prnu_frac=0.0, conversion_gain_e_per_dn=0.0,
-                        dark_noise_e=None):
+    def from_parameters(
+        cls,
+        *,
+        read_noise_e,
+        dark_current_e_per_s=0.0,
+        exposure_time_s=0.0,
+        dsnu_e=0.0,
+        prnu_frac=0.0,
+        conversion_gain_e_per_dn=0.0,
+        dark_noise_e=None,
+    ):
         """Eq. 1 terms. ``dark_noise_e``, if given, replaces ``read² + D·t`` (used when only
         their sum is identifiable)."""
         if dark_noise_e is None:

@@ -14,6 +14,7 @@ Tisse, Guichard & Cao (SPIE 2008), Section 2.3.
   ``K = full well / 2ⁿ``; read noise and DSNU neglected as in the paper. Above the full well
   the pixel saturates: SNR is NaN there.
 """
+
 from __future__ import annotations
 
 import numpy as np
@@ -61,8 +62,9 @@ def photons_per_lux_s_um2(*, wavelength_nm=555.0, k_m_lm_per_w=K_M_LM_PER_W, pho
     return 1e-12 / (k_m_lm_per_w * e)
 
 
-def photons_per_pixel(h_lux_s, pitch_um, *, fill_factor=1.0, wavelength_nm=555.0,
-                      k_m_lm_per_w=K_M_LM_PER_W, photon_energy_j=None):
+def photons_per_pixel(
+    h_lux_s, pitch_um, *, fill_factor=1.0, wavelength_nm=555.0, k_m_lm_per_w=K_M_LM_PER_W, photon_energy_j=None
+):
     """Eq. 4: mean number of photons incident on one pixel.
 
     Parameters
@@ -81,13 +83,13 @@ def photons_per_pixel(h_lux_s, pitch_um, *, fill_factor=1.0, wavelength_nm=555.0
     p = np.asarray(pitch_um, float)
     if np.any(~(p > 0)):
         raise ValueError(f"pitch_um must be positive, got {pitch_um}")
-    per_um2 = photons_per_lux_s_um2(wavelength_nm=wavelength_nm, k_m_lm_per_w=k_m_lm_per_w,
-                                    photon_energy_j=photon_energy_j)
+    per_um2 = photons_per_lux_s_um2(
+        wavelength_nm=wavelength_nm, k_m_lm_per_w=k_m_lm_per_w, photon_energy_j=photon_energy_j
+    )
     return np.asarray(h_lux_s, float) * per_um2 * ff * p * p
 
 
-def exposure_lux_s(scene_lux, *, exposure_time_s, f_number, magnification=-1e-3,
-                   transmittance=0.85, reflectance=1.0):
+def exposure_lux_s(scene_lux, *, exposure_time_s, f_number, magnification=-1e-3, transmittance=0.85, reflectance=1.0):
     """Eq. 5: photometric exposure H (lux·s) at the sensor for a Lambertian scene.
 
     ``H = T_lens / (1 + 4 (1 − m)² N²) · R · E_scene · Δt`` with magnification ``m < 0``.
@@ -100,22 +102,27 @@ def exposure_lux_s(scene_lux, *, exposure_time_s, f_number, magnification=-1e-3,
         raise ValueError(f"magnification m must be negative (inverted real image), got {magnification}")
     if not (f_number > 0 and exposure_time_s >= 0):
         raise ValueError("f_number must be positive and exposure_time_s non-negative")
-    g = transmittance / (1.0 + 4.0 * (1.0 - magnification) ** 2 * f_number ** 2)
+    g = transmittance / (1.0 + 4.0 * (1.0 - magnification) ** 2 * f_number**2)
     return g * reflectance * np.asarray(scene_lux, float) * exposure_time_s
 
 
-def pixel_noise_coefficients(*, full_well_e, dark_current_e_per_s, prnu_frac, exposure_time_s=0.1,
-                             adc_bits=10, read_noise_e=0.0, dsnu_e=0.0) -> NoiseCoefficients:
+def pixel_noise_coefficients(
+    *, full_well_e, dark_current_e_per_s, prnu_frac, exposure_time_s=0.1, adc_bits=10, read_noise_e=0.0, dsnu_e=0.0
+) -> NoiseCoefficients:
     """Eq. 1 noise model of a Table 1 pixel: σ² = D·Δt + K²/12 + S + (K_PRNU·S)², K = FW/2ⁿ.
 
     Vectorised over draws (arrays broadcast). Read noise and DSNU default to 0 (the paper's
     Fig. 2(b) assumption).
     """
-    k = np.asarray(full_well_e, float) / 2.0 ** adc_bits
+    k = np.asarray(full_well_e, float) / 2.0**adc_bits
     return NoiseCoefficients.from_parameters(
-        read_noise_e=read_noise_e, dark_current_e_per_s=dark_current_e_per_s,
-        exposure_time_s=exposure_time_s, dsnu_e=dsnu_e, prnu_frac=prnu_frac,
-        conversion_gain_e_per_dn=k)
+        read_noise_e=read_noise_e,
+        dark_current_e_per_s=dark_current_e_per_s,
+        exposure_time_s=exposure_time_s,
+        dsnu_e=dsnu_e,
+        prnu_frac=prnu_frac,
+        conversion_gain_e_per_dn=k,
+    )
 
 
 def signal_e(h_lux_s, sensitivity_e_per_lux_s):
@@ -123,16 +130,21 @@ def signal_e(h_lux_s, sensitivity_e_per_lux_s):
     return np.asarray(sensitivity_e_per_lux_s, float) * np.asarray(h_lux_s, float)
 
 
-def snr_vs_exposure_db(h_lux_s, *, sensitivity_e_per_lux_s, full_well_e, dark_current_e_per_s,
-                       prnu_frac, exposure_time_s=0.1, adc_bits=10):
+def snr_vs_exposure_db(
+    h_lux_s, *, sensitivity_e_per_lux_s, full_well_e, dark_current_e_per_s, prnu_frac, exposure_time_s=0.1, adc_bits=10
+):
     """SNR (dB, Eq. 1) against photometric exposure H (lux·s); NaN where S > full well.
 
     The dark-current charge ``D·Δt`` is not added to the signal (it is subtracted as black
     level); only its shot noise enters σ².
     """
-    coeffs = pixel_noise_coefficients(full_well_e=full_well_e, dark_current_e_per_s=dark_current_e_per_s,
-                                      prnu_frac=prnu_frac, exposure_time_s=exposure_time_s,
-                                      adc_bits=adc_bits)
+    coeffs = pixel_noise_coefficients(
+        full_well_e=full_well_e,
+        dark_current_e_per_s=dark_current_e_per_s,
+        prnu_frac=prnu_frac,
+        exposure_time_s=exposure_time_s,
+        adc_bits=adc_bits,
+    )
     s = signal_e(h_lux_s, sensitivity_e_per_lux_s)
     with np.errstate(divide="ignore"):
         out = snr_db(coeffs, s)
@@ -145,8 +157,16 @@ def snr_slope_db_per_decade(h_lo_lux_s, h_hi_lux_s, **pixel):
     return (s_hi - s_lo) / np.log10(h_hi_lux_s / h_lo_lux_s)
 
 
-def mpe30_lux_s(*, sensitivity_e_per_lux_s, full_well_e, dark_current_e_per_s, prnu_frac,
-                exposure_time_s=0.1, adc_bits=10, snr_threshold_db=30.0):
+def mpe30_lux_s(
+    *,
+    sensitivity_e_per_lux_s,
+    full_well_e,
+    dark_current_e_per_s,
+    prnu_frac,
+    exposure_time_s=0.1,
+    adc_bits=10,
+    snr_threshold_db=30.0,
+):
     """Farrell's MPE30: the smallest exposure H (lux·s) with SNR(H) ≥ 30 dB (Section 2.3).
 
     Closed form: with ρ = 10^(SNR/10), S² = ρ(a + S + cS²) gives
@@ -154,9 +174,13 @@ def mpe30_lux_s(*, sensitivity_e_per_lux_s, full_well_e, dark_current_e_per_s, p
     reached (PRNU ≥ 1/√ρ = 3.16 %, or the needed signal exceeds the full well).
     Vectorised over draws.
     """
-    coeffs = pixel_noise_coefficients(full_well_e=full_well_e, dark_current_e_per_s=dark_current_e_per_s,
-                                      prnu_frac=prnu_frac, exposure_time_s=exposure_time_s,
-                                      adc_bits=adc_bits)
+    coeffs = pixel_noise_coefficients(
+        full_well_e=full_well_e,
+        dark_current_e_per_s=dark_current_e_per_s,
+        prnu_frac=prnu_frac,
+        exposure_time_s=exposure_time_s,
+        adc_bits=adc_bits,
+    )
     rho = 10.0 ** (snr_threshold_db / 10.0)
     a, b, c = np.broadcast_arrays(coeffs.a, coeffs.b, coeffs.c)
     den = 1.0 - rho * c

@@ -1,5 +1,6 @@
 """The posterior of a fit: :class:`FitResult` (draws, derived quantities, diagnostics, the fit
 JSON), the :class:`Scene` it is evaluated at, and the summaries of draws."""
+
 from bayescap.posterior.diagnose import IMPRECISE_END_MCSE
 from bayescap.posterior.result import FitResult
 from bayescap.posterior.scene import Scene

@@ -1,5 +1,6 @@
 """Checks of the data against a fitted model: outlier rows, a variance turnover the model has no
 term for, and dark rows clipped at the ADC's zero."""
+
 from __future__ import annotations
 
 import numpy as np
@@ -17,7 +18,7 @@ class ChecksMixin:
         E, S, W, D = self.chains.chain.shape
         th = self.chains.chain.reshape(-1, D)[self.thin_index(n_draws)]
         with np.errstate(over="ignore", invalid="ignore", divide="ignore"):
-            pred = m.predict(th)     # shared by the outlier probabilities and the turnover check
+            pred = m.predict(th)  # shared by the outlier probabilities and the turnover check
         self.outliers = []
         for block, (rows, prob) in m.outlier_probabilities(th, pred).items():
             for r, pr in zip(rows, prob):
@@ -39,10 +40,12 @@ class ChecksMixin:
         low = [i for i in top if z[i] < -4 and int(rows[i]) not in out_rows]
         if len(low) >= 2 and m.terms.clip in ("none", "adc"):
             self.flags["variance_turnover_unexplained"] = [int(rows[i]) for i in low]
-            self.notes.append("the variance turns over below the clip level on rows "
-                              + ", ".join(str(int(rows[i])) for i in low)
-                              + ": the model has no term for that (non-linearity or a soft clip before "
-                                "full well?); treat full well and the top of the range with caution")
+            self.notes.append(
+                "the variance turns over below the clip level on rows "
+                + ", ".join(str(int(rows[i])) for i in low)
+                + ": the model has no term for that (non-linearity or a soft clip before "
+                "full well?); treat full well and the top of the range with caution"
+            )
 
     #: dark rows whose mean sits fewer than this many sd (temporal and, where measured, spatial)
     #: above 0 DN: the ADC's zero clips the low tail, shrinking the dark variances (≈ 0.2 % at 2.5 sd,
@@ -65,6 +68,8 @@ class ChecksMixin:
             self.flags["dark_floor_clipping"] = rows
             self.notes.append(
                 f"dark mean only {float(np.min(margin[low])):.1f} sd above 0 DN on rows "
-                + ", ".join(str(r) for r in rows[:8]) + (" …" if len(rows) > 8 else "")
+                + ", ".join(str(r) for r in rows[:8])
+                + (" …" if len(rows) > 8 else "")
                 + ": the ADC's zero clips the darkest pixels, so read noise and DSNU are biased low "
-                  "(raise the black level / offset, as EMVA 1288 requires)")
+                "(raise the black level / offset, as EMVA 1288 requires)"
+            )

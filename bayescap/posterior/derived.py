@@ -1,6 +1,7 @@
 """The quantities derived from every posterior draw of the noise model: DR, SNR (Eq. 1-2),
 tonal range b' (Eq. 7), MTF loss Δs (Eq. 9), effective pixels and capacity C = s'·b' (Eq. 6),
 and the noise budget. Every equation comes from :mod:`bayescap.physics`."""
+
 from __future__ import annotations
 
 import numpy as np
@@ -19,8 +20,13 @@ from bayescap.posterior.summary import DERIVED_INFO, summarize
 __all__ = ["DerivedMixin"]
 
 #: the notes :meth:`DerivedMixin._derive` writes, dropped when a result is re-evaluated at another scene
-_DERIVED_NOTE_PREFIXES = ("width_px/height_px unknown", "no row reaches saturation", "the MTF reaches zero",
-                          "noise stays below one", "the MTF exceeds 1")
+_DERIVED_NOTE_PREFIXES = (
+    "width_px/height_px unknown",
+    "no row reaches saturation",
+    "the MTF reaches zero",
+    "noise stays below one",
+    "the MTF exceeds 1",
+)
 #: the flags it sets, dropped likewise
 _DERIVED_FLAGS = ("capacity_lower_bound", "mtf_band_cut", "mtf_above_one")
 
@@ -36,14 +42,16 @@ class DerivedMixin:
         (``dark_noise_e``), squared again: the rounding every fit's numbers are computed with."""
         k = p["conversion_gain_e_per_dn"]
         if self.model.terms.dark_current:
-            rd2 = dark_variance_e2(p["read_noise_e"], p["dark_current_e_per_s"], t_s,
-                                   dark_current_factor=self.scene.dark_current_factor)
+            rd2 = dark_variance_e2(
+                p["read_noise_e"], p["dark_current_e_per_s"], t_s, dark_current_factor=self.scene.dark_current_factor
+            )
         else:
             rd2 = p["dark_noise_e"] ** 2
         dsnu = p.get("dsnu_e", 0.0)
         prnu = p.get("prnu_percent", 0.0) / 100.0
-        return NoiseCoefficients.from_parameters(read_noise_e=0.0, dark_noise_e=np.sqrt(rd2), dsnu_e=dsnu,
-                                                 prnu_frac=prnu, conversion_gain_e_per_dn=k)
+        return NoiseCoefficients.from_parameters(
+            read_noise_e=0.0, dark_noise_e=np.sqrt(rd2), dsnu_e=dsnu, prnu_frac=prnu, conversion_gain_e_per_dn=k
+        )
 
     def signal_max_e(self, p=None):
         """Largest non-saturating signal (e⁻) per draw, and whether it is only a lower bound."""
@@ -86,28 +94,37 @@ class DerivedMixin:
             self.derived["capacity_bits"] = information_capacity_bits(s, ds, bits_per_pixel=bprime)
         else:
             self.derived["capacity_bits_per_pixel"] = information_capacity_bits(1.0, ds, bits_per_pixel=bprime)
-            self.notes.append("width_px/height_px unknown: capacity is given per pixel "
-                              "(capacity_bits_per_pixel); add '# width_px:' and '# height_px:'")
+            self.notes.append(
+                "width_px/height_px unknown: capacity is given per pixel "
+                "(capacity_bits_per_pixel); add '# width_px:' and '# height_px:'"
+            )
         if lower:
             self.flags["capacity_lower_bound"] = True
-            self.notes.append("no row reaches saturation: the full well, DR, TR and capacity use "
-                              "the largest measured signal and are lower bounds")
+            self.notes.append(
+                "no row reaches saturation: the full well, DR, TR and capacity use "
+                "the largest measured signal and are lower bounds"
+            )
         if ml.band_cut:
             self.flags["mtf_band_cut"] = True
-            self.notes.append(f"the MTF reaches zero at {ml.f_end_cy_per_px:.3f} cy/px, below Nyquist "
-                              f"(0.5): the band is cut there, costing {ml.band_cut_bits:.2f} bits of Δs")
+            self.notes.append(
+                f"the MTF reaches zero at {ml.f_end_cy_per_px:.3f} cy/px, below Nyquist "
+                f"(0.5): the band is cut there, costing {ml.band_cut_bits:.2f} bits of Δs"
+            )
         if float(np.median(ds)) > 0.0:
             # Eq. 8/9 are for a low-pass MTF (Δs ≤ 0, the paper); above 1 over much of the band
             # (sharpening in the pipeline, an MTF not normalised at zero frequency) s' exceeds the
             # pixel count, which no capacity comparison should take at face value
             self.flags["mtf_above_one"] = True
-            self.notes.append(f"the MTF exceeds 1 over much of the band (Δs = +{float(np.median(ds)):.2f} bits): "
-                              "Eq. 9 assumes a low-pass MTF (Δs ≤ 0), so the effective pixels exceed the pixel "
-                              "count; use an MTF measured without sharpening")
+            self.notes.append(
+                f"the MTF exceeds 1 over much of the band (Δs = +{float(np.median(ds)):.2f} bits): "
+                "Eq. 9 assumes a low-pass MTF (Δs ≤ 0), so the effective pixels exceed the pixel "
+                "count; use an MTF measured without sharpening"
+            )
         if np.any(tr >= 0.999 * N_GREY_LEVELS * (1 - 1e-9)):
-            self.notes.append("noise stays below one 8-bit grey level over part of the range: TR is "
-                              "limited by the 8-bit-equivalent scale (the max(σ, 1) floor of Eq. 7)")
-
+            self.notes.append(
+                "noise stays below one 8-bit grey level over part of the range: TR is "
+                "limited by the 8-bit-equivalent scale (the max(σ, 1) floor of Eq. 7)"
+            )
 
     def noise_budget(self, fraction_of_range=0.5):
         """Share of each Eq. 1 term in the noise variance at a signal level of the scene
@@ -116,17 +133,27 @@ class DerivedMixin:
         s_max, _ = self.signal_max_e(p)
         S = fraction_of_range * s_max
         if self.model.terms.dark_current:
-            dark = {"read_noise_e": p["read_noise_e"], "dark_current_e_per_s": p["dark_current_e_per_s"],
-                    "exposure_time_s": self.scene.exposure_time_s,
-                    "dark_current_factor": self.scene.dark_current_factor}
+            dark = {
+                "read_noise_e": p["read_noise_e"],
+                "dark_current_e_per_s": p["dark_current_e_per_s"],
+                "exposure_time_s": self.scene.exposure_time_s,
+                "dark_current_factor": self.scene.dark_current_factor,
+            }
         else:
             dark = {"dark_noise_e": p["dark_noise_e"]}
-        terms = variance_terms(S, conversion_gain_e_per_dn=p["conversion_gain_e_per_dn"], **dark,
-                               dsnu_e=p.get("dsnu_e"),
-                               prnu_frac=p["prnu_percent"] / 100.0 if "prnu_percent" in p else None)
+        terms = variance_terms(
+            S,
+            conversion_gain_e_per_dn=p["conversion_gain_e_per_dn"],
+            **dark,
+            dsnu_e=p.get("dsnu_e"),
+            prnu_frac=p["prnu_percent"] / 100.0 if "prnu_percent" in p else None,
+        )
         total = sum(terms.values())
-        return {"signal_e": float(np.median(S)), "fraction_of_range": fraction_of_range,
-                "shares_percent": {n: float(np.median(100.0 * v / total)) for n, v in terms.items()}}
+        return {
+            "signal_e": float(np.median(S)),
+            "fraction_of_range": fraction_of_range,
+            "shares_percent": {n: float(np.median(100.0 * v / total)) for n, v in terms.items()},
+        }
 
     def derived_summary(self) -> dict:
         """The contract's ``derived`` block."""

@@ -1,6 +1,7 @@
 """Convergence diagnostics of a fit result: R-hat, ESS, autocorrelation time and stuck walkers of
 the MCMC chains, or Pareto k̂ and importance-sampling ESS of the fast path (Laplace–IS), and the
 Monte Carlo error of every reported 95 % interval end."""
+
 from __future__ import annotations
 
 import warnings
@@ -33,11 +34,12 @@ def _mcmc_description(st) -> str:
     accurate presets mix the IndependenceMove in."""
     moves = []
     if getattr(st, "independence_fraction", 0.0) > 0:
-        moves.append(f"IndependenceMove (Student-t ν={st.independence_nu:g}) up to "
-                     f"{100 * st.independence_fraction:.0f} % of steps")
+        moves.append(
+            f"IndependenceMove (Student-t ν={st.independence_nu:g}) up to "
+            f"{100 * st.independence_fraction:.0f} % of steps"
+        )
     moves.append("DEMove" if st.de_fraction >= 1 else "DEMove + StretchMove")
     return "emcee ensembles (" + ", ".join(moves) + "), Gamma likelihood with discrepancy"
-
 
 
 class DiagnoseMixin:
@@ -51,9 +53,11 @@ class DiagnoseMixin:
             self._diagnose_mcmc()
         f = np.median(self.draws["variance_discrepancy"])
         if f > 0.05:
-            self.notes.append(f"the variances scatter {100 * f:.1f} % beyond their statistical error: "
-                              "the model or the measurements are inadequate (check linearity, lamp "
-                              "stability, outlier rows)")
+            self.notes.append(
+                f"the variances scatter {100 * f:.1f} % beyond their statistical error: "
+                "the model or the measurements are inadequate (check linearity, lamp "
+                "stability, outlier rows)"
+            )
 
     def _diagnose_importance(self):
         """Draws resampled from Laplace–IS (:mod:`bayescap.inference.fast`): independent draws, so R-hat,
@@ -65,11 +69,11 @@ class DiagnoseMixin:
         self.diag = {
             "method": "laplace-is",
             "method_description": "Laplace approximation + Pareto-smoothed importance sampling "
-                                  f"(Student-t ν={x['nu']:g} proposal), Gamma likelihood with discrepancy",
+            f"(Student-t ν={x['nu']:g} proposal), Gamma likelihood with discrepancy",
             "quality": self.quality,
             "converged": bool(x["accepted"]),
             "failed_checks": failed,
-            "rhat_max": None,              # R-hat does not apply to resampled independent draws
+            "rhat_max": None,  # R-hat does not apply to resampled independent draws
             "rhat_applicable": False,
             "ess_min": float(x["ess_is"]),
             "rhat_target": c.settings.rhat_target,
@@ -81,13 +85,20 @@ class DiagnoseMixin:
             "n_draws": int(S),
             "retried_with_restarts": bool(x.get("retried_with_restarts", False)),
             "fast_path_accepted": bool(x["accepted"]),
-            "n_ensembles": E, "n_walkers": W, "n_steps": S, "n_burn": 0, "n_rounds": 0,
-            "tau_max_steps": 1.0, "acceptance": [1.0],
+            "n_ensembles": E,
+            "n_walkers": W,
+            "n_steps": S,
+            "n_burn": 0,
+            "n_rounds": 0,
+            "tau_max_steps": 1.0,
+            "acceptance": [1.0],
             "wall_s": c.wall_s,
             "seed": self.seed,
-            "fast_path": (f"fast path (Laplace–IS): Pareto k̂ {x['khat']:.2f} (accept < "
-                          f"{x['khat_max']:g}), importance-sampling ESS {x['ess_is']:.0f} of "
-                          f"{x['n_proposals']} proposals (accept ≥ {x['min_ess_is']:g}); R-hat does not apply"),
+            "fast_path": (
+                f"fast path (Laplace–IS): Pareto k̂ {x['khat']:.2f} (accept < "
+                f"{x['khat_max']:g}), importance-sampling ESS {x['ess_is']:.0f} of "
+                f"{x['n_proposals']} proposals (accept ≥ {x['min_ess_is']:g}); R-hat does not apply"
+            ),
             "per_quantity": {},
         }
         # the importance draws' own Monte Carlo error of each 95 % interval end
@@ -104,20 +115,24 @@ class DiagnoseMixin:
                 # its reason); a derived quantity above it fails here
                 self.diag["failed_checks"].append(failure)
                 self.diag["converged"] = False
-            self.diag["fast_path"] += (f"; Monte Carlo error of the 95 % interval ends up to "
-                                       f"{mcse[worst]:.3f} of the width ({worst}"
-                                       + (f"; accept ≤ {gate:g}" if gate is not None else "") + ")"
-                                       + (f", after {x['n_topup']} more draws" if x.get("n_topup") else ""))
+            self.diag["fast_path"] += (
+                f"; Monte Carlo error of the 95 % interval ends up to "
+                f"{mcse[worst]:.3f} of the width ({worst}"
+                + (f"; accept ≤ {gate:g}" if gate is not None else "")
+                + ")"
+                + (f", after {x['n_topup']} more draws" if x.get("n_topup") else "")
+            )
             p_within = x.get("end_within_probability")
             if p_within is not None:
                 # all ends at once (bayescap.inference.fast._joint_target): the chance that none is off
                 # by more than end_tolerance of its width, if the predicted errors are right
                 conf = x.get("end_confidence")
                 self.diag["interval_end_within_probability"] = float(p_within)
-                self.diag["fast_path"] += (f"; predicted probability that every end is within "
-                                           f"{x['end_tolerance']:g} of its width {p_within:.2f}"
-                                           + (f" (accept ≥ {conf:g})" if conf is not None and gate is not None
-                                              else ""))
+                self.diag["fast_path"] += (
+                    f"; predicted probability that every end is within "
+                    f"{x['end_tolerance']:g} of its width {p_within:.2f}"
+                    + (f" (accept ≥ {conf:g})" if conf is not None and gate is not None else "")
+                )
         if x.get("settings") is not None:
             # the knobs behind this result (FastSettings; the CLI's --fast-tolerance/--fast-confidence)
             self.diag["fast_settings"] = dict(x["settings"])
@@ -127,11 +142,16 @@ class DiagnoseMixin:
             # (bayescap.inference.fast._tail_probe)
             self.diag["fast_path_tails"] = [dict(t) for t in tails]
             if tails:
-                self.diag["fast_path"] += ("; defensive draws for long tails: " + ", ".join(
-                    f"{t['parameter']} {t['side']} ({t['reach_sd']:g} sd)" for t in tails))
+                self.diag["fast_path"] += "; defensive draws for long tails: " + ", ".join(
+                    f"{t['parameter']} {t['side']} ({t['reach_sd']:g} sd)" for t in tails
+                )
         if not self.diag["converged"]:
-            self.notes.insert(0, "NOT CONVERGED: the Laplace–IS fast path failed its own check ("
-                              + "; ".join(self.diag["failed_checks"]) + "); do not use these intervals")
+            self.notes.insert(
+                0,
+                "NOT CONVERGED: the Laplace–IS fast path failed its own check ("
+                + "; ".join(self.diag["failed_checks"])
+                + "); do not use these intervals",
+            )
             warnings.warn(self.notes[0], ConvergenceWarning, stacklevel=4)
 
     def _derived_end_mcse_importance(self):
@@ -147,12 +167,15 @@ class DiagnoseMixin:
             # the fast path's top-up computed them already, on the same weighted draws and resampled
             # count, with a function of the same inputs (bayescap.api.fit and the batch pass it one):
             # its errors of the quantities that are not parameters (~5 % of a batch sensor's time)
-            return {n: float(e) for n, e in (self.chains.extra.get("end_mcse") or {}).items()
-                    if n not in self.draws}
-        fn = type(self).derived_values_fn(self.model, metadata=self.metadata, scene=self.scene, mtf=self.mtf,
-                                         seed=self.seed)
-        return {n: float(interval_end_mcse(v, wd["w"], n_resampled=wd["n_resampled"]))
-                for n, v in fn(wd["x"]).items() if _varies(v)}
+            return {n: float(e) for n, e in (self.chains.extra.get("end_mcse") or {}).items() if n not in self.draws}
+        fn = type(self).derived_values_fn(
+            self.model, metadata=self.metadata, scene=self.scene, mtf=self.mtf, seed=self.seed
+        )
+        return {
+            n: float(interval_end_mcse(v, wd["w"], n_resampled=wd["n_resampled"]))
+            for n, v in fn(wd["x"]).items()
+            if _varies(v)
+        }
 
     def _set_end_mcse(self, end, target):
         """The diagnostics of the interval ends' Monte Carlo error ``end`` ({quantity: error /
@@ -163,8 +186,14 @@ class DiagnoseMixin:
         if not end:
             return None
         worst = worst_end(end)
-        self.diag.update({"interval_end_mcse": end, "interval_end_mcse_max": end[worst],
-                          "interval_end_mcse_worst": worst, "interval_end_mcse_target": target})
+        self.diag.update(
+            {
+                "interval_end_mcse": end,
+                "interval_end_mcse_max": end[worst],
+                "interval_end_mcse_worst": worst,
+                "interval_end_mcse_target": target,
+            }
+        )
         if target is not None and not end[worst] <= target:
             return f"{_END_MCSE_FAILURE} {end[worst]:.3f} of the width ({worst}) > {target:g}"
         return None
@@ -185,10 +214,13 @@ class DiagnoseMixin:
         self.flags["imprecise_interval_ends"] = bad
         worst = max(bad.values(), key=lambda v: v if np.isfinite(v) else np.inf)
         up_to = f"up to {worst:.2f}" if np.isfinite(worst) else "undefined where the draws are not all finite"
-        self.notes.append(f"{_IMPRECISE_NOTE} the Monte Carlo error of the 95 % interval ends of "
-                          + ", ".join(sorted(bad)) + f" is above {IMPRECISE_END_MCSE:g} of the width ({up_to}): "
-                          "another seed can move those ends by that much. `--quality accurate` "
-                          "runs until every end's error is ≤ 0.01 of the width (and says when it cannot)")
+        self.notes.append(
+            f"{_IMPRECISE_NOTE} the Monte Carlo error of the 95 % interval ends of "
+            + ", ".join(sorted(bad))
+            + f" is above {IMPRECISE_END_MCSE:g} of the width ({up_to}): "
+            "another seed can move those ends by that much. `--quality accurate` "
+            "runs until every end's error is ≤ 0.01 of the width (and says when it cannot)"
+        )
 
     def _diagnose_mcmc(self):
         c = self.chains
@@ -213,11 +245,13 @@ class DiagnoseMixin:
             failed.append(f"ESS min {ess_min:.0f} ({worst}) < {st.ess_target:.0f}")
         if not np.all(np.isfinite(c.tau)):
             bad = [self.model.names[j] for j in np.flatnonzero(~np.isfinite(c.tau))]
-            failed.append(f"autocorrelation time undefined ({', '.join(bad)}): a walker did not move in "
-                          f"the {S} production steps")
+            failed.append(
+                f"autocorrelation time undefined ({', '.join(bad)}): a walker did not move in the {S} production steps"
+            )
         elif not S >= st.tau_factor * tau_max:
-            failed.append(f"chain of {S} steps shorter than {st.tau_factor:g} autocorrelation times "
-                          f"({tau_max:.1f} steps)")
+            failed.append(
+                f"chain of {S} steps shorter than {st.tau_factor:g} autocorrelation times ({tau_max:.1f} steps)"
+            )
         if not np.all(c.acceptance > 0.05):
             failed.append(f"acceptance fraction {c.acceptance.min():.3f} < 0.05 in an ensemble")
         # Monte Carlo error of every reported 95 % interval end
@@ -231,8 +265,7 @@ class DiagnoseMixin:
         lp_w = np.transpose(c.log_prob, (1, 0, 2)).reshape(S, E * W)
         n_stuck = int(np.sum(stuck_walkers(lp_w, D)))
         if n_stuck:
-            failed.append(f"{n_stuck} of {E * W} walkers stuck more than {stuck_threshold(D):.0f} nats below "
-                          "the mode")
+            failed.append(f"{n_stuck} of {E * W} walkers stuck more than {stuck_threshold(D):.0f} nats below the mode")
         converged = not failed
         self.diag = {
             "method": "emcee",
@@ -268,12 +301,18 @@ class DiagnoseMixin:
             self.diag["converged"] = converged = False
         self._flag_imprecise_ends()
         if self.diag["burn_in_extended_steps"]:
-            ev = "; ".join(f"{e['quantity']} R-hat {e['rhat']:.3f} after round {e['round']}"
-                           for e in self.diag["drift_events"])
-            self.notes.append(f"burn-in extended by {self.diag['burn_in_extended_steps']} steps: the first and "
-                              f"second halves of the production disagreed ({ev}), so the earlier steps were "
-                              "discarded as burn-in and the intervals come from the steps after them")
+            ev = "; ".join(
+                f"{e['quantity']} R-hat {e['rhat']:.3f} after round {e['round']}" for e in self.diag["drift_events"]
+            )
+            self.notes.append(
+                f"burn-in extended by {self.diag['burn_in_extended_steps']} steps: the first and "
+                f"second halves of the production disagreed ({ev}), so the earlier steps were "
+                "discarded as burn-in and the intervals come from the steps after them"
+            )
         if not converged:
-            self.notes.insert(0, "NOT CONVERGED: " + "; ".join(failed) + ". Do not use these intervals; "
-                              f"rerun with {rerun_advice(self.quality)}")
+            self.notes.insert(
+                0,
+                "NOT CONVERGED: " + "; ".join(failed) + ". Do not use these intervals; "
+                f"rerun with {rerun_advice(self.quality)}",
+            )
             warnings.warn(self.notes[0], ConvergenceWarning, stacklevel=4)

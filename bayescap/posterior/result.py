@@ -4,6 +4,7 @@ and the data checks (:mod:`bayescap.posterior.checks`).
 
 ``FitResult.to_dict()`` is the fit JSON of the contract (README, "Fit result JSON").
 """
+
 from __future__ import annotations
 
 from dataclasses import dataclass, field
@@ -34,17 +35,16 @@ class FitResult(DerivedMixin, DiagnoseMixin, ChecksMixin):
     mtf: object
     seed: int | None
     quality: str
-    draws: dict = field(default_factory=dict)        # physical name -> (n_samples,) all samples
-    derived: dict = field(default_factory=dict)      # derived name -> (n_samples,)
-    notes: list = field(default_factory=list)        # human-readable caveats, in order
-    flags: dict = field(default_factory=dict)        # machine-readable caveats
+    draws: dict = field(default_factory=dict)  # physical name -> (n_samples,) all samples
+    derived: dict = field(default_factory=dict)  # derived name -> (n_samples,)
+    notes: list = field(default_factory=list)  # human-readable caveats, in order
+    flags: dict = field(default_factory=dict)  # machine-readable caveats
     diag: dict = field(default_factory=dict)
     mtf_info: dict = field(default_factory=dict)
 
     @classmethod
     def from_chains(cls, model: PTCModel, chains: ChainResult, *, metadata, scene, mtf, seed, quality):
-        self = cls(model=model, chains=chains, metadata=metadata, scene=scene, mtf=mtf, seed=seed,
-                   quality=quality)
+        self = cls(model=model, chains=chains, metadata=metadata, scene=scene, mtf=mtf, seed=seed, quality=quality)
         E, S, W, D = chains.chain.shape
         flat = chains.chain.reshape(E * S * W, D)
         self.draws = model.physical(flat)
@@ -71,8 +71,11 @@ class FitResult(DerivedMixin, DiagnoseMixin, ChecksMixin):
 
         def derived_fn(chain):
             tmp = of(chain)
-            return {n: tmp.derived[n].reshape(chain.shape[:3])
-                    for n in ("capacity_bits", "capacity_bits_per_pixel", "tonal_range_bits") if n in tmp.derived}
+            return {
+                n: tmp.derived[n].reshape(chain.shape[:3])
+                for n in ("capacity_bits", "capacity_bits_per_pixel", "tonal_range_bits")
+                if n in tmp.derived
+            }
 
         def reported_fn(chain):
             return of(chain)._reported_draws(chain.shape[:3])
@@ -85,11 +88,14 @@ class FitResult(DerivedMixin, DiagnoseMixin, ChecksMixin):
         draws ``x`` (n, ndim), as the result computes them; for the fast path's top-up towards its
         gate on the interval ends' Monte Carlo error (:func:`bayescap.inference.fast.fast_posterior`'s
         ``derived_fn``) and the result's own check of the same errors."""
+
         def fn(x):
             x = np.asarray(x, float)
-            tmp = cls._of_chain(model, x.reshape(1, -1, 1, x.shape[-1]), metadata=metadata, scene=scene,
-                                mtf=mtf, seed=seed)
+            tmp = cls._of_chain(
+                model, x.reshape(1, -1, 1, x.shape[-1]), metadata=metadata, scene=scene, mtf=mtf, seed=seed
+            )
             return {n: np.asarray(v, float) for n, v in tmp.derived.items() if np.size(v) == x.shape[0]}
+
         # what it computes with: a result made with the same inputs reuses the fast path's errors of
         # the derived quantities' interval ends (_derived_end_mcse_importance)
         fn.inputs = (model, metadata, scene, mtf, seed)
@@ -102,9 +108,14 @@ class FitResult(DerivedMixin, DiagnoseMixin, ChecksMixin):
             return False
         model, metadata, scene, mtf, seed = inputs
         try:
-            return bool(model is self.model and mtf is self.mtf and seed == self.seed and scene == self.scene
-                        and metadata == self.metadata)
-        except (TypeError, ValueError):     # metadata values that do not compare (arrays)
+            return bool(
+                model is self.model
+                and mtf is self.mtf
+                and seed == self.seed
+                and scene == self.scene
+                and metadata == self.metadata
+            )
+        except (TypeError, ValueError):  # metadata values that do not compare (arrays)
             return False
 
     @classmethod
@@ -136,8 +147,16 @@ class FitResult(DerivedMixin, DiagnoseMixin, ChecksMixin):
     def at_scene(self, scene: "Scene") -> "FitResult":
         """The same posterior evaluated at another scene (exposure time, temperature): derived
         quantities, notes and noise budget are recomputed, the draws are shared."""
-        new = FitResult(model=self.model, chains=self.chains, metadata=self.metadata, scene=scene,
-                        mtf=self.mtf, seed=self.seed, quality=self.quality, draws=self.draws)
+        new = FitResult(
+            model=self.model,
+            chains=self.chains,
+            metadata=self.metadata,
+            scene=scene,
+            mtf=self.mtf,
+            seed=self.seed,
+            quality=self.quality,
+            draws=self.draws,
+        )
         new.notes = [n for n in self.notes if not n.startswith(_DERIVED_NOTE_PREFIXES)]
         new.flags = {k: v for k, v in self.flags.items() if k not in _DERIVED_FLAGS}
         new.diag = dict(self.diag)
@@ -147,8 +166,13 @@ class FitResult(DerivedMixin, DiagnoseMixin, ChecksMixin):
             # the derived quantities moved with the scene, and so did their interval ends' error
             end = {k: v for k, v in new.diag["interval_end_mcse"].items() if k not in new.derived}
             if new.diag["method"] == "emcee":
-                end.update({n: interval_end_mcse_mcmc(x) for n, x in new._reported_draws(new.shape_esw).items()
-                            if n in new.derived})
+                end.update(
+                    {
+                        n: interval_end_mcse_mcmc(x)
+                        for n, x in new._reported_draws(new.shape_esw).items()
+                        if n in new.derived
+                    }
+                )
             else:
                 end.update(new._derived_end_mcse_importance())
             failure = new._set_end_mcse(end, new.diag.get("interval_end_mcse_target"))
@@ -159,7 +183,6 @@ class FitResult(DerivedMixin, DiagnoseMixin, ChecksMixin):
                 new.notes.insert(0, "NOT CONVERGED at this scene: " + failure + ". Do not use these intervals")
             new._flag_imprecise_ends()
         return new
-
 
     def push(self, fn, n_max=None):
         """Push a function of the physical-parameter dict through the posterior draws.
@@ -186,46 +209,63 @@ class FitResult(DerivedMixin, DiagnoseMixin, ChecksMixin):
             extra = {}
             if not detected:
                 extra["upper_limit_95"] = float(q[2])
-                extra["note"] = why_floor or ("the posterior reaches down to zero: an upper limit, "
-                                              "not a detection")
+                extra["note"] = why_floor or ("the posterior reaches down to zero: an upper limit, not a detection")
             out[name] = summarize(x, unit, constrained=detected, **extra)
 
         if m.terms.dark_current:
             rn = p["read_noise_e"]
             floor = None
             if np.median(rn / k) < 0.4:
-                floor = ("read noise below 0.4 DN is masked by quantization (EMVA 1288): an upper "
-                         "limit only")
+                floor = "read noise below 0.4 DN is masked by quantization (EMVA 1288): an upper limit only"
             nonneg("read_noise_e", rn, "e-", floor)
             nonneg("dark_current_e_per_s", p["dark_current_e_per_s"], "e-/s")
         else:
             dn = p["dark_noise_e"]
             t = float(np.unique(m.t[m.t > 0])[0]) if np.any(m.t > 0) else 0.0
-            out["dark_noise_e"] = summarize(dn, "e-", note=f"sqrt(read² + D·t) at t = {t:g} s: the only "
-                                            "identifiable combination with one exposure time")
-            out["read_noise_e"] = summarize(dn, "e-", constrained=False, upper_limit_95=float(np.quantile(dn, 0.95)),
-                                            note="not separable from dark current with one exposure time: "
-                                                 "the interval is that of sqrt(read² + D·t), an upper limit")
+            out["dark_noise_e"] = summarize(
+                dn,
+                "e-",
+                note=f"sqrt(read² + D·t) at t = {t:g} s: the only identifiable combination with one exposure time",
+            )
+            out["read_noise_e"] = summarize(
+                dn,
+                "e-",
+                constrained=False,
+                upper_limit_95=float(np.quantile(dn, 0.95)),
+                note="not separable from dark current with one exposure time: "
+                "the interval is that of sqrt(read² + D·t), an upper limit",
+            )
             if t > 0:
                 dc = dn**2 / t
-                out["dark_current_e_per_s"] = summarize(dc, "e-/s", constrained=False,
-                                                        upper_limit_95=float(np.quantile(dc, 0.95)),
-                                                        note="upper limit (all dark noise attributed to D·t)")
+                out["dark_current_e_per_s"] = summarize(
+                    dc,
+                    "e-/s",
+                    constrained=False,
+                    upper_limit_95=float(np.quantile(dc, 0.95)),
+                    note="upper limit (all dark noise attributed to D·t)",
+                )
         if "full_well_e" in p:
             extra = {}
             if m.terms.clip == "adc":
-                extra = {"clip_source": "adc",
-                         "note": "the output clips at the ADC maximum: this is the charge at the clip; "
-                                 "the photodiode's own well may be deeper"}
+                extra = {
+                    "clip_source": "adc",
+                    "note": "the output clips at the ADC maximum: this is the charge at the clip; "
+                    "the photodiode's own well may be deeper",
+                }
             else:
                 extra = {"clip_source": "full_well_or_adc"}
             out["full_well_e"] = summarize(p["full_well_e"], "e-", **extra)
         else:
             lb = float(np.quantile((m.max_mean_ok - m.black_dn) * k, 0.025))
-            out["full_well_e"] = {"median": None, "ci68": [lb, None], "ci95": [lb, None], "unit": "e-",
-                                  "constrained": False, "lower_bound": lb,
-                                  "note": "no row reaches saturation: only a lower bound (the largest "
-                                          "measured signal)"}
+            out["full_well_e"] = {
+                "median": None,
+                "ci68": [lb, None],
+                "ci95": [lb, None],
+                "unit": "e-",
+                "constrained": False,
+                "lower_bound": lb,
+                "note": "no row reaches saturation: only a lower bound (the largest measured signal)",
+            }
         if "quantum_efficiency" in p:
             out["quantum_efficiency"] = summarize(p["quantum_efficiency"], "")
         if "prnu_percent" in p:
@@ -233,8 +273,9 @@ class FitResult(DerivedMixin, DiagnoseMixin, ChecksMixin):
         if "dsnu_e" in p:
             nonneg("dsnu_e", p["dsnu_e"], "e-")
         if m.terms.discrepancy:
-            out["variance_discrepancy"] = summarize(p["variance_discrepancy"], "",
-                                                    note="fractional scatter of the variances beyond statistics")
+            out["variance_discrepancy"] = summarize(
+                p["variance_discrepancy"], "", note="fractional scatter of the variances beyond statistics"
+            )
         if "clip_spread_dn" in p:
             out["clip_spread_dn"] = summarize(p["clip_spread_dn"], "DN", note="spread of pixel means at the clip")
         if "mean_discrepancy" in p:
@@ -244,21 +285,23 @@ class FitResult(DerivedMixin, DiagnoseMixin, ChecksMixin):
     def to_dict(self) -> dict:
         sensor = dict(self.metadata)
         diag = {k: v for k, v in self.diag.items()}
-        return json_safe({
-            "bayescap_version": __version__,
-            "input": self.model.data.source,
-            "sensor": sensor,
-            "scene": self.scene.to_dict(),
-            "parameters": self.parameter_summary(),
-            "derived": self.derived_summary(),
-            "model_terms": self.model.terms.names(),
-            "terms_left_out": dict(self.model.terms.reasons),
-            "term_notes": dict(self.model.terms.how),
-            "mtf": self.mtf_info,
-            "noise_budget_mid_grey": self.noise_budget(),
-            "outliers": list(getattr(self, "outliers", [])),
-            **({"model_selection": self.model_selection} if getattr(self, "model_selection", None) else {}),
-            "notes": list(self.notes),
-            "flags": dict(self.flags),
-            "diagnostics": diag,
-        })
+        return json_safe(
+            {
+                "bayescap_version": __version__,
+                "input": self.model.data.source,
+                "sensor": sensor,
+                "scene": self.scene.to_dict(),
+                "parameters": self.parameter_summary(),
+                "derived": self.derived_summary(),
+                "model_terms": self.model.terms.names(),
+                "terms_left_out": dict(self.model.terms.reasons),
+                "term_notes": dict(self.model.terms.how),
+                "mtf": self.mtf_info,
+                "noise_budget_mid_grey": self.noise_budget(),
+                "outliers": list(getattr(self, "outliers", [])),
+                **({"model_selection": self.model_selection} if getattr(self, "model_selection", None) else {}),
+                "notes": list(self.notes),
+                "flags": dict(self.flags),
+                "diagnostics": diag,
+            }
+        )

@@ -1,4 +1,5 @@
 """Where a fit's derived quantities are evaluated: :class:`Scene` (exposure time, temperature)."""
+
 from __future__ import annotations
 
 import math
@@ -24,8 +25,9 @@ class Scene:
     def __post_init__(self):
         # bounded so that the dark signal and the noise budget stay finite
         if not 0.0 <= self.exposure_time_s <= _MAX_ABS_VALUE:
-            raise ValueError(f"scene exposure time must be a number in [0, {_MAX_ABS_VALUE:g}] s, "
-                             f"got {self.exposure_time_s}")
+            raise ValueError(
+                f"scene exposure time must be a number in [0, {_MAX_ABS_VALUE:g}] s, got {self.exposure_time_s}"
+            )
         for t in (self.temperature_c, self.reference_temperature_c):
             if t is not None and not _ABSOLUTE_ZERO_C <= t < math.inf:
                 raise ValueError(f"scene temperature must be a finite number >= {_ABSOLUTE_ZERO_C:g} °C, got {t}")

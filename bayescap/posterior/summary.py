@@ -1,5 +1,6 @@
 """Summaries of posterior draws (median, 68 % and 95 % intervals), the derived quantities'
 units and meaning, JSON cleaning, and what to rerun an unconverged fit with."""
+
 from __future__ import annotations
 
 import math
@@ -18,11 +19,28 @@ DERIVED_INFO = {
 }
 
 #: the order the reports list the physical parameters and derived quantities in
-PARAMETER_ORDER = ["conversion_gain_e_per_dn", "read_noise_e", "dark_noise_e", "dark_current_e_per_s",
-                   "full_well_e", "quantum_efficiency", "prnu_percent", "dsnu_e", "clip_spread_dn",
-                   "variance_discrepancy", "mean_discrepancy"]
-DERIVED_ORDER = ["snr_max_db", "dynamic_range_db", "tonal_range_bits", "mtf_loss_bits",
-                 "effective_pixels", "capacity_bits", "capacity_bits_per_pixel"]
+PARAMETER_ORDER = [
+    "conversion_gain_e_per_dn",
+    "read_noise_e",
+    "dark_noise_e",
+    "dark_current_e_per_s",
+    "full_well_e",
+    "quantum_efficiency",
+    "prnu_percent",
+    "dsnu_e",
+    "clip_spread_dn",
+    "variance_discrepancy",
+    "mean_discrepancy",
+]
+DERIVED_ORDER = [
+    "snr_max_db",
+    "dynamic_range_db",
+    "tonal_range_bits",
+    "mtf_loss_bits",
+    "effective_pixels",
+    "capacity_bits",
+    "capacity_bits_per_pixel",
+]
 
 
 def _q(x, qs):
@@ -33,8 +51,7 @@ def summarize(x, unit="", constrained=True, **extra):
     """Median, 68 % and 95 % equal-tailed intervals of a 1-D array of draws."""
     x = np.asarray(x, float).ravel()
     q = _q(x, [0.025, 0.16, 0.5, 0.84, 0.975])
-    out = {"median": q[2], "ci68": [q[1], q[3]], "ci95": [q[0], q[4]], "unit": unit,
-           "constrained": bool(constrained)}
+    out = {"median": q[2], "ci68": [q[1], q[3]], "ci95": [q[0], q[4]], "unit": unit, "constrained": bool(constrained)}
     out.update(extra)
     return out
 
@@ -51,8 +68,10 @@ def rerun_advice(quality) -> str:
     else for custom settings): the next preset up; for ``accurate`` (already the longest preset) a
     longer run, which the command line has no flag for."""
     return {"fast": "--quality standard or accurate", "standard": "--quality accurate"}.get(
-        quality, "a longer run (from Python: bayescap.fit(..., quality=replace(QUALITY_PRESETS['accurate'], "
-                 "max_rounds=40)), with dataclasses.replace and bayescap.fit.QUALITY_PRESETS)")
+        quality,
+        "a longer run (from Python: bayescap.fit(..., quality=replace(QUALITY_PRESETS['accurate'], "
+        "max_rounds=40)), with dataclasses.replace and bayescap.fit.QUALITY_PRESETS)",
+    )
 
 
 def json_safe(obj):

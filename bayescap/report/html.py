@@ -9,6 +9,7 @@ curve with its posterior predictive band and residuals, the SNR curve, the corne
 parameter and derived tables and the sampler diagnostics. Images are PNGs embedded as base64:
 no external assets. The file is written atomically.
 """
+
 from __future__ import annotations
 
 import base64
@@ -25,16 +26,20 @@ from bayescap.physics.capacity import tonal_range_bits
 from bayescap.physics.noise import snr_db
 from bayescap.report.plots import plot_corner, plot_ptc
 from bayescap.report.text import format_or_na
-from bayescap.studies.compare import (
-    Comparison,
-    _coefficients,
-    snr_at_exposure,
-    tonal_range_at_exposure,
-)
+from bayescap.studies.compare import Comparison
+from bayescap.studies.exposure import _coefficients, snr_at_exposure, tonal_range_at_exposure
 
-__all__ = ["render_html", "write_report", "plot_capacity", "plot_tr_h0", "plot_snr_exposure",
-           "plot_probability_matrix", "plot_snr_sensor",
-           "H0_GRID_LUX_S", "SECTION_IDS"]
+__all__ = [
+    "render_html",
+    "write_report",
+    "plot_capacity",
+    "plot_tr_h0",
+    "plot_snr_exposure",
+    "plot_probability_matrix",
+    "plot_snr_sensor",
+    "H0_GRID_LUX_S",
+    "SECTION_IDS",
+]
 
 
 #: exposures of the TR(H0) and SNR(H) curves (lux·s)
@@ -84,8 +89,10 @@ def plot_capacity(cmp: Comparison):
     fig = Figure(figsize=(8, 4.2))
     ax = fig.subplots()
     area = d["conventions"]["area"]
-    for off, key, lab, col in ((-0.18, "capacity_full_bits", "full resolution", "C0"),
-                               (0.18, "capacity_area_bits", f"at {area['name']}" if area else None, "C1")):
+    for off, key, lab, col in (
+        (-0.18, "capacity_full_bits", "full resolution", "C0"),
+        (0.18, "capacity_area_bits", f"at {area['name']}" if area else None, "C1"),
+    ):
         if lab is None:
             continue
         med = np.array([s[key]["median"] if s.get(key) else np.nan for s in d["sensors"]]) / 1e6
@@ -113,16 +120,16 @@ def plot_tr_h0(cmp: Comparison, h_grid=H0_GRID_LUX_S):
         if s.calibration is None:
             continue
         idx = s.result.thin_index(_N_CURVE_DRAWS)
-        tr, _ = tonal_range_at_exposure(s.result, h_grid, calibration=s.calibration, mid_grey=c["mid_grey_fraction"],
-                                        idx=idx)
+        tr, _ = tonal_range_at_exposure(
+            s.result, h_grid, calibration=s.calibration, mid_grey=c["mid_grey_fraction"], idx=idx
+        )
         _band(ax, h_grid, tonal_range_bits(tr), f"C{i % 10}", s.name)
         drawn += 1
     ax.axvline(c["h0_lux_s"], color="k", ls=":", lw=1, label=f"H0 = {c['h0_lux_s']:g} lux·s")
     ax.set_xscale("log")
     ax.set_xlabel("average photometric exposure H0 (lux·s)")
     ax.set_ylabel("tonal range b' = log2 TR (bits)")
-    ax.set_title(f"TR vs H0 (mean scene at {100 * c['mid_grey_fraction']:g} % of the range; 95 % bands)",
-                 fontsize=10)
+    ax.set_title(f"TR vs H0 (mean scene at {100 * c['mid_grey_fraction']:g} % of the range; 95 % bands)", fontsize=10)
     if not drawn:
         ax.text(0.5, 0.5, "no sensor has an exposure calibration", transform=ax.transAxes, ha="center")
     ax.legend(fontsize=8, loc="lower right")
@@ -167,14 +174,26 @@ def plot_probability_matrix(cmp: Comparison, quantity: str = "area"):
     for i in range(n):
         for j in range(n):
             if np.isfinite(m[i, j]):
-                ax.text(j, i, f"{m[i, j]:.2f}", ha="center", va="center", fontsize=11,
-                        color="w" if abs(m[i, j] - 0.5) > 0.35 else "k")
+                ax.text(
+                    j,
+                    i,
+                    f"{m[i, j]:.2f}",
+                    ha="center",
+                    va="center",
+                    fontsize=11,
+                    color="w" if abs(m[i, j] - 0.5) > 0.35 else "k",
+                )
     ax.set_xticks(range(n))
     ax.set_yticks(range(n))
     ax.set_xticklabels(names, rotation=30, ha="right", fontsize=10)
     ax.set_yticklabels(names, fontsize=10)
-    where = "at full resolution" if quantity == "full" else f"at {cmp.conventions['area']['name']}" \
-        if cmp.conventions["area"] else ""
+    where = (
+        "at full resolution"
+        if quantity == "full"
+        else f"at {cmp.conventions['area']['name']}"
+        if cmp.conventions["area"]
+        else ""
+    )
     ax.set_title(f"P(C_row > C_column) {where}", fontsize=11)
     fig.colorbar(im, ax=ax, fraction=0.046)
     fig.tight_layout()
@@ -189,8 +208,13 @@ def plot_snr_sensor(s):
     r = s.result
     idx = r.thin_index(_N_CURVE_DRAWS)
     if s.calibration is not None:
-        _band(ax, H0_GRID_LUX_S, snr_at_exposure(r, H0_GRID_LUX_S, calibration=s.calibration, idx=idx), "C0",
-              "posterior median")
+        _band(
+            ax,
+            H0_GRID_LUX_S,
+            snr_at_exposure(r, H0_GRID_LUX_S, calibration=s.calibration, idx=idx),
+            "C0",
+            "posterior median",
+        )
         ax.set_xlabel("photometric exposure H (lux·s)")
     else:
         p = {k: v[idx] for k, v in r.draws.items()}
@@ -240,19 +264,25 @@ def _iv(s, scale=1.0, fmt="{:.4g}"):
     if not s or s.get("median") is None:
         return "—"
     lo, hi = s["ci95"]
-    return (f"{_f(s['median'] / scale, fmt)} <span class=small>[{_f(lo / scale, fmt)}, "
-            f"{_f(hi / scale, fmt) if hi is not None else '—'}]</span>")
+    return (
+        f"{_f(s['median'] / scale, fmt)} <span class=small>[{_f(lo / scale, fmt)}, "
+        f"{_f(hi / scale, fmt) if hi is not None else '—'}]</span>"
+    )
 
 
 def _img(b64, alt, cls="") -> str:
-    return f'<figure><img{" class=" + cls if cls else ""} alt="{_e(alt)}" src="data:image/png;base64,{b64}"><figcaption class=small>{_e(alt)}' \
-           f'</figcaption></figure>'
+    return (
+        f'<figure><img{" class=" + cls if cls else ""} alt="{_e(alt)}" src="data:image/png;base64,{b64}"><figcaption class=small>{_e(alt)}'
+        f"</figcaption></figure>"
+    )
 
 
 def _table(header, rows, left=1) -> str:
     h = "".join(f"<th{' class=l' if i < left else ''}>{_e(c)}</th>" for i, c in enumerate(header))
-    body = "".join("<tr>" + "".join(f"<td{' class=l' if i < left else ''}>{c}</td>" for i, c in enumerate(r))
-                   + "</tr>" for r in rows)
+    body = "".join(
+        "<tr>" + "".join(f"<td{' class=l' if i < left else ''}>{c}</td>" for i, c in enumerate(r)) + "</tr>"
+        for r in rows
+    )
     return f"<table><thead><tr>{h}</tr></thead><tbody>{body}</tbody></table>"
 
 
@@ -268,14 +298,19 @@ def render_html(cmp: Comparison, *, title: str = "bayescap sensor comparison") -
     c = d["conventions"]
     area = c["area"]
     an = area["name"] if area else "area"
-    parts = [f"<!DOCTYPE html><html lang=en><head><meta charset=utf-8><title>{_e(title)}</title>"
-             f"<style>{_CSS}</style></head><body>", f"<h1>{_e(title)}</h1>",
-             f"<p class=small>bayescap {_e(d['bayescap_version'])} · seed {_e(c['seed'])} · quality "
-             f"{_e(c['quality'])} · medians with 95 % equal-tailed credible intervals</p>"]
+    parts = [
+        f"<!DOCTYPE html><html lang=en><head><meta charset=utf-8><title>{_e(title)}</title>"
+        f"<style>{_CSS}</style></head><body>",
+        f"<h1>{_e(title)}</h1>",
+        f"<p class=small>bayescap {_e(d['bayescap_version'])} · seed {_e(c['seed'])} · quality "
+        f"{_e(c['quality'])} · medians with 95 % equal-tailed credible intervals</p>",
+    ]
     sims = [s.name for s in cmp.sensors if _is_simulated(s)]
     if sims:
-        parts.append(f"<div class=sim><b>Simulated data.</b> These inputs are simulations or PTCs built from "
-                     f"datasheet values, not measurements: {_e(', '.join(sims))}.</div>")
+        parts.append(
+            f"<div class=sim><b>Simulated data.</b> These inputs are simulations or PTCs built from "
+            f"datasheet values, not measurements: {_e(', '.join(sims))}.</div>"
+        )
     nav = " ".join(f'<a href="#{i}">{i.replace("-", " ")}</a>' for i in SECTION_IDS)
     nav += " " + " ".join(f'<a href="#sensor-{i}">{_e(s.name)}</a>' for i, s in enumerate(cmp.sensors))
     parts.append(f"<nav>{nav}</nav>")
@@ -284,40 +319,77 @@ def render_html(cmp: Comparison, *, title: str = "bayescap sensor comparison") -
     rows = []
     for s in d["sensors"]:
         a = s.get("area")
-        rows.append([_e(s["name"]) + (" <span class=warn>(not converged)</span>" if not s["converged"] else ""),
-                     _f(s["pixel_pitch_um"]),
-                     f"{s['pixels_full'] / 1e6:.3f} M" if s.get("pixels_full") else "—",
-                     (f"{a['width_px']}×{a['height_px']}" + (" (smaller)" if a["smaller_than_area"] else ""))
-                     if a else "—",
-                     _iv(s.get("exposure_calibration", {}) and s["exposure_calibration"]["sensitivity_e_per_lux_s"]),
-                     _iv(s.get("tonal_range_bits_h0"), fmt="{:.3f}"),
-                     _iv(s.get("capacity_full_bits"), 1e6), _iv(s.get("capacity_area_bits"), 1e6),
-                     "TR at H0" if s["capacity_basis"] == "tr_at_h0" else "TR full range"])
-    parts.append('<section id="summary"><h2>Summary</h2>' + _table(
-        ["sensor", "pitch (µm)", "pixels", f"pixels @{an}", "sensitivity (e⁻/lux·s)", f"TR(H0={c['h0_lux_s']:g}) bits",
-         "C full (Mbit)", f"C @{an} (Mbit)", "capacity basis"], rows) + "</section>")
+        rows.append(
+            [
+                _e(s["name"]) + (" <span class=warn>(not converged)</span>" if not s["converged"] else ""),
+                _f(s["pixel_pitch_um"]),
+                f"{s['pixels_full'] / 1e6:.3f} M" if s.get("pixels_full") else "—",
+                (f"{a['width_px']}×{a['height_px']}" + (" (smaller)" if a["smaller_than_area"] else "")) if a else "—",
+                _iv(s.get("exposure_calibration", {}) and s["exposure_calibration"]["sensitivity_e_per_lux_s"]),
+                _iv(s.get("tonal_range_bits_h0"), fmt="{:.3f}"),
+                _iv(s.get("capacity_full_bits"), 1e6),
+                _iv(s.get("capacity_area_bits"), 1e6),
+                "TR at H0" if s["capacity_basis"] == "tr_at_h0" else "TR full range",
+            ]
+        )
+    parts.append(
+        '<section id="summary"><h2>Summary</h2>'
+        + _table(
+            [
+                "sensor",
+                "pitch (µm)",
+                "pixels",
+                f"pixels @{an}",
+                "sensitivity (e⁻/lux·s)",
+                f"TR(H0={c['h0_lux_s']:g}) bits",
+                "C full (Mbit)",
+                f"C @{an} (Mbit)",
+                "capacity basis",
+            ],
+            rows,
+        )
+        + "</section>"
+    )
 
-    parts.append('<section id="capacity"><h2>Information capacity (Fig. 8(b))</h2>'
-                 + _img(_png(plot_capacity(cmp)), "capacity at full resolution and at the fixed area, 95 % intervals")
-                 + "</section>")
-    parts.append('<section id="tonal-range"><h2>Tonal range against average exposure H0 (Fig. 8(a))</h2>'
-                 + _img(_png(plot_tr_h0(cmp)), "TR against H0 with 95 % credible bands") + "</section>")
-    parts.append('<section id="snr"><h2>SNR against exposure (Figs. 5-6)</h2>'
-                 + _img(_png(plot_snr_exposure(cmp)), "SNR against photometric exposure with 95 % bands")
-                 + "</section>")
+    parts.append(
+        '<section id="capacity"><h2>Information capacity (Fig. 8(b))</h2>'
+        + _img(_png(plot_capacity(cmp)), "capacity at full resolution and at the fixed area, 95 % intervals")
+        + "</section>"
+    )
+    parts.append(
+        '<section id="tonal-range"><h2>Tonal range against average exposure H0 (Fig. 8(a))</h2>'
+        + _img(_png(plot_tr_h0(cmp)), "TR against H0 with 95 % credible bands")
+        + "</section>"
+    )
+    parts.append(
+        '<section id="snr"><h2>SNR against exposure (Figs. 5-6)</h2>'
+        + _img(_png(plot_snr_exposure(cmp)), "SNR against photometric exposure with 95 % bands")
+        + "</section>"
+    )
 
     # pairwise
     prow = []
     for p in d["pairs"]:
-        prow.append([_e(f"{p['a']} vs {p['b']}"), _f(p["p_a_greater_full"], "{:.3f}"),
-                     _iv(p["ratio_full"], fmt="{:.4f}"), _f(p["p_a_greater_area"], "{:.3f}"),
-                     _iv(p["ratio_area"], fmt="{:.4f}"), "TR at H0" if p["basis"] == "tr_at_h0" else "TR full range"])
-    psec = ['<section id="probabilities"><h2>Pairwise probabilities</h2>',
-            "<p>P(A captures more information than B) from the independent posteriors (all pairs of draws), "
-            "and the capacity ratio C_A/C_B with its 95 % interval.</p>"]
+        prow.append(
+            [
+                _e(f"{p['a']} vs {p['b']}"),
+                _f(p["p_a_greater_full"], "{:.3f}"),
+                _iv(p["ratio_full"], fmt="{:.4f}"),
+                _f(p["p_a_greater_area"], "{:.3f}"),
+                _iv(p["ratio_area"], fmt="{:.4f}"),
+                "TR at H0" if p["basis"] == "tr_at_h0" else "TR full range",
+            ]
+        )
+    psec = [
+        '<section id="probabilities"><h2>Pairwise probabilities</h2>',
+        "<p>P(A captures more information than B) from the independent posteriors (all pairs of draws), "
+        "and the capacity ratio C_A/C_B with its 95 % interval.</p>",
+    ]
     if len(cmp.sensors) > 1:
-        psec.append('<div class=grid>' + _img(_png(plot_probability_matrix(cmp, "full")),
-                                               "P(C_row > C_column) at full resolution"))
+        psec.append(
+            "<div class=grid>"
+            + _img(_png(plot_probability_matrix(cmp, "full")), "P(C_row > C_column) at full resolution")
+        )
         if area:
             psec.append(_img(_png(plot_probability_matrix(cmp, "area")), f"P(C_row > C_column) at {an}"))
         psec.append("</div>")
@@ -330,56 +402,93 @@ def render_html(cmp: Comparison, *, title: str = "bayescap sensor comparison") -
     for i, (s, sd) in enumerate(zip(cmp.sensors, d["sensors"])):
         r = s.result
         rd = r.to_dict()
-        sec = [f'<section id="sensor-{i}"><h2>{_e(s.name)}</h2>',
-               f"<p class=small>{_e(sd['sensor'])} · input <code>{_e(sd['input'])}</code> · fit seed {sd['seed']}</p>"]
+        sec = [
+            f'<section id="sensor-{i}"><h2>{_e(s.name)}</h2>',
+            f"<p class=small>{_e(sd['sensor'])} · input <code>{_e(sd['input'])}</code> · fit seed {sd['seed']}</p>",
+        ]
         if _is_simulated(s):
             sec.append("<div class=sim>Simulated (or built from datasheet values): not a measurement.</div>")
         own = sd.get("notes", [])
         fit_notes = [n for n in rd.get("notes", []) if not (n.startswith("NOT CONVERGED") and not sd["converged"])]
         for n in own + fit_notes:
             sec.append(f"<p class=warn>! {_e(n)}</p>")
-        prm = [[_e(k), _iv(v), _e(v.get("unit", "")), "yes" if v.get("constrained", True) else "no"]
-               for k, v in rd["parameters"].items()]
+        prm = [
+            [_e(k), _iv(v), _e(v.get("unit", "")), "yes" if v.get("constrained", True) else "no"]
+            for k, v in rd["parameters"].items()
+        ]
         der = [[_e(k), _iv(v), _e(v.get("unit", ""))] for k, v in rd["derived"].items()]
         for k in ("tonal_range_bits_h0", "s_max_h0_e", "analog_gain_h0", "capacity_full_bits", "capacity_area_bits"):
             if sd.get(k):
                 der.append([_e(k + " (compare)"), _iv(sd[k]), _e(sd[k].get("unit", ""))])
         dg = rd["diagnostics"]
-        num = lambda key, spec: format_or_na(dg.get(key), spec)  # noqa: E731
+        num = lambda key, spec, dg=dg: format_or_na(dg.get(key), spec)
 
-        diag = [["converged", "yes" if dg["converged"] else "<span class=warn>no</span>"],
-                (["Pareto k̂ (target)", f"{num('khat', '.2f')} (&lt; {dg['khat_max']:g})"] if dg.get("method") == "laplace-is"
-                 else ["R-hat max (target)", f"{num('rhat_max', '.4f')} (&lt; {dg['rhat_target']})"]),
-                ["ESS min (target)", f"{num('ess_min', '.0f')} (≥ {dg['ess_target']:.0f})"],
-                ["sampler", _e(f"Laplace–IS, IS ESS {num('ess_is', '.0f')} of {dg['n_proposals']} proposals, "
-                               f"{dg['n_draws']} resampled draws, {dg['wall_s']:.1f} s, quality {dg['quality']}"
-                               if dg.get("method") == "laplace-is" else
-                               f"{dg['n_ensembles']} ensembles × {dg['n_walkers']} walkers × {dg['n_steps']} steps, "
-                               f"{dg['n_rounds']} round(s), {dg['wall_s']:.1f} s, quality {dg['quality']}")],
-                ["model terms", _e(", ".join(rd["model_terms"]))],
-                ["MTF", _e(", ".join(cc.get("name", "") for cc in rd.get("mtf", {}).get("model", {}).get("components", [])))]]
+        diag = [
+            ["converged", "yes" if dg["converged"] else "<span class=warn>no</span>"],
+            (
+                ["Pareto k̂ (target)", f"{num('khat', '.2f')} (&lt; {dg['khat_max']:g})"]
+                if dg.get("method") == "laplace-is"
+                else ["R-hat max (target)", f"{num('rhat_max', '.4f')} (&lt; {dg['rhat_target']})"]
+            ),
+            ["ESS min (target)", f"{num('ess_min', '.0f')} (≥ {dg['ess_target']:.0f})"],
+            [
+                "sampler",
+                _e(
+                    f"Laplace–IS, IS ESS {num('ess_is', '.0f')} of {dg['n_proposals']} proposals, "
+                    f"{dg['n_draws']} resampled draws, {dg['wall_s']:.1f} s, quality {dg['quality']}"
+                    if dg.get("method") == "laplace-is"
+                    else f"{dg['n_ensembles']} ensembles × {dg['n_walkers']} walkers × {dg['n_steps']} steps, "
+                    f"{dg['n_rounds']} round(s), {dg['wall_s']:.1f} s, quality {dg['quality']}"
+                ),
+            ],
+            ["model terms", _e(", ".join(rd["model_terms"]))],
+            [
+                "MTF",
+                _e(", ".join(cc.get("name", "") for cc in rd.get("mtf", {}).get("model", {}).get("components", []))),
+            ],
+        ]
         if dg.get("interval_end_mcse_max") is not None:
             tgt = dg.get("interval_end_mcse_target")
-            diag.append(["Monte Carlo error of the 95 % interval ends, of the width (target)",
-                         _e(f"{num('interval_end_mcse_max', '.3f')}"
-                            + (f" ({dg['interval_end_mcse_worst']})" if dg.get("interval_end_mcse_worst") else "")
-                            + (f" (≤ {tgt:g})" if tgt is not None else " (reported, not a check)"))])
+            diag.append(
+                [
+                    "Monte Carlo error of the 95 % interval ends, of the width (target)",
+                    _e(
+                        f"{num('interval_end_mcse_max', '.3f')}"
+                        + (f" ({dg['interval_end_mcse_worst']})" if dg.get("interval_end_mcse_worst") else "")
+                        + (f" (≤ {tgt:g})" if tgt is not None else " (reported, not a check)")
+                    ),
+                ]
+            )
         if dg.get("failed_checks"):
             diag.append(["failed checks", _e("; ".join(dg["failed_checks"]))])
-        sec.append('<div class=grid><div><h3>Parameters</h3>' + _table(["parameter", "median [95 %]", "unit", "constrained"], prm)
-                   + '</div><div><h3>Derived</h3>' + _table(["quantity", "median [95 %]", "unit"], der)
-                   + '<h3>Diagnostics</h3>' + _table(["check", "value"], diag) + "</div></div>")
-        sec.append('<div class=grid>' + _img(_png(plot_ptc(r)), f"{s.name}: photon-transfer curve, posterior "
-                                                               "predictive 95 % band and residuals")
-                   + _img(_png(plot_snr_sensor(s)), f"{s.name}: SNR with 95 % band") + "</div>")
+        sec.append(
+            "<div class=grid><div><h3>Parameters</h3>"
+            + _table(["parameter", "median [95 %]", "unit", "constrained"], prm)
+            + "</div><div><h3>Derived</h3>"
+            + _table(["quantity", "median [95 %]", "unit"], der)
+            + "<h3>Diagnostics</h3>"
+            + _table(["check", "value"], diag)
+            + "</div></div>"
+        )
+        sec.append(
+            "<div class=grid>"
+            + _img(_png(plot_ptc(r)), f"{s.name}: photon-transfer curve, posterior predictive 95 % band and residuals")
+            + _img(_png(plot_snr_sensor(s)), f"{s.name}: SNR with 95 % band")
+            + "</div>"
+        )
         sec.append(_img(_png(_quiet(plot_corner, r, n_max=4000)), f"{s.name}: corner plot of the parameters", "corner"))
         parts.append("".join(sec) + "</section>")
 
-    conv = [[_e(k), _e(v if not isinstance(v, dict) else ", ".join(f"{a}: {b}" for a, b in v.items()))]
-            for k, v in c.items()]
-    parts.append('<section id="conventions"><h2>Conventions</h2>' + _table(["", ""], conv)
-                 + "<p class=small>See docs/compare.md: optical formats, H0 placement at mid-grey, exposure "
-                   "calibration, the probability of superiority.</p></section>")
+    conv = [
+        [_e(k), _e(v if not isinstance(v, dict) else ", ".join(f"{a}: {b}" for a, b in v.items()))]
+        for k, v in c.items()
+    ]
+    parts.append(
+        '<section id="conventions"><h2>Conventions</h2>'
+        + _table(["", ""], conv)
+        + "<p class=small>See docs/compare.md: optical formats, H0 placement at mid-grey, exposure "
+        "calibration, the probability of superiority.</p></section>"
+    )
     parts.append("</body></html>\n")
     return "\n".join(parts)
 

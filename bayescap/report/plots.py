@@ -6,6 +6,7 @@ selected and no global style is changed, so a notebook's display stays as it was
 figures display in a notebook; ``path`` writes a PNG atomically. matplotlib loads on the first
 plot, so the text report and the JSON start without it.
 """
+
 from __future__ import annotations
 
 import os
@@ -63,8 +64,13 @@ def plot_ptc(result: FitResult, path=None):
     full = m.full_sat
     d = m.data
     if np.any(full):
-        ax.plot(d.signal_dn[full], np.maximum(d.temporal_var_dn2[full], 1e-3), "rx", ms=5,
-                label="fully clipped rows (locate the clip only)")
+        ax.plot(
+            d.signal_dn[full],
+            np.maximum(d.temporal_var_dn2[full], 1e-3),
+            "rx",
+            ms=5,
+            label="fully clipped rows (locate the clip only)",
+        )
     dobs, dmodel, drep = pp["dark_var"]
     ax.plot(np.zeros_like(dobs) + max(S.min() * 0.5, 1e-3), dobs, "g.", ms=3, label="dark pairs")
     ax.set_ylabel("temporal variance (DN²)")
@@ -95,8 +101,16 @@ def plot_corner(result: FitResult, path=None, n_max=20000):
     idx = result.thin_index(n_max)
     X = np.column_stack([result.draws[n][idx] for n in names])
     fig = Figure(figsize=(_corner_size(len(names)),) * 2)
-    corner.corner(X, fig=fig, labels=names, quantiles=[0.025, 0.5, 0.975], show_titles=True,
-                  title_fmt=".4g", label_kwargs={"fontsize": 7}, title_kwargs={"fontsize": 7})
+    corner.corner(
+        X,
+        fig=fig,
+        labels=names,
+        quantiles=[0.025, 0.5, 0.975],
+        show_titles=True,
+        title_fmt=".4g",
+        label_kwargs={"fontsize": 7},
+        title_kwargs={"fontsize": 7},
+    )
     if path is not None:
         _savefig(fig, path)
     return fig

@@ -3,6 +3,7 @@ files ``--out`` writes (with the plots of :mod:`bayescap.report.plots`).
 
 Every file is written atomically (temp file in the target folder, then rename).
 """
+
 from __future__ import annotations
 
 import json
@@ -34,8 +35,7 @@ def _row(name, s):
     lo68, hi68 = s["ci68"]
     lo95, hi95 = s["ci95"]
     unit = s.get("unit", "")
-    line = (f"  {name:<28} {_fmt(s['median']):>11}   [{_fmt(lo68)}, {_fmt(hi68)}]"
-            f"   [{_fmt(lo95)}, {_fmt(hi95)}]  {unit}")
+    line = f"  {name:<28} {_fmt(s['median']):>11}   [{_fmt(lo68)}, {_fmt(hi68)}]   [{_fmt(lo95)}, {_fmt(hi95)}]  {unit}"
     tags = []
     if s.get("constrained") is False:
         if "upper_limit_95" in s:
@@ -64,25 +64,32 @@ def format_text(result: FitResult | dict) -> str:
     name = d["sensor"].get("sensor", "")
     lines.append(f"bayescap {d['bayescap_version']}: {d['input']}" + (f"  ({name})" if name else ""))
     conv = "converged" if dg["converged"] else "NOT CONVERGED"
-    num = lambda key, spec: format_or_na(dg.get(key), spec)  # noqa: E731
+    num = lambda key, spec: format_or_na(dg.get(key), spec)
 
     if dg.get("method") == "laplace-is":
-        lines.append(f"sampler: {conv}: Laplace–IS, Pareto k̂ {num('khat', '.2f')} (target < {dg['khat_max']:g}), "
-                     f"IS ESS {num('ess_is', '.0f')} (target ≥ {dg['ess_target']:.0f}); {dg['n_draws']} resampled "
-                     f"draws, {dg['wall_s']:.2f} s, quality {dg['quality']}, seed {dg['seed']}")
+        lines.append(
+            f"sampler: {conv}: Laplace–IS, Pareto k̂ {num('khat', '.2f')} (target < {dg['khat_max']:g}), "
+            f"IS ESS {num('ess_is', '.0f')} (target ≥ {dg['ess_target']:.0f}); {dg['n_draws']} resampled "
+            f"draws, {dg['wall_s']:.2f} s, quality {dg['quality']}, seed {dg['seed']}"
+        )
     else:
-        lines.append(f"sampler: {conv}: R-hat max {num('rhat_max', '.4f')} (target < {dg['rhat_target']}), "
-                     f"ESS min {num('ess_min', '.0f')} (target ≥ {dg['ess_target']:.0f}); {dg['n_ensembles']} "
-                     f"ensembles × {dg['n_walkers']} walkers × {dg['n_steps']} steps, {dg['wall_s']:.1f} s, "
-                     f"quality {dg['quality']}, seed {dg['seed']}")
+        lines.append(
+            f"sampler: {conv}: R-hat max {num('rhat_max', '.4f')} (target < {dg['rhat_target']}), "
+            f"ESS min {num('ess_min', '.0f')} (target ≥ {dg['ess_target']:.0f}); {dg['n_ensembles']} "
+            f"ensembles × {dg['n_walkers']} walkers × {dg['n_steps']} steps, {dg['wall_s']:.1f} s, "
+            f"quality {dg['quality']}, seed {dg['seed']}"
+        )
     if "fast_path" in dg:
         lines.append(f"  {dg['fast_path']}")
     if dg.get("method") != "laplace-is" and dg.get("interval_end_mcse_max") is not None:
         # the chains' own Monte Carlo error of the interval ends (fit.interval_end_mcse_mcmc)
         tgt = dg.get("interval_end_mcse_target")
-        lines.append(f"  Monte Carlo error of the 95 % interval ends: up to {num('interval_end_mcse_max', '.3f')} "
-                     f"of the width ({dg.get('interval_end_mcse_worst', '?')}"
-                     + (f"; target ≤ {tgt:g}" if tgt is not None else "; reported, not a check") + ")")
+        lines.append(
+            f"  Monte Carlo error of the 95 % interval ends: up to {num('interval_end_mcse_max', '.3f')} "
+            f"of the width ({dg.get('interval_end_mcse_worst', '?')}"
+            + (f"; target ≤ {tgt:g}" if tgt is not None else "; reported, not a check")
+            + ")"
+        )
     lines.append("")
     lines.append(f"  {'parameter':<28} {'median':>11}   68 % interval   95 % interval")
     params = d["parameters"]
@@ -100,17 +107,21 @@ def format_text(result: FitResult | dict) -> str:
     if cap:
         unit = "bits" if "capacity_bits" in der else "bits/pixel"
         lines.append("")
-        lines.append(f"  capacity C = {_fmt(cap['median'])} {unit}, 95 % interval "
-                     f"[{_fmt(cap['ci95'][0])}, {_fmt(cap['ci95'][1])}]"
-                     + (" (lower bound)" if cap.get("lower_bound") else ""))
+        lines.append(
+            f"  capacity C = {_fmt(cap['median'])} {unit}, 95 % interval "
+            f"[{_fmt(cap['ci95'][0])}, {_fmt(cap['ci95'][1])}]" + (" (lower bound)" if cap.get("lower_bound") else "")
+        )
     nb = d.get("noise_budget_mid_grey")
     if nb:
         shares = sorted(nb["shares_percent"].items(), key=lambda kv: -kv[1])
         big = [f"{n} {v:.3g} %" for n, v in shares if v >= 0.1]
         small = [n for n, v in shares if v < 0.1]
         lines.append("")
-        lines.append(f"  noise at mid-grey (S = {_fmt(nb['signal_e'])} e-): " + ", ".join(big)
-                     + (f"; negligible (< 0.1 %): {', '.join(small)}" if small else ""))
+        lines.append(
+            f"  noise at mid-grey (S = {_fmt(nb['signal_e'])} e-): "
+            + ", ".join(big)
+            + (f"; negligible (< 0.1 %): {', '.join(small)}" if small else "")
+        )
     lines.append("")
     lines.append("  model terms: " + ", ".join(d["model_terms"]))
     for t, why in d.get("terms_left_out", {}).items():
@@ -121,9 +132,11 @@ def format_text(result: FitResult | dict) -> str:
     if ms:
         lines.append(f"  model selection ({ms['criterion']}): chose '{ms['chosen']}', {ms['why']}")
         for n, v in ms["variants"].items():
-            lines.append(f"    {n:<22} elpd_loo {v['elpd_loo']:9.1f} ± {v['se']:.1f}   Δ {v['elpd_diff']:7.1f} ± "
-                         f"{v['se_diff']:.1f}   p_loo {v['p_loo']:.1f}   k̂>0.7: {v['n_khat_above_0.7']}"
-                         + ("" if v.get("converged", True) else "   NOT CONVERGED"))
+            lines.append(
+                f"    {n:<22} elpd_loo {v['elpd_loo']:9.1f} ± {v['se']:.1f}   Δ {v['elpd_diff']:7.1f} ± "
+                f"{v['se_diff']:.1f}   p_loo {v['p_loo']:.1f}   k̂>0.7: {v['n_khat_above_0.7']}"
+                + ("" if v.get("converged", True) else "   NOT CONVERGED")
+            )
     if d.get("notes"):
         lines.append("")
         for n in d["notes"]:
@@ -150,13 +163,20 @@ def to_inference_data(result: FitResult):
     post.update({k: chains(v) for k, v in result.derived.items()})
     lp = result.chains.log_prob.transpose(0, 2, 1).reshape(E * W, S)
     d = result.model.data
-    obs = {"exposure_time_s": np.asarray(d.exposure_time_s), "mean_dn": np.asarray(d.mean_dn),
-           "temporal_var_dn2": np.asarray(d.temporal_var_dn2), "dark_mean_dn": np.asarray(d.dark_mean_dn),
-           "dark_temporal_var_dn2": np.asarray(d.dark_temporal_var_dn2)}
-    idata = az.from_dict(posterior=post, sample_stats={"lp": lp}, observed_data=obs,
-                         dims={k: ["row"] for k in obs},
-                         attrs={"bayescap_input": str(d.source), "seed": str(result.seed),
-                                "quality": result.quality})
+    obs = {
+        "exposure_time_s": np.asarray(d.exposure_time_s),
+        "mean_dn": np.asarray(d.mean_dn),
+        "temporal_var_dn2": np.asarray(d.temporal_var_dn2),
+        "dark_mean_dn": np.asarray(d.dark_mean_dn),
+        "dark_temporal_var_dn2": np.asarray(d.dark_temporal_var_dn2),
+    }
+    idata = az.from_dict(
+        posterior=post,
+        sample_stats={"lp": lp},
+        observed_data=obs,
+        dims={k: ["row"] for k in obs},
+        attrs={"bayescap_input": str(d.source), "seed": str(result.seed), "quality": result.quality},
+    )
     return idata
 
 

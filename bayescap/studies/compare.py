@@ -30,11 +30,11 @@ Conventions (docs/compare.md):
   over *all* pairs of draws (ties count one half): exact, without random pairing. The ratio
   ``C_A/C_B`` pairs the thinned draws by a seeded random permutation.
 """
+
 from __future__ import annotations
 
 import json
 import math
-import re
 import zlib
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -42,40 +42,28 @@ from pathlib import Path
 import numpy as np
 
 from bayescap.exceptions import CompareInputError
-from bayescap.physics.capacity import N_GREY_LEVELS, information_capacity_bits, tonal_range, tonal_range_bits
-from bayescap.physics.noise import NoiseCoefficients, snr_db
+from bayescap.physics.capacity import N_GREY_LEVELS, information_capacity_bits, tonal_range_bits
 from bayescap.physics.optics import OPTICAL_FORMATS
-from bayescap.physics.photometry import photons_per_lux_s_um2
 from bayescap.posterior import FitResult, rerun_advice, summarize
 from bayescap.posterior.summary import json_safe
+from bayescap.studies.area import AREA_TOLERANCE, AreaCrop, area_crop, parse_area
+from bayescap.studies.exposure import (
+    DEFAULT_MID_GREY,
+    ExposureCalibration,
+    exposure_calibration,
+    tonal_range_at_exposure,
+)
 
 __all__ = [
     "OPTICAL_FORMATS",
-    "AREA_TOLERANCE",
-    "ImagingArea",
-    "AreaCrop",
-    "ExposureCalibration",
     "SensorComparison",
     "Comparison",
-    "parse_area",
-    "area_crop",
     "sensor_seed",
-    "exposure_calibration",
-    "tonal_range_at_exposure",
-    "snr_at_exposure",
     "prob_greater",
     "compare",
     "compare_results",
     "format_compare_text",
 ]
-
-
-#: a sensor within 2 % of the area in both directions counts as filling it (formats are nominal)
-AREA_TOLERANCE = 0.02
-
-
-#: mid-grey: the fraction of the top of the signal range at which the scene's mean is placed
-DEFAULT_MID_GREY = 0.18
 
 
 DEFAULT_H0_LUX_S = 0.4
@@ -93,201 +81,14 @@ DEFAULT_N_DRAWS = 4000
 DEFAULT_QUALITY = "fast"
 
 
-@dataclass(frozen=True)
-class ImagingArea:
-    name: str
-    width_mm: float
-    height_mm: float
-
-    @property
-    def diagonal_mm(self) -> float:
-        return math.hypot(self.width_mm, self.height_mm)
-
-    def to_dict(self):
-        return {"name": self.name, "width_mm": self.width_mm, "height_mm": self.height_mm,
-                "diagonal_mm": self.diagonal_mm}
-
-
-def parse_area(text: str | None) -> ImagingArea | None:
-    """``"1/4in"``, ``'1/4"'``, ``"1/4"``, ``"2/3in"``, ``"full-frame"`` or ``"5.0x3.75mm"``;
-    ``None``/``"none"`` means no area comparison."""
-    if text is None or str(text).strip().lower() in ("", "none", "full"):
-        return None
-    t = str(text).strip().lower().replace("″", '"').replace("inch", "in")
-    m = re.fullmatch(r"([0-9.]+)\s*[x×]\s*([0-9.]+)\s*mm", t)
-    if m:
-        w, h = float(m.group(1)), float(m.group(2))
-        if not (w > 0 and h > 0):
-            raise CompareInputError(f"--area {text!r}: width and height must be positive")
-        return ImagingArea(f"{w:g}x{h:g}mm", w, h)
-    key = re.sub(r'(in|")$', "", t).strip()
-    if key in OPTICAL_FORMATS:
-        w, h = OPTICAL_FORMATS[key]
-        return ImagingArea(f'{key}"' if key[0].isdigit() else key, w, h)
-    known = ", ".join(f'{k}in' if k[0].isdigit() else k for k in OPTICAL_FORMATS)
-    raise CompareInputError(f"--area {text!r} is not a known optical format ({known}) nor WxHmm (e.g. 3.6x2.7mm)")
-
-
-@dataclass(frozen=True)
-class AreaCrop:
-    """The pixels of a sensor that fall inside an imaging area."""
-
-    width_px: int
-    height_px: int
-    cropped: bool
-    smaller_than_area: bool
-    covered_fraction: float   # sensor-used area / imaging area
-
-    @property
-    def pixels(self) -> int:
-        return self.width_px * self.height_px
-
-    def to_dict(self):
-        return {"width_px": self.width_px, "height_px": self.height_px, "pixels": self.pixels,
-                "cropped": self.cropped, "smaller_than_area": self.smaller_than_area,
-                "covered_fraction": self.covered_fraction}
-
-
-def area_crop(width_px: int, height_px: int, pitch_um: float, area: ImagingArea) -> AreaCrop:
-    """Pixels of a ``width_px × height_px`` sensor of pitch ``pitch_um`` inside ``area``.
-
-    The area is turned to the sensor's orientation (portrait sensors get a portrait area). Each
-    direction keeps ``min(sensor pixels, floor(area_mm·1000/pitch))``.
-
-    >>> c = area_crop(2056, 1544, 2.2, parse_area("1/4in")); (c.width_px, c.height_px, c.cropped)
-    (1636, 1227, True)
-    """
-    if not (pitch_um and pitch_um > 0):
-        raise CompareInputError(f"pixel pitch must be positive, got {pitch_um}")
-    aw, ah = area.width_mm, area.height_mm
-    if (width_px < height_px) != (aw < ah):
-        aw, ah = ah, aw
-    fit_w = int(math.floor(aw * 1000.0 / pitch_um + 1e-9))
-    fit_h = int(math.floor(ah * 1000.0 / pitch_um + 1e-9))
-    w, h = min(int(width_px), fit_w), min(int(height_px), fit_h)
-    cropped = w < width_px or h < height_px
-    smaller = (width_px < (1 - AREA_TOLERANCE) * aw * 1000.0 / pitch_um
-               or height_px < (1 - AREA_TOLERANCE) * ah * 1000.0 / pitch_um)
-    covered = (w * pitch_um * 1e-3) * (h * pitch_um * 1e-3) / (aw * ah)
-    return AreaCrop(width_px=w, height_px=h, cropped=bool(cropped), smaller_than_area=bool(smaller),
-                    covered_fraction=float(covered))
-
-
 def sensor_seed(seed: int, path) -> int:
     """The seed of one sensor's fit: from the run's seed and the file's name, so a sensor's numbers
     do not depend on which other files are compared (``bayescap fit --seed`` with this value and
     the same MTF reproduces them)."""
-    return int(np.random.SeedSequence([int(seed), zlib.crc32(Path(str(path)).name.encode())]).generate_state(1)[0]
-               % (2**31 - 1))
-
-
-@dataclass(frozen=True)
-class ExposureCalibration:
-    """Sensitivity in e⁻ per lux·s, per posterior draw (aligned with ``FitResult.draws``)."""
-
-    sensitivity_e_per_lux_s: np.ndarray
-    source: str
-
-    def to_dict(self):
-        return {"source": self.source, "sensitivity_e_per_lux_s": summarize(self.sensitivity_e_per_lux_s, "e-/(lux·s)")}
-
-
-def _linear_rows(d, model):
-    """Rows usable for a slope: not clipped, below 80 % of the signal at the variance peak."""
-    ok = ~np.asarray(model.full_sat, bool)
-    if d.frac_saturated is not None:
-        ok &= np.asarray(d.frac_saturated) <= 0
-    v = np.where(ok, d.temporal_var_dn2, -np.inf)
-    s_peak = float(d.signal_dn[int(np.argmax(v))])
-    return ok & (d.signal_dn <= 0.8 * s_peak) & (d.signal_dn > 0)
-
-
-def exposure_calibration(result: FitResult) -> ExposureCalibration | None:
-    """The sensitivity (e⁻/lux·s) per draw, or None when the file has no exposure calibration
-    (see the module docstring for the order of the sources)."""
-    d = result.model.data
-    p = result.draws
-    n = next(iter(p.values())).size
-    if d.exposure_lux_s is not None:
-        rows = _linear_rows(d, result.model) & (np.asarray(d.exposure_lux_s) > 0)
-        if np.count_nonzero(rows) >= 2:
-            h = np.asarray(d.exposure_lux_s)[rows]
-            s = np.asarray(d.signal_dn)[rows]
-            slope_dn = float(np.sum(h * s) / np.sum(h * h))  # least squares through the origin
-            return ExposureCalibration(p["conversion_gain_e_per_dn"] * slope_dn,
-                                       f"exposure_lux_s column ({np.count_nonzero(rows)} linear rows) x "
-                                       "conversion gain")
-    md = result.metadata
-    if md.get("sensitivity_e_per_lux_s") not in (None, ""):
-        try:
-            s = float(md["sensitivity_e_per_lux_s"])
-        except (TypeError, ValueError):
-            raise CompareInputError(f"{d.source}: metadata sensitivity_e_per_lux_s must be a number, "
-                                    f"got {md['sensitivity_e_per_lux_s']!r}") from None
-        if not (s > 0 and math.isfinite(s)):
-            raise CompareInputError(f"{d.source}: metadata sensitivity_e_per_lux_s must be positive, got {s}")
-        return ExposureCalibration(np.full(n, s), "sensitivity_e_per_lux_s metadata (fixed value)")
-    pitch = md.get("pixel_pitch_um")
-    if "quantum_efficiency" in p and pitch:
-        per_px = float(photons_per_lux_s_um2(wavelength_nm=555.0)) * float(pitch) ** 2
-        return ExposureCalibration(p["quantum_efficiency"] * per_px,
-                                   f"photons_per_pixel column: QE x {per_px:.0f} photons/(lux·s) per "
-                                   f"{float(pitch):g} µm pixel (Eq. 4, 555 nm)")
-    return None
-
-
-def _coefficients(result: FitResult, p) -> NoiseCoefficients:
-    """Eq. 1's coefficients of the draws ``p`` ({name: (n,)}) at the result's scene, as columns
-    (n, 1) that broadcast against a row of signals or exposures."""
-    col = {k: np.asarray(v, float)[:, None] for k, v in p.items()}
-    return result._noise_coefficients(col, result.scene.exposure_time_s)
-
-
-def tonal_range_at_exposure(result: FitResult, h0_lux_s, *, calibration: ExposureCalibration | None = None,
-                            mid_grey: float = DEFAULT_MID_GREY, idx=None):
-    """TR (grey levels, 8-bit-equivalent scale) at average exposures ``h0_lux_s``, per draw.
-
-    Returns ``(tr, s_max_e)``, each of shape ``(n_draws, n_h0)`` (``n_h0`` = 1 for a scalar).
-    ``S_max = min(clip, sensitivity·H₀/mid_grey)``; TR is Eq. 7 over ``[σ(0), S_max]`` with the
-    quantization term ``K²/12`` of the fit scaled by the analog gain ``g = clip/S_max``.
-    ``idx`` selects draws (e.g. ``result.thin_index(n)``). Vectorised: no loop over draws.
-    """
-    if not (0 < mid_grey <= 1):
-        raise CompareInputError(f"mid-grey fraction must be in (0, 1], got {mid_grey}")
-    cal = calibration if calibration is not None else exposure_calibration(result)
-    if cal is None:
-        raise CompareInputError(f"{result.model.data.source}: no exposure calibration (exposure_lux_s "
-                                "column, photons_per_pixel with pixel_pitch_um, or sensitivity_e_per_lux_s)")
-    sel = slice(None) if idx is None else idx
-    p = {k: v[sel] for k, v in result.draws.items()}
-    sens = np.asarray(cal.sensitivity_e_per_lux_s)[sel][:, None]
-    h = np.atleast_1d(np.asarray(h0_lux_s, float))[None, :]
-    if np.any(~(h > 0)):
-        raise CompareInputError(f"H0 must be positive (lux·s), got {h0_lux_s}")
-    clip, _ = result.signal_max_e(p)
-    clip = np.asarray(clip, float)[:, None]
-    with np.errstate(over="ignore"):   # an H0 of 1e308 lux·s: every pixel at the clip, as meant
-        s_max = np.minimum(clip, sens * h / mid_grey)
-    k = np.asarray(p["conversion_gain_e_per_dn"], float)[:, None]
-    gain = clip / s_max
-    tr = tonal_range(_coefficients(result, p).with_quantization(k, k / gain), s_max)
-    return np.asarray(tr, float), s_max
-
-
-def snr_at_exposure(result: FitResult, h_lux_s, *, calibration: ExposureCalibration | None = None, idx=None):
-    """SNR (dB, Eq. 1) against photometric exposure H (lux·s), per draw: ``(n_draws, n_h)``;
-    NaN where the signal passes the clip (Figs. 5-6)."""
-    cal = calibration if calibration is not None else exposure_calibration(result)
-    if cal is None:
-        raise CompareInputError(f"{result.model.data.source}: no exposure calibration")
-    sel = slice(None) if idx is None else idx
-    p = {k: v[sel] for k, v in result.draws.items()}
-    s = np.asarray(cal.sensitivity_e_per_lux_s)[sel][:, None] * np.atleast_1d(np.asarray(h_lux_s, float))[None, :]
-    coeffs = _coefficients(result, p)
-    clip, _ = result.signal_max_e(p)
-    with np.errstate(divide="ignore", invalid="ignore"):
-        out = snr_db(coeffs, s)
-    return np.where(s <= np.asarray(clip)[:, None], out, np.nan)
+    return int(
+        np.random.SeedSequence([int(seed), zlib.crc32(Path(str(path)).name.encode())]).generate_state(1)[0]
+        % (2**31 - 1)
+    )
 
 
 def prob_greater(x, y) -> float:
@@ -312,9 +113,9 @@ class SensorComparison:
     seed: int
     calibration: ExposureCalibration | None
     crop: AreaCrop | None
-    draws: dict = field(default_factory=dict)    # quantity -> (n,) draws used for the pairs
-    info: dict = field(default_factory=dict)     # JSON-ready summary
-    basis: str = "full_range"                    # "tr_at_h0" or "full_range"
+    draws: dict = field(default_factory=dict)  # quantity -> (n,) draws used for the pairs
+    info: dict = field(default_factory=dict)  # JSON-ready summary
+    basis: str = "full_range"  # "tr_at_h0" or "full_range"
 
 
 @dataclass
@@ -326,8 +127,15 @@ class Comparison:
     def to_dict(self) -> dict:
         from bayescap._version import __version__
 
-        return json_safe({"bayescap_version": __version__, "command": "compare", "conventions": self.conventions,
-                       "sensors": [s.info for s in self.sensors], "pairs": self.pairs})
+        return json_safe(
+            {
+                "bayescap_version": __version__,
+                "command": "compare",
+                "conventions": self.conventions,
+                "sensors": [s.info for s in self.sensors],
+                "pairs": self.pairs,
+            }
+        )
 
     def to_json(self) -> str:
         return json.dumps(self.to_dict(), indent=2, ensure_ascii=False, allow_nan=False) + "\n"
@@ -358,19 +166,31 @@ def _sensor(name, path, result: FitResult, seed, *, area, h0_lux_s, mid_grey, n_
     notes = []
     b_full = np.asarray(result.derived["tonal_range_bits"])[idx]
     draws = {"tonal_range_bits_full_range": b_full}
-    info = {"name": name, "input": str(path), "sensor": md.get("sensor", ""), "manufacturer": md.get("manufacturer"),
-            "seed": seed, "quality": result.quality, "pixel_pitch_um": pitch, "width_px": w, "height_px": h,
-            "converged": bool(result.diag.get("converged")), "mtf": result.mtf_info,
-            "scene_exposure_time_s": result.scene.exposure_time_s,
-            "tonal_range_bits_full_range": summarize(b_full, "bits")}
+    info = {
+        "name": name,
+        "input": str(path),
+        "sensor": md.get("sensor", ""),
+        "manufacturer": md.get("manufacturer"),
+        "seed": seed,
+        "quality": result.quality,
+        "pixel_pitch_um": pitch,
+        "width_px": w,
+        "height_px": h,
+        "converged": bool(result.diag.get("converged")),
+        "mtf": result.mtf_info,
+        "scene_exposure_time_s": result.scene.exposure_time_s,
+        "tonal_range_bits_full_range": summarize(b_full, "bits"),
+    }
     if result.diag.get("fast_settings") is not None:
-        info["fast_settings"] = dict(result.diag["fast_settings"])    # the fast preset's check
+        info["fast_settings"] = dict(result.diag["fast_settings"])  # the fast preset's check
     if md.get("simulated"):
         info["simulated"] = str(md["simulated"])
     if not result.diag.get("converged"):
         failed = "; ".join(result.diag.get("failed_checks", []))
-        notes.append(f"the sampler did not converge ({failed}): rerun with {rerun_advice(result.quality)} "
-                     "before trusting the intervals")
+        notes.append(
+            f"the sampler did not converge ({failed}): rerun with {rerun_advice(result.quality)} "
+            "before trusting the intervals"
+        )
     if result.flags.get("capacity_lower_bound"):
         notes.append("no row reaches saturation: TR and capacity are lower bounds")
     basis = "full_range"
@@ -379,8 +199,10 @@ def _sensor(name, path, result: FitResult, seed, *, area, h0_lux_s, mid_grey, n_
         tr, s_max = tonal_range_at_exposure(result, h0_lux_s, calibration=cal, mid_grey=mid_grey, idx=idx)
         b_h0 = tonal_range_bits(tr[:, 0])
         draws["tonal_range_bits_h0"] = b_h0
-        info["exposure_calibration"] = {"source": cal.source, "sensitivity_e_per_lux_s":
-                                        summarize(np.asarray(cal.sensitivity_e_per_lux_s)[idx], "e-/(lux·s)")}
+        info["exposure_calibration"] = {
+            "source": cal.source,
+            "sensitivity_e_per_lux_s": summarize(np.asarray(cal.sensitivity_e_per_lux_s)[idx], "e-/(lux·s)"),
+        }
         info["tonal_range_bits_h0"] = summarize(b_h0, "bits")
         info["s_max_h0_e"] = summarize(s_max[:, 0], "e-")
         clip, _ = result.signal_max_e({k: v[idx] for k, v in result.draws.items()})
@@ -388,8 +210,10 @@ def _sensor(name, path, result: FitResult, seed, *, area, h0_lux_s, mid_grey, n_
         basis, b_use = "tr_at_h0", b_h0
     else:
         info["exposure_calibration"] = None
-        notes.append("no exposure calibration (exposure_lux_s, photons_per_pixel + pixel_pitch_um, or "
-                     "sensitivity_e_per_lux_s): TR at H0 unavailable; capacity uses TR over the full range")
+        notes.append(
+            "no exposure calibration (exposure_lux_s, photons_per_pixel + pixel_pitch_um, or "
+            "sensitivity_e_per_lux_s): TR at H0 unavailable; capacity uses TR over the full range"
+        )
     info["capacity_basis"] = basis
     if w and h:
         s_full = float(w) * float(h)
@@ -415,15 +239,26 @@ def _sensor(name, path, result: FitResult, seed, *, area, h0_lux_s, mid_grey, n_
                 draws["capacity_area_bits_full_range"] = information_capacity_bits(s_a, ds, bits_per_pixel=b_full)
                 info["capacity_area_bits_full_range"] = summarize(draws["capacity_area_bits_full_range"], "bits")
             if crop.smaller_than_area:
-                notes.append(f"the sensor ({int(w) * float(pitch) / 1000:.2f} × {int(h) * float(pitch) / 1000:.2f} mm) "
-                             f"is smaller than the {area.name} area: it keeps its own size "
-                             f"({100 * crop.covered_fraction:.0f} % of the area)")
+                notes.append(
+                    f"the sensor ({int(w) * float(pitch) / 1000:.2f} × {int(h) * float(pitch) / 1000:.2f} mm) "
+                    f"is smaller than the {area.name} area: it keeps its own size "
+                    f"({100 * crop.covered_fraction:.0f} % of the area)"
+                )
         else:
             info["area"] = None
             notes.append("pixel_pitch_um, width_px or height_px unknown: no capacity at the fixed area")
     info["notes"] = notes
-    return SensorComparison(name=name, input=str(path), result=result, seed=seed, calibration=cal, crop=crop,
-                            draws=draws, info=info, basis=basis)
+    return SensorComparison(
+        name=name,
+        input=str(path),
+        result=result,
+        seed=seed,
+        calibration=cal,
+        crop=crop,
+        draws=draws,
+        info=info,
+        basis=basis,
+    )
 
 
 def _pair(i, j, A: SensorComparison, B: SensorComparison, rng) -> dict:
@@ -451,9 +286,19 @@ def _pair(i, j, A: SensorComparison, B: SensorComparison, rng) -> dict:
     return out
 
 
-def compare_results(results, *, inputs=None, names=None, seeds=None, area=DEFAULT_AREA,
-                    h0_lux_s: float = DEFAULT_H0_LUX_S, mid_grey: float = DEFAULT_MID_GREY, seed: int = 0,
-                    n_draws: int = DEFAULT_N_DRAWS, quality: str | None = None) -> Comparison:
+def compare_results(
+    results,
+    *,
+    inputs=None,
+    names=None,
+    seeds=None,
+    area=DEFAULT_AREA,
+    h0_lux_s: float = DEFAULT_H0_LUX_S,
+    mid_grey: float = DEFAULT_MID_GREY,
+    seed: int = 0,
+    n_draws: int = DEFAULT_N_DRAWS,
+    quality: str | None = None,
+) -> Comparison:
     """Compare already-fitted sensors (a list of :class:`FitResult`)."""
     if not (h0_lux_s > 0 and math.isfinite(h0_lux_s)):
         raise CompareInputError(f"--h0 must be a positive exposure in lux·s, got {h0_lux_s}")
@@ -463,19 +308,25 @@ def compare_results(results, *, inputs=None, names=None, seeds=None, area=DEFAUL
     inputs = inputs or [str(r.model.data.source) for r in results]
     names = names or _names(inputs)
     seeds = seeds or [r.seed for r in results]
-    sensors = [_sensor(n, p, r, s, area=ar, h0_lux_s=h0_lux_s, mid_grey=mid_grey, n_draws=n_draws)
-               for n, p, r, s in zip(names, inputs, results, seeds)]
+    sensors = [
+        _sensor(n, p, r, s, area=ar, h0_lux_s=h0_lux_s, mid_grey=mid_grey, n_draws=n_draws)
+        for n, p, r, s in zip(names, inputs, results, seeds)
+    ]
     rng = np.random.default_rng(np.random.SeedSequence([int(seed), 7]))
-    pairs = [_pair(i, j, sensors[i], sensors[j], rng)
-             for i in range(len(sensors)) for j in range(i + 1, len(sensors))]
-    conv = {"area": ar.to_dict() if ar else None, "area_tolerance": AREA_TOLERANCE, "h0_lux_s": h0_lux_s,
-            "mid_grey_fraction": mid_grey,
-            "h0_convention": f"S_max = min(clip, sensitivity·H0/{mid_grey:g}); TR (Eq. 7, {N_GREY_LEVELS}-level "
-                             "scale) over [sigma(0), S_max]",
-            "seed": seed, "quality": quality or (results[0].quality if results else None),
-            "n_draws_per_sensor": n_draws,
-            "probability": "P(C_A > C_B) over all pairs of draws of independent posteriors (ties 1/2)",
-            "intervals": "equal-tailed posterior quantiles: ci68 = 16-84 %, ci95 = 2.5-97.5 %"}
+    pairs = [_pair(i, j, sensors[i], sensors[j], rng) for i in range(len(sensors)) for j in range(i + 1, len(sensors))]
+    conv = {
+        "area": ar.to_dict() if ar else None,
+        "area_tolerance": AREA_TOLERANCE,
+        "h0_lux_s": h0_lux_s,
+        "mid_grey_fraction": mid_grey,
+        "h0_convention": f"S_max = min(clip, sensitivity·H0/{mid_grey:g}); TR (Eq. 7, {N_GREY_LEVELS}-level "
+        "scale) over [sigma(0), S_max]",
+        "seed": seed,
+        "quality": quality or (results[0].quality if results else None),
+        "n_draws_per_sensor": n_draws,
+        "probability": "P(C_A > C_B) over all pairs of draws of independent posteriors (ties 1/2)",
+        "intervals": "equal-tailed posterior quantiles: ci68 = 16-84 %, ci95 = 2.5-97.5 %",
+    }
     return Comparison(sensors=sensors, pairs=pairs, conventions=conv)
 
 
@@ -487,9 +338,18 @@ def _names(inputs):
     return out
 
 
-def compare(paths, *, area=DEFAULT_AREA, h0_lux_s: float = DEFAULT_H0_LUX_S, mid_grey: float = DEFAULT_MID_GREY,
-            seed: int = 0, quality: str = DEFAULT_QUALITY, n_draws: int = DEFAULT_N_DRAWS, progress: bool = False,
-            fit_kwargs: dict | None = None) -> Comparison:
+def compare(
+    paths,
+    *,
+    area=DEFAULT_AREA,
+    h0_lux_s: float = DEFAULT_H0_LUX_S,
+    mid_grey: float = DEFAULT_MID_GREY,
+    seed: int = 0,
+    quality: str = DEFAULT_QUALITY,
+    n_draws: int = DEFAULT_N_DRAWS,
+    progress: bool = False,
+    fit_kwargs: dict | None = None,
+) -> Comparison:
     """Fit each photon-transfer CSV (seeded, :func:`sensor_seed`) and compare them.
 
     Raises :class:`bayescap.ptc.PTCInputError` for a bad file and :class:`CompareInputError` for
@@ -502,15 +362,23 @@ def compare(paths, *, area=DEFAULT_AREA, h0_lux_s: float = DEFAULT_H0_LUX_S, mid
     ar = parse_area(area) if (area is None or isinstance(area, str)) else area
     if not (h0_lux_s > 0 and math.isfinite(h0_lux_s)):
         raise CompareInputError(f"--h0 must be a positive exposure in lux·s, got {h0_lux_s}")
-    datas = [load(p) for p in paths]   # refuse bad input before any fit runs
+    datas = [load(p) for p in paths]  # refuse bad input before any fit runs
     results, seeds = [], []
     for p, d in zip(paths, datas):
         s = sensor_seed(seed, p)
-        results.append(fit(d, seed=s, quality=quality, progress=progress,
-                           **(fit_kwargs or {})))
+        results.append(fit(d, seed=s, quality=quality, progress=progress, **(fit_kwargs or {})))
         seeds.append(s)
-    return compare_results(results, inputs=[str(p) for p in paths], seeds=seeds, area=ar, h0_lux_s=h0_lux_s,
-                           mid_grey=mid_grey, seed=seed, n_draws=n_draws, quality=quality)
+    return compare_results(
+        results,
+        inputs=[str(p) for p in paths],
+        seeds=seeds,
+        area=ar,
+        h0_lux_s=h0_lux_s,
+        mid_grey=mid_grey,
+        seed=seed,
+        n_draws=n_draws,
+        quality=quality,
+    )
 
 
 def _mbit(x):
@@ -532,35 +400,47 @@ def format_compare_text(d: dict) -> str:
     c = d["conventions"]
     ar = c["area"]
     L = []
-    L.append(f"bayescap {d['bayescap_version']} compare: {len(d['sensors'])} sensors, seed {c['seed']}, "
-             f"quality {c['quality']}; medians with 95 % intervals")
+    L.append(
+        f"bayescap {d['bayescap_version']} compare: {len(d['sensors'])} sensors, seed {c['seed']}, "
+        f"quality {c['quality']}; medians with 95 % intervals"
+    )
     area_txt = f"{ar['name']} = {ar['width_mm']:g} × {ar['height_mm']:g} mm" if ar else "none"
-    L.append(f"conventions: area {area_txt}; H0 = {c['h0_lux_s']:g} lux·s at mid-grey "
-             f"{100 * c['mid_grey_fraction']:g} % ({c['h0_convention']})")
+    L.append(
+        f"conventions: area {area_txt}; H0 = {c['h0_lux_s']:g} lux·s at mid-grey "
+        f"{100 * c['mid_grey_fraction']:g} % ({c['h0_convention']})"
+    )
     L.append("")
     an = ar["name"] if ar else "area"
-    hdr = (f"  {'sensor':<24} {'pitch µm':>8} {'pixels':>10} {'@' + an:>20}  {'TR(H0) bits':<24} "
-           f"{'C full (Mbit)':<26} {'C @' + an + ' (Mbit)':<26} basis")
+    hdr = (
+        f"  {'sensor':<24} {'pitch µm':>8} {'pixels':>10} {'@' + an:>20}  {'TR(H0) bits':<24} "
+        f"{'C full (Mbit)':<26} {'C @' + an + ' (Mbit)':<26} basis"
+    )
     L.append(hdr)
     for s in d["sensors"]:
         px = f"{s['pixels_full'] / 1e6:.3f} M" if s.get("pixels_full") else "—"
         a = s.get("area")
         apx = f"{a['width_px']}×{a['height_px']}" + ("*" if a["smaller_than_area"] else "") if a else "—"
-        L.append(f"  {s['name']:<24} {_num(s['pixel_pitch_um'], '.3g'):>8} {px:>10} {apx:>20}  "
-                 f"{_iv(s.get('tonal_range_bits_h0'), lambda x: f'{x:.3f}'):<24} "
-                 f"{_iv(s.get('capacity_full_bits'), _mbit):<26} {_iv(s.get('capacity_area_bits'), _mbit):<26} "
-                 f"{'TR at H0' if s['capacity_basis'] == 'tr_at_h0' else 'TR full range'}")
+        L.append(
+            f"  {s['name']:<24} {_num(s['pixel_pitch_um'], '.3g'):>8} {px:>10} {apx:>20}  "
+            f"{_iv(s.get('tonal_range_bits_h0'), lambda x: f'{x:.3f}'):<24} "
+            f"{_iv(s.get('capacity_full_bits'), _mbit):<26} {_iv(s.get('capacity_area_bits'), _mbit):<26} "
+            f"{'TR at H0' if s['capacity_basis'] == 'tr_at_h0' else 'TR full range'}"
+        )
     if any(s.get("area") and s["area"]["smaller_than_area"] for s in d["sensors"]):
         L.append("  * smaller than the area: keeps its own size")
     if d["pairs"]:
         L.append("")
-        L.append(f"  {'pair (A vs B)':<44} {'P(A>B) full':>11} {'C_A/C_B full':<24} {'P(A>B) @' + an:>12} "
-                 f"{'C_A/C_B @' + an:<24}")
+        L.append(
+            f"  {'pair (A vs B)':<44} {'P(A>B) full':>11} {'C_A/C_B full':<24} {'P(A>B) @' + an:>12} "
+            f"{'C_A/C_B @' + an:<24}"
+        )
         for p in d["pairs"]:
-            L.append(f"  {p['a'] + ' vs ' + p['b']:<44} {_num(p['p_a_greater_full'], '.3f'):>11} "
-                     f"{_iv(p['ratio_full'], lambda x: f'{x:.4f}'):<24} {_num(p['p_a_greater_area'], '.3f'):>12} "
-                     f"{_iv(p['ratio_area'], lambda x: f'{x:.4f}'):<24}"
-                     + ("  (TR full range)" if p["basis"] == "full_range" else ""))
+            L.append(
+                f"  {p['a'] + ' vs ' + p['b']:<44} {_num(p['p_a_greater_full'], '.3f'):>11} "
+                f"{_iv(p['ratio_full'], lambda x: f'{x:.4f}'):<24} {_num(p['p_a_greater_area'], '.3f'):>12} "
+                f"{_iv(p['ratio_area'], lambda x: f'{x:.4f}'):<24}"
+                + ("  (TR full range)" if p["basis"] == "full_range" else "")
+            )
     notes = [(s["name"], n) for s in d["sensors"] for n in s.get("notes", [])]
     if notes:
         L.append("")

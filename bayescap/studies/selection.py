@@ -12,6 +12,7 @@ few rows dominate the difference (outliers), the standard error is itself unreli
 rows the simpler model cannot predict are exactly the evidence against it. k̂ > 0.7 counts are
 reported for every variant.
 """
+
 from __future__ import annotations
 
 import warnings
@@ -50,9 +51,16 @@ def loo(result, n_draws: int = 2000) -> dict:
         r = az.loo(_idata(ll), pointwise=True)
     k = np.asarray(r.pareto_k)
     bad = [f"{labels[i][0]} row {labels[i][1]}" for i in np.nonzero(k > 0.7)[0]]
-    return {"elpd_loo": float(r.elpd_loo), "se": float(r.se), "p_loo": float(r.p_loo),
-            "n_obs": int(ll.shape[1]), "khat_max": float(np.max(k)), "n_khat_above_0.7": len(bad),
-            "khat_above_0.7": bad, "_ll": ll}
+    return {
+        "elpd_loo": float(r.elpd_loo),
+        "se": float(r.se),
+        "p_loo": float(r.p_loo),
+        "n_obs": int(ll.shape[1]),
+        "khat_max": float(np.max(k)),
+        "n_khat_above_0.7": len(bad),
+        "khat_above_0.7": bad,
+        "_ll": ll,
+    }
 
 
 def select_model(data, *, seed=None, quality="standard", variants=None, progress=False, **fit_kwargs):
@@ -97,23 +105,32 @@ def select_model(data, *, seed=None, quality="standard", variants=None, progress
         dd, se = table[n]["elpd_diff"], table[n]["se_diff"]
         if dd < 4 or (dd < 2 * se and table[n]["n_khat_above_0.7"] == 0):
             chosen = n
-            why = (f"simpler than '{best}' and close to it (Δelpd {dd:.1f} ± {se:.1f})")
+            why = f"simpler than '{best}' and close to it (Δelpd {dd:.1f} ± {se:.1f})"
             break
     for n in names:
         table[n].pop("_ll")
-    summary = {"criterion": "PSIS-LOO elpd; a simpler variant is kept when Δelpd < 4, or Δelpd < 2 se "
-                            "and it has no observation with Pareto k̂ > 0.7",
-               "chosen": chosen, "why": why, "variants": table}
+    summary = {
+        "criterion": "PSIS-LOO elpd; a simpler variant is kept when Δelpd < 4, or Δelpd < 2 se "
+        "and it has no observation with Pareto k̂ > 0.7",
+        "chosen": chosen,
+        "why": why,
+        "variants": table,
+    }
     res = results[chosen]
     res.model_selection = summary
-    res.notes.append(f"model selection by PSIS-LOO: '{chosen}' ({why}); "
-                     + ", ".join(f"{n}: elpd {table[n]['elpd_loo']:.1f}" for n in names))
+    res.notes.append(
+        f"model selection by PSIS-LOO: '{chosen}' ({why}); "
+        + ", ".join(f"{n}: elpd {table[n]['elpd_loo']:.1f}" for n in names)
+    )
     unconverged = [n for n in names if not table[n]["converged"]]
     summary["unconverged_variants"] = unconverged
     if unconverged:
-        res.notes.append("model selection: the fit of " + ", ".join(f"'{n}'" for n in unconverged)
-                         + " did not converge (its R-hat/ESS or fast-path check failed), so its elpd is "
-                           "uncertain; rerun with --quality accurate to confirm the choice")
+        res.notes.append(
+            "model selection: the fit of "
+            + ", ".join(f"'{n}'" for n in unconverged)
+            + " did not converge (its R-hat/ESS or fast-path check failed), so its elpd is "
+            "uncertain; rerun with --quality accurate to confirm the choice"
+        )
     return res, summary
 
 

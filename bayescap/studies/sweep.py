@@ -24,6 +24,7 @@ Command line (registered by ``bayescap.cli``)::
 
     bayescap sweep pixel-size --format 1/4in --f-number 2.8 [--json] [--seed N] [--draws N]
 """
+
 from __future__ import annotations
 
 from dataclasses import dataclass, field
@@ -74,16 +75,19 @@ PAPER_TR_TREND_BITS_PER_UM = 0.35
 
 
 def _table_columns(specs, temperature_c):
-    return (np.array([s.pitch_um for s in specs]),
-            np.array([s.full_well_min_e for s in specs]),
-            np.array([s.full_well_max_e for s in specs]),
-            np.array([s.sensitivity_e_per_lux_s for s in specs]),
-            np.array([s.dark_current_e_per_s(temperature_c) for s in specs]),
-            np.array([s.prnu_max_frac for s in specs]))
+    return (
+        np.array([s.pitch_um for s in specs]),
+        np.array([s.full_well_min_e for s in specs]),
+        np.array([s.full_well_max_e for s in specs]),
+        np.array([s.sensitivity_e_per_lux_s for s in specs]),
+        np.array([s.dark_current_e_per_s(temperature_c) for s in specs]),
+        np.array([s.prnu_max_frac for s in specs]),
+    )
 
 
-def sample_table1(n_draws: int, *, seed=None, specs: list[PixelSpec] | None = None,
-                  temperature_c: float = 25.0) -> dict:
+def sample_table1(
+    n_draws: int, *, seed=None, specs: list[PixelSpec] | None = None, temperature_c: float = 25.0
+) -> dict:
     """Draw Table 1 pixel parameters uniformly within the printed ranges.
 
     Full well ~ U[min, max]; PRNU ~ U[0, bound] (the table prints "< bound"); sensitivity and
@@ -112,13 +116,16 @@ def nominal_table1(*, specs: list[PixelSpec] | None = None, temperature_c: float
     """
     specs = load_table1() if specs is None else specs
     pitch, fw_lo, fw_hi, sens, dark, prnu_hi = _table_columns(specs, temperature_c)
-    return {"pitch_um": pitch, "full_well_e": (0.5 * (fw_lo + fw_hi))[None],
-            "prnu_frac": prnu_hi[None], "sensitivity_e_per_lux_s": sens[None],
-            "dark_current_e_per_s": dark[None]}
+    return {
+        "pitch_um": pitch,
+        "full_well_e": (0.5 * (fw_lo + fw_hi))[None],
+        "prnu_frac": prnu_hi[None],
+        "sensitivity_e_per_lux_s": sens[None],
+        "dark_current_e_per_s": dark[None],
+    }
 
 
-def table1_tonal_range_levels(params: dict, *, exposure_time_s: float = 0.1, adc_bits: int = 10,
-                              exposure_lux_s=None):
+def table1_tonal_range_levels(params: dict, *, exposure_time_s: float = 0.1, adc_bits: int = 10, exposure_lux_s=None):
     """TR (Eq. 7, grey levels on the 8-bit-equivalent scale) of each Table 1 pixel and draw.
 
     ``exposure_lux_s=None`` (default): over the sensor's dynamic range, from the dark floor to
@@ -128,9 +135,13 @@ def table1_tonal_range_levels(params: dict, *, exposure_time_s: float = 0.1, adc
     TR grows with H until the pixel saturates (the paper's Fig. 8(a) view).
     """
     fw = np.asarray(params["full_well_e"], float)
-    coeffs = pixel_noise_coefficients(full_well_e=fw, dark_current_e_per_s=params["dark_current_e_per_s"],
-                                      prnu_frac=params["prnu_frac"], exposure_time_s=exposure_time_s,
-                                      adc_bits=adc_bits)
+    coeffs = pixel_noise_coefficients(
+        full_well_e=fw,
+        dark_current_e_per_s=params["dark_current_e_per_s"],
+        prnu_frac=params["prnu_frac"],
+        exposure_time_s=exposure_time_s,
+        adc_bits=adc_bits,
+    )
     if exposure_lux_s is None:
         return tonal_range(coeffs, fw)
     s_top = np.minimum(np.asarray(params["sensitivity_e_per_lux_s"], float) * exposure_lux_s, fw)
@@ -138,8 +149,9 @@ def table1_tonal_range_levels(params: dict, *, exposure_time_s: float = 0.1, adc
     return tonal_range(coeffs, s_top, n_levels=levels)
 
 
-def interpolate_tr_bits(pitch_um, table_pitch_um, tr_bits, *,
-                        trend_bits_per_um: float | None = PAPER_TR_TREND_BITS_PER_UM):
+def interpolate_tr_bits(
+    pitch_um, table_pitch_um, tr_bits, *, trend_bits_per_um: float | None = PAPER_TR_TREND_BITS_PER_UM
+):
     """b'(P) = log2 TR at arbitrary pitches from its values at the Table 1 pitches.
 
     Linear in pitch between table pitches (vectorised over a leading draws axis of
@@ -177,8 +189,15 @@ def interpolate_tr_bits(pitch_um, table_pitch_um, tr_bits, *,
     return out
 
 
-def delta_s_vs_pitch(pitch_um, *, f_number: float | None = 2.8, wavelength_nm: float = 555.0,
-                     fill_factor: float = 1.0, method: str = "eq9", crosstalk=None):
+def delta_s_vs_pitch(
+    pitch_um,
+    *,
+    f_number: float | None = 2.8,
+    wavelength_nm: float = 555.0,
+    fill_factor: float = 1.0,
+    method: str = "eq9",
+    crosstalk=None,
+):
     """Δs (bits) of pixel aperture × diffraction lens (× optional crosstalk) at each pitch.
 
     ``method``: ``"eq9"`` (:func:`bayescap.capacity.mtf_loss_bits`, radial) or ``"eq8"``
@@ -189,8 +208,9 @@ def delta_s_vs_pitch(pitch_um, *, f_number: float | None = 2.8, wavelength_nm: f
         raise ValueError(f"method must be 'eq8' or 'eq9', got {method!r}")
     ds, cut = [], []
     for p in np.atleast_1d(np.asarray(pitch_um, float)):
-        m = default_mtf(fill_factor=fill_factor, f_number=f_number, wavelength_nm=wavelength_nm,
-                        pixel_pitch_um=float(p))
+        m = default_mtf(
+            fill_factor=fill_factor, f_number=f_number, wavelength_nm=wavelength_nm, pixel_pitch_um=float(p)
+        )
         if crosstalk is not None:
             m = type(m)(components=m.components + (crosstalk,))
         r = mtf_loss_bits(m) if method == "eq9" else mtf_loss_bits_eq8(m)
@@ -252,11 +272,15 @@ class PixelSizeSweep:
     def optimal_pitch_summary(self) -> dict:
         x = self.optimal_pitch_draws_um
         q = _q(x, [0.025, 0.16, 0.5, 0.84, 0.975])
-        return {"median_um": float(q[2]), "ci68_um": [float(q[1]), float(q[3])],
-                "ci95_um": [float(q[0]), float(q[4])], "mean_um": float(np.mean(x)),
-                "sd_um": float(np.std(x, ddof=1)) if x.size > 1 else 0.0,
-                "fraction_at_grid_edge": float(np.mean(self.optimum_at_edge)),
-                "n_draws": int(x.size)}
+        return {
+            "median_um": float(q[2]),
+            "ci68_um": [float(q[1]), float(q[3])],
+            "ci95_um": [float(q[0]), float(q[4])],
+            "mean_um": float(np.mean(x)),
+            "sd_um": float(np.std(x, ddof=1)) if x.size > 1 else 0.0,
+            "fraction_at_grid_edge": float(np.mean(self.optimum_at_edge)),
+            "n_draws": int(x.size),
+        }
 
     def tr_difference_bits(self, p_small=1.45, p_large=5.2) -> dict:
         """b'(p_large) − b'(p_small) at two Table 1 pitches (the paper: ≈ 1.3 bit)."""
@@ -264,8 +288,11 @@ class PixelSizeSweep:
         j = int(np.argmin(np.abs(self.table_pitch_um - p_large)))
         d = self.table_tr_bits_draws[:, j] - self.table_tr_bits_draws[:, i]
         q = _q(d, [0.025, 0.5, 0.975])
-        return {"nominal_bits": float(self.table_tr_bits_nominal[j] - self.table_tr_bits_nominal[i]),
-                "median_bits": float(q[1]), "ci95_bits": [float(q[0]), float(q[2])]}
+        return {
+            "nominal_bits": float(self.table_tr_bits_nominal[j] - self.table_tr_bits_nominal[i]),
+            "median_bits": float(q[1]),
+            "ci95_bits": [float(q[0]), float(q[2])],
+        }
 
     def rows(self, pitches_um=None) -> list[dict]:
         """Table rows at selected pitches (default: 1.0, 1.2 and the Table 1 pitches)."""
@@ -276,19 +303,22 @@ class PixelSizeSweep:
             k = int(np.argmin(np.abs(self.pitch_um - p)))
             cq = _q(self.capacity_draws_bits[:, k], [0.025, 0.5, 0.975])
             tq = _q(self.tr_bits_draws[:, k], [0.025, 0.5, 0.975])
-            out.append({
-                "pitch_um": float(self.pitch_um[k]),
-                "n_pixels": float(self.n_pixels[k]),
-                "delta_s_bits": float(self.delta_s_bits[k]),
-                "band_cut_bits": float(self.band_cut_bits[k]),
-                "effective_pixels": float(self.effective_pixels[k]),
-                "tr_bits_nominal": float(self.tr_bits_nominal[k]),
-                "tr_bits_median": float(tq[1]), "tr_bits_ci95": [float(tq[0]), float(tq[2])],
-                "capacity_nominal_bits": float(self.capacity_nominal_bits[k]),
-                "capacity_median_bits": float(cq[1]),
-                "capacity_ci95_bits": [float(cq[0]), float(cq[2])],
-                "tr_extrapolated": bool(self.pitch_um[k] < self.table_pitch_um.min() - 1e-9),
-            })
+            out.append(
+                {
+                    "pitch_um": float(self.pitch_um[k]),
+                    "n_pixels": float(self.n_pixels[k]),
+                    "delta_s_bits": float(self.delta_s_bits[k]),
+                    "band_cut_bits": float(self.band_cut_bits[k]),
+                    "effective_pixels": float(self.effective_pixels[k]),
+                    "tr_bits_nominal": float(self.tr_bits_nominal[k]),
+                    "tr_bits_median": float(tq[1]),
+                    "tr_bits_ci95": [float(tq[0]), float(tq[2])],
+                    "capacity_nominal_bits": float(self.capacity_nominal_bits[k]),
+                    "capacity_median_bits": float(cq[1]),
+                    "capacity_ci95_bits": [float(cq[0]), float(cq[2])],
+                    "tr_extrapolated": bool(self.pitch_um[k] < self.table_pitch_um.min() - 1e-9),
+                }
+            )
         return out
 
     def to_dict(self) -> dict:
@@ -303,12 +333,22 @@ class PixelSizeSweep:
         }
 
 
-def pixel_size_sweep(pitch_um=None, *, optical_format: str = "1/4in", f_number: float = 2.8,
-                     wavelength_nm: float = 555.0, n_draws: int = 2000, seed=0,
-                     method: str = "eq9",
-                     tr_trend_bits_per_um: float | None = PAPER_TR_TREND_BITS_PER_UM,
-                     exposure_time_s: float = 0.1, temperature_c: float = 25.0, adc_bits: int = 10,
-                     exposure_lux_s=None, specs: list[PixelSpec] | None = None) -> PixelSizeSweep:
+def pixel_size_sweep(
+    pitch_um=None,
+    *,
+    optical_format: str = "1/4in",
+    f_number: float = 2.8,
+    wavelength_nm: float = 555.0,
+    n_draws: int = 2000,
+    seed=0,
+    method: str = "eq9",
+    tr_trend_bits_per_um: float | None = PAPER_TR_TREND_BITS_PER_UM,
+    exposure_time_s: float = 0.1,
+    temperature_c: float = 25.0,
+    adc_bits: int = 10,
+    exposure_lux_s=None,
+    specs: list[PixelSpec] | None = None,
+) -> PixelSizeSweep:
     """Fig. 4: capacity C (bits) against pixel pitch on a fixed optical format, with draws.
 
     Parameters
@@ -350,29 +390,57 @@ def pixel_size_sweep(pitch_um=None, *, optical_format: str = "1/4in", f_number: 
     cap = information_capacity_bits(n_pix, ds, bits_per_pixel=np.maximum(tr, 0.0))
     opt, edge = _argmax_refined(pitch, cap)
     settings = {
-        "optical_format": optical_format, "imaging_area_mm": [width_mm, height_mm],
-        "f_number": f_number, "wavelength_nm": wavelength_nm, "fill_factor": 1.0,
-        "delta_s_method": method, "tr_convention": ("dynamic_range" if exposure_lux_s is None
-                                                     else f"exposure {exposure_lux_s} lux·s"),
+        "optical_format": optical_format,
+        "imaging_area_mm": [width_mm, height_mm],
+        "f_number": f_number,
+        "wavelength_nm": wavelength_nm,
+        "fill_factor": 1.0,
+        "delta_s_method": method,
+        "tr_convention": ("dynamic_range" if exposure_lux_s is None else f"exposure {exposure_lux_s} lux·s"),
         "tr_grey_scale": "8-bit equivalent: one grey level = full well / 256",
-        "tr_trend_below_1p45_bits_per_um": ("per-draw least squares" if tr_trend_bits_per_um is None
-                                            else tr_trend_bits_per_um),
-        "exposure_time_s": exposure_time_s, "temperature_c": temperature_c, "adc_bits": adc_bits,
-        "read_noise_e": 0.0, "dsnu_e": 0.0,
-        "draws": {"n": n_draws, "seed": seed,
-                  "full_well": "uniform within the Table 1 range", "prnu": "uniform in [0, bound]"},
+        "tr_trend_below_1p45_bits_per_um": (
+            "per-draw least squares" if tr_trend_bits_per_um is None else tr_trend_bits_per_um
+        ),
+        "exposure_time_s": exposure_time_s,
+        "temperature_c": temperature_c,
+        "adc_bits": adc_bits,
+        "read_noise_e": 0.0,
+        "dsnu_e": 0.0,
+        "draws": {
+            "n": n_draws,
+            "seed": seed,
+            "full_well": "uniform within the Table 1 range",
+            "prnu": "uniform in [0, bound]",
+        },
         "nominal": "full well at mid-range, PRNU at its bound",
         "pitch_grid_um": [float(pitch[0]), float(pitch[-1]), float(pitch[1] - pitch[0])],
     }
-    return PixelSizeSweep(pitch_um=pitch, n_pixels=n_pix, delta_s_bits=ds, band_cut_bits=cut,
-                          tr_bits_nominal=tr_nom, capacity_nominal_bits=cap_nom, tr_bits_draws=tr,
-                          capacity_draws_bits=cap, optimal_pitch_draws_um=opt, optimum_at_edge=edge,
-                          table_pitch_um=tp, table_tr_bits_draws=tb, table_tr_bits_nominal=tb_nom,
-                          settings=settings)
+    return PixelSizeSweep(
+        pitch_um=pitch,
+        n_pixels=n_pix,
+        delta_s_bits=ds,
+        band_cut_bits=cut,
+        tr_bits_nominal=tr_nom,
+        capacity_nominal_bits=cap_nom,
+        tr_bits_draws=tr,
+        capacity_draws_bits=cap,
+        optimal_pitch_draws_um=opt,
+        optimum_at_edge=edge,
+        table_pitch_um=tp,
+        table_tr_bits_draws=tb,
+        table_tr_bits_nominal=tb_nom,
+        settings=settings,
+    )
 
 
-def snr_curves_table1(h_lux_s, *, specs: list[PixelSpec] | None = None, exposure_time_s: float = 0.1,
-                      temperature_c: float = 25.0, adc_bits: int = 10) -> dict:
+def snr_curves_table1(
+    h_lux_s,
+    *,
+    specs: list[PixelSpec] | None = None,
+    exposure_time_s: float = 0.1,
+    temperature_c: float = 25.0,
+    adc_bits: int = 10,
+) -> dict:
     """Fig. 2(b): SNR (dB) against exposure H (lux·s) of every Table 1 pixel (nominal values).
 
     Returns ``{pitch_um: snr_db array}``; NaN above the full well.
@@ -381,15 +449,26 @@ def snr_curves_table1(h_lux_s, *, specs: list[PixelSpec] | None = None, exposure
     out = {}
     for s in specs:
         out[s.pitch_um] = snr_vs_exposure_db(
-            h_lux_s, sensitivity_e_per_lux_s=s.sensitivity_e_per_lux_s, full_well_e=s.full_well_mid_e,
-            dark_current_e_per_s=s.dark_current_e_per_s(temperature_c), prnu_frac=s.prnu_max_frac,
-            exposure_time_s=exposure_time_s, adc_bits=adc_bits)
+            h_lux_s,
+            sensitivity_e_per_lux_s=s.sensitivity_e_per_lux_s,
+            full_well_e=s.full_well_mid_e,
+            dark_current_e_per_s=s.dark_current_e_per_s(temperature_c),
+            prnu_frac=s.prnu_max_frac,
+            exposure_time_s=exposure_time_s,
+            adc_bits=adc_bits,
+        )
     return out
 
 
-def farrell_tradeoff(*, specs: list[PixelSpec] | None = None, f_number: float | None = 2.8,
-                     wavelength_nm: float = 555.0, exposure_time_s: float = 0.1,
-                     temperature_c: float = 25.0, adc_bits: int = 10) -> list[dict]:
+def farrell_tradeoff(
+    *,
+    specs: list[PixelSpec] | None = None,
+    f_number: float | None = 2.8,
+    wavelength_nm: float = 555.0,
+    exposure_time_s: float = 0.1,
+    temperature_c: float = 25.0,
+    adc_bits: int = 10,
+) -> list[dict]:
     """MPE30 (lux·s for SNR = 30 dB) and MTF50 of each Table 1 pixel (Farrell et al.).
 
     MTF50 is given for the detector alone (ideal square pixel: 0.603 cy/px at every pitch) and
@@ -400,17 +479,32 @@ def farrell_tradeoff(*, specs: list[PixelSpec] | None = None, f_number: float | 
     rows = []
     det50 = mtf50_cy_per_px(PixelAperture())
     for s in specs:
-        mpe = float(mpe30_lux_s(sensitivity_e_per_lux_s=s.sensitivity_e_per_lux_s, full_well_e=s.full_well_mid_e,
-                                dark_current_e_per_s=s.dark_current_e_per_s(temperature_c),
-                                prnu_frac=s.prnu_max_frac, exposure_time_s=exposure_time_s,
-                                adc_bits=adc_bits))
-        sys50 = (mtf50_cy_per_px(default_mtf(f_number=f_number, wavelength_nm=wavelength_nm,
-                                             pixel_pitch_um=s.pitch_um)) if f_number else det50)
-        rows.append({"pitch_um": s.pitch_um, "mpe30_lux_s": mpe, "inv_mpe30_per_lux_s": 1.0 / mpe,
-                     "mtf50_detector_cy_per_px": det50,
-                     "mtf50_detector_cy_per_mm": det50 / (s.pitch_um * 1e-3),
-                     "mtf50_system_cy_per_px": sys50,
-                     "mtf50_system_cy_per_mm": sys50 / (s.pitch_um * 1e-3)})
+        mpe = float(
+            mpe30_lux_s(
+                sensitivity_e_per_lux_s=s.sensitivity_e_per_lux_s,
+                full_well_e=s.full_well_mid_e,
+                dark_current_e_per_s=s.dark_current_e_per_s(temperature_c),
+                prnu_frac=s.prnu_max_frac,
+                exposure_time_s=exposure_time_s,
+                adc_bits=adc_bits,
+            )
+        )
+        sys50 = (
+            mtf50_cy_per_px(default_mtf(f_number=f_number, wavelength_nm=wavelength_nm, pixel_pitch_um=s.pitch_um))
+            if f_number
+            else det50
+        )
+        rows.append(
+            {
+                "pitch_um": s.pitch_um,
+                "mpe30_lux_s": mpe,
+                "inv_mpe30_per_lux_s": 1.0 / mpe,
+                "mtf50_detector_cy_per_px": det50,
+                "mtf50_detector_cy_per_mm": det50 / (s.pitch_um * 1e-3),
+                "mtf50_system_cy_per_px": sys50,
+                "mtf50_system_cy_per_mm": sys50 / (s.pitch_um * 1e-3),
+            }
+        )
     return rows
 
 
@@ -423,8 +517,7 @@ def _format_table(res: PixelSizeSweep) -> str:
         f"at {st['wavelength_nm']} nm, Delta-s by {st['delta_s_method']}, TR over "
         f"{st['tr_convention']} (8-bit equivalent), {st['draws']['n']} Table 1 draws (seed {st['draws']['seed']})",
         "",
-        f"{'pitch um':>8} {'pixels M':>9} {'Ds bits':>8} {'eff. M':>7} {'TR bits [95%]':>22} "
-        f"{'C Mbit [95%]':>24}",
+        f"{'pitch um':>8} {'pixels M':>9} {'Ds bits':>8} {'eff. M':>7} {'TR bits [95%]':>22} {'C Mbit [95%]':>24}",
     ]
     for r in res.rows():
         mark = "*" if r["tr_extrapolated"] else " "
@@ -433,7 +526,8 @@ def _format_table(res: PixelSizeSweep) -> str:
             f"{r['effective_pixels'] / 1e6:7.3f} {r['tr_bits_median']:6.3f} "
             f"[{r['tr_bits_ci95'][0]:5.3f}, {r['tr_bits_ci95'][1]:5.3f}]{mark} "
             f"{r['capacity_median_bits'] / 1e6:7.3f} [{r['capacity_ci95_bits'][0] / 1e6:6.3f}, "
-            f"{r['capacity_ci95_bits'][1] / 1e6:6.3f}]")
+            f"{r['capacity_ci95_bits'][1] / 1e6:6.3f}]"
+        )
     d = res.tr_difference_bits()
     lines += [
         "  (* TR extrapolated below 1.45 um with the trend)",
@@ -446,4 +540,3 @@ def _format_table(res: PixelSizeSweep) -> str:
         f"{d['ci95_bits'][1]:.3f}] (nominal {d['nominal_bits']:.3f}; paper: ~1.3 bit)",
     ]
     return "\n".join(lines)
-
