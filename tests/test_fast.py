@@ -279,7 +279,7 @@ def test_independence_move_calibrated_on_known_gaussian(name):
 
 
 def test_independence_move_on_a_skewed_bounded_target():
-    """Banana + log-Gamma + truncated normal (bayescap.validation.check_banana), walkers from the Laplace
+    """Banana + log-Gamma + truncated normal (bayescap.validation.moves.check_banana), walkers from the Laplace
     start, the standard preset's mix (70 % IndependenceMove, t ν 4, sd × 1.3, at the Laplace
     approximation, a poor fit here; 30 % DE/stretch): mean, sd and five
     quantiles of every coordinate against exact draws. z = error / standard error across 6 seeds
