@@ -6,7 +6,7 @@ that. After such a call its worker threads spin, waiting for more work, for a wh
 thread timeout), on the core that :func:`bayescap.model.threads._split_rows` hands the second half
 of a large ``log_prob`` call to: on the bundled Basler CCD that call then took as long as on one
 thread (2 900 draws, 23 ms against 15 ms when no BLAS thread spins), and the whole fast path
-~10 % longer (docs/performance.md, "OpenBLAS threads"). bayescap's matrices are D×D with D ≤ 14,
+~10 % longer (docs/performance.md, "Processes, threads and memory"). bayescap's matrices are D×D with D ≤ 14,
 so a second BLAS thread never pays for itself here.
 
 :func:`one_blas_thread` is a decorator that limits the BLAS libraries threadpoolctl finds to one

@@ -70,7 +70,7 @@ def measured_mtf(path, *, seed: int = 0, n_boot: int = 200):
 
     ``path`` is an MTF table (CSV: ``freq_cy_per_px,mtf``; no draws, so Δs carries no
     sharpness uncertainty) or a slanted-edge image, measured by ISO 12233:2023
-    (:func:`bayescap.mtf.measure_sfr`, with the ¼-pixel bin-width correction so that the
+    (:func:`bayescap.measure.sfr.measure_sfr`, with the ¼-pixel bin-width correction so that the
     bootstrap intervals are centred on the true MTF) with ``n_boot`` bootstrap draws."""
     from pathlib import Path
 
@@ -137,25 +137,25 @@ def fit(
     data : PTCData, path to a contract CSV, or a :class:`~bayescap.model.PTCModel`.
     seed : makes the run reproducible (same seed, same numbers).
     quality : "fast", "standard", "accurate" or a :class:`SamplerSettings` (MCMC).
-        ``"fast"`` is the Laplace–IS path (:mod:`bayescap.fast`): MAP, refined Laplace
+        ``"fast"`` is the Laplace–IS path (:mod:`bayescap.inference.fast`): MAP, refined Laplace
         covariance, Pareto-smoothed importance sampling; when its own check fails (Pareto k̂ ≥
         ``khat_max`` or IS ESS < ``min_ess_is``) the fit falls back to the MCMC preset
         ``fallback_quality`` (default the short MCMC ``"fast"`` preset of
-        :data:`bayescap.fit.QUALITY_PRESETS`), and the result says so (a note,
+        :data:`bayescap.inference.QUALITY_PRESETS`), and the result says so (a note,
         ``diagnostics.fast_path``, ``diagnostics.fallback_reason``).
-    mtf : an MTF component (see :mod:`bayescap.optics`); default from the metadata.
+    mtf : an MTF component (see :mod:`bayescap.physics.optics`); default from the metadata.
     scene : where TR/capacity are evaluated; default :func:`default_scene`.
     terms : a :class:`bayescap.model.ModelTerms` to override the data-driven term selection.
     n_jobs : processes for the independent ensembles (default: one per core; the numbers do not
         depend on it).
-    fast_settings : :class:`bayescap.fast.FastSettings` for ``quality="fast"``.
+    fast_settings : :class:`bayescap.inference.FastSettings` for ``quality="fast"``.
     fallback : with ``quality="fast"``, False returns a rejected Laplace–IS result (flagged NOT
         CONVERGED) instead of running MCMC.
     prior : overrides of :attr:`bayescap.model.PTCModel.PRIOR` (e.g. ``{"read_log_bounds": (1, 20)}``
         for a log-uniform read-noise prior on 1–20 e⁻); default: the documented production priors.
         Ignored when ``data`` is already a PTCModel (it carries its own prior).
     fast_result : with ``quality="fast"``, the ``(ChainResult, diagnostics)`` pair that
-        :func:`bayescap.fast.fast_posterior` returned for this model and ``seed`` (computed for many
+        :func:`bayescap.inference.fast.fast_posterior` returned for this model and ``seed`` (computed for many
         sensors at once by :func:`bayescap.batch.fit_many`); the fit then starts from it instead
         of running the fast path again (the fallback, when it is rejected, is unchanged).
     """

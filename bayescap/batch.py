@@ -1,11 +1,10 @@
-"""Many sensors at once with the fast path (issue 7): :func:`fit_many`, and the Gpixel
+"""Many sensors at once with the fast path: :func:`fit_many`, and the Gpixel
 GSPRINT4521 per-ROI results turned into simulated photon-transfer data (:func:`gpixel_sensors`).
 
 **Vectorised across fits.** A fast-path fit makes ~200 ``log_prob`` calls, most on 1–50 points,
-where a call costs ~0.6 ms whatever its size (17 points 0.7–0.8 ms, 1 000 points 6–8 ms:
-``benchmarks/batch_lockstep.py``).
+where a call costs ~0.6 ms whatever its size (17 points 0.7–0.8 ms, 1 000 points 6–8 ms).
 :func:`fit_many` therefore runs the fast paths of up to ``stack_size`` sensors in lockstep: each
-sensor's unchanged fast path (:func:`bayescap.fast.fast_posterior`) runs in a greenlet whose model
+sensor's unchanged fast path (:func:`bayescap.inference.fast.fast_posterior`) runs in a greenlet whose model
 hands its ``log_prob`` requests to a :class:`Lockstep` evaluator; once every running path is
 waiting, all requests are evaluated in one :class:`bayescap.model.PTCModelStack` call and each
 path resumes with its own values. Sensors stack when their models have the same structure

@@ -3,7 +3,7 @@
     python benchmarks/fast_budget.py [--n-sim 10] [--repeat 5] [--speedup 2.4]
 
 For the bundled Basler CCD and the ``n_sim`` simulated sensors of ``speed_accuracy.py``
-(``sensor_set``), runs ``bayescap.fast.fast_posterior`` ``repeat`` times (one thread for BLAS, as
+(``sensor_set``), runs ``bayescap.inference.fast.fast_posterior`` ``repeat`` times (one thread for BLAS, as
 ``fast_posterior`` sets; ``log_prob``'s own split of large calls over two threads as in a fit) and
 keeps the fastest run. In it every ``PTCModel.log_prob`` call is timed and put in the phase it was
 made in: the optimiser (``laplace_start``: Newton's method and its finite-difference Hessians), the

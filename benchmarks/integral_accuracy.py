@@ -1,10 +1,10 @@
-"""Accuracy and cost of the paper's integrals (issue 7, item 4).
+"""Accuracy and cost of the paper's integrals.
 
 1. Tonal range, Eq. 7: ∫ dS / max(σ(S), floor) with σ² = a + bS + cS², by the closed form in
-   :func:`bayescap.capacity.integral_inv_sqrt_quadratic`, against Simpson's rule on log- and
+   :func:`bayescap.physics.capacity.integral_inv_sqrt_quadratic`, against Simpson's rule on log- and
    linear-spaced signal grids and against adaptive quadrature (``scipy.integrate.quad``,
    epsrel 1e-13, split at the floor crossing; mpmath is not installed here).
-2. MTF loss, Eq. 9: :func:`bayescap.capacity.mtf_loss_bits` with n Gauss–Legendre nodes against
+2. MTF loss, Eq. 9: :func:`bayescap.physics.capacity.mtf_loss_bits` with n Gauss–Legendre nodes against
    closed forms (constant MTF: (π/2)·log2 m; Gaussian MTF exp(−2π²σ²f²):
    −π³σ²f_N²/(2 ln 2)) and against quad for the pixel aperture and a diffraction lens whose
    cut-off lies inside the band (log singularity at the cut-off).

@@ -2,7 +2,7 @@
 
     python benchmarks/quantization_regime.py      # writes benchmarks/results/quantization_regime.md
 
-The likelihood's exact rounding terms (``bayescap.model._quantized_var``: the rounded normal's
+The likelihood's exact rounding terms (``bayescap.model.prediction``, ``_quantized_var``: the rounded normal's
 offset, moments and, with a spatial stack, the pixel-mean offsets' wrapped normal on a grid) make
 these sensors' ``log_prob`` calls several times the cost of the others'. The sensors are the
 truths of the slowest ``standard`` fits of two 200-sensor SBC runs (``benchmarks/sbc.py``, seed 3

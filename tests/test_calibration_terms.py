@@ -126,7 +126,7 @@ def test_rounded_normal_moments_series_below_0p3_dn_equal_the_sums():
     the sums over ±40 DN to 1e-14 (mean, variance) and 1e-12 (4th moment) on 40 000 random
     (offset, s) pairs from 0.01 to 1 DN and on the 32-point offset grid with one s per row; and
     every element's numbers are its own, bit for bit, in sub-arrays of any size (the products run
-    in fixed-size blocks, model._rows_matmul)."""
+    in fixed-size blocks, quantization._rows_matmul)."""
     from bayescap.model.pixel_quantization import _QG_X
     from bayescap.model.quantization import _rn_harmonics
 
@@ -154,7 +154,7 @@ def test_rounded_normal_moments_series_below_0p3_dn_equal_the_sums():
 
 
 def test_wrapped_normal_grid_equals_the_sum_of_its_images():
-    """The pixel-mean offsets' wrapped normal on the 32-point grid (model._wrapped_normal_grid):
+    """The pixel-mean offsets' wrapped normal on the 32-point grid (pixel_quantization._wrapped_normal_grid):
     three images below σ_o = 0.1 DN, the Fourier series above, equal to the normalised sum of
     ±40 images to 1e-15 for σ_o from 1/32 to 0.7 DN; each row's weights bit for bit the same in
     sub-arrays of any size; and _quantized_pixel_moments likewise elementwise over all its
@@ -194,11 +194,11 @@ def test_wrapped_normal_grid_equals_the_sum_of_its_images():
 
 
 def test_quantized_pixel_moments_grid_matches_a_256_point_grid():
-    """The offset grid's size per element (model._grid_size: 8-128 points from s and σ_o): V, E4
+    """The offset grid's size per element (pixel_quantization._grid_size: 8-128 points from s and σ_o): V, E4
     and H within 2e-12 DN² (DN⁴) of the same integrals on 256 points (sums over ±12 DN, ±12 images)
-    for s from 0.02 to 0.75 DN and σ_o from 1/32 to 0.7 DN. The fixed 32 points used until
-    2026-11-24 were off by up to 1.8e-3 where s and σ_o are both small (checked here too, so the
-    reference resolves what the old grid did not)."""
+    for s from 0.02 to 0.75 DN and σ_o from 1/32 to 0.7 DN. A fixed grid of 32 points is off
+    by up to 1.8e-3 where s and σ_o are both small (checked here too, so the
+    reference resolves what 32 points do not)."""
     from bayescap.model.pixel_quantization import _QG_J
 
     def on_grid(dl, sg, sog, M):
@@ -232,8 +232,8 @@ def test_quantized_pixel_moments_grid_matches_a_256_point_grid():
 def test_quantized_pixel_moments_narrow_spreads_match_a_fine_quadrature():
     """Pattern spreads below 1/32 DN: Gauss–Hermite nodes where σ_o < s/4, the grid otherwise.
     V, E4 and H within 1e-12 of a 4 096-point quadrature of the unwrapped normal for s from 0.005
-    to 0.75 DN and σ_o from 1e-4 to 1/32 DN (nine nodes for every σ_o < 1/32, until 2026-11-24,
-    were off by up to 1e-3 DN², 4 % of V, where σ_o was between s/2 and 2s)."""
+    to 0.75 DN and σ_o from 1e-4 to 1/32 DN (nine nodes for every σ_o < 1/32
+    are off by up to 1e-3 DN², 4 % of V, where σ_o is between s/2 and 2s)."""
     rng = np.random.default_rng(3)
     n = 300
     dl = rng.uniform(-0.5, 0.5, n)
@@ -508,12 +508,12 @@ def test_rounded_offset_boundary_solver_converges_within_three_steps():
 
 
 def test_rounded_offset_branches_match_the_exact_mean():
-    """model._rounded_offset by s_tot: the Fourier-series Newton (0.3-1.3 DN) and the identity (above
+    """quantization._rounded_offset by s_tot: the Fourier-series Newton (0.3-1.3 DN) and the identity (above
     1.3 DN) put the exact rounded mean (sums over ±40 DN) within 1e-9 of the target, on 20 000 random
     (offset, s) pairs; where the boundary-sum solver is exact too (s ≤ 0.75 DN) it meets the same
     tolerance, so the two offsets agree to 2e-9/0.66 (each solver stops within 1e-9 DN of the mean,
-    whose slope in δ is at least 0.66 for s ≥ 0.3 DN; until 2026-11-24 both started at δ = f and
-    agreed to 1e-12, a property of the shared start, not of the solvers).
+    whose slope in δ is at least 0.66 for s ≥ 0.3 DN; solvers that both start at δ = f agree
+    to 1e-12, a property of the shared start, not of the solvers).
     (The boundary sums stop at ±5.5 DN: above 0.75 DN they were off by up to 2e-6 DN, above 1.3 DN by
     up to 0.1 DN, where only the quantization's uniform-offset branch, which ignores δ, had used them.)"""
     from bayescap.model.quantization import _rounded_offset_boundaries

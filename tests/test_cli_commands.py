@@ -156,8 +156,8 @@ def test_fast_tolerance_and_confidence_flags(tmp_path):
     ],
 )
 def test_sweep_bad_numbers_exit_2_one_line(args, fragment):
-    """Found 2026-11-25: a zero or NaN f-number ended in a traceback, --draws 0 in exit 1, and an
-    f/1e308 lens printed an 'optimal pitch' among capacities that were all zero."""
+    """A zero or NaN f-number, --draws 0, or an f/1e308 lens (whose capacities are all zero, so no
+    optimal pitch) is a usage error: exit 2 and one line, no traceback."""
     r = _run("sweep", "pixel-size", "--draws", "50", *args)
     assert r.returncode == 2 and r.stdout == ""
     lines = r.stderr.strip().splitlines()
@@ -171,15 +171,15 @@ BASLER = Path(__file__).parents[1] / "data" / "emva1288_basler_ccd12.csv"
     "cmd", [["fit", BASLER], ["compare", BASLER, BASLER], ["report", BASLER], ["sweep", "pixel-size"], ["mtf", EDGE]]
 )
 def test_negative_seed_is_a_usage_error_not_a_traceback(cmd):
-    """Found 2026-11-25: --seed -1 reached numpy's SeedSequence and ended in a traceback."""
+    """--seed -1 is refused by the parser, before it reaches numpy's SeedSequence."""
     r = _run(*cmd, "--seed", "-1")
     assert r.returncode == 2 and "Traceback" not in r.stderr
     assert "argument --seed: expected a whole number >= 0, got -1" in r.stderr
 
 
 def test_scene_exposure_beyond_any_plausible_value_is_refused():
-    """Found 2026-11-25: --scene-exposure-s 1e308 overflowed the dark signal and crashed the report's
-    noise breakdown."""
+    """--scene-exposure-s 1e308 (which would overflow the dark signal in the report's noise
+    breakdown) is refused."""
     r = _run("fit", BASLER, "--quality", "fast", "--scene-exposure-s", "1e308")
     assert r.returncode == 2 and r.stdout == ""
     lines = r.stderr.strip().splitlines()

@@ -100,18 +100,10 @@ KNOWN = {
     "noise_below_one_dn_everywhere": pytest.mark.xfail(
         strict=False,
         reason=(
-            "K = 1000 e-/DN, 8 bits, read noise 0.005 DN: the fast path rejects itself (k̂ 1.32) and its "
-            "draws put K's median at 570 (43 % low; the check allows 30 % for a rejected result). Its "
-            "optimum (log p 823, f = 0.6) is thousands of nats below the highest point the MCMC reaches "
-            "(5 001, with log f → −135), and the standard MCMC does not converge either (R-hat 1.14 after "
-            "154 s; K median 1016, 95 % [898, 2151]). It passed before 2026-11-23 evening at 29.6 %, by the "
-            "luck of where a polish step landed; the closed-form clip moments (model._clip_mean, "
-            "_clip_moments) moved that point. It passes again since 2026-11-23 night (model._rounded_offset "
-            "stops each element on its own; rounding-level changes to log p): the fast path still rejected "
-            "itself (k̂ 1.15), and its draws happened to put K's median at 1024. Later changes flip it either "
-            "way (with the tail probe, 2026-11-23 late night: failed, draws on one point at K 1430; with the "
-            "rounded offset's Fourier branch, commit 373a5a4: passed again); the fast path rejects itself "
-            "throughout"
+            "K = 1000 e-/DN, 8 bits, read noise 0.005 DN: the fast path rejects itself (k̂ > 1), its optimum "
+            "lies far below the highest point the MCMC reaches, and the standard MCMC does not converge "
+            "either. Whether the rejected draws put K's median within the 30 % the check allows for a "
+            "rejected result depends on the last digits of log p, so the check passes or fails by chance"
         ),
     )
 }

@@ -105,10 +105,9 @@ def test_adaptive_rounds_on_a_banana():
     """Three moment-matching rounds (FastSettings.adapt_rounds) against one, same 6 000 draws, 5 seeds:
     a higher median IS ESS (measured: 1 302 vs 921), and every accepted 3-round run has E[c] within
     4 Monte Carlo sd (from its IS ESS) of 0 (one round's runs were off by up to 0.22). The rounds
-    alone, without the wide defensive component (FastSettings.wide_fraction, 2026-11-24 evening),
-    as measured then. (Over 30 seeds the 3-round runs' E[c] is biased low, z = −2.1 in the mean and
+    alone, without the wide defensive component (FastSettings.wide_fraction). (Over 30 seeds the 3-round runs' E[c] is biased low, z = −2.1 in the mean and
     up to 7.5 in size, with the wide component −2.4 and 6.7: the arm's tail is under-sampled either
-    way, and the IS ESS overstates what the draws know; docs/performance.md, "2026-11-24, 20:10–".)"""
+    way, and the IS ESS overstates what the draws know.)"""
     model = BananaModel()
     ess = {1: [], 3: []}
     for seed in range(5):
@@ -172,7 +171,7 @@ def test_fast_fit_basler_is_coherent(basler_csv):
 
 
 def test_fast_fit_wrapper_and_api_give_the_same_numbers(phone_fast):
-    """fast.fast_fit is a thin wrapper over bayescap.fit(quality="fast"): same seed, same draws."""
+    """api.fast_fit is a thin wrapper over bayescap.fit(quality="fast"): same seed, same draws."""
     r = fast_fit(str(PHONE_CSV), seed=2, fallback=False)
     np.testing.assert_array_equal(r.chains.chain, phone_fast.chains.chain)
     assert r.to_dict()["derived"]["capacity_bits"] == phone_fast.to_dict()["derived"]["capacity_bits"]
@@ -280,7 +279,7 @@ def test_independence_move_calibrated_on_known_gaussian(name):
 
 
 def test_independence_move_on_a_skewed_bounded_target():
-    """Banana + log-Gamma + truncated normal (bayescap.validation.check_banana), walkers from the Laplace
+    """Banana + log-Gamma + truncated normal (bayescap.validation.moves.check_banana), walkers from the Laplace
     start, the standard preset's mix (70 % IndependenceMove, t ν 4, sd × 1.3, at the Laplace
     approximation, a poor fit here; 30 % DE/stretch): mean, sd and five
     quantiles of every coordinate against exact draws. z = error / standard error across 6 seeds
@@ -345,7 +344,7 @@ def test_fit_many_gpixel_and_a_bad_sensor():
 # ------------------------------------------------------------------------- diagnostics
 @pytest.mark.parametrize("ties", [False, True])
 def test_fast_diagnostics_equal_arviz(ties):
-    """fit.fast_diagnostics (shared rank sort) gives ArviZ's R-hat and bulk/tail ESS exactly,
+    """diagnostics.fast_diagnostics (shared rank sort) gives ArviZ's R-hat and bulk/tail ESS exactly,
     also with the repeated values of rejected moves (ties)."""
     from bayescap.inference.diagnostics import diagnostics, fast_diagnostics
 
@@ -499,7 +498,7 @@ def test_clip_floor_proposal_reaches_the_shelf_below_the_clip_mode():
 
 
 def test_interval_end_mcse_matches_the_spread_over_replications():
-    """fast.interval_end_mcse predicts the Monte Carlo sd of a weighted 95 % interval end: importance
+    """end_errors.interval_end_mcse predicts the Monte Carlo sd of a weighted 95 % interval end: importance
     draws from N(0, 1.5²) for a N(0, 1) target, 3 000 each, 300 replications; the predicted error (its
     median over replications) is the observed sd of the ends, /width, within 15 % (the sd of an sd
     estimated from 300 replications is 4 %; the error is the larger of the two ends', 0–10 % above
@@ -765,7 +764,7 @@ class OneSidedTailModel:
 
 
 def test_tail_probe_finds_the_long_one_sided_tail_and_its_draws_cover_it():
-    """fast._tail_probe finds the lower tail of log_s (and nothing else; nothing at all on a Gaussian);
+    """proposals._tail_probe finds the lower tail of log_s (and nothing else; nothing at all on a Gaussian);
     with its defensive draws (the default tail_fraction) every run is accepted with k̂ < 0.5 and the
     share of draws below the exact 2.5 % quantile of log_s is 2.5 % within 4 Monte Carlo sd of the
     run's IS ESS (seeds 1-3). Without them (tail_fraction 0) k̂ rejected two of the three runs."""
@@ -794,7 +793,7 @@ def test_tail_probe_finds_the_long_one_sided_tail_and_its_draws_cover_it():
 
 @pytest.mark.parametrize("ray", ["line", "axis"])
 def test_tail_proposal_is_a_normalised_density_and_draws_from_it(ray):
-    """fast._tail_proposal: its log density integrates to 1 (a 2-D grid), is −∞ off its side, and
+    """proposals._tail_proposal: its log density integrates to 1 (a 2-D grid), is −∞ off its side, and
     the draws' own log q equals it."""
     from bayescap.inference.proposals import _tail_proposal
 
@@ -814,10 +813,10 @@ def test_tail_proposal_is_a_normalised_density_and_draws_from_it(ray):
 
 
 def test_pair_proposal_is_a_normalised_density_and_draws_from_it():
-    """fast._pair_proposal (a tail coordinate uniform along its side, the clip as the clip floor
+    """proposals._pair_proposal (a tail coordinate uniform along its side, the clip as the clip floor
     draws it, the rest Laplace t): its log density integrates to 1 over a 3-D grid, is −∞ off its
     support, and the draws carry their own log q (a component whose density disagrees with its
-    draws inflates the weights: docs/performance.md, "Long one-sided tails, probed")."""
+    draws inflates the weights)."""
     from bayescap.inference.proposals import _pair_proposal
 
     x_map = np.array([0.5, -1.0, 2.0])
@@ -951,7 +950,7 @@ def test_gate_top_up_covers_the_derived_quantities(monkeypatch, basler_csv):
 
 def test_end_mcse_of_non_finite_draws_is_nan_and_the_worst():
     """A parameter with a non-finite draw gets NaN for its interval-end error, as the MCMC side
-    (fit.interval_end_mcse_mcmc) does, instead of being left out of the report and the gate; NaN
+    (diagnostics.interval_end_mcse_mcmc) does, instead of being left out of the report and the gate; NaN
     is the worst; a constant parameter is still left out (no interval)."""
     from bayescap.inference.diagnostics import interval_end_mcse_mcmc
     from bayescap.inference.end_errors import _end_mcse, _worst_end_mcse, interval_end_mcse
@@ -1024,10 +1023,10 @@ def test_joint_check_never_rejects_with_draws_to_spare():
 @pytest.mark.slow
 def test_fast_intervals_of_the_gain_are_not_narrow_on_small_rois():
     """The photon counts tie QE to K along a ridge ~1e-4 wide, straight in (log K, log QE) and curved
-    in (log K, QE). Before the fast path worked in log QE (fit.SamplerCoordinates) its straight t
+    in (log K, QE). Before the fast path worked in log QE (inference.coordinates.SamplerCoordinates) its straight t
     proposals missed the ridge's ends and K's 95 % interval came out narrow: over the first 115
-    accepted Gpixel ROIs, lower end +0.011 and upper −0.012 of the width against 16 pooled MCMC runs
-    (docs/performance.md, "2026-11-24, 23:28–"). Reference here: 60 000 plain importance draws, which
+    accepted Gpixel ROIs, lower end +0.011 and upper −0.012 of the width against 16 pooled MCMC runs.
+    Reference here: 60 000 plain importance draws, which
     agreed with those MCMC runs to 0.000 / −0.001 ± 0.0015 on the same ROIs. The narrowing
     d = (lower error) − (upper error) must not be positive beyond twice its standard error over the
     first 48 ROIs: this code +0.003 ± 0.003, the code before log QE +0.015 ± 0.0065 (fails; with 24

@@ -187,8 +187,8 @@ def test_stranded_walker_is_reported_not_averaged_in(basler_fit):
     assert not r.diag["converged"] and r.diag["walkers_stuck"] == 1
     assert any("stuck" in f for f in r.diag["failed_checks"])
     assert basler_fit.diag["walkers_stuck"] == 0
-    # the note says what to rerun with: the next preset up, and for `accurate` (the longest preset;
-    # "rerun with --quality accurate" until 2026-11-24 evening) a longer run
+    # the note says what to rerun with: the next preset up, and for `accurate` (the longest preset)
+    # a longer run
     assert r.notes[0].startswith("NOT CONVERGED") and r.notes[0].endswith("rerun with --quality accurate")
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
@@ -254,8 +254,8 @@ def test_walkers_stranded_in_burn_in_are_moved():
 def test_rhat_halves_are_split_in_time():
     """R-hat's split halves are the first and second half of the steps (Vehtari et al. 2021), so a
     drift that every ensemble shares (all start from one approximation) fails the check; the same
-    draws without the drift pass. Before 2026-11-23 the halves were halves of the walkers and the
-    drifted chain passed (R-hat 1.000)."""
+    draws without the drift pass. (Split into halves of the walkers instead, the drifted chain
+    would pass with R-hat 1.000.)"""
     from bayescap.inference.diagnostics import diagnostics, fast_diagnostics
 
     rng = np.random.default_rng(5)
@@ -297,7 +297,7 @@ def test_laplace_start_finds_the_higher_optimum():
     """On sim00 the initial guess puts the clip spread τ on its prior cap (a wall), and the optimiser
     from it stops there, > 90 nats below the mode the MCMC samples (its 4 x 100 x 64 draws reach
     log p = -408.48); so does the start with a ten times larger variance discrepancy. The extra start
-    with log τ - 2 (fit.MAP_START_LOG_TAU_SHIFT) reaches the mode. Checked in log(clip - lower bound)
+    with log τ - 2 (starts.MAP_START_LOG_TAU_SHIFT) reaches the mode. Checked in log(clip - lower bound)
     coordinates, where mcmc_start and the fast path optimise a free clip level."""
 
     from bayescap.model.ptc_model import PTCModel
@@ -549,7 +549,7 @@ def _ar1_walkers(rng, E, S, W, phi):
 
 
 def test_quantile_mcse_is_arviz_quantile_mcse_with_walkers_as_chains():
-    """fit.quantile_mcse (the MCMC interval ends' Monte Carlo error) is ArviZ 0.x's
+    """diagnostics.quantile_mcse (the MCMC interval ends' Monte Carlo error) is ArviZ 0.x's
     mcse(method="quantile") on the (walkers, steps) layout of the tail ESS, to rounding."""
 
     import arviz as az
@@ -587,8 +587,8 @@ def test_quantile_mcse_matches_the_spread_over_replications():
 def test_a_walker_that_never_moved_fails_the_length_check_and_extends_the_run():
     """A walker stuck at one point for the whole production (the IndependenceMove allows it where
     its proposal undervalues the posterior) makes the autocorrelation time undefined (NaN). That
-    fails _default_converged, which asks for a round of extend_steps (before 2026-11-24 it passed
-    there and failed only in FitResult's check, so the run stopped NOT CONVERGED unextended)."""
+    fails _default_converged, which asks for a round of extend_steps, instead of passing there and
+    failing only in FitResult's check (a run stopped NOT CONVERGED unextended)."""
     import dataclasses
 
     rng = np.random.default_rng(5)
@@ -687,8 +687,8 @@ def test_imprecise_interval_ends_are_flagged_where_no_check_bounds_them(basler_f
     ends' Monte Carlo error is above IMPRECISE_END_MCSE of the width: none on the standard Basler fit
     (worst ~0.02); with one parameter's error raised above it, that one, in the JSON flags, the notes
     and the text report, and still at another scene (a parameter's error does not move with it); a
-    target (accurate's check) takes over from the flag. (A real case, a simulated ROI whose clip level
-    sits on a shelf: docs/performance.md, "2026-11-25, 01:09–".)"""
+    target (accurate's check) takes over from the flag. (A real case: a simulated ROI whose clip level
+    sits on a shelf.)"""
     import copy
 
     from bayescap.posterior import IMPRECISE_END_MCSE, Scene
@@ -717,7 +717,7 @@ def test_imprecise_interval_ends_are_flagged_where_no_check_bounds_them(basler_f
 
 
 def test_sampler_subclass_gives_emcee_chains_across_rounds():
-    """fit._Sampler (log-probabilities taken as an array, the generator's state copied once per
+    """moves._Sampler (log-probabilities taken as an array, the generator's state copied once per
     run_mcmc) gives the chain of emcee's own EnsembleSampler bit for bit, also when a run is
     continued by a new sampler from the returned state (as run_ensembles' rounds and burn-in halves
     do), and returns the same random state; NaN log-probabilities are refused as emcee does."""

@@ -333,7 +333,7 @@ def test_pool_workers_use_one_thread_and_a_forked_child_rebuilds_the_pool(monkey
 
 
 def test_two_pixel_rows_and_far_out_draws_evaluate_quietly(basler_csv):
-    """Found by corrupting the Basler CSV (2026-11-25): n_pixels = 2 (ν = 1, allowed by the contract)
+    """Found by corrupting the Basler CSV: n_pixels = 2 (ν = 1, allowed by the contract)
     divided by zero in the DSNU's χ²_{ν−1} (now χ²₀ = 0), and a draw far out in log τ overflowed exp()
     in the prior with a RuntimeWarning on the command line (now −inf quietly, as the likelihood)."""
     import dataclasses

@@ -1,8 +1,8 @@
-"""Tests for bayescap.mtf (ISO 12233:2023 slanted-edge SFR with bootstrap uncertainty).
+"""Tests for bayescap.measure (ISO 12233:2023 slanted-edge SFR with bootstrap uncertainty).
 
 Real data: Peter D. Burns' sfrmat3 example edges with SFRs computed by his ISO 12233:2023
 reference code sfrmat5 (tests/data/slanted_edge/README.md).  Synthetic data: edges rendered
-by :func:`bayescap.mtf.synthetic_edge` with a known analytic MTF.
+by :func:`bayescap.measure.synthetic.synthetic_edge` with a known analytic MTF.
 """
 
 from __future__ import annotations
@@ -47,7 +47,7 @@ def _true_mtf50(sigma_px, fill_factor, angle_deg) -> float:
 
 # Local stand-in for Eq. 9 of Tisse, Guichard & Cao (2008):
 #   Delta s = pi f_N^-2 int_0^{f_N} f log2 MTF(f) df,  f_N = 0.5 cy/px.
-# TODO: replace by bayescap.capacity.mtf_loss_bits_eq9 once capacity.py provides it.
+# (bayescap.physics.capacity.mtf_loss_bits is the package's version.)
 _GL_X, _GL_W = np.polynomial.legendre.leggauss(48)
 _GL_F = 0.5 * NYQUIST_CY_PER_PX * (_GL_X + 1.0)
 _GL_WF = 0.5 * NYQUIST_CY_PER_PX * _GL_W
@@ -259,7 +259,7 @@ def test_read_mtf_table_formats(tmp_path):
         ("freq_cy_per_px,mtf\n0,1\n0.25,nan\n0.5,0.3\n", r"row 3, column 2"),
         ("freq_cy_per_px,mtf\n0,1\n0.5,0.3\n0.4,0.2\n", r"row 4, column 1.*increasing"),
         ("freq_cy_per_px,mtf\n0,1\n0.5\n", r"row 3: 1 columns"),
-        # not normalised (found 2026-11-25: an MTF of 5 gave Δs = +2.9 bits and a capacity 11x the
+        # not normalised (an MTF of 5 would give Δs = +2.9 bits and a capacity 11x the
         # pixel count's; 1e308 overflowed): refused
         ("freq_cy_per_px,mtf\n0,5\n0.5,3\n", r"row 2, column 2.*at 0 cy/px is 5, not 1"),
         ("freq_cy_per_px,mtf\n0.1,0.9\n0.2,50\n0.5,0.3\n", r"row 3, column 2.*above 10"),
@@ -343,7 +343,7 @@ def test_warnings_clipping_contrast_angle_bins():
 
 def test_broken_image_is_one_line_of_error(tmp_path):
     """Pillow warns ("Corrupt EXIF data") before it fails on a broken TIFF; the warning's two lines
-    came out above bayescap's error (found 2026-11-25). Now the one line naming the file."""
+    must not come out above bayescap's error: only the one line naming the file."""
     import subprocess
     import sys
 

@@ -90,7 +90,7 @@ BAD = {
         "# adc_bits: 8\n" + HEADER + "\n" + GOOD_ROWS[0] + "\n0.002,300,55,10,5,10000\n",
         ["row 2", "mean_dn", "ADC maximum"],
     ),
-    # found by corrupting the Basler CSV value by value (2026-11-25): these reached the optimiser,
+    # found by corrupting the Basler CSV value by value: these reached the optimiser,
     # whose overflow ended in a traceback
     "implausibly large value": (
         HEADER + "\n" + GOOD_ROWS[0] + "\n1e308,200,55,10,5,10000\n",
@@ -182,7 +182,7 @@ def _cli_fit_refuses(p, tmp_path, fragments):
 def test_value_no_parameter_can_explain_is_refused_with_its_row(tmp_path, basler_csv):
     """A spatial variance of 0 on an unsaturated row (the reader accepts it: a dark one can be 0)
     has no finite likelihood anywhere; the optimiser had stopped with a RuntimeError and a
-    traceback. Now: exit 2, the file, the row and the column (fit._no_finite_start)."""
+    traceback. Now: exit 2, the file, the row and the column (inference.starts._no_finite_start)."""
 
     def zero_spatial(header, rows):
         rows[17][header.index("spatial_var_dn2")] = "0"  # file row 18

@@ -1,4 +1,4 @@
-"""Tests of bayescap.raw: frame readers, frame-set descriptions, statistics, CSV output.
+"""Tests of bayescap.io: frame readers, frame-set descriptions, statistics, CSV output.
 
 Real data: EMVA 1288 Reference Set 001 (Basler AG, Dr. Marco Grimm 2011, CC BY-SA 3.0; see
 tests/data/emva1288_basler/README.md).
@@ -646,8 +646,7 @@ def test_ingested_crops_fit_to_the_full_frame_gain(png_csv):
 
 def test_broken_tiff_frame_is_one_line_of_error(tmp_path):
     """tifffile logs what it finds wrong in a file ("invalid offset to first page") to standard error
-    before raising; that line came out above bayescap's own (found 2026-11-25 by feeding the ingest
-    corrupted frames). Now only the IngestError, naming the file."""
+    before raising; that line must not come out above bayescap's own: only the IngestError, naming the file."""
     import subprocess
     import sys
 

@@ -31,8 +31,8 @@ def add_fast_arguments(p):
         metavar="FRAC",
         help="--quality fast: the error, as a fraction of each 95 %% interval's width, every "
         "interval end should stay within (default 0.05; the per-end Monte Carlo error "
-        "gate is 0.7 x this). Larger is faster and looser (README, Performance, 'The fast "
-        "preset's knob')",
+        "gate is 0.7 x this). Larger is faster and looser (docs/performance.md, "
+        "'The fast preset')",
     )
     p.add_argument(
         "--fast-confidence",
@@ -68,7 +68,7 @@ _OVERRIDE_KEYS = (
 
 
 def fast_settings_from_args(args):
-    """The :class:`~bayescap.fast.FastSettings` of ``--fast-tolerance``/``--fast-confidence`` (None
+    """The :class:`~bayescap.inference.FastSettings` of ``--fast-tolerance``/``--fast-confidence`` (None
     when neither is given); :class:`InputError` (exit 2) for values out of range or without
     ``--quality fast``."""
     tol, conf = args.fast_tolerance, args.fast_confidence

@@ -33,7 +33,8 @@ def _cmd_fit(args) -> int:
             raise InputError(str(e)) from None
     progress = sys.stderr.isatty() if args.progress is None else args.progress
     try:
-        # a value the reader accepts but no parameter can explain (fit._no_finite_start) is refused
+        # a value the reader accepts but no parameter can explain
+        # (bayescap.inference.starts._no_finite_start) is refused
         # here, naming its row and column
         if args.select_model:
             from bayescap.studies.selection import select_model

@@ -100,6 +100,6 @@ def run_sweep(args: argparse.Namespace) -> int:
 
 
 def main(argv=None) -> int:
-    """``python -m bayescap.sweep pixel-size ...`` (the same as ``bayescap sweep``)."""
+    """``bayescap sweep pixel-size ...`` with ``argv`` (default: ``sys.argv[1:]``) as its arguments."""
     parser = add_sweep_arguments(argparse.ArgumentParser(prog="bayescap sweep", description=__doc__.split("\n")[0]))
     return run_sweep(parser.parse_args(argv))

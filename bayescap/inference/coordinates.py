@@ -19,16 +19,15 @@ class SamplerCoordinates:
     last unclipped row), the MAP sits on the bound, the Hessian's stencil leaves the support and the
     Laplace covariance falls back to ``diag(1e-4)`` or comes out 1 000× too wide; the importance
     weights then fail (k̂ 87 and 28 on two simulated Gpixel ROIs). In ``z`` the density
-    ``p(clip)·(clip − lo)`` vanishes at the bound and the mode is interior. On the 20 ROIs of
-    ``benchmarks/local_optima.py`` the fast path is accepted on 17 instead of 15 (accuracy against
-    accurate MCMC references: ``benchmarks/fast_clip_coordinates.py``, docs/performance.md).
+    ``p(clip)·(clip − lo)`` vanishes at the bound and the mode is interior. On 20 simulated
+    Gpixel ROIs the fast path is accepted on 17 instead of 15.
 
     Why the QE: with photon counts the mean signal pins QE/K (``S = QE·μ_p/K``) to ~1e-4 where the
     mean discrepancy is small, so the posterior is a thin ridge along ``QE ∝ K``, straight in
     (log K, log QE) and curved in (log K, QE): on a small Gpixel ROI the curve leaves a straight
     line by 3.4 of the ridge's widths 2.5 sds out, where straight t proposals draw too rarely: in
     QE the fast path's intervals of K, the full well, QE, read noise and capacity are ~1 % of the
-    width a side too narrow, in log QE they are not (docs/performance.md)."""
+    width a side too narrow, in log QE they are not."""
 
     def __init__(self, model):
         self.model, self.names, self.ndim = model, list(model.names), model.ndim
@@ -121,8 +120,8 @@ def mcmc_start(model, *, n_restarts: int = 0):
     A local optimiser in the model's coordinates can stop with the clip level on its lower bound,
     where the Hessian's stencil leaves the support (Newton stops there; :func:`polish_map`, of the
     BFGS route, crawled): on a simulated
-    Gpixel ROI (``benchmarks/local_optima.py``, ROI 17) it can stop 46 nats below the mode, which
-    the MCMC then has to climb in burn-in; in ``z`` the mode is interior (docs/performance.md).
+    Gpixel ROI it can stop 46 nats below the mode, which
+    the MCMC then has to climb in burn-in; in ``z`` the mode is interior.
     Returns
     (x_map, lp_map, cov, coords, z_map, cov_z): the point and covariance in the model's coordinates
     (``cov`` by the delta method, ``∂clip/∂z = clip − lo``, ``∂qe/∂z = qe``), and those of ``coords`` (None without)."""

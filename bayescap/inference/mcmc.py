@@ -59,11 +59,11 @@ def _importance_start(model, x_map, cov, seed, coords=None, n_proposals=6000):
     (:func:`bayescap.inference.fast.fast_posterior` at this MAP and covariance, default :class:`FastSettings`:
     6 000 importance draws in two ``log_prob`` calls) resampled. Closer to the posterior than the
     Laplace ball where the posterior is skewed; it does not remove the slow filling of the Basler dark
-    current's lower tail (docs/performance.md), which is why the standard burn-in is not cut below 80
+    current's lower tail, which is why the standard burn-in is not cut below 80
     steps (of 10·D walkers).
     The draws reach the long one-sided tails the fast path's probe finds (fewer extra rounds), but
     not the clip floor's pair with a tail (``floor_pair=False``): walkers started in that corner
-    need more steps (docs/performance.md, "Long one-sided tails, probed").
+    need more steps (docs/performance.md, "The fast preset", for the tail probe).
     With ``coords`` (:class:`SamplerCoordinates`), ``x_map`` and ``cov`` are in those
     coordinates and the draws come back in the model's. None when the IS check rejects the draws
     (then: the Laplace ball)."""
@@ -151,7 +151,7 @@ def _adapted_proposal(sampler, ndim, proposal, settings):
 
 def _run_segments(tasks):
     """:func:`_run_segment` for several ensembles in this process, in lockstep: each ensemble runs
-    in a greenlet (:class:`bayescap.batch.Lockstep`), and their ``log_prob`` requests (half an
+    in a greenlet (:class:`bayescap.inference.lockstep.Lockstep`), and their ``log_prob`` requests (half an
     ensemble's walkers each, for the DE/stretch moves) are evaluated in one
     :class:`~bayescap.model.PTCModelStack` call of the model with itself. A call on a few walkers
     costs mostly per-call overhead (~0.6 ms), so two ensembles in one call cost little more than one.

@@ -32,7 +32,7 @@ def _vectorised_grad(model: PTCModel, x, h=1e-5):
 #: BFGS was within 1e-3 nats of its final value after 40 % of its evaluations and spent the rest in
 #: failing line searches. Runs stalled for up to 13 evaluations and then climbed on (by up to 212
 #: nats), so the window is 20: the value reached then differed from the full run's by ≤ 1e-4 nats
-#: on all 58, with 41 % fewer evaluations (docs/performance.md, "fewer evaluations in the start").
+#: on all 58, with 41 % fewer evaluations.
 BFGS_STALL_EVALS = 20
 
 
@@ -201,8 +201,7 @@ def laplace_start(
     covariance are returned. With ``coords`` the starts are mapped by ``start_from_x`` and Newton
     runs in those coordinates; with ``polish_both`` it runs in the model's coordinates first and
     again in ``coords`` from there. ``refine_iter`` and ``polish`` apply to the BFGS route only
-    (Newton's covariance is self-consistent by its stopping rule). Measured against the BFGS route
-    on the 29 sensors of ``benchmarks/local_optima.py``: docs/performance.md, "Newton's method".
+    (Newton's covariance is self-consistent by its stopping rule).
 
     With ``optimizer="bfgs"``: :func:`find_map` (BFGS, ``n_restarts`` extra starts) and, with ``multi_start``,
     :func:`find_map_scaled` from the starts of :func:`_map_starts`; each optimum not within 2 sd of

@@ -105,8 +105,7 @@ QUALITY_PRESETS = {
     # 70 % of the steps are IndependenceMove proposals (t, ν 4, sd × 1.3) fitted to the burn-in (share
     # cut where they are rarely accepted), the rest DE 0.8 + stretch 0.2; walkers start from Laplace–IS
     # draws. τ 4–5 steps instead of 16–22. 10 walkers per parameter, 80 burn-in + 80 steps (8·D and
-    # 100 + 100 are 11–13 % slower at the same interval-end errors and coverage; docs/performance.md,
-    # "Walkers against steps"). The
+    # 100 + 100 are 11–13 % slower at the same interval-end errors and coverage). The
     # burn-in is not cut further: the Basler dark current's lower tail (an upper limit) takes ~100–200
     # walker-steps to fill from any start (with 40 burn-in + 60 steps its 2.5 % quantile came out 9–16
     # e⁻/s, reference 5.7, flipping the upper-limit flag); rounds after the first are sized from the

@@ -23,8 +23,8 @@ def _clip_floor_proposal(model, x_map, c1, nu):
     Where the clip's posterior density stays up down to its data-derived lower bound ``lo`` (the
     well clips just above the last unclipped row), ``z = log(clip − lo)`` has a long exponential
     left tail that a t around the mode does not reach: on a simulated 10-bit sensor the MCMC put
-    2.5 % of the mass below z = −3.85 where 48 000 t draws put 0.1 % below −3.22
-    (``benchmarks/clip_floor_tail.py``), and the clip spread's lower interval end came out ~0.2 of
+    2.5 % of the mass below z = −3.85 where 48 000 t draws put 0.1 % below −3.22,
+    and the clip spread's lower interval end came out ~0.2 of
     the width too high with k̂ 0.4–0.5 (k̂ cannot see a region no draw visits). This component draws ``clip − lo`` uniform on (0, e^{z_MAP + 3 sd})
     and the other coordinates from the Laplace t's marginal (Hesterberg 1995, defensive importance
     sampling). Returns (draw(n, rng) -> (z, log q), logpdf(z))."""
@@ -68,8 +68,8 @@ def _tail_probe(model, x_map, lp_map, cov, skip=()):
     side only (a dark current, a clip spread or a discrepancy that may be zero) has a posterior
     that follows its prior far out on the other side: on the bundled Basler, log p is within
     10 nats of the MAP out to 16 sd below the MAP in log(clip spread) and log(DSNU), where the
-    importance proposals put almost no draw (``docs/performance.md``, "Long one-sided tails,
-    probed"). One ``log_prob`` call (4·D·8 points; the axis ray is left out where it is the line).
+    importance proposals put almost no draw (``docs/performance.md``, "The fast
+    preset"). One ``log_prob`` call (4·D·8 points; the axis ray is left out where it is the line).
     Returns ``[(j, side, direction (D,), reach in sds), ...]`` for the rays that stay within 10 nats
     beyond :data:`_TAIL_MIN_REACH` sds (the better of the two rays of a side), ``skip`` a set of
     (j, side) to leave out."""
@@ -173,8 +173,7 @@ def _pair_proposal(x_map, c1, nu, axis, floor):
     the clip spread's lower tail have the clip level spread down towards its bound: a corner that
     neither the floor (the clip spread near its mode) nor the clip spread's own tail proposal (the
     clip near its mode) reaches, and where the clip spread's lower interval end comes out
-    0.04–0.11 of the width too high with k̂ ≈ 0 (docs/performance.md, "Long one-sided tails,
-    probed"). Returns (draw(n, rng) -> (x, log q), logpdf(x))."""
+    0.04–0.11 of the width too high with k̂ ≈ 0. Returns (draw(n, rng) -> (x, log q), logpdf(x))."""
     D = x_map.size
     j, side, reach = int(axis[0]), float(axis[1]), float(axis[2])
     k, log_a = floor

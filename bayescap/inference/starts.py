@@ -46,7 +46,7 @@ def _no_finite_start(target, x0):
 #: sensors (20 simulated Gpixel ROIs, the 5 benchmark CSVs, the Basler, 3 speed_accuracy sensors):
 #: this start alone found the higher optimum on all 3 where the first start had missed it
 #: (+1.5, +5.7 and +136 nats); a start at f/10 found none the other two did not
-#: (docs/performance.md, "Local optima").
+#: (docs/model.md, "Sampling").
 MAP_START_LOG_F_SHIFTS = (2.3,)
 
 
@@ -54,7 +54,7 @@ MAP_START_LOG_F_SHIFTS = (2.3,)
 #: initial guess puts τ at its prior cap (``tau_max_frac`` of the clip level). The cap is a wall
 #: (log prior −∞ beyond it), and a start on it stays there: on a simulated sensor both optimisers
 #: stop on the wall, 136-264 nats below the mode at τ 7 times smaller. log τ − 2 reaches the mode
-#: from both f starts; so does −3 (docs/performance.md, "Local optima").
+#: from both f starts; so does −3.
 MAP_START_LOG_TAU_SHIFT = -2.0
 
 
@@ -65,7 +65,7 @@ def _map_starts(model, x0=None):
     log τ shifted by :data:`MAP_START_LOG_TAU_SHIFT`.
     The discrepancy and the outlier mixture trade off: a large f explains a deviant row, a small f
     with the row as an outlier is another local optimum, and the start decides which one a local
-    optimiser finds (docs/performance.md, "Local optima"). ``x0``: the initial guess when the
+    optimiser finds (docs/model.md, "Sampling"). ``x0``: the initial guess when the
     caller has it already (it costs ~3 ms on the Basler: a fast fit computed it twice)."""
     x0 = np.array(model.initial_guess() if x0 is None else x0, dtype=float)  # a copy
     names = list(getattr(model, "names", []))

@@ -69,7 +69,7 @@ class PTCModel(_ParametersMixin, _PredictionMixin, _ClipMixin, _LikelihoodMixin)
     :meth:`physical` maps draws to named physical parameters.
     """
 
-    #: prior scales (see README, "Priors"). The ``*_log_bounds`` / ``qe_bounds`` entries are
+    #: prior scales (see docs/model.md, "Priors"). The ``*_log_bounds`` / ``qe_bounds`` entries are
     #: ``None`` in production (half-normal scale priors, QE uniform on (0, 1]); a pair
     #: ``(lo, hi)`` of *natural* values replaces the half-normal by a log-uniform prior on
     #: [lo, hi] (QE: uniform on [lo, hi]). Override per model with ``PTCModel(data, prior={...})``
@@ -98,7 +98,7 @@ class PTCModel(_ParametersMixin, _PredictionMixin, _ClipMixin, _LikelihoodMixin)
         self.data = data
         self.terms = terms or select_terms(data)
         # results computed once per model (initial_guess, the observation count), shared by its
-        # shallow copies (bayescap.batch._with_log_prob; a PTCModelStack view gets its own)
+        # shallow copies (bayescap.inference.lockstep._with_log_prob; a PTCModelStack view gets its own)
         self._memo = {}
         if prior:
             unknown = set(prior) - set(PTCModel.PRIOR)

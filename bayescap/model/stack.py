@@ -73,7 +73,7 @@ class PTCModelStack:
         m0 = self.models[0]
         self.ndim, self.names = m0.ndim, m0.names
         # one model stacked with itself (the ensembles of an MCMC preset in lockstep,
-        # fit._run_segments): its own data serve every draw, nothing to gather
+        # bayescap.inference.mcmc._run_segments): its own data serve every draw, nothing to gather
         self._same = all(m is m0 for m in self.models)
         self._rows = (
             {}
@@ -128,7 +128,7 @@ class PTCModelStack:
         if self._same:
             # the model's own (rows,) arrays broadcast over the draws as in a single model's call;
             # only the choice of rows near the clip is per request. (With gathered (draws, rows)
-            # copies a lockstep call of 2 × 48 draws took 6-7 % longer: benchmarks/ab_trees.py)
+            # copies a lockstep call of 2 × 48 draws took 6-7 % longer)
             v._request_ids = np.asarray(sensor if request is None else request)
             v._request_segments = None
             return v

@@ -15,8 +15,8 @@ __all__ = ["SPLIT_MIN_ELEMENTS", "n_threads"]
 #: is evaluated in two halves, one of them on a second thread (numpy's ufuncs release the GIL).
 #: Measured on this project's 2-core VM, a call alone: Basler CCD (133 observations a draw) 4 000
 #: draws 29.0 → 18.2 ms, 2 000 15.7 → 12.5, 1 500 12.2 → 9.5, 933 7.4 → 7.1, 500 4.4 → 5.7; a
-#: simulated Gpixel ROI (90) 2 000 draws 7.2 → 8.3 ms, slower: the hand-over costs ~1 ms
-#: (benchmarks/results/ab_trees_b9fb93f.md). Inside a fast fit the Basler's calls gained nothing
+#: simulated Gpixel ROI (90) 2 000 draws 7.2 → 8.3 ms, slower: the hand-over costs ~1 ms.
+#: Inside a fast fit the Basler's calls gained nothing
 #: until OpenBLAS's spinning worker was held off (bayescap/_blas.py); since, two halves on two threads
 #: against one: 1 000 draws 0.85, 2 000 0.73, 4 000 0.64.
 SPLIT_MIN_ELEMENTS = 200_000

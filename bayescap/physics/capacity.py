@@ -252,7 +252,7 @@ def mtf_loss_bits_eq8(mtf, *, n: int = 64, f_nyquist_cy_per_px=NYQUIST_CY_PER_PX
     ``Δs = (4 f_N1 f_N2)⁻¹ ∬ log2 MTF²(f1, f2) df1 df2`` over ``[−f_N1, f_N1] × [−f_N2, f_N2]``,
     ``f`` in cy/px (the paper writes the angular frequency ``w``; the normalisation by
     ``4 f_N1 f_N2`` makes the mean over the band, which is unit-free). Uses ``mtf.mtf2d`` and so
-    handles anisotropic components (:class:`~bayescap.optics.LShapedAperture`).
+    handles anisotropic components (:class:`~bayescap.physics.optics.LShapedAperture`).
 
     Parameters
     ----------

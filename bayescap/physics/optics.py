@@ -14,7 +14,7 @@ Frequencies are in cycles per pixel throughout (Nyquist = 0.5 cy/px), so a compo
 on physical size (the lens) is told the pixel pitch.
 
 Because log2 of a product is a sum, the MTF loss Δs of Eq. 8/9 adds over components
-(:func:`bayescap.capacity.mtf_loss_bits`).
+(:func:`bayescap.physics.capacity.mtf_loss_bits`).
 """
 
 from __future__ import annotations

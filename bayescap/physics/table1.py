@@ -10,7 +10,7 @@ Section 2.2: dark current "is roughly doubling every 6 °C" (measured by Rhodes 
 
 Example
 -------
->>> from bayescap.paper import load_table1
+>>> from bayescap.physics.table1 import load_table1
 >>> [p.pitch_um for p in load_table1()]
 [5.2, 3.2, 2.9, 2.2, 1.75, 1.45]
 """

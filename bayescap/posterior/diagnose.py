@@ -23,8 +23,7 @@ _END_MCSE_FAILURE = "Monte Carlo error of a 95 % interval end"
 #: fast path's fallback) flags the quantities whose error is above this fraction of the width
 #: (``flags["imprecise_interval_ends"]`` and a note). Worst ends: ``standard`` 0.022 in the median and
 #: 0.047 at most on the README's 11 sensors (benchmarks/speed_accuracy.py), the fallback (ESS ≥ 200)
-#: 0.024–0.073; on the clip-shelf ROIs of the batch whose fast path was rejected, 0.075–0.69
-#: (benchmarks/fallback_preset.py)
+#: 0.024–0.073; on the clip-shelf ROIs of the batch whose fast path was rejected, 0.075–0.69.
 IMPRECISE_END_MCSE = 0.1
 _IMPRECISE_NOTE = "imprecise interval ends:"
 
@@ -102,7 +101,7 @@ class DiagnoseMixin:
             "per_quantity": {},
         }
         # the importance draws' own Monte Carlo error of each 95 % interval end
-        # (bayescap.inference.fast.interval_end_mcse):
+        # (bayescap.inference.end_errors.interval_end_mcse):
         # the physical parameters' from the fast path, the derived quantities' computed here
         mcse = {**(x.get("end_mcse") or {}), **self._derived_end_mcse_importance()}
         if mcse:
@@ -124,7 +123,7 @@ class DiagnoseMixin:
             )
             p_within = x.get("end_within_probability")
             if p_within is not None:
-                # all ends at once (bayescap.inference.fast._joint_target): the chance that none is off
+                # all ends at once (bayescap.inference.end_errors._joint_target): the chance that none is off
                 # by more than end_tolerance of its width, if the predicted errors are right
                 conf = x.get("end_confidence")
                 self.diag["interval_end_within_probability"] = float(p_within)
@@ -139,7 +138,7 @@ class DiagnoseMixin:
         tails = x.get("tails")
         if tails is not None:
             # long one-sided tails the probe found, each given defensive draws
-            # (bayescap.inference.fast._tail_probe)
+            # (bayescap.inference.proposals._tail_probe)
             self.diag["fast_path_tails"] = [dict(t) for t in tails]
             if tails:
                 self.diag["fast_path"] += "; defensive draws for long tails: " + ", ".join(
@@ -156,7 +155,7 @@ class DiagnoseMixin:
 
     def _derived_end_mcse_importance(self):
         """{derived quantity: Monte Carlo error of its 95 % interval ends / width} for a fast-path
-        result: :func:`bayescap.inference.fast.interval_end_mcse` of the quantity computed on the weighted
+        result: :func:`bayescap.inference.end_errors.interval_end_mcse` of the quantity computed on the weighted
         draws behind the resampled ones (``chains.extra["weighted_draws"]``), counting the
         resampling, as the fast path does for the parameters; quantities that vary only (NaN where
         a quantity's draws are not all finite). {} when the chains carry no weighted draws."""

@@ -19,7 +19,7 @@ Conventions (docs/compare.md):
 * **TR at an average exposure H₀** (Fig. 8(a)). The scene's mean signal ``S̄ = sensitivity·H₀`` is
   placed at mid-grey, a fraction ``mid_grey = 0.18`` of the top of the signal range, by analog gain:
   ``S_max = min(clip, S̄/0.18)``. TR (Eq. 7, 8-bit-equivalent scale of
-  :func:`bayescap.capacity.tonal_range`) is integrated over ``[σ(0), S_max]``. Above
+  :func:`bayescap.physics.capacity.tonal_range`) is integrated over ``[σ(0), S_max]``. Above
   ``H₀ = 0.18·clip/sensitivity`` the sensor works at base gain and TR is that of the full range;
   below, the gain raises and the range shrinks. The noise is the fitted (base-gain) model with the
   quantization term scaled by the gain; read noise is not lowered with gain (conservative).
@@ -352,7 +352,7 @@ def compare(
 ) -> Comparison:
     """Fit each photon-transfer CSV (seeded, :func:`sensor_seed`) and compare them.
 
-    Raises :class:`bayescap.ptc.PTCInputError` for a bad file and :class:`CompareInputError` for
+    Raises :class:`bayescap.exceptions.PTCInputError` for a bad file and :class:`CompareInputError` for
     a bad option.
     """
     from bayescap.api import fit, load

@@ -9,7 +9,7 @@ The study: a fixed imaging area (1/4-inch optical format: 3.6 mm × 2.7 mm, the 
   integer array size);
 * MTF loss Δs (Eq. 9 by default, Eq. 8 over the Nyquist square on request) of pixel aperture ×
   lens;
-* tonal range TR (Eq. 7, 8-bit-equivalent, :func:`bayescap.capacity.tonal_range`) of the Table 1
+* tonal range TR (Eq. 7, 8-bit-equivalent, :func:`bayescap.physics.capacity.tonal_range`) of the Table 1
   pixels, **over the sensor's dynamic range** (signal from the dark floor σ(0) to the full well,
   one grey level = full well/256) at Δt = 100 ms, 25 °C, 10-bit ADC, read noise and DSNU
   neglected; b' = log2 TR is interpolated linearly in pitch between the Table 1 pitches and, below
@@ -200,8 +200,8 @@ def delta_s_vs_pitch(
 ):
     """Δs (bits) of pixel aperture × diffraction lens (× optional crosstalk) at each pitch.
 
-    ``method``: ``"eq9"`` (:func:`bayescap.capacity.mtf_loss_bits`, radial) or ``"eq8"``
-    (:func:`bayescap.capacity.mtf_loss_bits_eq8`, 2-D over the Nyquist square).
+    ``method``: ``"eq9"`` (:func:`bayescap.physics.capacity.mtf_loss_bits`, radial) or ``"eq8"``
+    (:func:`bayescap.physics.capacity.mtf_loss_bits_eq8`, 2-D over the Nyquist square).
     Returns ``(delta_s_bits, band_cut_bits)`` arrays.
     """
     if method not in ("eq8", "eq9"):
