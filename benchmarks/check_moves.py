@@ -133,7 +133,7 @@ def main(argv=None):
         "",
         f"4-D: y1 ~ N(0, {BANANA_S1}²); x2 = y2 + {BANANA_B}(y1² − {BANANA_S1}²), y2 ~ N(0, 1) (banana); "
         f"x3 = log Gamma(2) (skewed); x4 ~ N(0, 1) truncated at x4 > {TRUNC_LO} (a bound next to the mode). "
-        f"Walkers start from bayescap's Laplace start (`fit.laplace_start`, `fit._initial_ball`), "
+        f"Walkers start from bayescap's Laplace start (`inference.optimize.laplace_start`, `inference.mcmc._initial_ball`), "
         f"1000 burn-in + {n_steps // 2} steps, {2 * n_seeds} seeds; the independence move proposes from the "
         "Laplace t at the mode, which is a poor fit here (banana, skew, bound). Compared with 400 000 "
         "exact draws: mean, sd and the 2.5/16/50/84/97.5 % quantiles of every coordinate (28 numbers); "

@@ -329,7 +329,7 @@ def write_md(path, rows, timing, *, args, load_before, load_after, wall_total):
         f"Reference: `bayescap.fit(quality='{args.ref_quality}')` with a different seed. Errors are "
         "|Δ| of the 95 % interval endpoints (end) and of the median (med) as a fraction of the reference "
         "95 % width, the worst over every parameter and capacity; the reference's own Monte Carlo error "
-        "is part of them. Fast = Laplace–IS (`bayescap.fast.fast_fit`, no fallback, so that rejected "
+        "is part of them. Fast = Laplace–IS (`bayescap.api.fast_fit`, no fallback, so that rejected "
         "cases are measured too; ✗ = its k̂/ESS check rejected it). Coverage = truths (K, read noise, "
         "clip charge, QE) inside the 95 % interval. ESS/s = min bulk/tail ESS (MCMC, every parameter "
         "and capacity) or IS ESS (fast) per wall second. Own MC err = the run's own prediction of the "

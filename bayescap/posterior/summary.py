@@ -70,7 +70,7 @@ def rerun_advice(quality) -> str:
     return {"fast": "--quality standard or accurate", "standard": "--quality accurate"}.get(
         quality,
         "a longer run (from Python: bayescap.fit(..., quality=replace(QUALITY_PRESETS['accurate'], "
-        "max_rounds=40)), with dataclasses.replace and bayescap.fit.QUALITY_PRESETS)",
+        "max_rounds=40)), with dataclasses.replace and bayescap.inference.QUALITY_PRESETS)",
     )
 
 
