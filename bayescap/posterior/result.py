@@ -21,7 +21,26 @@ from bayescap.posterior.diagnose import _END_MCSE_FAILURE, DiagnoseMixin
 from bayescap.posterior.scene import Scene
 from bayescap.posterior.summary import json_safe, summarize
 
-__all__ = ["FitResult"]
+__all__ = ["FitResult", "DerivedValues"]
+
+
+class DerivedValues:
+    """:meth:`FitResult.derived_values_fn`: ``self(x) -> {name: values (n,)}``, every derived
+    quantity of draws ``x`` (n, ndim). ``inputs`` is what it computes with, ``(model, metadata,
+    scene, mtf, seed)``: a result made with the same inputs reuses the fast path's errors of the
+    derived quantities' interval ends (``_derived_end_mcse_importance``)."""
+
+    def __init__(self, result_cls, inputs):
+        self.result_cls = result_cls
+        self.inputs = inputs
+
+    def __call__(self, x):
+        model, metadata, scene, mtf, seed = self.inputs
+        x = np.asarray(x, float)
+        tmp = self.result_cls._of_chain(
+            model, x.reshape(1, -1, 1, x.shape[-1]), metadata=metadata, scene=scene, mtf=mtf, seed=seed
+        )
+        return {n: np.asarray(v, float) for n, v in tmp.derived.items() if np.size(v) == x.shape[0]}
 
 
 @dataclass
@@ -87,19 +106,9 @@ class FitResult(DerivedMixin, DiagnoseMixin, ChecksMixin):
         """``fn(x) -> {name: values (n,)}``: every derived quantity (capacity, TR, DR, SNR, ...) of
         draws ``x`` (n, ndim), as the result computes them; for the fast path's top-up towards its
         gate on the interval ends' Monte Carlo error (:func:`bayescap.inference.fast.fast_posterior`'s
-        ``derived_fn``) and the result's own check of the same errors."""
-
-        def fn(x):
-            x = np.asarray(x, float)
-            tmp = cls._of_chain(
-                model, x.reshape(1, -1, 1, x.shape[-1]), metadata=metadata, scene=scene, mtf=mtf, seed=seed
-            )
-            return {n: np.asarray(v, float) for n, v in tmp.derived.items() if np.size(v) == x.shape[0]}
-
-        # what it computes with: a result made with the same inputs reuses the fast path's errors of
-        # the derived quantities' interval ends (_derived_end_mcse_importance)
-        fn.inputs = (model, metadata, scene, mtf, seed)
-        return fn
+        ``derived_fn``) and the result's own check of the same errors. A :class:`DerivedValues`
+        (module level, so that a result holding it pickles: ``fit_many(..., n_jobs=2)``)."""
+        return DerivedValues(cls, (model, metadata, scene, mtf, seed))
 
     def _same_derived_inputs(self, inputs) -> bool:
         """Whether :meth:`derived_values_fn`'s ``inputs`` are this result's (the same model and MTF
