@@ -53,3 +53,19 @@ def test_cli_fit_with_two_jobs(capsys):
     assert status in (0, None)
     out = capsys.readouterr().out
     assert all(p in out for p in BENCH)
+
+
+def test_repr_is_short_and_names_the_key_numbers(fast_result, standard_result):
+    for r in (fast_result, standard_result):
+        s = repr(r)
+        assert len(s) < 400 and "array" not in s
+        cap = r.derived["capacity_bits"]
+        assert s.startswith("FitResult(sensor=") and f"quality='{r.quality}'" in s and "converged=True" in s
+        assert "K=" in s and "read_noise=" in s and f"{np.median(cap):.4g}" in s and "(95 %)" in s
+
+
+def test_repr_html_is_a_table_of_medians_intervals_and_units(standard_result):
+    h = standard_result._repr_html_()
+    assert h.count("<tr>") == 1 + len(standard_result.parameter_summary()) + len(standard_result.derived)
+    assert "<th>95 % interval</th>" in h and "<td>e-/DN</td>" in h and "capacity_bits" in h
+    assert "R-hat max" in h

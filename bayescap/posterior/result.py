@@ -18,6 +18,7 @@ from bayescap.model.ptc_model import PTCModel
 from bayescap.posterior.checks import ChecksMixin
 from bayescap.posterior.derived import _DERIVED_FLAGS, _DERIVED_NOTE_PREFIXES, DerivedMixin
 from bayescap.posterior.diagnose import _END_MCSE_FAILURE, DiagnoseMixin
+from bayescap.posterior.display import html_table, short_repr
 from bayescap.posterior.scene import Scene
 from bayescap.posterior.summary import json_safe, summarize
 
@@ -43,7 +44,7 @@ class DerivedValues:
         return {n: np.asarray(v, float) for n, v in tmp.derived.items() if np.size(v) == x.shape[0]}
 
 
-@dataclass
+@dataclass(repr=False)
 class FitResult(DerivedMixin, DiagnoseMixin, ChecksMixin):
     """Posterior of one sensor's noise model and everything derived from it."""
 
@@ -60,6 +61,14 @@ class FitResult(DerivedMixin, DiagnoseMixin, ChecksMixin):
     flags: dict = field(default_factory=dict)  # machine-readable caveats
     diag: dict = field(default_factory=dict)
     mtf_info: dict = field(default_factory=dict)
+
+    def __repr__(self) -> str:
+        """Sensor, quality, convergence, K, read noise and capacity with their 95 % intervals."""
+        return short_repr(self)
+
+    def _repr_html_(self) -> str:
+        """A table for notebooks: each parameter and derived quantity's median, 95 % interval, unit."""
+        return html_table(self)
 
     @classmethod
     def from_chains(cls, model: PTCModel, chains: ChainResult, *, metadata, scene, mtf, seed, quality):
