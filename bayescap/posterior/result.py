@@ -70,6 +70,20 @@ class FitResult(DerivedMixin, DiagnoseMixin, ChecksMixin):
         """A table for notebooks: each parameter and derived quantity's median, 95 % interval, unit."""
         return html_table(self)
 
+    def save(self, path):
+        """Write this result to ``path`` (netCDF: the InferenceData of ``posterior.nc`` plus what
+        the report needs; :mod:`bayescap.posterior.storage`), atomically. Returns the path."""
+        from bayescap.posterior.storage import save_result
+
+        return save_result(self, path)
+
+    @classmethod
+    def load(cls, path) -> "FitResult":
+        """A result written by :meth:`save`: its ``to_dict()`` (the JSON) and report are the saved one's."""
+        from bayescap.posterior.storage import load_result
+
+        return load_result(path, cls)
+
     @classmethod
     def from_chains(cls, model: PTCModel, chains: ChainResult, *, metadata, scene, mtf, seed, quality):
         self = cls(model=model, chains=chains, metadata=metadata, scene=scene, mtf=mtf, seed=seed, quality=quality)
