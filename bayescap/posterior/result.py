@@ -18,13 +18,33 @@ from bayescap.model.ptc_model import PTCModel
 from bayescap.posterior.checks import ChecksMixin
 from bayescap.posterior.derived import _DERIVED_FLAGS, _DERIVED_NOTE_PREFIXES, DerivedMixin
 from bayescap.posterior.diagnose import _END_MCSE_FAILURE, DiagnoseMixin
+from bayescap.posterior.display import html_table, short_repr
 from bayescap.posterior.scene import Scene
 from bayescap.posterior.summary import json_safe, summarize
 
-__all__ = ["FitResult"]
+__all__ = ["FitResult", "DerivedValues"]
 
 
-@dataclass
+class DerivedValues:
+    """:meth:`FitResult.derived_values_fn`: ``self(x) -> {name: values (n,)}``, every derived
+    quantity of draws ``x`` (n, ndim). ``inputs`` is what it computes with, ``(model, metadata,
+    scene, mtf, seed)``: a result made with the same inputs reuses the fast path's errors of the
+    derived quantities' interval ends (``_derived_end_mcse_importance``)."""
+
+    def __init__(self, result_cls, inputs):
+        self.result_cls = result_cls
+        self.inputs = inputs
+
+    def __call__(self, x):
+        model, metadata, scene, mtf, seed = self.inputs
+        x = np.asarray(x, float)
+        tmp = self.result_cls._of_chain(
+            model, x.reshape(1, -1, 1, x.shape[-1]), metadata=metadata, scene=scene, mtf=mtf, seed=seed
+        )
+        return {n: np.asarray(v, float) for n, v in tmp.derived.items() if np.size(v) == x.shape[0]}
+
+
+@dataclass(repr=False)
 class FitResult(DerivedMixin, DiagnoseMixin, ChecksMixin):
     """Posterior of one sensor's noise model and everything derived from it."""
 
@@ -41,6 +61,28 @@ class FitResult(DerivedMixin, DiagnoseMixin, ChecksMixin):
     flags: dict = field(default_factory=dict)  # machine-readable caveats
     diag: dict = field(default_factory=dict)
     mtf_info: dict = field(default_factory=dict)
+
+    def __repr__(self) -> str:
+        """Sensor, quality, convergence, K, read noise and capacity with their 95 % intervals."""
+        return short_repr(self)
+
+    def _repr_html_(self) -> str:
+        """A table for notebooks: each parameter and derived quantity's median, 95 % interval, unit."""
+        return html_table(self)
+
+    def save(self, path):
+        """Write this result to ``path`` (netCDF: the InferenceData of ``posterior.nc`` plus what
+        the report needs; :mod:`bayescap.posterior.storage`), atomically. Returns the path."""
+        from bayescap.posterior.storage import save_result
+
+        return save_result(self, path)
+
+    @classmethod
+    def load(cls, path) -> "FitResult":
+        """A result written by :meth:`save`: its ``to_dict()`` (the JSON) and report are the saved one's."""
+        from bayescap.posterior.storage import load_result
+
+        return load_result(path, cls)
 
     @classmethod
     def from_chains(cls, model: PTCModel, chains: ChainResult, *, metadata, scene, mtf, seed, quality):
@@ -87,19 +129,9 @@ class FitResult(DerivedMixin, DiagnoseMixin, ChecksMixin):
         """``fn(x) -> {name: values (n,)}``: every derived quantity (capacity, TR, DR, SNR, ...) of
         draws ``x`` (n, ndim), as the result computes them; for the fast path's top-up towards its
         gate on the interval ends' Monte Carlo error (:func:`bayescap.inference.fast.fast_posterior`'s
-        ``derived_fn``) and the result's own check of the same errors."""
-
-        def fn(x):
-            x = np.asarray(x, float)
-            tmp = cls._of_chain(
-                model, x.reshape(1, -1, 1, x.shape[-1]), metadata=metadata, scene=scene, mtf=mtf, seed=seed
-            )
-            return {n: np.asarray(v, float) for n, v in tmp.derived.items() if np.size(v) == x.shape[0]}
-
-        # what it computes with: a result made with the same inputs reuses the fast path's errors of
-        # the derived quantities' interval ends (_derived_end_mcse_importance)
-        fn.inputs = (model, metadata, scene, mtf, seed)
-        return fn
+        ``derived_fn``) and the result's own check of the same errors. A :class:`DerivedValues`
+        (module level, so that a result holding it pickles: ``fit_many(..., n_jobs=2)``)."""
+        return DerivedValues(cls, (model, metadata, scene, mtf, seed))
 
     def _same_derived_inputs(self, inputs) -> bool:
         """Whether :meth:`derived_values_fn`'s ``inputs`` are this result's (the same model and MTF

@@ -10,10 +10,9 @@ import json
 import os
 from pathlib import Path
 
-import numpy as np
-
 from bayescap.io.ptc_csv import atomic_write_text
 from bayescap.posterior import FitResult
+from bayescap.posterior.inference_data import to_inference_data as _to_inference_data
 from bayescap.posterior.summary import DERIVED_ORDER, PARAMETER_ORDER
 from bayescap.report.plots import plot_corner, plot_ptc
 
@@ -150,34 +149,11 @@ def to_json(result: FitResult, *, indent=2) -> str:
 
 
 def to_inference_data(result: FitResult):
-    """ArviZ InferenceData: posterior (chain = ensemble × walker, draw = step) of the physical
-    parameters and derived quantities, sample stats, observed data."""
-    import arviz as az
-
-    E, S, W = result.shape_esw
-
-    def chains(x):
-        return np.asarray(x).reshape(E, S, W).transpose(0, 2, 1).reshape(E * W, S)
-
-    post = {k: chains(v) for k, v in result.draws.items()}
-    post.update({k: chains(v) for k, v in result.derived.items()})
-    lp = result.chains.log_prob.transpose(0, 2, 1).reshape(E * W, S)
-    d = result.model.data
-    obs = {
-        "exposure_time_s": np.asarray(d.exposure_time_s),
-        "mean_dn": np.asarray(d.mean_dn),
-        "temporal_var_dn2": np.asarray(d.temporal_var_dn2),
-        "dark_mean_dn": np.asarray(d.dark_mean_dn),
-        "dark_temporal_var_dn2": np.asarray(d.dark_temporal_var_dn2),
-    }
-    idata = az.from_dict(
-        posterior=post,
-        sample_stats={"lp": lp},
-        observed_data=obs,
-        dims={k: ["row"] for k in obs},
-        attrs={"bayescap_input": str(d.source), "seed": str(result.seed), "quality": result.quality},
-    )
-    return idata
+    """ArviZ InferenceData of ``result``: chains = independent ensembles (``az.rhat`` is the
+    report's R-hat), physical parameters and derived quantities with units, the sampler's
+    coordinates, pointwise log-likelihood (``az.loo``), replicated and observed data, the input
+    columns (:mod:`bayescap.posterior.inference_data`; docs/results.md)."""
+    return _to_inference_data(result)
 
 
 def write_outputs(result: FitResult, out_dir) -> list[Path]:

@@ -1,0 +1,288 @@
+"""A fit result as ArviZ InferenceData (the ``posterior.nc`` of ``bayescap fit --out``).
+
+Groups:
+
+- ``posterior``: the physical parameters and the derived quantities, each with a ``units``
+  attribute. **Chains are the independent ensembles**; each ensemble's walkers are flattened into
+  its draws: first the draws of the first half of the production steps (walker by walker, each in
+  step order), then those of the second half. ArviZ's split R-hat splits a chain into those two
+  halves, so ``az.rhat`` on the file is the report's R-hat (over ensembles, split in time:
+  :mod:`bayescap.inference.diagnostics`) to rounding. The report's ESS counts each walker as a
+  chain: :func:`walker_chains` gives that view, on which ``az.ess`` is the report's. A fast-path
+  (Laplace–IS) result has one chain of resampled importance draws (attribute ``chains``), for
+  which R-hat does not apply.
+- ``unconstrained_posterior``: the sampler's coordinates (``log_k``, ...), the ones the report's
+  ``diagnostics.per_quantity`` are computed on; same layout.
+- ``sample_stats``: ``lp``, the log posterior density of each draw.
+- ``log_likelihood``: ``obs``, the log-likelihood of every observation (each variance and mean of
+  the CSV, ``block`` and ``row`` coordinates) for at most :data:`PREDICTIVE_MAX_DRAWS` draws,
+  evenly thinned in each chain (``draw`` coordinates are the posterior's); ``az.loo`` runs on it.
+- ``posterior_predictive``: ``obs`` replicated from the model's density (gamma for variances,
+  normal for means, the outlier mixture where the model has it) for the same draws.
+- ``observed_data``: ``obs``, the observations.
+- ``constant_data``: the input CSV's columns (dimension ``level``).
+
+Attributes: bayescap version, input, sensor, seed, quality, method, the layout of the chains,
+units.
+"""
+
+from __future__ import annotations
+
+import json
+import warnings
+
+import numpy as np
+
+from bayescap._version import __version__
+from bayescap.model.likelihood import OUTLIER_RATE, OUTLIER_REL_SD, ROBUST_BLOCKS
+from bayescap.posterior.summary import DERIVED_INFO
+
+__all__ = ["PREDICTIVE_MAX_DRAWS", "UNITS", "to_inference_data", "walker_chains", "draw_order", "INPUT_COLUMNS"]
+
+#: at most this many draws (all chains together) in the log_likelihood and posterior_predictive
+#: groups (as many as bayescap.studies.selection.loo uses): half a fast-path result's 4000, a
+#: twentieth of a ``standard`` one (38 400 draws × ~150 observations would be 46 MB a group)
+PREDICTIVE_MAX_DRAWS = 2000
+
+#: units of the physical parameters and derived quantities
+UNITS = {
+    "conversion_gain_e_per_dn": "e-/DN",
+    "read_noise_e": "e-",
+    "dark_noise_e": "e-",
+    "dark_current_e_per_s": "e-/s",
+    "clip_dn": "DN",
+    "full_well_e": "e-",
+    "clip_spread_dn": "DN",
+    "quantum_efficiency": "1",
+    "mean_discrepancy": "1",
+    "prnu_percent": "%",
+    "dsnu_e": "e-",
+    "variance_discrepancy": "1",
+    **{k: v[0] for k, v in DERIVED_INFO.items()},
+    "capacity_bits_per_pixel": "bits/pixel",
+}
+#: units of each likelihood block's observations
+_BLOCK_UNITS = {"mean": "DN", "clip_mean": "DN"}  # the others are variances, DN²
+#: the PTCData columns the constant_data group holds
+INPUT_COLUMNS = (
+    "exposure_time_s",
+    "mean_dn",
+    "temporal_var_dn2",
+    "dark_mean_dn",
+    "dark_temporal_var_dn2",
+    "n_pixels",
+    "photons_per_pixel",
+    "exposure_lux_s",
+    "spatial_var_dn2",
+    "dark_spatial_var_dn2",
+    "n_frames",
+    "frac_saturated",
+    "row_numbers",
+)
+
+
+def draw_order(n_steps, n_walkers):
+    """``(order, step, walker)``: draw ``j`` of an ensemble's chain in the file is its step-major
+    draw ``order[j]`` (``step * n_walkers + walker``), from step ``step[j]`` of walker
+    ``walker[j]``. The draws in the first half of the step-major order come first, then the middle
+    draw of an odd count, then the second half (ArviZ's split of a chain), each walker by walker in
+    step order."""
+    n = n_steps * n_walkers
+    i = np.arange(n)
+    half = n // 2
+    part = np.where(i < half, 0, np.where(i >= n - half, 2, 1))
+    s, w = np.divmod(i, n_walkers)
+    order = np.lexsort((s, w, part))
+    return order, s[order], w[order]
+
+
+def _is_importance(result) -> bool:
+    return result.diag.get("method") == "laplace-is"
+
+
+def _chain_dataset(arrays, E, S, W, order, step, walker, attrs=None):
+    """A Dataset of (chain, draw) variables from flat (E·S·W,) draws in (E, S, W) order."""
+    import xarray as xr
+
+    data = {}
+    for name, v in arrays.items():
+        v = np.broadcast_to(np.asarray(v, float), (E * S * W,)).reshape(E, S * W)[:, order]
+        data[name] = (("chain", "draw"), v, {"units": UNITS[name]} if name in UNITS else {})
+    coords = {"chain": np.arange(E), "draw": np.arange(S * W), "step": ("draw", step), "walker": ("draw", walker)}
+    return xr.Dataset(data, coords=coords, attrs=attrs or {})
+
+
+def _predictive_index(E, n):
+    """Per chain, the draws (indices into the chain) of the log_likelihood/posterior_predictive
+    groups: all of them when E·n ≤ PREDICTIVE_MAX_DRAWS, else evenly spaced."""
+    k = min(n, max(1, PREDICTIVE_MAX_DRAWS // E))
+    return np.linspace(0, n - 1, k).round().astype(int)
+
+
+def _replicate(model, th, rng):
+    """(observed (n_obs,), replicated (n_draws, n_obs), labels): every observation replicated from
+    the model's density at draws ``th``, blocks in the order of ``model.pointwise_loglik``."""
+    with np.errstate(all="ignore"):
+        pred = model.predict(th)
+    obs_out, rep_out = [], []
+    n = th.shape[0]
+    for name, (obs, mod, spread, kind) in pred.items():
+        rows = model.observation_rows(name)
+        shape = (n, rows.size)
+        mod = np.broadcast_to(mod, shape)
+        spread = np.broadcast_to(spread, shape)
+        obs = np.broadcast_to(obs, shape)
+        # the observations of a block are the data's; the signal of rows near the clip is the
+        # model's latent one, which varies with the draw: its median
+        obs_out.append(obs[0] if np.all(obs == obs[:1]) else np.median(obs, axis=0))
+        if kind == "gamma":
+            rep = rng.gamma(spread, mod / spread)
+        else:
+            rep = rng.normal(mod, spread)
+        if model.terms.robust and name in ROBUST_BLOCKS:
+            bad = rng.random(shape) < OUTLIER_RATE
+            if kind == "gamma":
+                wide = mod * np.exp(OUTLIER_REL_SD * rng.standard_normal(shape))
+            else:
+                wide = rng.normal(mod, np.sqrt(spread * spread + (OUTLIER_REL_SD * mod) ** 2))
+            rep = np.where(bad, wide, rep)
+        rep_out.append(rep)
+    return np.concatenate(obs_out), np.concatenate(rep_out, axis=1)
+
+
+def _chains_description(result, E, S, W):
+    if _is_importance(result):
+        return (
+            f"one chain of {S} importance draws resampled from the Laplace–IS fast path: independent "
+            "draws, R-hat does not apply (the checks are Pareto k-hat and the IS ESS, in the attribute "
+            "diagnostics)"
+        )
+    return (
+        f"{E} chains = the independent ensembles; each chain holds its {W} walkers × {S} steps: the "
+        "draws of the first half of the steps, walker by walker in step order, then those of the "
+        "second half (coordinates step and walker), so that ArviZ's split R-hat is the report's; "
+        "the report's ESS counts each walker as a chain (bayescap.posterior.walker_chains)"
+    )
+
+
+def to_inference_data(result):
+    """ArviZ InferenceData of ``result`` (module docstring)."""
+    import arviz as az
+    import xarray as xr
+
+    c = result.chains
+    E, S, W, D = c.chain.shape
+    order, step, walker = draw_order(S, W)
+    common = {"bayescap_version": __version__, "quality": result.quality, "seed": str(result.seed)}
+    post = _chain_dataset(
+        {**result.draws, **result.derived},
+        E,
+        S,
+        W,
+        order,
+        step,
+        walker,
+        attrs={"chains": _chains_description(result, E, S, W)},
+    )
+    for name in post.data_vars:
+        post[name].attrs["kind"] = "derived" if name in result.derived else "parameter"
+        if name in DERIVED_INFO:
+            post[name].attrs["description"] = DERIVED_INFO[name][1]
+    flat = c.chain.reshape(E * S * W, D)
+    unc = _chain_dataset({n: flat[:, j] for j, n in enumerate(result.model.names)}, E, S, W, order, step, walker)
+    stats = _chain_dataset({"lp": c.log_prob.reshape(-1)}, E, S, W, order, step, walker)
+
+    # log-likelihood and replicated observations on evenly thinned draws of each chain
+    keep = _predictive_index(E, S * W)
+    th = c.chain.reshape(E, S * W, D)[:, order][:, keep].reshape(-1, D)
+    ll, labels = result.model.pointwise_loglik(th)
+    rng = np.random.default_rng(np.random.SeedSequence(result.seed).spawn(3)[2])
+    observed, rep = _replicate(result.model, th, rng)
+    blocks = np.array([b for b, _ in labels])
+    obs_coords = {
+        "chain": np.arange(E),
+        "draw": keep,
+        "step": ("draw", step[keep]),
+        "walker": ("draw", walker[keep]),
+        "observation": np.arange(len(labels)),
+        "block": ("observation", blocks),
+        "row": ("observation", np.array([r for _, r in labels], int)),
+        "unit": ("observation", np.array([_BLOCK_UNITS.get(b, "DN²") for b in blocks])),
+    }
+    dims = ("chain", "draw", "observation")
+    n_keep = keep.size
+    loglik = xr.Dataset(
+        {"obs": (dims, ll.reshape(E, n_keep, -1))},
+        coords=obs_coords,
+        attrs={"draws": f"{n_keep} of each chain's {S * W} draws, evenly spaced (draw: the posterior's index)"},
+    )
+    pp = xr.Dataset(
+        {"obs": (dims, rep.reshape(E, n_keep, -1), {"units": "DN or DN² (coordinate unit)"})},
+        coords=obs_coords,
+        attrs={"draws": loglik.attrs["draws"]},
+    )
+    od = xr.Dataset(
+        {"obs": (("observation",), observed, {"units": "DN or DN² (coordinate unit)"})},
+        coords={k: v for k, v in obs_coords.items() if k in ("observation", "block", "row", "unit")},
+    )
+    d = result.model.data
+    const = {}
+    for col in INPUT_COLUMNS:
+        v = getattr(d, col, None)
+        if v is not None:
+            const[col] = (("level",), np.asarray(v))
+    cd = xr.Dataset(const, attrs={"source": str(d.source), "metadata": json.dumps(_plain(d.metadata))})
+    attrs = {
+        **common,
+        "input": str(d.source),
+        "sensor": str(result.metadata.get("sensor", "")),
+        "method": str(result.diag.get("method", "")),
+        "chains": post.attrs["chains"],
+        "n_chains": E,
+        "rhat_applicable": int(not _is_importance(result)),
+        "units": json.dumps({n: UNITS[n] for n in post.data_vars if n in UNITS}),
+    }
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        return az.InferenceData(
+            attrs=attrs,
+            posterior=post,
+            unconstrained_posterior=unc,
+            sample_stats=stats,
+            log_likelihood=loglik,
+            posterior_predictive=pp,
+            observed_data=od,
+            constant_data=cd,
+        )
+
+
+def _plain(obj):
+    """JSON-able: numpy scalars and arrays to Python."""
+    if isinstance(obj, dict):
+        return {str(k): _plain(v) for k, v in obj.items()}
+    if isinstance(obj, (list, tuple)):
+        return [_plain(v) for v in obj]
+    if isinstance(obj, np.ndarray):
+        return obj.tolist()
+    if isinstance(obj, np.generic):
+        return obj.item()
+    return obj
+
+
+def walker_chains(idata, group="posterior"):
+    """The ``group`` of a bayescap InferenceData with each walker as a chain (chain = ensemble ×
+    walker, draw = step): the layout of the report's ESS (``az.ess(walker_chains(idata))`` is the
+    report's ``ess_bulk``; ``method="tail"`` its ``ess_tail``)."""
+    import xarray as xr
+
+    ds = idata[group]
+    E, n = ds.sizes["chain"], ds.sizes["draw"]
+    step, walker = ds["step"].values, ds["walker"].values
+    S, W = int(step.max()) + 1, int(walker.max()) + 1
+    pos = np.empty((W, S), int)
+    pos[walker, step] = np.arange(n)
+    out = {}
+    for name, v in ds.data_vars.items():
+        a = v.values[:, pos]  # (E, W, S)
+        out[name] = (("chain", "draw"), a.reshape(E * W, S), dict(v.attrs))
+    return xr.Dataset(out, coords={"chain": np.arange(E * W), "draw": np.arange(S)})

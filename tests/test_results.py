@@ -1,0 +1,161 @@
+"""What a user touches of a fit result (issue 39): a result pickles (``fit_many(..., n_jobs=2)``),
+its ``posterior.nc`` is an ArviZ InferenceData whose diagnostics agree with the report's, it saves
+and loads, and its ``repr`` is short."""
+
+import pickle
+import warnings
+
+import numpy as np
+import pytest
+
+import bayescap
+from bayescap.batch import fit_many
+
+PHONE = "data/simulated/sim_phone_1p75um_10bit.csv"
+BENCH = ["data/benchmark/M1_1.75um.csv", "data/benchmark/M2_2.80um.csv"]
+
+
+@pytest.fixture(scope="module")
+def fast_result():
+    return bayescap.fit(PHONE, seed=1, quality="fast")
+
+
+@pytest.fixture(scope="module")
+def standard_result():
+    return bayescap.fit(PHONE, seed=1, quality="standard", n_jobs=1)
+
+
+@pytest.mark.parametrize("which", ["fast_result", "standard_result"])
+def test_a_result_pickles_and_comes_back_the_same(which, request):
+    r = request.getfixturevalue(which)
+    back = pickle.loads(pickle.dumps(r))
+    assert back.to_dict() == r.to_dict()
+    assert np.array_equal(back.chains.chain, r.chains.chain)
+
+
+def test_fit_many_in_two_processes_returns_full_results():
+    """The README's ``fit_many([...], n_jobs=2)``: results (not summaries) come back from the
+    worker processes, each the sensor's own fit."""
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        two = fit_many(BENCH, seed=3, n_jobs=2)
+        one = fit_many(BENCH, seed=3)
+    for a, b in zip(two, one):
+        assert isinstance(a, bayescap.FitResult)
+        assert np.array_equal(a.chains.chain, b.chains.chain)
+        assert a.to_dict()["derived"] == b.to_dict()["derived"]
+
+
+def test_cli_fit_with_two_jobs(capsys):
+    from bayescap.cli import main
+
+    status = main(["fit", *BENCH, "--quality", "fast", "--jobs", "2", "--seed", "3", "--no-progress"])
+    assert status in (0, None)
+    out = capsys.readouterr().out
+    assert all(p in out for p in BENCH)
+
+
+def test_repr_is_short_and_names_the_key_numbers(fast_result, standard_result):
+    for r in (fast_result, standard_result):
+        s = repr(r)
+        assert len(s) < 400 and "array" not in s
+        cap = r.derived["capacity_bits"]
+        assert s.startswith("FitResult(sensor=") and f"quality='{r.quality}'" in s and "converged=True" in s
+        assert "K=" in s and "read_noise=" in s and f"{np.median(cap):.4g}" in s and "(95 %)" in s
+
+
+def test_repr_html_is_a_table_of_medians_intervals_and_units(standard_result):
+    h = standard_result._repr_html_()
+    assert h.count("<tr>") == 1 + len(standard_result.parameter_summary()) + len(standard_result.derived)
+    assert "<th>95 % interval</th>" in h and "<td>e-/DN</td>" in h and "capacity_bits" in h
+    assert "R-hat max" in h
+
+
+# ------------------------------------------------------------------------------ posterior.nc
+@pytest.fixture(scope="module")
+def written(standard_result, tmp_path_factory):
+    """posterior.nc of the standard result as ``write_outputs`` writes it, read back."""
+    import arviz as az
+
+    from bayescap.report.text import to_inference_data
+
+    p = tmp_path_factory.mktemp("nc") / "posterior.nc"
+    to_inference_data(standard_result).to_netcdf(str(p), engine="h5netcdf")
+    return az.from_netcdf(str(p)).load()
+
+
+def test_posterior_nc_chains_are_ensembles_and_rhat_is_the_reports(standard_result, written):
+    import arviz as az
+
+    from bayescap.posterior.inference_data import walker_chains
+
+    E, S, W = standard_result.shape_esw
+    assert written.posterior.sizes["chain"] == E and written.posterior.sizes["draw"] == S * W
+    per = standard_result.diag["per_quantity"]
+    rhat = {
+        **az.rhat(written.unconstrained_posterior).to_dict()["data_vars"],
+        **az.rhat(written).to_dict()["data_vars"],
+    }
+    by_w = {
+        **az.ess(walker_chains(written, "unconstrained_posterior")).to_dict()["data_vars"],
+        **az.ess(walker_chains(written)).to_dict()["data_vars"],
+    }
+    tail = az.ess(walker_chains(written, "unconstrained_posterior"), method="tail")
+    for n, v in per.items():
+        assert rhat[n]["data"] == pytest.approx(v["rhat"], abs=1e-9), n
+        assert by_w[n]["data"] == pytest.approx(v["ess_bulk"], rel=1e-9), n
+        if n in tail:
+            assert float(tail[n]) == pytest.approx(v["ess_tail"], rel=1e-9), n
+    assert np.nanmax([float(az.rhat(written)[n]) for n in written.posterior.data_vars]) < 1.01
+
+
+def test_posterior_nc_groups_units_attributes_and_loo(standard_result, written):
+    import arviz as az
+
+    for g in ("posterior", "log_likelihood", "posterior_predictive", "observed_data", "sample_stats", "constant_data"):
+        assert g in written.groups(), g
+    post = written.posterior
+    assert set(standard_result.draws) | set(standard_result.derived) == set(post.data_vars)
+    assert post["conversion_gain_e_per_dn"].attrs["units"] == "e-/DN"
+    assert post["capacity_bits"].attrs["units"] == "bits"
+    assert written.attrs["quality"] == "standard" and written.attrs["seed"] == "1"
+    assert written.attrs["bayescap_version"] == bayescap.__version__ and "units" in written.attrs
+    n_obs = written.observed_data.sizes["observation"]
+    assert written.log_likelihood["obs"].shape[-1] == n_obs == written.posterior_predictive["obs"].shape[-1]
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        lo = az.loo(written)
+    assert np.isfinite(lo.elpd_loo) and lo.n_data_points == n_obs
+    # the replicated observations scatter around the observed ones
+    rep = written.posterior_predictive["obs"].median(("chain", "draw")).values
+    obs = written.observed_data["obs"].values
+    assert np.median(np.abs(rep / obs - 1)) < 0.1
+
+
+def test_fast_path_posterior_nc_has_one_chain_and_says_so(fast_result):
+    import arviz as az
+
+    from bayescap.report.text import to_inference_data
+
+    idata = to_inference_data(fast_result)
+    assert idata.posterior.sizes["chain"] == 1 and idata.attrs["rhat_applicable"] == 0
+    assert "R-hat does not apply" in idata.attrs["chains"]
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        assert np.isfinite(az.loo(idata).elpd_loo)
+
+
+# ------------------------------------------------------------------------------ save / load
+@pytest.mark.parametrize("which", ["fast_result", "standard_result"])
+def test_save_and_load_give_the_same_json_and_report(which, request, tmp_path):
+    from bayescap.report.text import format_text
+
+    r = request.getfixturevalue(which)
+    p = r.save(tmp_path / "fit.nc")
+    assert not [q for q in tmp_path.iterdir() if q.name.startswith(".")]  # written atomically
+    back = bayescap.FitResult.load(p)
+    assert back.to_dict() == r.to_dict()
+    assert format_text(back) == format_text(r)
+    assert np.array_equal(back.chains.chain, r.chains.chain)
+    scene = bayescap.Scene(exposure_time_s=0.02)
+    assert back.at_scene(scene).to_dict() == r.at_scene(scene).to_dict()
