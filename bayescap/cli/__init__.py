@@ -19,6 +19,7 @@ from bayescap.cli.common import (
     add_fast_arguments,
     seed_arg,
 )
+from bayescap.cli.datasheet import register as _register_datasheet
 from bayescap.cli.fit import _cmd_fit
 from bayescap.cli.mtf import _cmd_mtf
 from bayescap.exceptions import InputError
@@ -188,6 +189,7 @@ def build_parser() -> argparse.ArgumentParser:
     )
     add_sweep_arguments(p)
     p.set_defaults(func=run_sweep)
+    _register_datasheet(sub)  # bayescap datasheet (cli/datasheet.py)
     return parser
 
 
