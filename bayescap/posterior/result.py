@@ -314,6 +314,12 @@ class FitResult(DerivedMixin, DiagnoseMixin, ChecksMixin):
             out["mean_discrepancy"] = summarize(p["mean_discrepancy"], "", note="fractional non-linearity scatter")
         return out
 
+    def emva1288(self) -> dict:
+        """The fit in EMVA 1288 (Release 4.0) terms, with intervals (:func:`bayescap.posterior.emva.emva1288_view`)."""
+        from bayescap.posterior.emva import emva1288_view
+
+        return emva1288_view(self)
+
     def to_dict(self) -> dict:
         sensor = dict(self.metadata)
         diag = {k: v for k, v in self.diag.items()}
