@@ -21,7 +21,7 @@ batch stops with the error; rerun it to resume).
 from __future__ import annotations
 
 import math
-from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
+from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, ThreadPoolExecutor, wait
 
 from bayescap._blas import one_blas_thread
 from bayescap.batch import store
@@ -196,23 +196,27 @@ def fit_to_folder(
 
         bar = tqdm(total=len(todo), unit="sensor", desc="fit_many")
     stopped = True
+    writers = ThreadPoolExecutor(max_workers=8)
     try:
         for chunk in _chunks(groups, chunk_size, n_workers):
             items = [(i, models[i], seeds[i]) for i in chunk]
             tasks.submit(run_chunk, (items, quality, settings, fallback, stack_size))
         for part in tasks.completed():
-            n_done = 0
+            n_done, docs = 0, []
             for i, kind, value in part:
                 if kind == "deferred":
                     tasks.submit(run_fallback, (i, models[i], seeds[i], value, settings))
                     continue
                 if kind == "doc":
-                    store.write_result(out, names[i], value, entries[i])
+                    docs.append((out, names[i], value, entries[i]))
                     report[i] = {"status": "fitted"}
                 else:
                     report[i] = {"status": "error", "error": value}
                 models[i] = None  # done: its memory can go
                 n_done += 1
+            # the chunk's files on a few threads: each is fsync'd, which waits on the disk, not the CPU
+            for _ in writers.map(lambda a: store.write_result(*a), docs):
+                pass
             if bar is not None:
                 bar.update(n_done)
             if on_chunk is not None:
@@ -220,6 +224,7 @@ def fit_to_folder(
         stopped = False
     finally:
         tasks.close(cancel=stopped)
+        writers.shutdown()
         if bar is not None:
             bar.close()
     return [dict(name=n, **r) for n, r in zip(names, report)]
