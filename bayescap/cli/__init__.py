@@ -67,7 +67,22 @@ def build_parser() -> argparse.ArgumentParser:
         metavar="DIR",
         help="also write result.json, report.txt, posterior.nc "
         "(ArviZ InferenceData), ptc.png and corner.png into DIR "
-        "(several CSVs: into DIR/<csv name>/)",
+        "(several CSVs: DIR/<csv name>/result.json, each written as its chunk of sensors "
+        "finishes; a rerun into the same DIR fits only what is not done: docs/batch.md)",
+    )
+    p.add_argument(
+        "--scheduler",
+        metavar="ADDRESS",
+        default=None,
+        help="several CSVs with --out: run the batch on the Dask cluster whose scheduler is at "
+        "ADDRESS (e.g. tcp://10.0.0.5:8786; pip install 'bayescap[dask]')",
+    )
+    p.add_argument(
+        "--dask",
+        type=int,
+        metavar="N_WORKERS",
+        default=None,
+        help="several CSVs with --out: run the batch on a new local Dask cluster of N_WORKERS processes",
     )
     p.add_argument(
         "--quality",

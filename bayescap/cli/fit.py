@@ -80,7 +80,7 @@ def _cmd_fit_many(args, overrides, fast_settings=None) -> int:
     from bayescap.api import load
     from bayescap.batch import fit_many
     from bayescap.exceptions import PTCInputError
-    from bayescap.report.text import format_text, write_outputs
+    from bayescap.report.text import format_text
 
     for opt, name in (
         (args.select_model, "--select-model"),
@@ -93,6 +93,18 @@ def _cmd_fit_many(args, overrides, fast_settings=None) -> int:
             raise InputError(f"{name} applies to one CSV at a time: fit the CSVs one by one to use it")
     if args.jobs < 1:
         raise InputError(f"--jobs must be at least 1, got {args.jobs}")
+    scheduler, n_dask = getattr(args, "scheduler", None), getattr(args, "dask", None)
+    if scheduler is not None and n_dask is not None:
+        raise InputError("--scheduler and --dask: give one (an existing cluster, or a new local one)")
+    if n_dask is not None and n_dask < 1:
+        raise InputError(f"--dask must be at least 1 worker, got {n_dask}")
+    cluster_asked = scheduler is not None or n_dask is not None
+    if cluster_asked and args.jobs != 1:
+        raise InputError(
+            "--jobs is for the local process pool: with --scheduler or --dask the cluster's workers run the batch"
+        )
+    if cluster_asked and not args.out:
+        raise InputError("--scheduler and --dask write every result as it finishes: give --out DIR")
     datas = []
     for path in args.csv:
         try:
@@ -100,21 +112,10 @@ def _cmd_fit_many(args, overrides, fast_settings=None) -> int:
         except PTCInputError as e:
             raise InputError(str(e)) from None
     kw = {} if fast_settings is None else {"settings": fast_settings}
+    if args.out:
+        return _fit_many_to_folder(args, datas, kw, scheduler, n_dask)
     results = fit_many(datas, quality=args.quality, seed=args.seed, n_jobs=args.jobs, **kw)
     failed = [(p, r) for p, r in zip(args.csv, results) if isinstance(r, BaseException)]
-    if args.out:
-        from pathlib import Path
-
-        used = set()
-        for path, r in zip(args.csv, results):
-            if isinstance(r, BaseException):
-                continue
-            stem, k = Path(path).stem, 1
-            while (stem if k == 1 else f"{stem}_{k}") in used:
-                k += 1
-            name = stem if k == 1 else f"{stem}_{k}"
-            used.add(name)
-            write_outputs(r, Path(args.out) / name)
     if args.json:
         import json
 
@@ -132,6 +133,77 @@ def _cmd_fit_many(args, overrides, fast_settings=None) -> int:
     for p, r in failed:
         print(f"bayescap: error: {_failure(p, r)}", file=sys.stderr)
     return 1 if failed else 0
+
+
+def _fit_many_to_folder(args, datas, kw, scheduler, n_dask) -> int:
+    """``--out DIR`` with several CSVs: DIR/<name>/result.json written as each chunk of sensors
+    finishes, on the local pool (``--jobs``) or a Dask cluster (``--scheduler``/``--dask``); a rerun
+    into the same DIR resumes (bayescap.batch.store)."""
+    import json
+
+    from bayescap.batch import fit_many
+    from bayescap.batch.store import read_result
+
+    client = cluster = None
+    if scheduler is not None or n_dask is not None:
+        from bayescap.batch.cluster import start_client
+
+        client, cluster = start_client(scheduler, n_dask)
+        print(f"bayescap: Dask dashboard: {client.dashboard_link}", file=sys.stderr)
+    progress = sys.stderr.isatty() if args.progress is None else args.progress
+    try:
+        report = fit_many(
+            datas,
+            quality=args.quality,
+            seed=args.seed,
+            n_jobs=args.jobs,
+            out=args.out,
+            client=client,
+            progress=progress,
+            **kw,
+        )
+    finally:
+        if client is not None:
+            client.close()
+        if cluster is not None:
+            cluster.close()
+    docs = [
+        read_result(args.out, r["name"]) if r["status"] != "error" else {"input": p, "error": r["error"]}
+        for p, r in zip(args.csv, report)
+    ]
+    if args.json:
+        sys.stdout.write(json.dumps(docs, indent=2, ensure_ascii=False, allow_nan=False) + "\n")
+    else:
+        sys.stdout.write(_folder_table(args.csv, report, docs))
+    failed = [(p, r) for p, r in zip(args.csv, report) if r["status"] == "error"]
+    for p, r in failed:
+        print(f"bayescap: error: {p}: {r['error']}", file=sys.stderr)
+    return 1 if failed else 0
+
+
+def _folder_table(paths, report, docs) -> str:
+    """One line per CSV from the written results: its folder, method, convergence, K and capacity."""
+
+    def q(s):
+        lo, hi = s["ci95"]
+        return f"{s['median']:.4g} [{lo:.4g}, {hi:.4g}]"
+
+    n_res = sum(r["status"] == "resumed" for r in report)
+    lines = [
+        f"batch summary ({len(paths)} CSVs, {n_res} found done and not refitted): median [95 % interval]",
+        "csv | result | method | converged | conversion_gain_e_per_dn | capacity_bits",
+    ]
+    for p, r, d in zip(paths, report, docs):
+        if r["status"] == "error":
+            lines.append(f"{p} | error | - | - | - | -")
+            continue
+        dg = d.get("diagnostics", {})
+        cap = d.get("derived", {}).get("capacity_bits")
+        lines.append(
+            f"{p} | {r['name']}/result.json | {dg.get('method', 'mcmc')} | {'yes' if dg.get('converged') else 'NO'} | "
+            f"{q(d['parameters']['conversion_gain_e_per_dn'])} | {q(cap) if cap else 'n/a'}"
+        )
+    return "\n".join(lines) + "\n"
 
 
 def _batch_table(paths, results) -> str:

@@ -1,5 +1,6 @@
-"""Many sensors at once with the fast path: :func:`fit_many`, and the Gpixel
-GSPRINT4521 per-ROI results turned into simulated photon-transfer data (:func:`gpixel_sensors`).
+"""Many sensors at once with the fast path, in one process or a local process pool, every result
+kept in memory: :func:`fit_in_memory` (behind :func:`bayescap.batch.fit_many`), and the tasks the
+chunked runners share (:func:`_fit_groups`, :func:`_finish`).
 
 **Vectorised across fits.** A fast-path fit makes ~200 ``log_prob`` calls, most on 1–50 points,
 where a call costs ~0.6 ms whatever its size (17 points 0.7–0.8 ms, 1 000 points 6–8 ms).
@@ -24,19 +25,13 @@ the processes' shares (on the 1 000-ROI batch, 9 of one process's 501 sensors an
 
 from __future__ import annotations
 
-import csv
-from pathlib import Path
-
 import numpy as np
 
 from bayescap._blas import one_blas_thread
 from bayescap.inference import FastSettings
 from bayescap.inference.lockstep import _fast_paths, stack_groups
 
-__all__ = ["fit_many", "gpixel_truths", "gpixel_sensors", "GPIXEL_CSV"]
-
-
-GPIXEL_CSV = Path(__file__).resolve().parents[1] / "data" / "gpixel_gsprint4521" / "roi_results.csv"
+__all__ = ["fit_in_memory", "sensor_seeds"]
 
 
 def sensor_seeds(seed, n):
@@ -150,7 +145,7 @@ def _fit_groups(args):
 
 
 @one_blas_thread
-def fit_many(
+def fit_in_memory(
     datas,
     *,
     quality: str = "fast",
@@ -161,8 +156,9 @@ def fit_many(
     summary_only: bool = False,
     stack_size: int = 64,
 ):
-    """Fit many sensors with the Laplace–IS fast path (MCMC fallback per sensor if ``fallback``),
-    vectorised across sensors (module docstring).
+    """:func:`bayescap.batch.fit_many` without an output folder: every result kept in memory and
+    returned at the end. Fit many sensors with the Laplace–IS fast path (MCMC fallback per sensor if
+    ``fallback``), vectorised across sensors (module docstring).
 
     Parameters
     ----------
@@ -244,57 +240,3 @@ def fit_many(
     for i, r in done.items():
         out[i] = r
     return out
-
-
-def gpixel_truths(path=GPIXEL_CSV):
-    """Sensor truths from the Gpixel GSPRINT4521 per-ROI results (one per ROI and gain).
-
-    Truth = the measured conversion gain S (e⁻/DN), temporal dark noise (as read noise, e⁻) and
-    full well (e⁻) of each ROI; 12-bit ADC ("12NOR" mode); QE 0.6, no dark current, PRNU 0.5 %
-    (not in the table: assumed). Returns a list of ((roi_index, gain_index), SensorTruth)."""
-    from bayescap.simulate import SensorTruth
-
-    out = []
-    with open(path, newline="") as fh:
-        for row in csv.DictReader(fh):
-            t = SensorTruth(
-                conversion_gain_e_per_dn=float(row["S_e_per_DN"]),
-                read_noise_e=float(row["temporal_dark_noise_e"]),
-                full_well_e=float(row["full_well_e"]),
-                quantum_efficiency=0.6,
-                prnu_frac=0.005,
-                full_well_spread_frac=0.005,
-                adc_bits=12,
-            )
-            out.append(((int(row["roi_index"]), int(row["gain_index"])), t))
-    return out
-
-
-def gpixel_sensors(*, n_max=None, seed=0, shape=(32, 32), n_levels=30):
-    """Simulated photon-transfer data for the Gpixel ROIs×gains: (list of PTCData, list of truths).
-
-    Small frames (``shape``) keep the simulation of 1 024 sensors near a minute; every sensor
-    gets its own seed (children of ``SeedSequence(seed)``)."""
-    from bayescap.simulate import simulate_ptc
-
-    tr = gpixel_truths()
-    if n_max is not None:
-        tr = tr[:n_max]
-    kids = np.random.SeedSequence(seed).spawn(len(tr))
-    datas = []
-    for ((roi, g), t), k in zip(tr, kids):
-        datas.append(
-            simulate_ptc(
-                t,
-                n_levels=n_levels,
-                shape=shape,
-                seed=k,
-                metadata={
-                    "sensor": f"Gpixel GSPRINT4521 ROI {roi} gain {g} (simulated)",
-                    "pixel_pitch_um": 4.5,
-                    "width_px": 5120,
-                    "height_px": 4096,
-                },
-            )
-        )
-    return datas, [t for _, t in tr]

@@ -1,0 +1,68 @@
+"""The batch's tasks on a ``dask.distributed`` cluster (``fit_many(..., client=...)``,
+``bayescap fit *.csv --out DIR --scheduler ADDRESS | --dask N``). Dask is an optional extra
+(``pip install 'bayescap[dask]'``), imported only here and only when a cluster is asked for.
+
+Every chunk is one task (:func:`bayescap.batch.runner.run_chunk`), submitted with its sensors'
+models as arguments (a few kB a sensor), its result a list of plain dicts gathered back to the
+client, which writes them. ``pure=False``: a task is never merged with another of the same
+arguments. A worker that dies takes its running tasks with it; the scheduler runs them again on
+another worker (up to ``distributed.scheduler.allowed-failures`` times, 3 by default), and the
+client sees each task finish once.
+"""
+
+from __future__ import annotations
+
+from bayescap.exceptions import InputError
+
+__all__ = ["DASK_HINT", "DaskTasks", "import_distributed", "start_client"]
+
+DASK_HINT = "a Dask cluster needs dask.distributed: pip install 'bayescap[dask]'"
+
+
+def import_distributed():
+    """``distributed``, or :class:`~bayescap.exceptions.InputError` with the install hint."""
+    try:
+        import distributed
+    except ImportError:
+        raise InputError(DASK_HINT) from None
+    return distributed
+
+
+class DaskTasks:
+    """The runner's task interface (``submit``, ``completed``, ``close``) on a Dask client."""
+
+    def __init__(self, client):
+        distributed = import_distributed()
+        self.client = client
+        self.done = distributed.as_completed()
+
+    def submit(self, fn, arg):
+        fut = self.client.submit(fn, arg, pure=False)
+        self.done.add(fut)
+        return fut
+
+    def completed(self):
+        for fut in self.done:  # futures added while iterating are waited for too
+            yield fut.result()
+
+    def close(self, cancel=False):
+        if cancel:
+            futs = list(self.done.futures)
+            self.done.clear()
+            if futs:
+                self.client.cancel(futs)
+
+
+def start_client(scheduler=None, n_workers=None):
+    """A client of the scheduler at ``scheduler``, or of a new ``LocalCluster`` of ``n_workers``
+    single-threaded worker processes; returns ``(client, cluster or None)``."""
+    distributed = import_distributed()
+    if scheduler is not None:
+        try:
+            return distributed.Client(scheduler, timeout="20s"), None
+        except (OSError, TimeoutError, ValueError) as e:
+            raise InputError(f"--scheduler {scheduler}: cannot connect ({type(e).__name__}: {e})") from None
+    cluster = distributed.LocalCluster(
+        n_workers=int(n_workers), threads_per_worker=1, processes=True, dashboard_address=":0"
+    )
+    return distributed.Client(cluster), cluster

@@ -1,0 +1,230 @@
+"""A batch written to an output folder as it runs (``fit_many(..., out=DIR)``): chunks of sensors
+as tasks, on this process, a local process pool or a Dask cluster, each chunk's results written
+(:mod:`bayescap.batch.store`) as it finishes, and a rerun resuming.
+
+**Tasks.** The sensors still to fit are sorted into groups that stack
+(:func:`~bayescap.inference.lockstep.stack_groups`) and each group cut into chunks of at most
+``chunk_size`` sensors: a task fits one chunk's fast paths in lockstep and returns, per sensor, its
+fit JSON (``FitResult.to_dict()``: plain data, a few kB), its error, or, where the fast path
+rejected its draws and ``fallback``, the fast path's diagnostics; each such sensor's MCMC fallback is
+then a task of its own, so that the fallbacks, which take far longer than a fast path and fall
+unevenly between chunks, go to whichever worker is free. The process that runs the batch writes
+every ``result.json`` when its task returns: workers need no shared file system.
+
+**Same numbers.** A sensor's result is its own ``bayescap.fit(data, seed=s, quality="fast")``
+(lockstep evaluation is exact, :mod:`bayescap.batch.engine`), with ``s`` set by its position in the
+batch: neither the runner, the number of workers, the chunk size nor the order tasks finish in
+changes it. A task that is lost with its worker is run again by Dask (or, in the local pool, the
+batch stops with the error; rerun it to resume).
+"""
+
+from __future__ import annotations
+
+import math
+from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, ThreadPoolExecutor, wait
+
+from bayescap._blas import one_blas_thread
+from bayescap.batch import store
+from bayescap.batch.engine import _Deferred, _fallback_fit, _fit_groups, sensor_seeds
+from bayescap.inference import FastSettings
+
+__all__ = ["fit_to_folder", "run_chunk", "run_fallback"]
+
+
+def _error(e) -> dict:
+    return {"error": f"{type(e).__name__}: {e}"}
+
+
+@one_blas_thread
+def run_chunk(task):
+    """One task: ``(items, quality, settings, fallback, stack_size)`` with ``items`` a list of
+    ``(index, model, seed)``, every model of one stack group. Returns ``[(index, kind, value)]``:
+    ``("doc", fit JSON)``, ``("error", message)`` or ``("deferred", fast-path diagnostics)``."""
+    items, quality, settings, fallback, stack_size = task
+    out = []
+    if quality != "fast":
+        from bayescap.api import fit
+
+        for i, m, s in items:
+            try:
+                out.append((i, "doc", fit(m.data, seed=s, quality=quality).to_dict()))
+            except Exception as e:  # one bad sensor must not stop a batch
+                out.append((i, "error", _error(e)["error"]))
+        return out
+    models = [m for _, m, _ in items]
+    seeds = [s for _, _, s in items]
+    done = _fit_groups((models, seeds, [list(range(len(items)))], settings, fallback, False, stack_size, True))
+    for k, (i, _, _) in enumerate(items):
+        out.append((i, *_outcome(done[k])))
+    return out
+
+
+def _outcome(r):
+    if isinstance(r, _Deferred):
+        return "deferred", r.diag
+    if isinstance(r, BaseException):
+        return "error", _error(r)["error"]
+    try:
+        return "doc", r.to_dict()
+    except Exception as e:  # a result that cannot be reported is this sensor's error
+        return "error", _error(e)["error"]
+
+
+@one_blas_thread
+def run_fallback(task):
+    """One sensor's MCMC fallback: ``(index, model, seed, fast-path diagnostics, settings)``."""
+    i, m, seed, diag, settings = task
+    return [(i, *_outcome(_fallback_fit((m, seed, diag, settings, False))))]
+
+
+class _Inline:
+    """Tasks run in this process, one at a time, when asked for (``n_jobs=1``, no client)."""
+
+    def __init__(self):
+        self.queue = []
+
+    def submit(self, fn, arg):
+        self.queue.append((fn, arg))
+        return len(self.queue) - 1
+
+    def completed(self):
+        while self.queue:
+            fn, arg = self.queue.pop(0)
+            yield fn(arg)
+
+    def close(self, cancel=False):
+        self.queue.clear()
+
+
+class _Pool:
+    """Tasks on a local process pool (``n_jobs > 1``)."""
+
+    def __init__(self, n_jobs):
+        self.ex = ProcessPoolExecutor(max_workers=n_jobs)
+        self.pending = set()
+
+    def submit(self, fn, arg):
+        f = self.ex.submit(fn, arg)
+        self.pending.add(f)
+        return f
+
+    def completed(self):
+        while self.pending:
+            done, self.pending = wait(self.pending, return_when=FIRST_COMPLETED)
+            for f in done:
+                yield f.result()
+
+    def close(self, cancel=False):
+        self.ex.shutdown(wait=True, cancel_futures=cancel)
+
+
+def _chunks(groups, chunk_size, n_workers):
+    """Each group cut into near-equal chunks of at most ``chunk_size`` sensors; with fewer than four
+    chunks per worker, smaller ones (down to 8 sensors), so that the last tasks do not leave workers idle."""
+    n = sum(len(g) for g in groups)
+    size = max(1, int(chunk_size))
+    size = min(size, max(8, math.ceil(n / (4 * max(1, n_workers)))))
+    out = []
+    for g in groups:
+        k = math.ceil(len(g) / size)
+        out.extend([g[round(j * len(g) / k) : round((j + 1) * len(g) / k)] for j in range(k)])
+    return out
+
+
+def fit_to_folder(
+    datas,
+    *,
+    out,
+    quality: str = "fast",
+    seed,
+    n_jobs: int = 1,
+    fallback: bool = True,
+    settings: FastSettings = FastSettings(),
+    stack_size: int = 64,
+    chunk_size: int = 128,
+    client=None,
+    progress: bool = False,
+    on_chunk=None,
+):
+    """:func:`bayescap.batch.fit_many` with ``out``: see there and the module docstring. Returns one
+    dict per input, in order: ``{"name", "status"}`` with status ``"fitted"`` (this run),
+    ``"resumed"`` (found done in ``out``) or ``"error"`` (with ``"error"``: the message)."""
+    from bayescap.api import load
+    from bayescap.inference.lockstep import stack_groups
+    from bayescap.io.ptc_csv import PTCData
+    from bayescap.model import PTCModel, select_terms
+
+    datas = list(datas)
+    seeds = sensor_seeds(seed, len(datas))
+    cfg = store.config_digest(quality, fallback, settings)
+    loaded, report = [], [None] * len(datas)
+    for i, d in enumerate(datas):
+        try:
+            loaded.append(d if isinstance(d, PTCData) else load(d))
+        except Exception as e:  # one bad sensor must not stop a batch
+            loaded.append(None)
+            report[i] = _error(e)
+    names = store.sensor_names([d.source if d is not None else datas[i] for i, d in enumerate(loaded)])
+    entries, models = [None] * len(datas), [None] * len(datas)
+    for i, d in enumerate(loaded):
+        if d is None:
+            continue
+        entries[i] = store.batch_entry(seeds[i], store.data_digest(d), cfg)
+        if store.is_done(out, names[i], entries[i]):
+            report[i] = {"status": "resumed"}
+            continue
+        try:
+            models[i] = PTCModel(d, terms=select_terms(d))
+        except Exception as e:
+            report[i] = _error(e)
+    for i, r in enumerate(report):
+        if r is not None and "error" in r:
+            report[i] = {"status": "error", **r}
+    todo = [i for i, r in enumerate(report) if r is None]
+    if client is not None:
+        from bayescap.batch.cluster import DaskTasks
+
+        tasks, n_workers = DaskTasks(client), max(1, len(client.scheduler_info().get("workers", {})))
+    elif n_jobs > 1 and len(todo) > 1:
+        tasks, n_workers = _Pool(n_jobs), n_jobs
+    else:
+        tasks, n_workers = _Inline(), 1
+    groups = [ix for g in stack_groups(models) for ix in g]  # resumed and refused sensors have no model
+    bar = None
+    if progress and todo:
+        from tqdm.auto import tqdm
+
+        bar = tqdm(total=len(todo), unit="sensor", desc="fit_many")
+    stopped = True
+    writers = ThreadPoolExecutor(max_workers=8)
+    try:
+        for chunk in _chunks(groups, chunk_size, n_workers):
+            items = [(i, models[i], seeds[i]) for i in chunk]
+            tasks.submit(run_chunk, (items, quality, settings, fallback, stack_size))
+        for part in tasks.completed():
+            n_done, docs = 0, []
+            for i, kind, value in part:
+                if kind == "deferred":
+                    tasks.submit(run_fallback, (i, models[i], seeds[i], value, settings))
+                    continue
+                if kind == "doc":
+                    docs.append((out, names[i], value, entries[i]))
+                    report[i] = {"status": "fitted"}
+                else:
+                    report[i] = {"status": "error", "error": value}
+                models[i] = None  # done: its memory can go
+                n_done += 1
+            # the chunk's files on a few threads: each is fsync'd, which waits on the disk, not the CPU
+            for _ in writers.map(lambda a: store.write_result(*a), docs):
+                pass
+            if bar is not None:
+                bar.update(n_done)
+            if on_chunk is not None:
+                on_chunk([i for i, kind, _ in part if kind != "deferred"])
+        stopped = False
+    finally:
+        tasks.close(cancel=stopped)
+        writers.shutdown()
+        if bar is not None:
+            bar.close()
+    return [dict(name=n, **r) for n, r in zip(names, report)]
