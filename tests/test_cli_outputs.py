@@ -1,6 +1,8 @@
 """Output paths and faults of the commands: outputs never over an input, checked before any
 fitting, written as a whole set or not at all; names with ``$`` in plots; exit statuses."""
 
+import json
+from pathlib import Path
 
 import pytest
 
@@ -30,3 +32,127 @@ def test_dollar_in_file_name_does_not_reach_math_text(small_csv, tmp_path, capsy
     rep = tmp_path / "r.html"
     assert main(["report", str(small_csv), "-o", str(rep), "--seed", "1"]) == 0
     assert "cam_$5_vs_$10" in rep.read_text()
+
+
+EDGE = Path(__file__).parent / "data" / "slanted_edge" / "sfrmat3_v_edge_mono.tif"
+
+
+def _no_fit(monkeypatch):
+    """Make any fit an error: the checks below must come before fitting."""
+    import bayescap.api
+    import bayescap.studies.compare
+
+    def boom(*a, **k):
+        raise AssertionError("fitted before checking the output")
+
+    monkeypatch.setattr(bayescap.api, "fit", boom)
+    monkeypatch.setattr(bayescap.studies.compare, "compare", boom)
+    monkeypatch.setattr("bayescap.cli.report.compare", boom)
+    monkeypatch.setattr("bayescap.cli.compare.compare", boom)
+
+
+def _one_line_exit(code, argv, capsys, *fragments):
+    assert main(argv) == code
+    err = capsys.readouterr().err.strip()
+    assert err.count("\n") == 0 and "Traceback" not in err, err
+    for f in fragments:
+        assert f in err, (f, err)
+
+
+def test_an_output_that_is_an_input_is_refused_before_any_work(small_csv, tmp_path, capsys, monkeypatch):
+    _no_fit(monkeypatch)
+    csv_copy = tmp_path / "in.csv"
+    csv_copy.write_bytes(small_csv.read_bytes())
+    before = csv_copy.read_bytes()
+    edge = tmp_path / "e.tif"
+    edge.write_bytes(EDGE.read_bytes())
+    for argv in (
+        ["mtf", str(edge), "--out", str(edge)],
+        ["report", str(csv_copy), "-o", str(csv_copy)],
+        ["report", str(csv_copy), "-o", str(tmp_path / "." / "in.csv")],
+        ["fit", str(csv_copy), "--out", str(csv_copy)],
+        ["fit", str(csv_copy), "--out", str(tmp_path)],  # the directory holding the input is replaced
+        ["compare", str(csv_copy), "--out", str(csv_copy)],
+    ):
+        _one_line_exit(2, argv, capsys, "in" if "mtf" not in argv else "e.tif")
+    assert csv_copy.read_bytes() == before and edge.read_bytes() == EDGE.read_bytes()
+
+
+def test_an_output_place_that_cannot_be_written_is_refused_before_fitting(small_csv, tmp_path, capsys, monkeypatch):
+    _no_fit(monkeypatch)
+    a_file = tmp_path / "f.txt"
+    a_file.write_text("x")
+    _one_line_exit(2, ["fit", str(small_csv), "--out", str(a_file)], capsys, "is a file")
+    _one_line_exit(2, ["fit", str(small_csv), "--out", str(a_file / "sub")], capsys, "not a directory")
+    _one_line_exit(2, ["report", str(small_csv), "-o", str(tmp_path)], capsys, "is a directory")
+    other = tmp_path / "other"
+    other.mkdir()
+    (other / "notes.md").write_text("mine")
+    _one_line_exit(2, ["fit", str(small_csv), "--out", str(other)], capsys, "notes.md")
+    assert (other / "notes.md").read_text() == "mine"
+    import os
+
+    if os.geteuid() != 0:
+        ro = tmp_path / "ro"
+        ro.mkdir()
+        ro.chmod(0o500)
+        try:
+            _one_line_exit(2, ["fit", str(small_csv), "--out", str(ro / "out")], capsys, "not writable")
+        finally:
+            ro.chmod(0o700)
+
+
+def _leftovers(folder):
+    return sorted(p.name for p in Path(folder).iterdir() if p.name.startswith("."))
+
+
+def test_disk_full_while_writing_the_set_prints_the_result_and_leaves_nothing(small_csv, tmp_path, capsys, monkeypatch):
+    import errno
+
+    import bayescap.report.text as text
+
+    def full(*a, **k):
+        raise OSError(errno.ENOSPC, "No space left on device")
+
+    monkeypatch.setattr(text, "plot_corner", full)
+    out = tmp_path / "out"
+    assert main(["fit", str(small_csv), "--quality", "fast", "--seed", "1", "--json", "--out", str(out)]) == 1
+    cap = capsys.readouterr()
+    assert json.loads(cap.out)["diagnostics"]["seed"] == 1  # the result is not lost
+    err = cap.err.strip()
+    assert err.count("\n") == 0 and "No space left on device" in err and "Traceback" not in err
+    assert not out.exists() and _leftovers(tmp_path) == []
+    # a NetCDF file that cannot fit is refused before h5py starts (h5py crashes on ENOSPC)
+    monkeypatch.undo()
+    import shutil
+    from collections import namedtuple
+
+    usage = namedtuple("usage", "total used free")
+    monkeypatch.setattr(shutil, "disk_usage", lambda p: usage(10**9, 10**9, 1000))
+    assert main(["fit", str(small_csv), "--quality", "fast", "--seed", "1", "--out", str(out)]) == 1
+    assert "No space left" in capsys.readouterr().err
+    assert not out.exists() and _leftovers(tmp_path) == []
+
+
+def test_the_out_set_is_replaced_as_a_whole(small_csv, tmp_path, capsys, monkeypatch):
+    """A second run into the same folder replaces the first run's set as a whole; a failed run
+    leaves the previous set as it was and no temporary files."""
+    out = tmp_path / "out"
+    assert main(["fit", str(small_csv), "--quality", "fast", "--seed", "1", "--out", str(out)]) == 0
+    first = (out / "result.json").read_text()
+    (out / "corner.png").unlink()  # a set that lost a file: replaced whole, not topped up
+    assert main(["fit", str(small_csv), "--quality", "fast", "--seed", "2", "--out", str(out)]) == 0
+    second = (out / "result.json").read_text()
+    assert second != first and (out / "corner.png").exists()
+    assert sorted(p.name for p in out.iterdir()) == sorted(
+        ["result.json", "report.txt", "posterior.nc", "ptc.png", "corner.png"]
+    )
+    import bayescap.report.text as text
+
+    def killed(*a, **k):
+        raise OSError(5, "Input/output error")
+
+    monkeypatch.setattr(text, "plot_ptc", killed)
+    assert main(["fit", str(small_csv), "--quality", "fast", "--seed", "3", "--out", str(out)]) == 1
+    assert (out / "result.json").read_text() == second and _leftovers(tmp_path) == []
+    capsys.readouterr()

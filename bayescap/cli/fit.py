@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import sys
 
-from bayescap.cli.common import _OVERRIDE_KEYS, fast_settings_from_args
+from bayescap.cli.common import _OVERRIDE_KEYS, EXIT_FAILURE, fast_settings_from_args
 from bayescap.exceptions import InputError
 
 
@@ -15,6 +15,14 @@ def _cmd_fit(args) -> int:
 
     overrides = {k: getattr(args, k) for k in _OVERRIDE_KEYS if getattr(args, k, None) is not None}
     fast_settings = fast_settings_from_args(args)
+    if args.out:  # before any fitting: an output over an input, or one that cannot be written
+        from bayescap.io.atomic import output_problem
+        from bayescap.report.text import OUTPUT_NAMES
+
+        inputs = list(args.csv) + ([args.mtf] if args.mtf else [])
+        problem = output_problem(args.out, inputs, directory=True, names=OUTPUT_NAMES if len(args.csv) == 1 else None)
+        if problem:
+            raise InputError(problem)
     if len(args.csv) > 1:
         return _cmd_fit_many(args, overrides, fast_settings)
     try:
@@ -59,10 +67,22 @@ def _cmd_fit(args) -> int:
             )
     except PTCInputError as e:
         raise InputError(str(e)) from None
-    if args.out:
-        write_outputs(result, args.out)
+    # the result first: a write error below does not lose it
     sys.stdout.write(to_json(result) if args.json else format_text(result))
+    sys.stdout.flush()
+    if args.out:
+        try:
+            write_outputs(result, args.out)
+        except OSError as e:
+            print(f"bayescap: error: {write_error(args.out, e)}", file=sys.stderr)
+            return EXIT_FAILURE
     return 0
+
+
+def write_error(out, err: OSError) -> str:
+    """A write error in one line: the output, what failed; nothing was left behind."""
+    what = err.strerror or str(err)
+    return f"cannot write {out} ({what}); nothing was written there"
 
 
 def _failure(path, err) -> str:
@@ -113,7 +133,10 @@ def _cmd_fit_many(args, overrides, fast_settings=None) -> int:
                 k += 1
             name = stem if k == 1 else f"{stem}_{k}"
             used.add(name)
-            write_outputs(r, Path(args.out) / name)
+            try:
+                write_outputs(r, Path(args.out) / name)
+            except OSError as e:
+                failed.append((path, InputError(write_error(Path(args.out) / name, e))))
     if args.json:
         import json
 

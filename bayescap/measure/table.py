@@ -21,6 +21,7 @@ __all__ = [
     "read_image",
     "read_mtf_table",
     "write_mtf_table",
+    "mtf_table_text",
 ]
 
 
@@ -150,22 +151,31 @@ def read_mtf_table(path: str | Path, channel: str | None = None) -> SFRResult:
     )
 
 
+def mtf_table_text(result: SFRResult) -> str:
+    """The CSV text :func:`write_mtf_table` writes."""
+    import io
+
+    lo, hi = result.mtf_ci(0.95)
+    has_ci = result.mtf_samples.shape[0] > 0
+    fh = io.StringIO()
+    w = csv.writer(fh, lineterminator="\r\n")
+    w.writerow([_FREQ_COL, "mtf"] + (list(_CI_COLS) if has_ci else []))
+    for i, f in enumerate(result.freq_cy_per_px):
+        row = [f"{f:.6f}", f"{result.mtf[i]:.6f}"]
+        if has_ci:
+            row += [f"{lo[i]:.6f}", f"{hi[i]:.6f}"]
+        w.writerow(row)
+    return fh.getvalue()
+
+
 def write_mtf_table(result: SFRResult, path: str | Path) -> None:
     """Write ``freq_cy_per_px,mtf,mtf_ci95_low,mtf_ci95_high`` (95 % percentile interval
     columns only when bootstrap samples are present).
 
     The file can be read back with :func:`read_mtf_table`.
     """
-    lo, hi = result.mtf_ci(0.95)
-    has_ci = result.mtf_samples.shape[0] > 0
     with open(path, "w", newline="", encoding="utf-8") as fh:
-        w = csv.writer(fh)
-        w.writerow([_FREQ_COL, "mtf"] + (list(_CI_COLS) if has_ci else []))
-        for i, f in enumerate(result.freq_cy_per_px):
-            row = [f"{f:.6f}", f"{result.mtf[i]:.6f}"]
-            if has_ci:
-                row += [f"{lo[i]:.6f}", f"{hi[i]:.6f}"]
-            w.writerow(row)
+        fh.write(mtf_table_text(result))
 
 
 def read_image(path: str | Path) -> np.ndarray:
