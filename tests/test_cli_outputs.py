@@ -156,3 +156,60 @@ def test_the_out_set_is_replaced_as_a_whole(small_csv, tmp_path, capsys, monkeyp
     assert main(["fit", str(small_csv), "--quality", "fast", "--seed", "3", "--out", str(out)]) == 1
     assert (out / "result.json").read_text() == second and _leftovers(tmp_path) == []
     capsys.readouterr()
+
+
+def _bomb_tiff(path, shape=(40000, 40000)):
+    """A small TIFF that declares ``shape`` pixels (one compressed strip of zeros)."""
+    import numpy as np
+    import tifffile
+
+    with tifffile.TiffWriter(path) as tw:
+        tw.write(np.zeros((16, 16), np.uint16), compression="zlib")
+    # rewrite ImageWidth/ImageLength (SHORT or LONG) in place: the declared size, not the data
+    b = bytearray(path.read_bytes())
+    with tifffile.TiffFile(path) as tif:
+        for tag in (256, 257):
+            t = tif.pages[0].tags[tag]
+            fmt = {3: "<H", 4: "<I"}[t.dtype]
+            import struct
+
+            struct.pack_into(fmt, b, t.valueoffset, shape[1] if tag == 256 else shape[0])
+    path.write_bytes(bytes(b))
+
+
+def _bomb_png(path, width, height):
+    """A small PNG whose header declares ``width`` x ``height`` pixels."""
+    import struct
+    import zlib
+
+    from PIL import Image
+
+    Image.new("L", (16, 16)).save(path)
+    b = bytearray(path.read_bytes())
+    struct.pack_into(">II", b, 16, width, height)  # IHDR data start at byte 16
+    struct.pack_into(">I", b, 29, zlib.crc32(bytes(b[12:29])))
+    path.write_bytes(bytes(b))
+    return path
+
+
+def test_images_declaring_too_many_pixels_are_refused_before_decoding(tmp_path, capsys, monkeypatch):
+    from bayescap.exceptions import IngestError, MTFInputError
+    from bayescap.io.frames import read_frame
+    from bayescap.measure import read_image
+
+    tif = tmp_path / "bomb.tif"
+    _bomb_tiff(tif)
+    with pytest.raises(IngestError, match="40000 x 40000"):
+        read_frame(tif)
+    png = _bomb_png(tmp_path / "bomb.png", 40000, 40000)  # past Pillow's own limit
+    with pytest.raises(MTFInputError, match="exceeds limit"):
+        read_image(png)
+    _one_line_exit(2, ["mtf", str(png)], capsys, "bomb.png")
+    png = _bomb_png(tmp_path / "big.png", 12000, 12000)
+    monkeypatch.setenv("BAYESCAP_MAX_IMAGE_PIXELS", str(10**8))
+    _one_line_exit(2, ["mtf", str(png)], capsys, "12000 x 12000", "BAYESCAP_MAX_IMAGE_PIXELS")
+    with pytest.raises(IngestError, match="12000 x 12000"):
+        read_frame(png)
+    monkeypatch.setenv("BAYESCAP_MAX_IMAGE_PIXELS", "100")
+    with pytest.raises(MTFInputError, match="limit of 100"):
+        read_image(EDGE)

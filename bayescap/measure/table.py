@@ -182,31 +182,46 @@ def read_image(path: str | Path) -> np.ndarray:
     """Read an edge image (TIFF, PNG, JPEG, ``.npy``) as a float array, (H, W) or (H, W, 3).
 
     Pillow reads every common container (LZW-compressed TIFF included); 16-bit images keep
-    their values. The data must be linear (no gamma); a camera RAW file should be demosaiced
+    their values. An image declaring more than :data:`bayescap._limits.MAX_IMAGE_PIXELS` values
+    is refused before it is decoded. The data must be linear (no gamma); a camera RAW file should be demosaiced
     linearly first or measured per CFA plane. Raises :class:`MTFInputError` naming the file.
     """
     from PIL import Image, UnidentifiedImageError
 
+    from bayescap._limits import image_pixels_problem
+
     p = Path(path)
     if p.suffix.lower() == ".npy":
         try:
-            arr = np.load(p, allow_pickle=False)
+            arr = np.load(p, allow_pickle=False, mmap_mode="r")  # the header first: its shape
         except (OSError, ValueError) as e:
             raise MTFInputError(f"{p}: cannot read the array ({e})") from None
+        problem = image_pixels_problem(arr.shape)
+        if problem:
+            raise MTFInputError(f"{p}: {problem}")
+        arr = np.array(arr)
     else:
         try:
             # Pillow warns of what it finds broken ("Corrupt EXIF data") before failing: the
             # error below says it on its one line
             with warnings.catch_warnings():
                 warnings.simplefilter("ignore", UserWarning)
+                warnings.simplefilter("ignore", Image.DecompressionBombWarning)
                 with Image.open(p) as im:
+                    problem = image_pixels_problem((im.size[1], im.size[0]) + ((3,) if im.mode != "L" else ()))
+                    if problem:
+                        raise MTFInputError(f"{p}: {problem}")
                     im.load()
                     if im.mode in ("P", "PA", "LA", "RGBA"):
                         im = im.convert("RGB")
                     arr = np.asarray(im)
         except FileNotFoundError:
             raise MTFInputError(f"{p}: file not found") from None
+        except Image.DecompressionBombError as e:  # Pillow's own limit, checked when it opens
+            raise MTFInputError(f"{p}: {e}") from None
         except (UnidentifiedImageError, OSError, ValueError) as e:
+            if isinstance(e, MTFInputError):
+                raise
             raise MTFInputError(f"{p}: cannot read the image ({e})") from None
     arr = np.asarray(arr, dtype=float)
     if arr.ndim == 3 and arr.shape[2] == 1:
