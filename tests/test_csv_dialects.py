@@ -58,3 +58,43 @@ def test_a_real_error_in_a_semicolon_table_still_names_row_and_column(basler_csv
     p.write_text("\n".join(meta + rows) + "\n")
     with pytest.raises(PTCInputError, match="row 3"):
         read_ptc_csv(p)
+
+
+@pytest.mark.parametrize(
+    "kw, fragment",
+    [
+        ({"quality": None}, "quality must be one of"),
+        ({"quality": "best"}, "quality must be one of"),
+        ({"seed": -1}, "seed must be a whole number"),
+        ({"seed": 1.5}, "seed must be a whole number"),
+        ({"seed": True}, "seed must be a whole number"),
+        ({"prior": {"read_log_bounds": (20, 1)}}, "lo < hi"),
+        ({"prior": {"read_log_bounds": (0, 1)}}, "> 0"),
+        ({"prior": {"qe_bounds": (0.5, 2)}}, "(0, 1]"),
+        ({"prior": {"read_scale_e": -3}}, "> 0"),
+        ({"prior": {"no_such": 1}}, "unknown prior key"),
+        ({"prior": [1, 2]}, "must be a dict"),
+        ({"fallback_quality": "x"}, "fallback_quality"),
+    ],
+)
+def test_api_fit_refuses_bad_arguments_with_input_errors(basler_csv, kw, fragment):
+    import bayescap
+    from bayescap.exceptions import InputError
+
+    data = bayescap.load(basler_csv)
+    with pytest.raises(InputError, match=fragment.replace("(", r"\(").replace(")", r"\)").replace("]", r"\]")):
+        bayescap.fit(data, **kw)
+
+
+def test_metadata_overrides_are_typed(basler_csv):
+    import bayescap
+    from bayescap.exceptions import InputError
+
+    for kw in ({"adc_bits": 12.5}, {"adc_bits": "12"}, {"pixel_pitch_um": float("nan")}, {"width_px": True}):
+        with pytest.raises(InputError, match="metadata override"):
+            bayescap.load(basler_csv, **kw)
+        with pytest.raises(InputError, match="metadata override"):
+            bayescap.load(basler_csv).with_metadata(**kw)
+    assert bayescap.load(basler_csv, adc_bits=12.0).metadata["adc_bits"] == 12
+    with pytest.raises(InputError, match="between 1 and 32"):
+        bayescap.load(basler_csv).with_metadata(adc_bits=40)

@@ -123,7 +123,8 @@ class PTCData:
 
     def with_metadata(self, **overrides) -> "PTCData":
         md = dict(self.metadata)
-        md.update({k: v for k, v in overrides.items() if v is not None})
+        md.update(_typed_overrides(overrides, self.source))
+        _check_metadata(md, self.source)
         return _replace(self, metadata=md)
 
     def select(self, mask) -> "PTCData":
@@ -205,6 +206,28 @@ def _parse_metadata(lines, path, delimiter=","):
     return md
 
 
+def _typed_overrides(overrides: dict, path) -> dict:
+    """Metadata overrides (keyword arguments, command-line options) with the types of
+    :data:`METADATA_TYPES`: a whole number for an int key (``adc_bits=12.5`` is refused), a finite
+    number for a float key, text for a str key; None values are left out."""
+    out = {}
+    for key, v in overrides.items():
+        if v is None:
+            continue
+        typ = METADATA_TYPES.get(key)
+        if typ in (int, float):
+            ok = isinstance(v, (int, float, np.integer, np.floating)) and not isinstance(v, bool)
+            ok = ok and math.isfinite(float(v)) and (typ is float or float(v) == int(v))
+            if not ok:
+                kind = "a whole number" if typ is int else "a finite number"
+                raise PTCInputError(f"metadata override '{key}' must be {kind}, got {v!r}", path=path)
+            v = typ(v)
+        elif typ is str:
+            v = _clean(str(v))
+        out[key] = v
+    return out
+
+
 def _check_metadata(md, path):
     positive = ("pixel_pitch_um", "width_px", "height_px", "adc_bits", "f_number", "wavelength_nm")
     for k in positive:
@@ -260,7 +283,7 @@ def read_ptc_csv(path, *, overrides: dict | None = None) -> PTCData:
     delimiter = delimiter or _sniff_delimiter(lines[body_start])
     md = _parse_metadata(meta_lines, path_str, delimiter)
     if overrides:
-        md.update({k: v for k, v in overrides.items() if v is not None})
+        md.update(_typed_overrides(overrides, path_str))
         _check_metadata(md, path_str)
     reader = csv.reader(io.StringIO("\n".join(lines[body_start:])), delimiter=delimiter)
     header = [h.strip() for h in next(reader)]
