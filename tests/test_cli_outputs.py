@@ -213,3 +213,56 @@ def test_images_declaring_too_many_pixels_are_refused_before_decoding(tmp_path, 
     monkeypatch.setenv("BAYESCAP_MAX_IMAGE_PIXELS", "100")
     with pytest.raises(MTFInputError, match="limit of 100"):
         read_image(EDGE)
+
+
+def test_strict_exit_status_and_drawn_seed(small_csv, tmp_path, capsys, monkeypatch):
+    """Without --seed a seed is drawn, used and recorded ('seed N (drawn)'); the same seed gives the
+    same numbers. --strict: exit 3 when a result is not converged."""
+    argv = ["fit", str(small_csv), "--quality", "fast", "--json"]
+    assert main(argv) == 0
+    d = json.loads(capsys.readouterr().out)
+    seed = d["diagnostics"]["seed"]
+    assert isinstance(seed, int) and d["diagnostics"]["seed_drawn"] is True
+    assert main(argv + ["--seed", str(seed)]) == 0
+    d2 = json.loads(capsys.readouterr().out)
+    assert d2["parameters"] == d["parameters"] and "seed_drawn" not in d2["diagnostics"]
+    assert main(argv[:-1]) == 0
+    assert " (drawn)" in capsys.readouterr().out
+    import bayescap.api
+
+    real = bayescap.api.fit
+
+    def unconverged(*a, **k):
+        r = real(*a, **k)
+        r.diag["converged"] = False
+        return r
+
+    monkeypatch.setattr(bayescap.api, "fit", unconverged)
+    assert main(argv + ["--seed", "1"]) == 0  # reported in the output, not in the status
+    assert main(argv + ["--seed", "1", "--strict"]) == 3
+    assert "NOT CONVERGED" in capsys.readouterr().err
+
+
+def test_help_documents_exit_statuses(capsys):
+    with pytest.raises(SystemExit):
+        main(["fit", "--help"])
+    out = capsys.readouterr().out
+    for code in ("0 ", "1 ", "2 ", "3 "):
+        assert "\n  " + code in out
+
+
+def test_closed_pipe_is_no_traceback():
+    import subprocess
+    import sys
+
+    p = subprocess.Popen(
+        [sys.executable, "-m", "bayescap", "sweep", "pixel-size", "--format", "1/4in", "--json", "--draws", "300"],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+    )
+    p.stdout.readline()
+    p.stdout.close()  # as `| head -1` does
+    err = p.stderr.read().decode()
+    p.wait()
+    assert "Traceback" not in err and "BrokenPipeError" not in err, err
+    assert p.returncode in (0, 141)

@@ -12,6 +12,8 @@ from bayescap.exceptions import InputError
 EXIT_FAILURE = 1
 EXIT_INPUT = 2
 EXIT_NOT_CONVERGED = 3
+#: standard output closed early (128 + SIGPIPE, as a shell reports it)
+EXIT_BROKEN_PIPE = 141
 
 
 def seed_arg(text: str) -> int:

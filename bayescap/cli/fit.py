@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import sys
 
-from bayescap.cli.common import _OVERRIDE_KEYS, EXIT_FAILURE, fast_settings_from_args
+from bayescap.cli.common import _OVERRIDE_KEYS, EXIT_FAILURE, EXIT_NOT_CONVERGED, fast_settings_from_args
 from bayescap.exceptions import InputError
 
 
@@ -23,6 +23,12 @@ def _cmd_fit(args) -> int:
         problem = output_problem(args.out, inputs, directory=True, names=OUTPUT_NAMES if len(args.csv) == 1 else None)
         if problem:
             raise InputError(problem)
+    seed_drawn = args.seed is None
+    if seed_drawn:  # a run without --seed can still be repeated: the seed is drawn and recorded
+        from bayescap.api import draw_seed
+
+        args.seed = draw_seed()
+    args.seed_drawn = seed_drawn
     if len(args.csv) > 1:
         return _cmd_fit_many(args, overrides, fast_settings)
     try:
@@ -67,6 +73,8 @@ def _cmd_fit(args) -> int:
             )
     except PTCInputError as e:
         raise InputError(str(e)) from None
+    if seed_drawn:
+        result.diag["seed_drawn"] = True
     # the result first: a write error below does not lose it
     sys.stdout.write(to_json(result) if args.json else format_text(result))
     sys.stdout.flush()
@@ -76,6 +84,16 @@ def _cmd_fit(args) -> int:
         except OSError as e:
             print(f"bayescap: error: {write_error(args.out, e)}", file=sys.stderr)
             return EXIT_FAILURE
+    return _strict_status(args, [result])
+
+
+def _strict_status(args, results) -> int:
+    """0, or with ``--strict`` 3 when a result is not converged (a rejected fast path without a
+    fallback is flagged not converged too)."""
+    bad = [r for r in results if not isinstance(r, BaseException) and not r.diag.get("converged")]
+    if getattr(args, "strict", False) and bad:
+        print(f"bayescap: {len(bad)} of {len(results)} result(s) NOT CONVERGED (--strict)", file=sys.stderr)
+        return EXIT_NOT_CONVERGED
     return 0
 
 
@@ -121,6 +139,9 @@ def _cmd_fit_many(args, overrides, fast_settings=None) -> int:
     kw = {} if fast_settings is None else {"settings": fast_settings}
     results = fit_many(datas, quality=args.quality, seed=args.seed, n_jobs=args.jobs, **kw)
     failed = [(p, r) for p, r in zip(args.csv, results) if isinstance(r, BaseException)]
+    for r in results:
+        if not isinstance(r, BaseException) and getattr(args, "seed_drawn", False):
+            r.diag["seed_drawn"] = True
     if args.out:
         from pathlib import Path
 
@@ -153,7 +174,7 @@ def _cmd_fit_many(args, overrides, fast_settings=None) -> int:
         sys.stdout.write(_batch_table(args.csv, results))
     for p, r in failed:
         print(f"bayescap: error: {_failure(p, r)}", file=sys.stderr)
-    return 1 if failed else 0
+    return 1 if failed else _strict_status(args, results)
 
 
 def _batch_table(paths, results) -> str:

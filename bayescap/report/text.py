@@ -70,13 +70,14 @@ def format_text(result: FitResult | dict) -> str:
             f"sampler: {conv}: Laplace–IS, Pareto k̂ {num('khat', '.2f')} (target < {dg['khat_max']:g}), "
             f"IS ESS {num('ess_is', '.0f')} (target ≥ {dg['ess_target']:.0f}); {dg['n_draws']} resampled "
             f"draws, {dg['wall_s']:.2f} s, quality {dg['quality']}, seed {dg['seed']}"
+            + (" (drawn)" if dg.get("seed_drawn") else "")
         )
     else:
         lines.append(
             f"sampler: {conv}: R-hat max {num('rhat_max', '.4f')} (target < {dg['rhat_target']}), "
             f"ESS min {num('ess_min', '.0f')} (target ≥ {dg['ess_target']:.0f}); {dg['n_ensembles']} "
             f"ensembles × {dg['n_walkers']} walkers × {dg['n_steps']} steps, {dg['wall_s']:.1f} s, "
-            f"quality {dg['quality']}, seed {dg['seed']}"
+            f"quality {dg['quality']}, seed {dg['seed']}" + (" (drawn)" if dg.get("seed_drawn") else "")
         )
     if "fast_path" in dg:
         lines.append(f"  {dg['fast_path']}")
