@@ -12,7 +12,7 @@ import warnings
 
 import numpy as np
 
-from bayescap.exceptions import PTCInputError
+from bayescap.exceptions import InputError, PTCInputError
 from bayescap.inference import FastSettings
 from bayescap.inference.mcmc import run_ensembles
 from bayescap.inference.presets import QUALITY_PRESETS, SamplerSettings
@@ -21,7 +21,7 @@ from bayescap.model import PTCModel, saturation_flags, select_terms
 from bayescap.physics.optics import default_mtf
 from bayescap.posterior import FitResult, Scene
 
-__all__ = ["load", "fit", "default_scene", "mtf_from_metadata", "measured_mtf"]
+__all__ = ["load", "fit", "default_scene", "mtf_from_metadata", "measured_mtf", "draw_seed"]
 
 #: metadata defaults applied when a key is absent (the report lists which were used)
 METADATA_DEFAULTS = {"f_number": 2.8, "wavelength_nm": 555.0, "fill_factor": 1.0}
@@ -114,6 +114,62 @@ def _check_mtf_passes(mtf, data: PTCData, given: bool):
         raise PTCInputError(f"{e} with {src}: no capacity can be computed", path=data.source) from None
 
 
+def _check_seed(seed) -> None:
+    if seed is None:
+        return
+    if isinstance(seed, bool) or not isinstance(seed, (int, np.integer)) or seed < 0:
+        raise InputError(f"seed must be a whole number >= 0 or None, got {seed!r}")
+
+
+def _check_quality(quality, name="quality") -> None:
+    if isinstance(quality, SamplerSettings):
+        return
+    if not isinstance(quality, str) or quality not in QUALITY_PRESETS:
+        raise InputError(f"{name} must be one of {', '.join(QUALITY_PRESETS)} or a SamplerSettings, got {quality!r}")
+
+
+def draw_seed() -> int:
+    """A fresh seed for a run given none (32 bits from the operating system): the result records it,
+    so the run can be repeated."""
+    import secrets
+
+    return secrets.randbits(32)
+
+
+def _check_prior(prior) -> None:
+    """Refuse a prior override that would give a foreign error later, or none at all: unknown keys,
+    bounds that are not an increasing pair of finite numbers (natural bounds > 0; QE in (0, 1]),
+    scales that are not finite and positive."""
+    if prior is None:
+        return
+    if not isinstance(prior, dict):
+        raise InputError(f"prior must be a dict of overrides of PTCModel.PRIOR, got {type(prior).__name__}")
+    unknown = sorted(set(prior) - set(PTCModel.PRIOR))
+    if unknown:
+        raise InputError(f"unknown prior key(s) {', '.join(unknown)}; known: {', '.join(sorted(PTCModel.PRIOR))}")
+    for key, v in prior.items():
+        if key.endswith("_bounds"):
+            if v is None and key != "log_k_bounds":
+                continue
+            try:
+                lo, hi = (float(x) for x in v)
+            except (TypeError, ValueError):
+                raise InputError(f"prior '{key}' must be a pair (lo, hi) of numbers, got {v!r}") from None
+            if not (np.isfinite(lo) and np.isfinite(hi) and lo < hi):
+                raise InputError(f"prior '{key}' must be finite with lo < hi, got ({lo:g}, {hi:g})")
+            if key == "qe_bounds" and not (0 < lo and hi <= 1):
+                raise InputError(f"prior 'qe_bounds' must lie in (0, 1], got ({lo:g}, {hi:g})")
+            if key != "log_k_bounds" and key != "qe_bounds" and lo <= 0:
+                raise InputError(f"prior '{key}' gives natural values, which must be > 0, got ({lo:g}, {hi:g})")
+        else:
+            try:
+                x = float(v)
+            except (TypeError, ValueError):
+                raise InputError(f"prior '{key}' must be a number, got {v!r}") from None
+            if not (np.isfinite(x) and x > 0):
+                raise InputError(f"prior '{key}' must be finite and > 0, got {v!r}")
+
+
 def fit(
     data: PTCData | PTCModel | str,
     *,
@@ -135,7 +191,9 @@ def fit(
     Parameters
     ----------
     data : PTCData, path to a contract CSV, or a :class:`~bayescap.model.PTCModel`.
-    seed : makes the run reproducible (same seed, same numbers).
+    seed : makes the run reproducible (same seed, same numbers): a whole number >= 0. None draws
+        one (:func:`draw_seed`), which the result records (``diagnostics.seed``,
+        ``diagnostics.seed_drawn``).
     quality : "fast", "standard", "accurate" or a :class:`SamplerSettings` (MCMC).
         ``"fast"`` is the Laplace–IS path (:mod:`bayescap.inference.fast`): MAP, refined Laplace
         covariance, Pareto-smoothed importance sampling; when its own check fails (Pareto k̂ ≥
@@ -159,6 +217,16 @@ def fit(
         sensors at once by :func:`bayescap.batch.fit_many`); the fit then starts from it instead
         of running the fast path again (the fallback, when it is rejected, is unchanged).
     """
+    _check_seed(seed)
+    _check_quality(quality)
+    if not isinstance(fallback_quality, str) or fallback_quality not in QUALITY_PRESETS:
+        raise InputError(f"fallback_quality must be one of {', '.join(QUALITY_PRESETS)}, got {fallback_quality!r}")
+    _check_prior(prior)
+    if fast_settings is not None and not isinstance(fast_settings, FastSettings):
+        raise InputError(f"fast_settings must be a FastSettings, got {type(fast_settings).__name__}")
+    seed_drawn = seed is None
+    if seed_drawn:
+        seed = draw_seed()
     if isinstance(data, PTCModel):
         model, data = data, data.data
     else:
@@ -172,8 +240,6 @@ def fit(
         mtf = mtf_from_metadata(data.metadata, notes)
     _check_mtf_passes(mtf, data, mtf_given)
     kw = _result_kw(data, mtf=mtf, scene=scene, seed=seed)
-    if isinstance(quality, str) and quality not in QUALITY_PRESETS:
-        raise ValueError(f"unknown quality {quality!r}: use one of {', '.join(QUALITY_PRESETS)}")
     if quality == "fast":
         from bayescap.inference.fast import fast_posterior
 
@@ -250,6 +316,8 @@ def fit(
         )
         res = FitResult.from_chains(model, chains, quality=qname, **kw)
     res.notes.extend(notes)
+    if seed_drawn:
+        res.diag["seed_drawn"] = True
     if defaults_used:
         res.flags["metadata_defaults"] = defaults_used
     return res

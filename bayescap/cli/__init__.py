@@ -14,6 +14,7 @@ import warnings
 
 from bayescap._heap import retain_freed_memory
 from bayescap.cli.common import (
+    EXIT_BROKEN_PIPE,
     EXIT_INPUT,
     _add_metadata_overrides,
     add_fast_arguments,
@@ -25,6 +26,13 @@ from bayescap.cli.mtf import _cmd_mtf
 from bayescap.exceptions import InputError
 
 __all__ = ["main", "build_parser"]
+
+EXIT_STATUS_HELP = """exit status:
+  0  done (without --strict also when a result is NOT CONVERGED: it says so)
+  1  an output could not be written (the result was printed first), or a CSV of a batch failed
+  2  bad input or usage: one line on standard error, nothing written
+  3  --strict and a result not converged
+  130 interrupted; 141 standard output closed early (a pipe into 'head')"""
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -45,6 +53,8 @@ def build_parser() -> argparse.ArgumentParser:
         description="Fit the Eq. 1 noise model to a photon-transfer CSV by MCMC and "
         "report every parameter, the derived figures and the information "
         "capacity with 68 %% and 95 %% credible intervals.",
+        epilog=EXIT_STATUS_HELP,
+        formatter_class=argparse.RawDescriptionHelpFormatter,
     )
     p.add_argument(
         "csv",
@@ -61,7 +71,19 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument(
         "--jobs", type=int, default=1, metavar="N", help="several CSVs: worker processes for the batch (default 1)"
     )
-    p.add_argument("--seed", type=seed_arg, default=None, help="random seed: the same seed gives the same numbers")
+    p.add_argument(
+        "--seed",
+        type=seed_arg,
+        default=None,
+        help="random seed: the same seed gives the same numbers (default: one is drawn, and "
+        "recorded in the JSON and the report as 'seed N (drawn)')",
+    )
+    p.add_argument(
+        "--strict",
+        action="store_true",
+        help="exit with status 3 when a result is not converged (or a fast path was rejected "
+        "without a fallback): scripts can tell without reading the JSON",
+    )
     p.add_argument(
         "--out",
         metavar="DIR",
@@ -218,7 +240,17 @@ def main(argv=None) -> int:
     parser = build_parser()
     args = parser.parse_args(argv)
     try:
-        return int(args.func(args) or 0)
+        status = int(args.func(args) or 0)
+        sys.stdout.flush()  # here, so that a closed pipe is caught below
+        return status
+    except BrokenPipeError:
+        # the reader went away (`bayescap ... | head -1`): no traceback; stdout goes to devnull so
+        # the interpreter's last flush does not fail again (the Python docs' recipe, signal module)
+        import os
+
+        devnull = os.open(os.devnull, os.O_WRONLY)
+        os.dup2(devnull, sys.stdout.fileno())
+        return EXIT_BROKEN_PIPE
     except InputError as e:
         print(f"bayescap: error: {e}", file=sys.stderr)
         return EXIT_INPUT

@@ -6,7 +6,14 @@ import argparse
 
 from bayescap.exceptions import InputError
 
+#: exit statuses: 0 done; 1 a failure that is not the input's (an output that could not be
+#: written, a sensor of a batch that failed); 2 bad input or usage; 3 ``--strict`` and a result that
+#: is not converged
+EXIT_FAILURE = 1
 EXIT_INPUT = 2
+EXIT_NOT_CONVERGED = 3
+#: standard output closed early (128 + SIGPIPE, as a shell reports it)
+EXIT_BROKEN_PIPE = 141
 
 
 def seed_arg(text: str) -> int:

@@ -64,13 +64,22 @@ def run_compare(args) -> int:
     """``bayescap compare``: returns the exit status (2 with one line on bad input)."""
     from bayescap.cli.common import fast_settings_from_args
     from bayescap.exceptions import ConvergenceWarning, InputError, PTCInputError
-    from bayescap.io.ptc_csv import atomic_write_text
+    from bayescap.io.atomic import write_files_atomically
 
     try:
         fs = fast_settings_from_args(args)
     except InputError as e:  # handled here: under `python -m bayescap.cli` main's InputError is another class
         print(f"bayescap: error: {e}", file=sys.stderr)
         return 2
+    if args.out:  # before any fitting
+        from bayescap.io.atomic import output_problem
+
+        problem = output_problem(args.out, args.csv, directory=True) or next(
+            (output_problem(Path(args.out) / n, args.csv) for n in ("compare.json", "compare.txt")), None
+        )
+        if problem:
+            print(f"bayescap: error: {problem}", file=sys.stderr)
+            return 2
     try:
         with warnings.catch_warnings():
             warnings.filterwarnings("ignore", category=ConvergenceWarning)  # reported in the output
@@ -92,9 +101,13 @@ def run_compare(args) -> int:
         return 2
     js = cmp.to_json()
     text = format_compare_text(json.loads(js))
+    sys.stdout.write(js if args.json else text)  # first: a write error below does not lose it
+    sys.stdout.flush()
     if args.out:
         out = Path(args.out)
-        atomic_write_text(out / "compare.json", js)
-        atomic_write_text(out / "compare.txt", text)
-    sys.stdout.write(js if args.json else text)
+        try:
+            write_files_atomically({out / "compare.json": js, out / "compare.txt": text})
+        except OSError as e:
+            print(f"bayescap: error: cannot write into {out} ({e.strerror or e}); nothing was written", file=sys.stderr)
+            return 1
     return 0

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import sys
 
-from bayescap.cli.common import _OVERRIDE_KEYS, fast_settings_from_args
+from bayescap.cli.common import _OVERRIDE_KEYS, EXIT_FAILURE, EXIT_NOT_CONVERGED, fast_settings_from_args
 from bayescap.exceptions import InputError
 
 
@@ -15,6 +15,20 @@ def _cmd_fit(args) -> int:
 
     overrides = {k: getattr(args, k) for k in _OVERRIDE_KEYS if getattr(args, k, None) is not None}
     fast_settings = fast_settings_from_args(args)
+    if args.out:  # before any fitting: an output over an input, or one that cannot be written
+        from bayescap.io.atomic import output_problem
+        from bayescap.report.text import OUTPUT_NAMES
+
+        inputs = list(args.csv) + ([args.mtf] if args.mtf else [])
+        problem = output_problem(args.out, inputs, directory=True, names=OUTPUT_NAMES if len(args.csv) == 1 else None)
+        if problem:
+            raise InputError(problem)
+    seed_drawn = args.seed is None
+    if seed_drawn:  # a run without --seed can still be repeated: the seed is drawn and recorded
+        from bayescap.api import draw_seed
+
+        args.seed = draw_seed()
+    args.seed_drawn = seed_drawn
     if len(args.csv) > 1:
         return _cmd_fit_many(args, overrides, fast_settings)
     try:
@@ -60,10 +74,34 @@ def _cmd_fit(args) -> int:
             )
     except PTCInputError as e:
         raise InputError(str(e)) from None
-    if args.out:
-        write_outputs(result, args.out)
+    if seed_drawn:
+        result.diag["seed_drawn"] = True
+    # the result first: a write error below does not lose it
     sys.stdout.write(to_json(result) if args.json else format_text(result))
+    sys.stdout.flush()
+    if args.out:
+        try:
+            write_outputs(result, args.out)
+        except OSError as e:
+            print(f"bayescap: error: {write_error(args.out, e)}", file=sys.stderr)
+            return EXIT_FAILURE
+    return _strict_status(args, [result])
+
+
+def _strict_status(args, results) -> int:
+    """0, or with ``--strict`` 3 when a result is not converged (a rejected fast path without a
+    fallback is flagged not converged too)."""
+    bad = [r for r in results if not isinstance(r, BaseException) and not r.diag.get("converged")]
+    if getattr(args, "strict", False) and bad:
+        print(f"bayescap: {len(bad)} of {len(results)} result(s) NOT CONVERGED (--strict)", file=sys.stderr)
+        return EXIT_NOT_CONVERGED
     return 0
+
+
+def write_error(out, err: OSError) -> str:
+    """A write error in one line: the output, what failed; nothing was left behind."""
+    what = err.strerror or str(err)
+    return f"cannot write {out} ({what}); nothing was written there"
 
 
 def _failure(path, err) -> str:
@@ -116,6 +154,9 @@ def _cmd_fit_many(args, overrides, fast_settings=None) -> int:
         return _fit_many_to_folder(args, datas, kw, scheduler, n_dask)
     results = fit_many(datas, quality=args.quality, seed=args.seed, n_jobs=args.jobs, **kw)
     failed = [(p, r) for p, r in zip(args.csv, results) if isinstance(r, BaseException)]
+    for r in results:
+        if not isinstance(r, BaseException) and getattr(args, "seed_drawn", False):
+            r.diag["seed_drawn"] = True
     if args.json:
         import json
 
@@ -132,7 +173,7 @@ def _cmd_fit_many(args, overrides, fast_settings=None) -> int:
         sys.stdout.write(_batch_table(args.csv, results))
     for p, r in failed:
         print(f"bayescap: error: {_failure(p, r)}", file=sys.stderr)
-    return 1 if failed else 0
+    return 1 if failed else _strict_status(args, results)
 
 
 def _fit_many_to_folder(args, datas, kw, scheduler, n_dask) -> int:
@@ -178,7 +219,13 @@ def _fit_many_to_folder(args, datas, kw, scheduler, n_dask) -> int:
     failed = [(p, r) for p, r in zip(args.csv, report) if r["status"] == "error"]
     for p, r in failed:
         print(f"bayescap: error: {p}: {r['error']}", file=sys.stderr)
-    return 1 if failed else 0
+    if failed:
+        return 1
+    unconverged = [d for d in docs if not d.get("diagnostics", {}).get("converged")]
+    if getattr(args, "strict", False) and unconverged:
+        print(f"bayescap: {len(unconverged)} of {len(docs)} result(s) NOT CONVERGED (--strict)", file=sys.stderr)
+        return EXIT_NOT_CONVERGED
+    return 0
 
 
 def _folder_table(paths, report, docs) -> str:

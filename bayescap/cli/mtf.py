@@ -12,8 +12,14 @@ def _cmd_mtf(args) -> int:
     import json
 
     from bayescap.exceptions import MTFInputError, MTFWarning
-    from bayescap.measure import measure_sfr, read_image, write_mtf_table
+    from bayescap.io.atomic import atomic_write_text, output_problem
+    from bayescap.measure import measure_sfr, read_image
+    from bayescap.measure.table import mtf_table_text
 
+    if args.out:  # before any work: never over the image, and a place that can be written
+        problem = output_problem(args.out, [args.image])
+        if problem:
+            raise InputError(problem)
     roi = None
     if args.roi:
         try:
@@ -40,8 +46,7 @@ def _cmd_mtf(args) -> int:
         raise InputError(str(e)) from None
     for w in r.warnings:
         print(f"bayescap mtf: warning: {w}", file=sys.stderr)
-    if args.out:
-        write_mtf_table(r, args.out)
+    out_text = mtf_table_text(r) if args.out else None
     if args.json:
         sys.stdout.write(json.dumps(r.to_dict(), indent=2, allow_nan=False, default=float) + "\n")
     else:
@@ -52,4 +57,11 @@ def _cmd_mtf(args) -> int:
             f"({r.mtf_samples.shape[0]} bootstrap draws)\n"
             f"sampling efficiency {100 * r.sampling_efficiency:.0f} %\n"
         )
+    if out_text is not None:  # after the result is printed: a write error does not lose it
+        sys.stdout.flush()
+        try:
+            atomic_write_text(args.out, out_text)
+        except OSError as e:
+            print(f"bayescap: error: cannot write {args.out} ({e.strerror or e}); nothing was written", file=sys.stderr)
+            return 1
     return 0

@@ -60,6 +60,12 @@ def run_report(args) -> int:
     except InputError as e:  # handled here: under `python -m bayescap.cli` main's InputError is another class
         print(f"bayescap: error: {e}", file=sys.stderr)
         return 2
+    from bayescap.io.atomic import output_problem
+
+    problem = output_problem(args.output, args.csv, option="-o")  # before any fitting
+    if problem:
+        print(f"bayescap: error: {problem}", file=sys.stderr)
+        return 2
     try:
         with warnings.catch_warnings():
             warnings.filterwarnings("ignore", category=ConvergenceWarning)
@@ -73,9 +79,15 @@ def run_report(args) -> int:
                 quality=args.quality,
                 fit_kwargs=None if fs is None else {"fast_settings": fs},
             )
-            out = write_report(cmp, args.output, title=args.title)
     except (PTCInputError, CompareInputError, OSError) as e:
         print(f"bayescap: error: {e}", file=sys.stderr)
         return 2
+    try:
+        with warnings.catch_warnings():
+            warnings.filterwarnings("ignore", category=FutureWarning)
+            out = write_report(cmp, args.output, title=args.title)
+    except OSError as e:
+        print(f"bayescap: error: cannot write {args.output} ({e.strerror or e}); nothing was written", file=sys.stderr)
+        return 1
     print(f"wrote {out}")
     return 0

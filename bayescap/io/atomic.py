@@ -1,15 +1,76 @@
-"""Atomic text output: a file is either written whole or left as it was."""
+"""Atomic output: a file, or a directory of files, is either written whole or left as it was;
+and the checks, made before any work, that an output is not an input and can be written."""
 
 from __future__ import annotations
 
+import errno
 import os
 import secrets
+import shutil
+import tempfile
 from pathlib import Path
+from typing import Callable, Iterable
 
 __all__ = [
     "atomic_write_text",
     "write_files_atomically",
+    "write_dir_atomically",
+    "output_problem",
 ]
+
+
+def _same(a: Path, b: Path) -> bool:
+    try:
+        return os.path.samefile(a, b)
+    except OSError:  # one of them does not exist (yet)
+        return Path(os.path.abspath(a)).resolve() == Path(os.path.abspath(b)).resolve()
+
+
+def _inside(path: Path, directory: Path) -> bool:
+    d, p = directory.resolve(), Path(os.path.abspath(path)).resolve()
+    return d == p or d in p.parents
+
+
+def output_problem(
+    out, inputs: Iterable = (), *, directory: bool = False, option: str = "--out", names: Iterable[str] | None = None
+) -> str | None:
+    """Why ``out`` cannot be written, in one line, or None; checked before any work.
+
+    Refused: an output that is one of ``inputs`` (compared with :func:`os.path.samefile`, else by
+    resolved path), for a ``directory`` output (replaced as a whole) one that holds an input; a
+    file output that is an existing directory, a directory output that is an existing file; a
+    place whose nearest existing folder is not a writable directory; with ``names`` (the files a
+    directory output is made of), an existing directory that holds anything else.
+    """
+    out = Path(out)
+    for inp in inputs:
+        inp = Path(inp)
+        if _same(out, inp):
+            return f"{option} {out} would overwrite an input ({inp}): choose another output"
+        if directory and _inside(inp, out):
+            return f"{option} {out} holds the input {inp} and is replaced as a whole: choose another directory"
+    if directory and out.exists() and not out.is_dir():
+        return f"{option} {out} is a file, not a directory"
+    if not directory and out.is_dir():
+        return f"{option} {out} is a directory, not a file"
+    if directory and names is not None and out.is_dir():
+        other = sorted(set(os.listdir(out)) - set(names))
+        if other:
+            return (
+                f"{option} {out} holds other files ({', '.join(other[:3])}{', ...' if len(other) > 3 else ''}) "
+                "and the output set replaces the directory as a whole: choose a new or empty directory"
+            )
+    # the folder the output (and, for a directory, its temporary twin) is created in
+    parent = Path(os.path.abspath(out)).parent
+    while not parent.exists():
+        parent = parent.parent
+    if not parent.is_dir():
+        return f"{option} {out}: {parent} is not a directory"
+    if not os.access(parent, os.W_OK | os.X_OK):
+        return f"{option} {out}: {parent} is not writable"
+    if out.exists() and not os.access(out, os.W_OK | (os.X_OK if directory else 0)):
+        return f"{option} {out} is not writable"
+    return None
 
 
 def _create_temp(target: Path) -> tuple[int, str]:
@@ -51,3 +112,55 @@ def write_files_atomically(files: dict[Path, str]) -> None:
 def atomic_write_text(path: os.PathLike | str, text: str) -> None:
     """Write ``text`` to ``path`` atomically: a temp file in the same folder, then rename."""
     write_files_atomically({Path(path): text})
+
+
+def _umask() -> int:
+    mask = os.umask(0o022)
+    os.umask(mask)
+    return mask
+
+
+def write_dir_atomically(target: os.PathLike | str, fill: Callable[[Path], object]) -> None:
+    """Make the directory ``target`` as a whole: ``fill(tmp)`` writes every file into a fresh
+    temporary directory beside ``target``, which is then renamed into place (an existing
+    ``target`` is renamed aside first and removed after), so a reader finds the previous set or
+    the new one, never a mix of two runs. On any error the temporary directory is removed and
+    ``target`` is left as it was. Raises :class:`OSError`; ``fill``'s own errors pass through.
+    """
+    target = Path(target)
+    parent = Path(os.path.abspath(target)).parent
+    parent.mkdir(parents=True, exist_ok=True)
+    tmp = Path(tempfile.mkdtemp(prefix=f".{target.name}.", suffix=".tmp", dir=parent))
+    try:
+        fill(tmp)
+        os.chmod(tmp, 0o777 & ~_umask())  # mkdtemp's 0o700 -> the ordinary mode of a new folder
+        for _ in range(10):  # another run can put its set in between: try again
+            if not target.exists():
+                try:
+                    os.rename(tmp, target)
+                    return
+                except OSError as e:
+                    if e.errno not in (errno.EEXIST, errno.ENOTEMPTY):
+                        raise
+                    continue
+            if not target.is_dir() or target.is_symlink():
+                raise FileExistsError(errno.EEXIST, "exists and is not a directory", str(target))
+            old = parent / f".{target.name}.{secrets.token_hex(4)}.old"
+            try:
+                os.rename(target, old)
+            except FileNotFoundError:
+                continue
+            try:
+                os.rename(tmp, target)
+            except OSError:
+                try:
+                    os.rename(old, target)
+                except OSError:
+                    pass
+                raise
+            shutil.rmtree(old, ignore_errors=True)
+            return
+        raise FileExistsError(errno.EEXIST, "kept being replaced by another run", str(target))
+    finally:
+        if tmp.exists():
+            shutil.rmtree(tmp, ignore_errors=True)

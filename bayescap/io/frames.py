@@ -13,11 +13,13 @@ import io
 import logging
 import math
 import os
+import warnings
 from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 
+from bayescap._limits import image_pixels_problem
 from bayescap.exceptions import IngestError, IngestWarning
 
 __all__ = [
@@ -169,7 +171,10 @@ def _read_rawpy(path: Path) -> Frame:
     rawpy = _rawpy(path)
 
     try:
-        with rawpy.imread(str(path)) as raw:
+        with rawpy.imread(str(path)) as raw:  # opening reads the sizes; the pixels come on first use
+            problem = image_pixels_problem((raw.sizes.raw_height, raw.sizes.raw_width))
+            if problem:
+                raise IngestError(problem, path=path)
             pixels = np.array(raw.raw_image_visible, copy=True)
             num_colors = int(raw.num_colors)
             desc = raw.color_desc.decode("ascii", "replace")
@@ -179,6 +184,8 @@ def _read_rawpy(path: Path) -> Frame:
             if num_colors > 1 and pixels.ndim == 2:
                 colors = np.array(raw.raw_colors_visible[:2, :2])
             shutter = float(raw.other.shutter_speed)
+    except IngestError:
+        raise
     except (rawpy.LibRawError, OSError, ValueError) as exc:
         raise IngestError(
             f"cannot read the frame as camera RAW/DNG ({type(exc).__name__}: "
@@ -242,10 +249,18 @@ def _read_pillow(path: Path) -> Frame:
     if not data.rstrip(b"\x00").endswith(_PNG_END):
         raise IngestError("the PNG file is truncated (no IEND chunk at its end)", path=path)
     try:
-        with Image.open(io.BytesIO(data)) as img:
+        with warnings.catch_warnings():  # the pixel limit below says it on one line
+            warnings.simplefilter("ignore", Image.DecompressionBombWarning)
+            img = Image.open(io.BytesIO(data))
+        with img:
+            problem = image_pixels_problem((img.size[1], img.size[0]))
+            if problem:
+                raise IngestError(problem, path=path)
             img.load()
             mode = img.mode
             pixels = np.array(img)
+    except IngestError:
+        raise
     except Exception as exc:  # Pillow raises OSError, SyntaxError, ValueError, ...
         raise IngestError(f"cannot decode the image ({type(exc).__name__}: {exc})", path=path) from exc
     if mode not in ("L", "I", "I;16", "I;16B", "I;16L"):
@@ -284,6 +299,9 @@ def _read_tiff(path: Path) -> Frame:
                     f"{max(ends) if ends else 0}, the file has {size})",
                     path=path,
                 )
+            problem = image_pixels_problem(page.shape)
+            if problem:
+                raise IngestError(problem, path=path)
             pixels = page.asarray()
             bits = int(page.bitspersample)
     except IngestError:
@@ -308,7 +326,13 @@ def _read_tiff(path: Path) -> Frame:
 def _read_npy(path: Path) -> Frame:
     """A 2-D integer array saved with :func:`numpy.save`."""
     try:
-        pixels = np.load(path, allow_pickle=False)
+        pixels = np.load(path, allow_pickle=False, mmap_mode="r")  # the header first: its shape
+        problem = image_pixels_problem(pixels.shape)
+        if problem:
+            raise IngestError(problem, path=path)
+        pixels = np.array(pixels)
+    except IngestError:
+        raise
     except Exception as exc:
         raise IngestError(f"cannot read the .npy array ({type(exc).__name__}: {exc})", path=path) from exc
     bits = _check_integer_image(np.asarray(pixels), path)
@@ -376,6 +400,8 @@ def _exposure_time_from_file(path: Path) -> float | None:
     try:
         with rawpy.imread(str(path)) as raw:  # opening reads the metadata, not the pixels
             shutter = float(raw.other.shutter_speed)
+    except IngestError:
+        raise
     except (rawpy.LibRawError, OSError, ValueError) as exc:
         raise IngestError(f"cannot read the frame as camera RAW/DNG ({type(exc).__name__}: {exc})", path=path) from exc
     return _round_float32_seconds(shutter) if shutter > 0 else None

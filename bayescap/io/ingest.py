@@ -35,7 +35,7 @@ from typing import Sequence
 import numpy as np
 
 from bayescap.exceptions import IngestError, IngestWarning
-from bayescap.io.atomic import write_files_atomically
+from bayescap.io.atomic import output_problem, write_files_atomically
 from bayescap.io.frames import _bits_for_white_level
 from bayescap.io.manifest import group_levels, load_frame_set
 from bayescap.io.roi import _SINGLE_CHANNELS, CHANNELS
@@ -154,6 +154,13 @@ def ingest(
     mono = first.cfa_pattern is None
     channels = ["mono"] if mono else (list(_SINGLE_CHANNELS) if channel == "all" else [channel])
     stat_channels = ["G"] if mono else channels  # any name works for mono: tiles are None
+    # before the frames are read: an output over an input, or one that cannot be written
+    paths = _output_paths(out, frameset.source, channels, suffixed=len(channels) > 1)
+    inputs = [frameset.source] + [e.path for e in frameset.entries]
+    for p in paths.values():
+        problem = output_problem(p, inputs, option="--out")
+        if problem:
+            raise IngestError(problem)
 
     state: dict = {}
     dark_cache: dict[tuple[Path, ...], dict[str, SetStatistics]] = {}
@@ -200,11 +207,6 @@ def ingest(
     height, width = reader.shape
     x0, y0, x1, y1 = state["roi"]
     adc_bits = ref.adc_bits if ref.adc_bits is not None else _bits_for_white_level(ref.white_level_dn)
-    paths = _output_paths(out, frameset.source, channels, suffixed=len(channels) > 1)
-    inputs = {frameset.source.resolve()} | {e.path.resolve() for e in frameset.entries}
-    for p in paths.values():
-        if p.resolve() in inputs:
-            raise IngestError("the output would overwrite an input file; choose another --out", path=p)
     files = {}
     for c in channels:
         md: dict[str, str] = {}

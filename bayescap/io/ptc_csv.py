@@ -4,7 +4,10 @@ The format (see README, "Photon-transfer CSV"): optional ``# key: value`` metada
 header row, one row per exposure level. Required columns ``exposure_time_s, mean_dn,
 temporal_var_dn2, dark_mean_dn, dark_temporal_var_dn2, n_pixels``; optional
 ``photons_per_pixel, exposure_lux_s, spatial_var_dn2, dark_spatial_var_dn2, n_frames,
-frac_saturated``. Every refusal raises :class:`PTCInputError` naming file, row and column.
+frac_saturated``. Spreadsheet exports are read too: ``;``-separated tables (then with a decimal comma
+allowed, ``1,5``), tab-separated ones, Excel's first line ``sep=;``, trailing empty columns and
+separators padding the metadata lines; control characters (ANSI escapes) are removed from metadata
+values. Every refusal raises :class:`PTCInputError` naming file, row and column.
 """
 
 from __future__ import annotations
@@ -12,6 +15,7 @@ from __future__ import annotations
 import csv
 import io
 import math
+import re
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -119,7 +123,8 @@ class PTCData:
 
     def with_metadata(self, **overrides) -> "PTCData":
         md = dict(self.metadata)
-        md.update({k: v for k, v in overrides.items() if v is not None})
+        md.update(_typed_overrides(overrides, self.source))
+        _check_metadata(md, self.source)
         return _replace(self, metadata=md)
 
     def select(self, mask) -> "PTCData":
@@ -141,10 +146,39 @@ def _replace(obj, **kw):
     return replace(obj, **kw)
 
 
-def _parse_metadata(lines, path):
+#: control characters (C0, DEL, C1): an ANSI escape sequence in a metadata value would reach the
+#: terminal when the report is printed
+_CONTROL = re.compile("\x1b\\[[0-9;?]*[ -/]*[@-~]|[\x00-\x1f\x7f-\x9f]")
+#: Excel's first line naming the separator, ``sep=;``
+_SEP_LINE = re.compile(r'^"?sep=(.)"?$', re.IGNORECASE)
+
+
+def _clean(text: str) -> str:
+    """``text`` without control characters (a tab becomes a space)."""
+    return _CONTROL.sub("", text.replace("\t", " "))
+
+
+def _sniff_delimiter(header_line: str) -> str:
+    """The separator of the table, from its header line: ``;`` (European spreadsheets, with a
+    decimal comma), a tab, or ``,``."""
+    counts = {d: header_line.count(d) for d in (",", ";", "\t")}
+    if counts[","] == 0 and (counts[";"] or counts["\t"]):
+        return ";" if counts[";"] >= counts["\t"] else "\t"
+    return ","
+
+
+def _number(s: str, delimiter: str) -> float:
+    """``float(s)``; with a separator other than ``,`` a decimal comma is read too (``1,5``)."""
+    if delimiter != "," and "," in s and "." not in s:
+        s = s.replace(",", ".", 1)
+    return float(s)
+
+
+def _parse_metadata(lines, path, delimiter=","):
     md = {}
     for lineno, line in lines:
-        body = line.lstrip("#").strip()
+        # a spreadsheet pads every line to the table's width with separators
+        body = _clean(line.lstrip("#").strip().rstrip(delimiter + " ").strip())
         if not body:
             continue
         if ":" not in body:
@@ -155,10 +189,11 @@ def _parse_metadata(lines, path):
             md[key] = value
             continue
         try:
-            v = typ(float(value)) if typ is int else typ(value)
-            if typ is int and float(value) != int(float(value)):
+            num = _number(value, delimiter) if typ in (int, float) else None
+            v = typ(num) if typ is float else typ(value) if typ is str else int(num)
+            if typ is int and num != int(num):
                 raise ValueError
-        except ValueError:
+        except (ValueError, OverflowError):
             raise PTCInputError(
                 f"metadata '{key}' must be {typ.__name__}, got '{value}'", path=path, row=f"metadata line {lineno}"
             ) from None
@@ -169,6 +204,28 @@ def _parse_metadata(lines, path):
         md[key] = v
     _check_metadata(md, path)
     return md
+
+
+def _typed_overrides(overrides: dict, path) -> dict:
+    """Metadata overrides (keyword arguments, command-line options) with the types of
+    :data:`METADATA_TYPES`: a whole number for an int key (``adc_bits=12.5`` is refused), a finite
+    number for a float key, text for a str key; None values are left out."""
+    out = {}
+    for key, v in overrides.items():
+        if v is None:
+            continue
+        typ = METADATA_TYPES.get(key)
+        if typ in (int, float):
+            ok = isinstance(v, (int, float, np.integer, np.floating)) and not isinstance(v, bool)
+            ok = ok and math.isfinite(float(v)) and (typ is float or float(v) == int(v))
+            if not ok:
+                kind = "a whole number" if typ is int else "a finite number"
+                raise PTCInputError(f"metadata override '{key}' must be {kind}, got {v!r}", path=path)
+            v = typ(v)
+        elif typ is str:
+            v = _clean(str(v))
+        out[key] = v
+    return out
 
 
 def _check_metadata(md, path):
@@ -207,7 +264,7 @@ def read_ptc_csv(path, *, overrides: dict | None = None) -> PTCData:
     except UnicodeDecodeError:
         raise PTCInputError("not a UTF-8 text file", path=path_str) from None
     lines = text.splitlines()
-    meta_lines, body_start = [], None
+    meta_lines, body_start, delimiter = [], None, None
     for i, line in enumerate(lines):
         s = line.strip()
         if not s:
@@ -215,16 +272,23 @@ def read_ptc_csv(path, *, overrides: dict | None = None) -> PTCData:
         if s.startswith("#"):
             meta_lines.append((i + 1, s))
             continue
+        m = _SEP_LINE.match(s)
+        if m and delimiter is None:  # Excel's "sep=," line
+            delimiter = m.group(1)
+            continue
         body_start = i
         break
     if body_start is None:
         raise PTCInputError("empty file: expected a header row and at least two data rows", path=path_str)
-    md = _parse_metadata(meta_lines, path_str)
+    delimiter = delimiter or _sniff_delimiter(lines[body_start])
+    md = _parse_metadata(meta_lines, path_str, delimiter)
     if overrides:
-        md.update({k: v for k, v in overrides.items() if v is not None})
+        md.update(_typed_overrides(overrides, path_str))
         _check_metadata(md, path_str)
-    reader = csv.reader(io.StringIO("\n".join(lines[body_start:])))
+    reader = csv.reader(io.StringIO("\n".join(lines[body_start:])), delimiter=delimiter)
     header = [h.strip() for h in next(reader)]
+    while header and header[-1] == "":  # a spreadsheet's trailing empty columns
+        header.pop()
     if len(set(header)) != len(header):
         dup = sorted({h for h in header if header.count(h) > 1})
         raise PTCInputError(f"duplicate column(s) {', '.join(dup)} in the header", path=path_str, row="header")
@@ -246,6 +310,8 @@ def read_ptc_csv(path, *, overrides: dict | None = None) -> PTCData:
         if rec[0].lstrip().startswith("#"):
             continue
         rowno += 1
+        while len(rec) > len(header) and not rec[-1].strip():  # trailing empty columns
+            rec = rec[:-1]
         if len(rec) != len(header):
             raise PTCInputError(f"has {len(rec)} fields, the header has {len(header)}", path=path_str, row=rowno)
         for c in wanted:
@@ -261,7 +327,7 @@ def read_ptc_csv(path, *, overrides: dict | None = None) -> PTCData:
                     column=c,
                 )
             try:
-                v = float(s)
+                v = _number(s, delimiter)
             except ValueError:
                 raise PTCInputError(
                     f"expected a number, got '{s}'" if s else "missing value", path=path_str, row=rowno, column=c

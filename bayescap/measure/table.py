@@ -21,6 +21,7 @@ __all__ = [
     "read_image",
     "read_mtf_table",
     "write_mtf_table",
+    "mtf_table_text",
 ]
 
 
@@ -150,53 +151,77 @@ def read_mtf_table(path: str | Path, channel: str | None = None) -> SFRResult:
     )
 
 
+def mtf_table_text(result: SFRResult) -> str:
+    """The CSV text :func:`write_mtf_table` writes."""
+    import io
+
+    lo, hi = result.mtf_ci(0.95)
+    has_ci = result.mtf_samples.shape[0] > 0
+    fh = io.StringIO()
+    w = csv.writer(fh, lineterminator="\r\n")
+    w.writerow([_FREQ_COL, "mtf"] + (list(_CI_COLS) if has_ci else []))
+    for i, f in enumerate(result.freq_cy_per_px):
+        row = [f"{f:.6f}", f"{result.mtf[i]:.6f}"]
+        if has_ci:
+            row += [f"{lo[i]:.6f}", f"{hi[i]:.6f}"]
+        w.writerow(row)
+    return fh.getvalue()
+
+
 def write_mtf_table(result: SFRResult, path: str | Path) -> None:
     """Write ``freq_cy_per_px,mtf,mtf_ci95_low,mtf_ci95_high`` (95 % percentile interval
     columns only when bootstrap samples are present).
 
     The file can be read back with :func:`read_mtf_table`.
     """
-    lo, hi = result.mtf_ci(0.95)
-    has_ci = result.mtf_samples.shape[0] > 0
     with open(path, "w", newline="", encoding="utf-8") as fh:
-        w = csv.writer(fh)
-        w.writerow([_FREQ_COL, "mtf"] + (list(_CI_COLS) if has_ci else []))
-        for i, f in enumerate(result.freq_cy_per_px):
-            row = [f"{f:.6f}", f"{result.mtf[i]:.6f}"]
-            if has_ci:
-                row += [f"{lo[i]:.6f}", f"{hi[i]:.6f}"]
-            w.writerow(row)
+        fh.write(mtf_table_text(result))
 
 
 def read_image(path: str | Path) -> np.ndarray:
     """Read an edge image (TIFF, PNG, JPEG, ``.npy``) as a float array, (H, W) or (H, W, 3).
 
     Pillow reads every common container (LZW-compressed TIFF included); 16-bit images keep
-    their values. The data must be linear (no gamma); a camera RAW file should be demosaiced
+    their values. An image declaring more than :data:`bayescap._limits.MAX_IMAGE_PIXELS` values
+    is refused before it is decoded. The data must be linear (no gamma); a camera RAW file should be demosaiced
     linearly first or measured per CFA plane. Raises :class:`MTFInputError` naming the file.
     """
     from PIL import Image, UnidentifiedImageError
 
+    from bayescap._limits import image_pixels_problem
+
     p = Path(path)
     if p.suffix.lower() == ".npy":
         try:
-            arr = np.load(p, allow_pickle=False)
+            arr = np.load(p, allow_pickle=False, mmap_mode="r")  # the header first: its shape
         except (OSError, ValueError) as e:
             raise MTFInputError(f"{p}: cannot read the array ({e})") from None
+        problem = image_pixels_problem(arr.shape)
+        if problem:
+            raise MTFInputError(f"{p}: {problem}")
+        arr = np.array(arr)
     else:
         try:
             # Pillow warns of what it finds broken ("Corrupt EXIF data") before failing: the
             # error below says it on its one line
             with warnings.catch_warnings():
                 warnings.simplefilter("ignore", UserWarning)
+                warnings.simplefilter("ignore", Image.DecompressionBombWarning)
                 with Image.open(p) as im:
+                    problem = image_pixels_problem((im.size[1], im.size[0]) + ((3,) if im.mode != "L" else ()))
+                    if problem:
+                        raise MTFInputError(f"{p}: {problem}")
                     im.load()
                     if im.mode in ("P", "PA", "LA", "RGBA"):
                         im = im.convert("RGB")
                     arr = np.asarray(im)
         except FileNotFoundError:
             raise MTFInputError(f"{p}: file not found") from None
+        except Image.DecompressionBombError as e:  # Pillow's own limit, checked when it opens
+            raise MTFInputError(f"{p}: {e}") from None
         except (UnidentifiedImageError, OSError, ValueError) as e:
+            if isinstance(e, MTFInputError):
+                raise
             raise MTFInputError(f"{p}: cannot read the image ({e})") from None
     arr = np.asarray(arr, dtype=float)
     if arr.ndim == 3 and arr.shape[2] == 1:

@@ -24,7 +24,7 @@ from matplotlib.figure import Figure
 from bayescap.io.ptc_csv import atomic_write_text
 from bayescap.physics.capacity import tonal_range_bits
 from bayescap.physics.noise import snr_db
-from bayescap.report.plots import plot_corner, plot_ptc
+from bayescap.report.plots import plain_text, plot_corner, plot_ptc
 from bayescap.report.text import format_or_na
 from bayescap.studies.compare import Comparison
 from bayescap.studies.exposure import _coefficients, snr_at_exposure, tonal_range_at_exposure
@@ -84,14 +84,14 @@ def plot_capacity(cmp: Comparison):
     """Fig. 8(b): capacity (Mbit) per sensor, medians with 95 % intervals, at full resolution and
     at the fixed area."""
     d = cmp.to_dict()
-    names = [s["name"] for s in d["sensors"]]
+    names = [plain_text(s["name"]) for s in d["sensors"]]
     x = np.arange(len(names))
     fig = Figure(figsize=(8, 4.2))
     ax = fig.subplots()
     area = d["conventions"]["area"]
     for off, key, lab, col in (
         (-0.18, "capacity_full_bits", "full resolution", "C0"),
-        (0.18, "capacity_area_bits", f"at {area['name']}" if area else None, "C1"),
+        (0.18, "capacity_area_bits", plain_text(f"at {area['name']}") if area else None, "C1"),
     ):
         if lab is None:
             continue
@@ -123,7 +123,7 @@ def plot_tr_h0(cmp: Comparison, h_grid=H0_GRID_LUX_S):
         tr, _ = tonal_range_at_exposure(
             s.result, h_grid, calibration=s.calibration, mid_grey=c["mid_grey_fraction"], idx=idx
         )
-        _band(ax, h_grid, tonal_range_bits(tr), f"C{i % 10}", s.name)
+        _band(ax, h_grid, tonal_range_bits(tr), f"C{i % 10}", plain_text(s.name))
         drawn += 1
     ax.axvline(c["h0_lux_s"], color="k", ls=":", lw=1, label=f"H0 = {c['h0_lux_s']:g} lux·s")
     ax.set_xscale("log")
@@ -147,7 +147,13 @@ def plot_snr_exposure(cmp: Comparison, h_grid=H0_GRID_LUX_S):
         if s.calibration is None:
             continue
         idx = s.result.thin_index(_N_CURVE_DRAWS)
-        _band(ax, h_grid, snr_at_exposure(s.result, h_grid, calibration=s.calibration, idx=idx), f"C{i % 10}", s.name)
+        _band(
+            ax,
+            h_grid,
+            snr_at_exposure(s.result, h_grid, calibration=s.calibration, idx=idx),
+            f"C{i % 10}",
+            plain_text(s.name),
+        )
         drawn += 1
     ax.set_xscale("log")
     ax.set_xlabel("photometric exposure H (lux·s)")
@@ -165,7 +171,7 @@ def plot_snr_exposure(cmp: Comparison, h_grid=H0_GRID_LUX_S):
 def plot_probability_matrix(cmp: Comparison, quantity: str = "area"):
     """Heat map of ``P(C_row > C_column)``."""
     m = cmp.probability_matrix(quantity)
-    names = [s.name for s in cmp.sensors]
+    names = [plain_text(s.name) for s in cmp.sensors]
     n = len(names)
     # shown half-width on the page: a compact figure with large type stays readable
     fig = Figure(figsize=(0.7 * n + 2.6, 0.6 * n + 2.0))
@@ -194,7 +200,7 @@ def plot_probability_matrix(cmp: Comparison, quantity: str = "area"):
         if cmp.conventions["area"]
         else ""
     )
-    ax.set_title(f"P(C_row > C_column) {where}", fontsize=11)
+    ax.set_title(plain_text(f"P(C_row > C_column) {where}"), fontsize=11)
     fig.colorbar(im, ax=ax, fraction=0.046)
     fig.tight_layout()
     return fig
@@ -228,7 +234,7 @@ def plot_snr_sensor(s):
     ax.set_ylabel("SNR (dB)")
     ax.grid(alpha=0.3, which="both")
     ax.legend(fontsize=8, loc="lower right")
-    ax.set_title(f"SNR (Eq. 1), 95 % band: {s.name}", fontsize=10)
+    ax.set_title(plain_text(f"SNR (Eq. 1), 95 % band: {s.name}"), fontsize=10)
     fig.tight_layout()
     return fig
 

@@ -17,7 +17,13 @@ import numpy as np
 from bayescap.posterior import FitResult
 from bayescap.posterior.summary import PARAMETER_ORDER
 
-__all__ = ["plot_ptc", "plot_corner"]
+__all__ = ["plot_ptc", "plot_corner", "plain_text"]
+
+
+def plain_text(text) -> str:
+    """``text`` shown as it is in a matplotlib title, label or legend: every ``$`` escaped, so a
+    file or sensor name such as ``cam_$5_vs_$10`` is not parsed as math text."""
+    return str(text).replace("$", r"\$")
 
 
 def _corner_size(k: int) -> float:
@@ -74,7 +80,7 @@ def plot_ptc(result: FitResult, path=None):
     dobs, dmodel, drep = pp["dark_var"]
     ax.plot(np.zeros_like(dobs) + max(S.min() * 0.5, 1e-3), dobs, "g.", ms=3, label="dark pairs")
     ax.set_ylabel("temporal variance (DN²)")
-    ax.set_title(f"photon transfer: {Path(str(d.source)).name}")
+    ax.set_title(plain_text(f"photon transfer: {Path(str(d.source)).name}"))
     ax.legend(fontsize=8)
     ax.grid(alpha=0.3)
     res = 100 * (obs - med) / med

@@ -1,16 +1,15 @@
 """Outputs of a fit: the text report, the JSON, the InferenceData (NetCDF) file and the set of
 files ``--out`` writes (with the plots of :mod:`bayescap.report.plots`).
 
-Every file is written atomically (temp file in the target folder, then rename).
+The ``--out`` set is written as a whole (a temporary directory beside the target, then renamed
+into place).
 """
 
 from __future__ import annotations
 
 import json
-import os
 from pathlib import Path
 
-from bayescap.io.ptc_csv import atomic_write_text
 from bayescap.posterior import FitResult
 from bayescap.posterior.inference_data import to_inference_data as _to_inference_data
 from bayescap.posterior.summary import DERIVED_ORDER, PARAMETER_ORDER
@@ -70,13 +69,14 @@ def format_text(result: FitResult | dict) -> str:
             f"sampler: {conv}: Laplace–IS, Pareto k̂ {num('khat', '.2f')} (target < {dg['khat_max']:g}), "
             f"IS ESS {num('ess_is', '.0f')} (target ≥ {dg['ess_target']:.0f}); {dg['n_draws']} resampled "
             f"draws, {dg['wall_s']:.2f} s, quality {dg['quality']}, seed {dg['seed']}"
+            + (" (drawn)" if dg.get("seed_drawn") else "")
         )
     else:
         lines.append(
             f"sampler: {conv}: R-hat max {num('rhat_max', '.4f')} (target < {dg['rhat_target']}), "
             f"ESS min {num('ess_min', '.0f')} (target ≥ {dg['ess_target']:.0f}); {dg['n_ensembles']} "
             f"ensembles × {dg['n_walkers']} walkers × {dg['n_steps']} steps, {dg['wall_s']:.1f} s, "
-            f"quality {dg['quality']}, seed {dg['seed']}"
+            f"quality {dg['quality']}, seed {dg['seed']}" + (" (drawn)" if dg.get("seed_drawn") else "")
         )
     if "fast_path" in dg:
         lines.append(f"  {dg['fast_path']}")
@@ -156,30 +156,44 @@ def to_inference_data(result: FitResult):
     return _to_inference_data(result)
 
 
+#: the files of a fit's output set (``bayescap fit --out DIR``)
+OUTPUT_NAMES = ("result.json", "report.txt", "posterior.nc", "ptc.png", "corner.png")
+
+
+def _check_space(folder: Path, idata) -> None:
+    """Refuse, before h5py starts, a NetCDF file that cannot fit on the disk: h5py crashes the
+    process (segmentation fault) when a write fails for want of space."""
+    import errno
+    import shutil
+
+    need = sum(v.nbytes for g in idata.groups() for v in idata[g].variables.values()) + (1 << 20)
+    if shutil.disk_usage(folder).free < need:
+        raise OSError(errno.ENOSPC, f"No space left on device for posterior.nc (~{need >> 20} MB)", str(folder))
+
+
 def write_outputs(result: FitResult, out_dir) -> list[Path]:
-    """Write result.json, report.txt, posterior.nc, ptc.png and corner.png into ``out_dir``."""
+    """Write result.json, report.txt, posterior.nc, ptc.png and corner.png into ``out_dir``, as a
+    whole: they are written into a temporary directory beside it, which then replaces
+    ``out_dir`` (:func:`bayescap.io.atomic.write_dir_atomically`), so ``out_dir`` holds one
+    complete run, the previous one, or nothing. An existing ``out_dir`` holding other files is
+    refused (:class:`FileExistsError`); write errors raise :class:`OSError` and leave nothing."""
+    from bayescap.io.atomic import output_problem, write_dir_atomically
+
     out = Path(out_dir)
-    out.mkdir(parents=True, exist_ok=True)
-    written = []
-    p = out / "result.json"
-    atomic_write_text(p, to_json(result))
-    written.append(p)
-    p = out / "report.txt"
-    atomic_write_text(p, format_text(result))
-    written.append(p)
-    p = out / "posterior.nc"
-    tmp = out / f".posterior.nc.tmp-{os.getpid()}"
-    try:
-        to_inference_data(result).to_netcdf(str(tmp), engine="h5netcdf")
-        os.replace(tmp, p)
-    finally:
-        if tmp.exists():
-            tmp.unlink()
-    written.append(p)
-    p = out / "ptc.png"
-    plot_ptc(result, p)
-    written.append(p)
-    p = out / "corner.png"
-    plot_corner(result, p)
-    written.append(p)
-    return written
+    problem = output_problem(out, directory=True, names=OUTPUT_NAMES, option="output directory")
+    if problem:
+        import errno
+
+        raise FileExistsError(errno.EEXIST, problem, str(out))
+
+    def fill(tmp: Path) -> None:
+        (tmp / "result.json").write_text(to_json(result), encoding="utf-8")
+        (tmp / "report.txt").write_text(format_text(result), encoding="utf-8")
+        idata = to_inference_data(result)
+        _check_space(tmp, idata)
+        idata.to_netcdf(str(tmp / "posterior.nc"), engine="h5netcdf")
+        plot_ptc(result, tmp / "ptc.png")
+        plot_corner(result, tmp / "corner.png")
+
+    write_dir_atomically(out, fill)
+    return [out / n for n in OUTPUT_NAMES]
