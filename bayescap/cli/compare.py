@@ -91,6 +91,7 @@ def run_compare(args) -> int:
                 mid_grey=args.mid_grey,
                 seed=args.seed,
                 quality=args.quality,
+                progress=sys.stderr.isatty(),
                 fit_kwargs=None if fs is None else {"fast_settings": fs},
             )
     except (PTCInputError, CompareInputError) as e:

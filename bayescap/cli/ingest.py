@@ -51,7 +51,14 @@ def run_ingest(args: argparse.Namespace) -> int:
     """Run ``bayescap ingest``: 0 on success (paths printed), 2 on an input error (one line on
     standard error, nothing written)."""
     try:
-        paths = ingest(args.source, out=args.out, roi=args.roi, channel=args.channel, fmt=args.format)
+        paths = ingest(
+            args.source,
+            out=args.out,
+            roi=args.roi,
+            channel=args.channel,
+            fmt=args.format,
+            progress=sys.stderr.isatty(),
+        )
     except IngestError as exc:
         print(f"bayescap ingest: error: {exc}", file=sys.stderr)
         return 2

@@ -77,6 +77,7 @@ def run_report(args) -> int:
                 mid_grey=args.mid_grey,
                 seed=args.seed,
                 quality=args.quality,
+                progress=sys.stderr.isatty(),
                 fit_kwargs=None if fs is None else {"fast_settings": fs},
             )
     except (PTCInputError, CompareInputError, OSError) as e:

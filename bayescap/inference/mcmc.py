@@ -17,6 +17,7 @@ import time
 import numpy as np
 
 from bayescap._blas import one_blas_thread
+from bayescap._progress import bar
 from bayescap.inference.chains import ChainResult, stuck_walkers
 from bayescap.inference.coordinates import mcmc_start
 from bayescap.inference.curvature import _proposal_cov
@@ -332,19 +333,21 @@ def run_ensembles(
     from bayescap.inference import moves as _emcee_moves  # noqa: F401
 
     t0 = time.perf_counter()
-    x_map, lp_map, cov, coords, z_map, cov_z = mcmc_start(model, n_restarts=settings.map_restarts)
+    with bar(progress, total=1, desc="start: optimiser", unit="step") as start_bar:
+        x_map, lp_map, cov, coords, z_map, cov_z = mcmc_start(model, n_restarts=settings.map_restarts)
+        start_bar.update(1)
     ss = np.random.SeedSequence(seed)
     children = ss.spawn(settings.n_ensembles)
     nw = max(settings.min_walkers, settings.walkers_per_dim * model.ndim)
     nw += nw % 2
     n_jobs = _default_jobs(settings.n_ensembles) if n_jobs is None else max(1, int(n_jobs))
-    pbar = None
-    if progress:
-        from tqdm.auto import tqdm
-
-        pbar = tqdm(
-            total=settings.n_ensembles * (settings.n_burn + settings.n_steps), desc="sampling", unit="step", leave=False
-        )
+    # one bar a round, each with its own fixed total (ensembles × steps), so none ever goes back
+    pbar = bar(
+        progress,
+        total=settings.n_ensembles * (settings.n_burn + settings.n_steps),
+        desc="sampling, round 1",
+        unit="step",
+    )
     is_start = None
     proposal = (x_map, cov)
     if settings.independence_fraction > 0 and settings.importance_start:
@@ -414,15 +417,13 @@ def run_ensembles(
                 cache = {}
             n_next = _next_round_steps(n_done, settings, cache)
             tasks = [t[:5] + (n_next,) + t[6:] for t in tasks]
-            if pbar is not None:
-                pbar.total += settings.n_ensembles * n_next
-                pbar.refresh()
+            pbar.close()
+            pbar = bar(progress, total=settings.n_ensembles * n_next, desc=f"sampling, round {rounds + 1}", unit="step")
     finally:
         _WORKER_MODEL = None
         if pool is not None:
             pool.close()
-        if pbar is not None:
-            pbar.close()
+        pbar.close()
     lp = np.stack([np.concatenate(c, axis=0) for c in lps])[:, discard:]
     acc = accepted / n_prod
     end_mcse = cache.pop("end_mcse", None)  # of the final chain: the last check's

@@ -34,6 +34,7 @@ from typing import Sequence
 
 import numpy as np
 
+from bayescap._progress import bar
 from bayescap.exceptions import IngestError, IngestWarning
 from bayescap.io.atomic import output_problem, write_files_atomically
 from bayescap.io.frames import _bits_for_white_level
@@ -102,6 +103,7 @@ def ingest(
     roi: str | float | Sequence[int] | None = None,
     channel: str = "G",
     fmt: str = "auto",
+    progress: bool = False,
 ) -> list[Path]:
     """Turn a set of frames into photon-transfer CSV file(s) (the project's input contract).
 
@@ -120,6 +122,7 @@ def ingest(
     channel : {"R", "Gr", "Gb", "B", "G", "all"}
         Bayer channel; ``G`` pools the Gr and Gb pixels into one set (means, variances and
         ``n_pixels`` over both). Ignored for monochrome frames (one file, ``# channel: mono``).
+    progress : a bar of the exposure levels read, on stderr.
     fmt : {"auto", "manifest", "emva"}
         How to read ``source``.
 
@@ -165,6 +168,7 @@ def ingest(
     state: dict = {}
     dark_cache: dict[tuple[Path, ...], dict[str, SetStatistics]] = {}
     rows: dict[str, list[dict]] = {c: [] for c in channels}
+    level_bar = bar(progress, total=len(levels), desc="ingest: exposure levels", unit="level")
     for level in levels:
         bright = _set_statistics(level.bright, reader, roi, stat_channels, state)
         key = tuple(e.path for e in level.dark)
@@ -202,7 +206,9 @@ def ingest(
                     "_black": b.black_level_dn,
                 }
             )
+        level_bar.update(1)
 
+    level_bar.close()
     ref = reader.reference
     height, width = reader.shape
     x0, y0, x1, y1 = state["roi"]

@@ -41,6 +41,7 @@ from pathlib import Path
 
 import numpy as np
 
+from bayescap._progress import bar
 from bayescap.exceptions import CompareInputError
 from bayescap.physics.capacity import N_GREY_LEVELS, information_capacity_bits, tonal_range_bits
 from bayescap.physics.optics import OPTICAL_FORMATS
@@ -364,10 +365,12 @@ def compare(
         raise CompareInputError(f"--h0 must be a positive exposure in lux·s, got {h0_lux_s}")
     datas = [load(p) for p in paths]  # refuse bad input before any fit runs
     results, seeds = [], []
-    for p, d in zip(paths, datas):
-        s = sensor_seed(seed, p)
-        results.append(fit(d, seed=s, quality=quality, progress=progress, **(fit_kwargs or {})))
-        seeds.append(s)
+    with bar(progress, total=len(paths), desc="compare: sensors fitted", unit="sensor") as done:
+        for p, d in zip(paths, datas):
+            s = sensor_seed(seed, p)
+            results.append(fit(d, seed=s, quality=quality, progress=progress, **(fit_kwargs or {})))
+            seeds.append(s)
+            done.update(1)
     return compare_results(
         results,
         inputs=[str(p) for p in paths],
