@@ -543,7 +543,7 @@ def render_html(cmp: Comparison, *, title: str = "bayescap sensor comparison") -
             + "</div><div><h3>Derived</h3>"
             + _table(["quantity", "median [95 %]", "unit"], der)
             + "<h3>Diagnostics</h3>"
-            + _table(["check", "value"], diag)
+            + _table(["check", "value"], diag, left=2)
             + "</div></div>"
         )
         sec.append(
@@ -567,7 +567,7 @@ def render_html(cmp: Comparison, *, title: str = "bayescap sensor comparison") -
     ]
     parts.append(
         '<section id="conventions"><h2>Conventions</h2>'
-        + _table(["convention", "value"], conv)
+        + _table(["convention", "value"], conv, left=2)
         + "<p class=small>See docs/compare.md: optical formats, H0 placement at mid-grey, exposure "
         "calibration, the probability of superiority.</p></section>"
     )
