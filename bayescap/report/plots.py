@@ -2,9 +2,11 @@
 plot of the parameters.
 
 The figures are :class:`matplotlib.figure.Figure` objects made without pyplot: no backend is
-selected and no global style is changed, so a notebook's display stays as it was. Returned
-figures display in a notebook; ``path`` writes a PNG atomically. matplotlib loads on the first
-plot, so the text report and the JSON start without it.
+selected and no global style is changed, so a notebook's display stays as it was. In Jupyter a
+returned figure shows as a cell's last expression or with ``IPython.display.display(fig)`` once
+the inline backend is active (``%matplotlib inline``, or any pyplot import in the kernel);
+``path`` writes a PNG (256-colour palette) atomically. matplotlib loads on the first plot, so the
+text report and the JSON start without it.
 """
 
 from __future__ import annotations
