@@ -14,7 +14,6 @@ from __future__ import annotations
 
 import base64
 import html
-import io
 import warnings
 from pathlib import Path
 
@@ -24,7 +23,7 @@ from matplotlib.figure import Figure
 from bayescap.io.ptc_csv import atomic_write_text
 from bayescap.physics.capacity import tonal_range_bits
 from bayescap.physics.noise import snr_db
-from bayescap.report.plots import plain_text, plot_corner, plot_ptc
+from bayescap.report.plots import plain_text, plot_corner, plot_ptc, png_bytes
 from bayescap.report.text import format_or_na
 from bayescap.studies.compare import Comparison
 from bayescap.studies.exposure import _coefficients, snr_at_exposure, tonal_range_at_exposure
@@ -52,6 +51,54 @@ SECTION_IDS = ("summary", "capacity", "tonal-range", "snr", "probabilities", "co
 
 _N_CURVE_DRAWS = 1000
 
+#: resolution of the embedded figures, and of the corner plots (shown at most 1000 px wide)
+_DPI = 90
+_CORNER_DPI = 90
+_CORNER_DRAWS = 8000
+
+#: what the tables call the fit's and the comparison's quantities: (name, scale, unit shown);
+#: the contract's identifier stays in the cell's tooltip
+QUANTITY_NAMES = {
+    "conversion_gain_e_per_dn": ("conversion gain K", 1.0, "e⁻/DN"),
+    "read_noise_e": ("read noise", 1.0, "e⁻"),
+    "dark_noise_e": ("dark noise (read and dark-current shot noise)", 1.0, "e⁻"),
+    "dark_current_e_per_s": ("dark current", 1.0, "e⁻/s"),
+    "full_well_e": ("full well (clip level)", 1.0, "e⁻"),
+    "quantum_efficiency": ("quantum efficiency", 1.0, ""),
+    "prnu_percent": ("PRNU", 1.0, "%"),
+    "dsnu_e": ("DSNU", 1.0, "e⁻"),
+    "clip_spread_dn": ("spread of the pixels about the clip", 1.0, "DN"),
+    "variance_discrepancy": ("variance discrepancy f (systematics)", 1.0, ""),
+    "mean_discrepancy": ("mean discrepancy g (non-linearity)", 1.0, ""),
+    "snr_max_db": ("maximum SNR (Eq. 1)", 1.0, "dB"),
+    "dynamic_range_db": ("dynamic range (Eq. 2)", 1.0, "dB"),
+    "tonal_range_bits": ("tonal range b′ (Eq. 7)", 1.0, "bit"),
+    "mtf_loss_bits": ("MTF loss Δs (Eq. 9)", 1.0, "bit"),
+    "effective_pixels": ("effective pixels s′", 1e6, "Mpixel"),
+    "capacity_bits": ("information capacity C (Eq. 6)", 1e6, "Mbit"),
+    "tonal_range_bits_h0": ("tonal range b′ at H₀", 1.0, "bit"),
+    "s_max_h0_e": ("top of the signal range at H₀", 1.0, "e⁻"),
+    "analog_gain_h0": ("analog gain at H₀", 1.0, "×"),
+    "capacity_full_bits": ("capacity C at full resolution, TR at H₀", 1e6, "Mbit"),
+    "capacity_area_bits": ("capacity C at the fixed area, TR at H₀", 1e6, "Mbit"),
+}
+
+#: what the conventions table calls its rows
+CONVENTION_NAMES = {
+    "area": "fixed imaging area",
+    "area_tolerance": "tolerance of the area",
+    "h0_lux_s": "average exposure H₀ (lux·s)",
+    "mid_grey_fraction": "mean scene, fraction of the signal range",
+    "h0_convention": "placement at H₀",
+    "seed": "seed",
+    "quality": "quality preset",
+    "n_draws_per_sensor": "posterior draws per sensor",
+    "probability": "probability of superiority",
+    "intervals": "intervals",
+}
+
+_UNITS = {"e-": "e⁻", "e-/DN": "e⁻/DN", "e-/s": "e⁻/s", "bits": "bit"}
+
 
 def _quiet(fn, *args, **kwargs):
     """Run a plotting function with corner.py's contour warnings (root logger) silenced."""
@@ -66,10 +113,9 @@ def _quiet(fn, *args, **kwargs):
         root.setLevel(level)
 
 
-def _png(fig) -> str:
-    buf = io.BytesIO()
-    fig.savefig(buf, format="png", dpi=90)
-    return base64.b64encode(buf.getvalue()).decode("ascii")
+def _png(fig, dpi=_DPI) -> str:
+    """The figure as a base64 PNG (256-colour palette, see :func:`~bayescap.report.plots.png_bytes`)."""
+    return base64.b64encode(png_bytes(fig, dpi)).decode("ascii")
 
 
 def _band(ax, x, draws, color, label):
@@ -249,7 +295,7 @@ text-align:right} th{background:#f3f3f3} td.l,th.l{text-align:left}
 img{max-width:100%;height:auto;display:block;margin:.4em 0;border:1px solid #eee}
 .sim{background:#fff4d6;border:1px solid #e0b84c;padding:.5em .8em;margin:.5em 0}
 .warn{color:#a30000} .small{font-size:.85em;color:#555} nav a{margin-right:1em}
-img.corner{max-width:760px}
+img.corner{max-width:1000px}
 .grid{display:grid;grid-template-columns:1fr 1fr;gap:1em} code{background:#f5f5f5;padding:0 3px}
 """
 
@@ -261,6 +307,8 @@ def _e(x) -> str:
 def _f(x, fmt="{:.4g}"):
     if x is None:
         return "—"
+    if isinstance(x, (int, float)) and 1e4 <= abs(x) < 1e9 and fmt == "{:.4g}":
+        return f"{x:,.0f}".replace(",", "\u202f")  # 15 020, not 1.502e+04
     if isinstance(x, (int, float)) and abs(x) >= 1e5:
         return f"{x:.4g}"
     return fmt.format(x)
@@ -283,6 +331,18 @@ def _img(b64, alt, cls="") -> str:
     )
 
 
+def _name(key) -> str:
+    return QUANTITY_NAMES[key][0] if key in QUANTITY_NAMES else key.replace("_", " ")
+
+
+def _quantity_row(key, s, label_suffix="") -> list[str]:
+    """A table row: readable name (identifier in the tooltip), median [95 %], unit."""
+    name, scale, unit = QUANTITY_NAMES.get(key, (key.replace("_", " "), 1.0, None))
+    if unit is None:
+        unit = _UNITS.get(s.get("unit", ""), s.get("unit", ""))
+    return [f'<span title="{_e(key)}">{_e(name + label_suffix)}</span>', _iv(s, scale), _e(unit)]
+
+
 def _table(header, rows, left=1) -> str:
     h = "".join(f"<th{' class=l' if i < left else ''}>{_e(c)}</th>" for i, c in enumerate(header))
     body = "".join(
@@ -296,6 +356,18 @@ def _is_simulated(s) -> bool:
     md = s.result.metadata
     txt = " ".join(str(md.get(k, "")) for k in ("simulated", "sensor", "note", "manufacturer")).lower()
     return bool(md.get("simulated")) or "simulated" in txt
+
+
+def _convention(key, v) -> str:
+    if key == "area" and isinstance(v, dict) and {"name", "width_mm", "height_mm"} <= set(v):
+        return f"{v['name']}: {v['width_mm']:g} × {v['height_mm']:g} mm" + (
+            f" (diagonal {v['diagonal_mm']:g} mm)" if v.get("diagonal_mm") else ""
+        )
+    if v is None:
+        return "none"
+    if isinstance(v, dict):
+        return ", ".join(f"{a}: {b}" for a, b in v.items())
+    return str(v)
 
 
 def render_html(cmp: Comparison, *, title: str = "bayescap sensor comparison") -> str:
@@ -419,13 +491,12 @@ def render_html(cmp: Comparison, *, title: str = "bayescap sensor comparison") -
         for n in own + fit_notes:
             sec.append(f"<p class=warn>! {_e(n)}</p>")
         prm = [
-            [_e(k), _iv(v), _e(v.get("unit", "")), "yes" if v.get("constrained", True) else "no"]
-            for k, v in rd["parameters"].items()
+            _quantity_row(k, v) + ["yes" if v.get("constrained", True) else "no"] for k, v in rd["parameters"].items()
         ]
-        der = [[_e(k), _iv(v), _e(v.get("unit", ""))] for k, v in rd["derived"].items()]
+        der = [_quantity_row(k, v) for k, v in rd["derived"].items()]
         for k in ("tonal_range_bits_h0", "s_max_h0_e", "analog_gain_h0", "capacity_full_bits", "capacity_area_bits"):
             if sd.get(k):
-                der.append([_e(k + " (compare)"), _iv(sd[k]), _e(sd[k].get("unit", ""))])
+                der.append(_quantity_row(k, sd[k], f" ({an})" if k == "capacity_area_bits" else ""))
         dg = rd["diagnostics"]
         num = lambda key, spec, dg=dg: format_or_na(dg.get(key), spec)
 
@@ -447,10 +518,15 @@ def render_html(cmp: Comparison, *, title: str = "bayescap sensor comparison") -
                     f"{dg['n_rounds']} round(s), {dg['wall_s']:.1f} s, quality {dg['quality']}"
                 ),
             ],
-            ["model terms", _e(", ".join(rd["model_terms"]))],
+            ["model terms", _e(", ".join(t.replace("_", " ") for t in rd["model_terms"]))],
             [
                 "MTF",
-                _e(", ".join(cc.get("name", "") for cc in rd.get("mtf", {}).get("model", {}).get("components", []))),
+                _e(
+                    ", ".join(
+                        cc.get("name", "").replace("_", " ")
+                        for cc in rd.get("mtf", {}).get("model", {}).get("components", [])
+                    )
+                ),
             ],
         ]
         if dg.get("interval_end_mcse_max") is not None:
@@ -460,7 +536,7 @@ def render_html(cmp: Comparison, *, title: str = "bayescap sensor comparison") -
                     "Monte Carlo error of the 95 % interval ends, of the width (target)",
                     _e(
                         f"{num('interval_end_mcse_max', '.3f')}"
-                        + (f" ({dg['interval_end_mcse_worst']})" if dg.get("interval_end_mcse_worst") else "")
+                        + (f" ({_name(dg['interval_end_mcse_worst'])})" if dg.get("interval_end_mcse_worst") else "")
                         + (f" (≤ {tgt:g})" if tgt is not None else " (reported, not a check)")
                     ),
                 ]
@@ -473,7 +549,7 @@ def render_html(cmp: Comparison, *, title: str = "bayescap sensor comparison") -
             + "</div><div><h3>Derived</h3>"
             + _table(["quantity", "median [95 %]", "unit"], der)
             + "<h3>Diagnostics</h3>"
-            + _table(["check", "value"], diag)
+            + _table(["check", "value"], diag, left=2)
             + "</div></div>"
         )
         sec.append(
@@ -482,16 +558,22 @@ def render_html(cmp: Comparison, *, title: str = "bayescap sensor comparison") -
             + _img(_png(plot_snr_sensor(s)), f"{s.name}: SNR with 95 % band")
             + "</div>"
         )
-        sec.append(_img(_png(_quiet(plot_corner, r, n_max=4000)), f"{s.name}: corner plot of the parameters", "corner"))
+        sec.append(
+            _img(
+                _png(_quiet(plot_corner, r, n_max=_CORNER_DRAWS), dpi=_CORNER_DPI),
+                f"{s.name}: corner plot of the physical parameters",
+                "corner",
+            )
+        )
         parts.append("".join(sec) + "</section>")
 
     conv = [
-        [_e(k), _e(v if not isinstance(v, dict) else ", ".join(f"{a}: {b}" for a, b in v.items()))]
+        [f'<span title="{_e(k)}">{_e(CONVENTION_NAMES.get(k, k.replace("_", " ")))}</span>', _e(_convention(k, v))]
         for k, v in c.items()
     ]
     parts.append(
         '<section id="conventions"><h2>Conventions</h2>'
-        + _table(["", ""], conv)
+        + _table(["convention", "value"], conv, left=2)
         + "<p class=small>See docs/compare.md: optical formats, H0 placement at mid-grey, exposure "
         "calibration, the probability of superiority.</p></section>"
     )

@@ -1,0 +1,127 @@
+"""README.md's examples run as written: every ```python block, and every ``bayescap ...`` command
+of the ```bash blocks, in a temporary folder where the repository's ``data/`` is reachable under
+the same relative path.
+
+Shell commands that are not ``bayescap`` (the quick start's venv set-up and test run, the lint
+commands) are listed in :data:`NOT_RUN` with the reason; a new one in the README fails
+:func:`test_every_bash_command_is_accounted_for` until it is run here or listed.
+"""
+
+from __future__ import annotations
+
+import glob
+import os
+import re
+import shlex
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+ROOT = Path(__file__).resolve().parents[1]
+README = ROOT / "README.md"
+
+#: shell commands of the README's bash blocks that this test does not run, and why
+NOT_RUN = {
+    "python3 -m venv .venv": "quick start: sets up the environment these tests run in (.ci/run)",
+    '.venv/bin/pip install -q -e ".[test]"': "quick start: sets up the environment these tests run in (.ci/run)",
+    ".venv/bin/python -m pytest -n 2": "quick start: runs this test suite",
+    "ruff check .": "run by tests/test_lint.py",
+    "ruff format --check .": "run by tests/test_lint.py",
+    "lint-imports": "run by tests/test_lint.py",
+    "pre-commit install": "installs a git hook into the clone",
+}
+
+#: python blocks that fail today for a known bug: block index -> reason (strict xfail: the test
+#: fails once the bug is fixed, so the entry must then go)
+KNOWN_BROKEN: dict[int, str] = {}
+
+
+class PicklingCrash(Exception):
+    """The README block died of the fit_many(n_jobs=2) pickling bug."""
+
+
+def _blocks(lang: str) -> list[str]:
+    return re.findall(rf"^```{lang}\n(.*?)^```", README.read_text(encoding="utf-8"), flags=re.M | re.S)
+
+
+def _bash_commands() -> list[str]:
+    """Each command of the bash blocks: lines split at ``&&``, comments dropped."""
+    out = []
+    for block in _blocks("bash"):
+        for line in block.splitlines():
+            line = line.split(" #", 1)[0].strip()
+            out += [c.strip() for c in line.split("&&") if c.strip()]
+    return out
+
+
+def _is_bayescap(cmd: str) -> bool:
+    return shlex.split(cmd)[0].rsplit("/", 1)[-1] == "bayescap"
+
+
+BAYESCAP_COMMANDS = [c for c in _bash_commands() if _is_bayescap(c)]
+PYTHON_BLOCKS = _blocks("python")
+
+
+def _env() -> dict:
+    env = dict(os.environ)
+    env["PYTHONPATH"] = os.pathsep.join([str(ROOT), env.get("PYTHONPATH", "")]).rstrip(os.pathsep)
+    env.setdefault("MPLBACKEND", "Agg")
+    return env
+
+
+@pytest.fixture
+def workdir(tmp_path):
+    (tmp_path / "data").symlink_to(ROOT / "data", target_is_directory=True)
+    return tmp_path
+
+
+def test_readme_has_examples():
+    assert PYTHON_BLOCKS and BAYESCAP_COMMANDS
+
+
+def test_every_bash_command_is_accounted_for():
+    unknown = [c for c in _bash_commands() if not _is_bayescap(c) and c not in NOT_RUN]
+    assert unknown == [], f"README bash commands neither run by tests/test_readme.py nor listed in NOT_RUN: {unknown}"
+
+
+@pytest.mark.parametrize("cmd", BAYESCAP_COMMANDS)
+def test_readme_command(cmd, workdir):
+    argv = shlex.split(cmd)
+    # the shell's glob expansion (data/benchmark/M*.csv), in the working folder
+    args = [x for a in argv[1:] for x in (sorted(glob.glob(a, root_dir=workdir)) if "*" in a else [a])]
+    # the quick start's .venv/bin/bayescap is this interpreter's bayescap
+    proc = subprocess.run(
+        [sys.executable, "-m", "bayescap", *args],
+        cwd=workdir,
+        env=_env(),
+        capture_output=True,
+        text=True,
+        timeout=300,
+    )
+    assert proc.returncode == 0, proc.stdout[-2000:] + proc.stderr[-3000:]
+    if argv[1] == "fit" and "--json" not in argv:
+        # the parameters the README's abridged output lists
+        for name in ("conversion_gain_e_per_dn", "read_noise_e", "full_well_e", "capacity C ="):
+            assert name in proc.stdout, name
+
+
+@pytest.mark.parametrize(
+    "i",
+    [
+        pytest.param(i, marks=pytest.mark.xfail(strict=True, raises=PicklingCrash, reason=KNOWN_BROKEN[i]))
+        if i in KNOWN_BROKEN
+        else i
+        for i in range(len(PYTHON_BLOCKS))
+    ],
+)
+def test_readme_python_block(i, workdir):
+    script = workdir / f"readme_block_{i}.py"
+    script.write_text(PYTHON_BLOCKS[i], encoding="utf-8")
+    proc = subprocess.run(
+        [sys.executable, script.name], cwd=workdir, env=_env(), capture_output=True, text=True, timeout=300
+    )
+    if proc.returncode != 0 and "Can't pickle local object" in proc.stderr:
+        raise PicklingCrash(proc.stderr[-1500:])
+    assert proc.returncode == 0, proc.stderr[-3000:]
