@@ -8,6 +8,7 @@
 
 from __future__ import annotations
 
+import os
 import warnings
 
 import numpy as np
@@ -27,7 +28,7 @@ __all__ = ["load", "fit", "default_scene", "mtf_from_metadata", "measured_mtf", 
 METADATA_DEFAULTS = {"f_number": 2.8, "wavelength_nm": 555.0, "fill_factor": 1.0}
 
 
-def load(path, **overrides) -> PTCData:
+def load(path: str | os.PathLike, **overrides) -> PTCData:
     """Read and validate a photon-transfer CSV; keyword overrides replace metadata values."""
     return read_ptc_csv(path, overrides=overrides or None)
 

@@ -191,3 +191,24 @@ def test_fit_many_mcmc_preset_reports_a_bad_sensor_instead_of_stopping():
         ["data/simulated/sim_phone_1p75um_10bit.csv", "no_such_file.csv"], quality="standard", seed=1, summary_only=True
     )
     assert res[0]["converged"] and "file not found" in res[1]["error"]
+
+
+@pytest.mark.parametrize(
+    "kw, match",
+    [
+        ({"n_jobs": 0}, "n_jobs must be a whole number >= 1, got 0"),
+        ({"n_jobs": 1.5}, "n_jobs must be a whole number >= 1"),
+        ({"stack_size": 0}, "stack_size must be"),
+        ({"seed": -1}, "seed must be a whole number >= 0"),
+        ({"seed": None}, "seed must be a whole number >= 0"),
+        ({"settings": "fast"}, "settings must be a FastSettings"),
+    ],
+)
+def test_fit_many_refuses_bad_arguments_with_an_input_error(kw, match):
+    """fit_many(n_jobs=0) and the like are refused up front, as bayescap.fit's arguments are,
+    instead of a foreign error from the process pool or numpy (or silence)."""
+    from bayescap.exceptions import InputError
+
+    args = {"seed": 1, **kw}
+    with pytest.raises(InputError, match=match):
+        fit_many(["data/emva1288_basler_ccd12.csv"], **args)

@@ -11,30 +11,36 @@ Modules: :mod:`~bayescap.batch.engine` (the lockstep fast paths, results in memo
 
 from __future__ import annotations
 
+import numbers
+import os
+from collections.abc import Sequence
+
 from bayescap._blas import one_blas_thread
 from bayescap.batch.engine import _summary, fit_in_memory, sensor_seeds
 from bayescap.batch.gpixel import GPIXEL_CSV, gpixel_sensors, gpixel_truths
+from bayescap.exceptions import InputError
 from bayescap.inference import FastSettings
+from bayescap.io.ptc_csv import PTCData
 
 __all__ = ["fit_many", "gpixel_truths", "gpixel_sensors", "GPIXEL_CSV", "sensor_seeds", "_summary"]
 
 
 @one_blas_thread
 def fit_many(
-    datas,
+    datas: Sequence[PTCData | str | os.PathLike],
     *,
     quality: str = "fast",
-    seed,
+    seed: int,
     n_jobs: int = 1,
     fallback: bool = True,
     settings: FastSettings = FastSettings(),
     summary_only: bool = False,
     stack_size: int = 64,
-    out=None,
+    out: str | os.PathLike | None = None,
     client=None,
     chunk_size: int = 128,
     progress: bool = False,
-):
+) -> list:
     """Fit many sensors with the Laplace–IS fast path (MCMC fallback per sensor if ``fallback``),
     vectorised across sensors (:mod:`bayescap.batch.engine`).
 
@@ -67,7 +73,14 @@ def fit_many(
     progress : (with ``out``) a progress bar of sensors done.
     """
     if client is not None and out is None:
-        raise ValueError("fit_many(client=...) writes its results as they finish: give out=<folder>")
+        raise InputError("fit_many(client=...) writes its results as they finish: give out=<folder>")
+    for name, v in (("n_jobs", n_jobs), ("stack_size", stack_size), ("chunk_size", chunk_size)):
+        if isinstance(v, bool) or not isinstance(v, numbers.Integral) or v < 1:
+            raise InputError(f"fit_many: {name} must be a whole number >= 1, got {v!r}")
+    if isinstance(seed, bool) or not isinstance(seed, numbers.Integral) or seed < 0:
+        raise InputError(f"fit_many: seed must be a whole number >= 0 (the batch's seeds derive from it), got {seed!r}")
+    if not isinstance(settings, FastSettings):
+        raise InputError(f"fit_many: settings must be a FastSettings, got {type(settings).__name__}")
     if out is None:
         return fit_in_memory(
             datas,
