@@ -23,8 +23,8 @@ from __future__ import annotations
 import math
 from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, ThreadPoolExecutor, wait
 
+import bayescap.batch.store as store
 from bayescap._blas import one_blas_thread
-from bayescap.batch import store
 from bayescap.batch.engine import _Deferred, _fallback_fit, _fit_groups, sensor_seeds
 from bayescap.inference import FastSettings
 

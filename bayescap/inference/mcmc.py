@@ -330,7 +330,7 @@ def run_ensembles(
     global _WORKER_MODEL
     # emcee, imported here and not with the package: before the workers are forked, so that they
     # inherit it instead of each importing it again (~0.75 s), and before the fit's clock starts
-    from bayescap.inference import moves as _emcee_moves  # noqa: F401
+    import bayescap.inference.moves  # noqa: F401
 
     t0 = time.perf_counter()
     with bar(progress, total=1, desc="start: optimiser", unit="step") as start_bar:
