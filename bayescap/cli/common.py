@@ -111,3 +111,41 @@ def fast_settings_from_args(args):
                 raise InputError(f"--fast-confidence must be a probability in (0, 1) or 'none', got {conf!r}")
             fs = replace(fs, end_confidence=c)
     return fs
+
+
+def add_comparison_arguments(p: argparse.ArgumentParser) -> None:
+    """The options ``compare`` and ``report`` share: the imaging area, H0, mid-grey, seed, preset."""
+    from bayescap.studies.compare import DEFAULT_AREA, DEFAULT_H0_LUX_S, DEFAULT_QUALITY
+    from bayescap.studies.exposure import DEFAULT_MID_GREY
+
+    p.add_argument(
+        "--area",
+        default=DEFAULT_AREA,
+        help="fixed imaging area: an optical format (1/4in, 1/3.2in, 1/3in, 2/3in, ...), WxHmm, "
+        "or none (default 1/4in)",
+    )
+    p.add_argument(
+        "--h0",
+        type=float,
+        default=DEFAULT_H0_LUX_S,
+        metavar="LUX_S",
+        help="average photometric exposure H0 (lux·s) for TR and capacity, as Fig. 8(a) (default 0.4)",
+    )
+    p.add_argument(
+        "--mid-grey",
+        type=float,
+        default=DEFAULT_MID_GREY,
+        dest="mid_grey",
+        help="fraction of the top of the signal range where the scene's mean is placed (default 0.18)",
+    )
+    p.add_argument(
+        "--seed", type=seed_arg, default=0, help="random seed of the run (each sensor's seed derives from it)"
+    )
+    p.add_argument(
+        "--quality",
+        choices=("fast", "standard", "accurate"),
+        default=DEFAULT_QUALITY,
+        help="sampler preset for every fit (default fast: several sensors are fitted; "
+        "use standard or accurate for final numbers)",
+    )
+    add_fast_arguments(p)

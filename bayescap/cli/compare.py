@@ -10,52 +10,16 @@ from pathlib import Path
 
 from bayescap.exceptions import CompareInputError
 from bayescap.studies.compare import (
-    DEFAULT_AREA,
-    DEFAULT_H0_LUX_S,
-    DEFAULT_QUALITY,
     compare,
     format_compare_text,
 )
-from bayescap.studies.exposure import DEFAULT_MID_GREY
 
 
 def add_compare_arguments(p: argparse.ArgumentParser) -> None:
-    from bayescap.cli.common import seed_arg
+    from bayescap.cli.common import add_comparison_arguments
 
     p.add_argument("csv", nargs="+", help="photon-transfer CSVs, one per sensor")
-    p.add_argument(
-        "--area",
-        default=DEFAULT_AREA,
-        help="fixed imaging area: an optical format (1/4in, 1/3.2in, 1/3in, 2/3in, ...), WxHmm, "
-        "or none (default 1/4in)",
-    )
-    p.add_argument(
-        "--h0",
-        type=float,
-        default=DEFAULT_H0_LUX_S,
-        metavar="LUX_S",
-        help="average photometric exposure H0 (lux·s) for TR, as Fig. 8(a) (default 0.4)",
-    )
-    p.add_argument(
-        "--mid-grey",
-        type=float,
-        default=DEFAULT_MID_GREY,
-        dest="mid_grey",
-        help="fraction of the top of the signal range where the scene's mean is placed (default 0.18)",
-    )
-    p.add_argument(
-        "--seed", type=seed_arg, default=0, help="random seed of the run (each sensor's seed derives from it)"
-    )
-    p.add_argument(
-        "--quality",
-        choices=("fast", "standard", "accurate"),
-        default=DEFAULT_QUALITY,
-        help="sampler preset for every fit (default fast: several sensors are fitted; "
-        "use standard or accurate for final numbers)",
-    )
-    from bayescap.cli.common import add_fast_arguments
-
-    add_fast_arguments(p)
+    add_comparison_arguments(p)
     p.add_argument("--json", action="store_true", help="print the comparison as JSON")
     p.add_argument("--out", metavar="DIR", help="also write compare.json and compare.txt into DIR")
 

@@ -9,45 +9,17 @@ import warnings
 from bayescap.exceptions import CompareInputError
 from bayescap.report.html import write_report
 from bayescap.studies.compare import (
-    DEFAULT_AREA,
-    DEFAULT_H0_LUX_S,
-    DEFAULT_QUALITY,
     compare,
 )
-from bayescap.studies.exposure import DEFAULT_MID_GREY
 
 
 def add_report_arguments(p: argparse.ArgumentParser) -> None:
-    from bayescap.cli.common import seed_arg
+    from bayescap.cli.common import add_comparison_arguments
 
     p.add_argument("csv", nargs="+", help="photon-transfer CSVs, one per sensor")
     p.add_argument("-o", "--output", default="report.html", help="HTML file to write (default report.html)")
-    p.add_argument("--area", default=DEFAULT_AREA, help="fixed imaging area (as for compare; default 1/4in)")
-    p.add_argument(
-        "--h0",
-        type=float,
-        default=DEFAULT_H0_LUX_S,
-        metavar="LUX_S",
-        help="average exposure H0 (lux·s) for TR and capacity (default 0.4)",
-    )
-    p.add_argument(
-        "--mid-grey",
-        type=float,
-        default=DEFAULT_MID_GREY,
-        dest="mid_grey",
-        help="fraction of the top of the range where the scene's mean is placed (default 0.18)",
-    )
-    p.add_argument("--seed", type=seed_arg, default=0, help="random seed of the run")
-    p.add_argument(
-        "--quality",
-        choices=("fast", "standard", "accurate"),
-        default=DEFAULT_QUALITY,
-        help="sampler preset (default fast)",
-    )
+    add_comparison_arguments(p)
     p.add_argument("--title", default="bayescap sensor comparison")
-    from bayescap.cli.common import add_fast_arguments
-
-    add_fast_arguments(p)
 
 
 def run_report(args) -> int:
