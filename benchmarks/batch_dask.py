@@ -55,6 +55,7 @@ def main(argv=None):
 
     from bayescap import retain_freed_memory
     from bayescap.batch import fit_many, gpixel_sensors
+    from bayescap.batch.cluster import local_cluster
     from bayescap.batch.runner import _chunks
 
     retain_freed_memory()
@@ -69,9 +70,8 @@ def main(argv=None):
         rep_pool = fit_many(datas, seed=1, n_jobs=2, out=tmp / "pool")
         t_pool = time.perf_counter() - t
         t = time.perf_counter()
-        cluster = distributed.LocalCluster(n_workers=2, threads_per_worker=1, processes=True, dashboard_address=":0")
+        cluster = local_cluster(2)  # the cluster `bayescap fit --dask 2` starts
         client = distributed.Client(cluster)
-        client.run(retain_freed_memory)
         t_start = time.perf_counter() - t
         try:
             t = time.perf_counter()

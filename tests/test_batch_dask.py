@@ -15,7 +15,7 @@ from pathlib import Path
 import pytest
 
 from bayescap.batch import fit_many, gpixel_sensors
-from bayescap.batch.cluster import DASK_HINT
+from bayescap.batch.cluster import DASK_HINT, local_cluster
 from bayescap.batch.runner import fit_to_folder
 
 try:
@@ -23,15 +23,13 @@ try:
 except ImportError:  # not a skip: the test extra installs it
     raise ImportError(DASK_HINT) from None
 
+
 ROOT = Path(__file__).resolve().parents[1]
 
 
 @pytest.fixture(scope="module")
 def client():
-    with (
-        distributed.LocalCluster(n_workers=2, threads_per_worker=1, processes=True, dashboard_address=":0") as cluster,
-        distributed.Client(cluster) as c,
-    ):
+    with local_cluster(2) as cluster, distributed.Client(cluster) as c:  # the cluster `--dask 2` starts
         yield c
 
 
@@ -195,3 +193,15 @@ def test_a_worker_killed_mid_run_and_the_batch_completes_every_result_once(clien
     for r, m in zip(report, ref):
         doc = json.loads((out / r["name"] / "result.json").read_text())
         assert _numbers({k: v for k, v in doc.items() if k != "batch"}) == _numbers(m.to_dict())
+
+
+def test_workers_keep_freed_memory(client):
+    """A Dask nanny starts workers with MALLOC_TRIM_THRESHOLD_=65536, which made every fit about 1.5x
+    slower (benchmarks/batch_dask.py: 1.42x the local pool); the cluster bayescap starts gives its
+    workers the thresholds bayescap.retain_freed_memory sets in this process."""
+    import os
+
+    from bayescap.batch.cluster import WORKER_MALLOC_ENV
+
+    for name, value in WORKER_MALLOC_ENV.items():
+        assert set(client.run(os.environ.get, name).values()) == {value}, name

@@ -12,9 +12,20 @@ client sees each task finish once.
 
 from __future__ import annotations
 
+from bayescap._heap import MMAP_THRESHOLD_BYTES, TRIM_THRESHOLD_BYTES
 from bayescap.exceptions import InputError
 
-__all__ = ["DASK_HINT", "DaskTasks", "import_distributed", "start_client"]
+__all__ = ["DASK_HINT", "WORKER_MALLOC_ENV", "DaskTasks", "import_distributed", "local_cluster", "start_client"]
+
+#: glibc's malloc thresholds for a worker process, as :func:`bayescap.retain_freed_memory` sets them
+#: in this one. A Dask nanny starts its workers with ``MALLOC_TRIM_THRESHOLD_=65536``
+#: (``distributed.nanny.pre-spawn-environ``), which hands every freed ``log_prob`` temporary back to
+#: the kernel: the batch's fits then take about 1.5x as long. A cluster bayescap starts gets these
+#: instead; for a cluster of your own, set them in that configuration key (docs/batch.md).
+WORKER_MALLOC_ENV = {
+    "MALLOC_TRIM_THRESHOLD_": str(TRIM_THRESHOLD_BYTES),
+    "MALLOC_MMAP_THRESHOLD_": str(MMAP_THRESHOLD_BYTES),
+}
 
 DASK_HINT = "a Dask cluster needs dask.distributed: pip install 'bayescap[dask]'"
 
@@ -62,7 +73,18 @@ def start_client(scheduler=None, n_workers=None):
             return distributed.Client(scheduler, timeout="20s"), None
         except (OSError, TimeoutError, ValueError) as e:
             raise InputError(f"--scheduler {scheduler}: cannot connect ({type(e).__name__}: {e})") from None
-    cluster = distributed.LocalCluster(
-        n_workers=int(n_workers), threads_per_worker=1, processes=True, dashboard_address=":0"
-    )
+    cluster = local_cluster(int(n_workers))
     return distributed.Client(cluster), cluster
+
+
+def local_cluster(n_workers: int):
+    """A ``LocalCluster`` of ``n_workers`` single-threaded worker processes whose malloc keeps freed
+    temporaries (:data:`WORKER_MALLOC_ENV`)."""
+    import dask
+
+    distributed = import_distributed()
+    environ = {**dask.config.get("distributed.nanny.pre-spawn-environ", {}), **WORKER_MALLOC_ENV}
+    with dask.config.set({"distributed.nanny.pre-spawn-environ": environ}):
+        return distributed.LocalCluster(
+            n_workers=n_workers, threads_per_worker=1, processes=True, dashboard_address=":0"
+        )
