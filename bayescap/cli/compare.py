@@ -32,7 +32,7 @@ def run_compare(args) -> int:
 
     try:
         fs = fast_settings_from_args(args)
-    except InputError as e:  # handled here: under `python -m bayescap.cli` main's InputError is another class
+    except InputError as e:
         print(f"bayescap: error: {e}", file=sys.stderr)
         return 2
     if args.out:  # before any fitting

@@ -29,7 +29,7 @@ def run_report(args) -> int:
 
     try:
         fs = fast_settings_from_args(args)
-    except InputError as e:  # handled here: under `python -m bayescap.cli` main's InputError is another class
+    except InputError as e:
         print(f"bayescap: error: {e}", file=sys.stderr)
         return 2
     from bayescap.io.atomic import output_problem
