@@ -196,9 +196,9 @@ def test_a_worker_killed_mid_run_and_the_batch_completes_every_result_once(clien
 
 
 def test_workers_keep_freed_memory(client):
-    """A Dask nanny starts workers with MALLOC_TRIM_THRESHOLD_=65536, which made every fit about 1.5x
-    slower (benchmarks/batch_dask.py: 1.42x the local pool); the cluster bayescap starts gives its
-    workers the thresholds bayescap.retain_freed_memory sets in this process."""
+    """A Dask nanny starts workers with MALLOC_TRIM_THRESHOLD_=65536, under which every fit takes about
+    1.5x as long; the cluster bayescap starts gives its workers the thresholds
+    bayescap.retain_freed_memory sets in this process."""
     import os
 
     from bayescap.batch.cluster import WORKER_MALLOC_ENV
