@@ -15,6 +15,7 @@ from bayescap.physics.capacity import (
     tonal_range_bits,
 )
 from bayescap.physics.noise import NoiseCoefficients, dark_variance_e2, dynamic_range_db, snr_db, variance_terms
+from bayescap.posterior.limits import apply_derived_limits
 from bayescap.posterior.summary import DERIVED_INFO, summarize
 
 __all__ = ["DerivedMixin"]
@@ -159,11 +160,11 @@ class DerivedMixin:
         """The contract's ``derived`` block."""
         out = {}
         lower = self.flags.get("capacity_lower_bound", False)
-        for name, x in self.derived.items():
+        for name, x in self.summary_derived().items():
             unit = DERIVED_INFO.get(name, ("bits/pixel", ""))[0]
             extra = {}
             if lower and name not in ("mtf_loss_bits",):
                 extra["lower_bound"] = True
             out[name] = summarize(x, unit, **extra)
             out[name].pop("constrained")
-        return out
+        return apply_derived_limits(self, self.parameter_summary(), out)
