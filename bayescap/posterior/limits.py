@@ -104,7 +104,7 @@ def apply_derived_limits(result, params: dict, out: dict) -> dict:
     causes = _dark_noise_only_bounded(result, params)
     for name, s in out.items():
         why = None
-        if s.get("lower_bound") is True:
+        if s.get("lower_bound") is True and name != "effective_pixels":  # s' = s·2^Δs: no full well in it
             why = "full_well_e"
         elif name in _DARK_NOISE_DERIVED and causes:
             why = ", ".join(causes)
