@@ -293,3 +293,14 @@ def test_a_bound_that_binds_is_flagged(ns_fit):
     assert f["side"] == "upper" and "2 % of the clip level" in f["bound"]
     assert "clip_spread_dn sits at its upper bound" in format_text(r)
     assert "bound_binding" not in ns_fit.flags
+
+
+def test_repr_html_and_batch_table_print_limits_alone(ns_fit):
+    from bayescap.cli.fit import _batch_table
+
+    s = repr(ns_fit)
+    assert "read_noise=< " in s and "(95 % upper limit)" in s and "capacity=> " in s, s
+    h = ns_fit._repr_html_()
+    assert "&lt; " in h and "95 % upper limit" in h
+    row = _batch_table(["cam.csv"], [ns_fit]).splitlines()[-1]
+    assert "(95 % lower limit)" in row.split("|")[-1], row
