@@ -5,26 +5,41 @@ A parameter summary marked ``constrained: false`` keeps every key of the contrac
 the text report prints the limit alone (``< 629 (95 % upper limit)``), never a median with an
 interval. Decided here:
 
-* a scale parameter whose posterior reaches down to zero, or whose 95 % upper end is not far below
-  its prior's (the data hardly moved it: :data:`PRIOR_DOMINATED_FRACTION`), is an upper limit;
+* a scale parameter whose posterior reaches down to zero, or whose 95 % interval is nearly as wide
+  as its prior's (the data hardly narrowed it: :data:`PRIOR_DOMINATED_FRACTION`), is an upper limit;
 * the summaries :meth:`FitResult.parameter_summary` already marks (read noise below 0.4 DN,
   one exposure time, no row at saturation) get their ``limit``;
-* the derived quantities that depend on the dark noise (DR, TR, capacity) are lower limits when
-  a dark-noise parameter is only an upper limit and matters at the scene.
+* a derived quantity that depends on a parameter known only as an upper limit (DR on the read
+  noise; TR and capacity where the dark noise is above one grey level) is a lower limit: it
+  follows when moving that parameter to a tenth of its value moves the quantity's median by more
+  than :data:`FOLLOW_FRACTION` of its 95 % width.
 """
 
 from __future__ import annotations
 
 import numpy as np
 
-__all__ = ["apply_parameter_limits", "apply_derived_limits", "LIMIT_LEVEL", "PRIOR_DOMINATED_FRACTION"]
+__all__ = [
+    "apply_parameter_limits",
+    "apply_derived_limits",
+    "LIMIT_LEVEL",
+    "PRIOR_DOMINATED_FRACTION",
+    "FOLLOW_FRACTION",
+]
 
 #: the one-sided level of every limit
 LIMIT_LEVEL = 0.95
 
-#: a half-normal scale parameter whose posterior 97.5 % point is above this fraction of the prior's
-#: is not constrained by the data (the prior's 97.5 % point is 2.24 scales)
-PRIOR_DOMINATED_FRACTION = 0.3
+#: a half-normal scale parameter whose posterior 95 % interval is wider than this fraction of the
+#: prior's (0.03–2.24 scales) is not constrained by the data
+PRIOR_DOMINATED_FRACTION = 0.5
+
+#: a derived quantity follows a parameter known only as an upper limit when the parameter at a
+#: tenth of its value moves the quantity's median by more than this fraction of its 95 % width
+FOLLOW_FRACTION = 0.5
+
+#: draws the dependence of the derived quantities is checked on
+_FOLLOW_DRAWS = 2000
 
 #: the half-normal prior scale (``PTCModel.PRIOR`` key) of each scale parameter
 _PRIOR_SCALES = {
@@ -33,9 +48,6 @@ _PRIOR_SCALES = {
     "prnu_percent": ("prnu_scale", 100.0),
     "dsnu_e": ("dsnu_scale_e", 1.0),
 }
-
-#: the derived quantities that fall as the dark noise rises
-_DARK_NOISE_DERIVED = ("dynamic_range_db", "tonal_range_bits", "capacity_bits", "capacity_bits_per_pixel")
 
 
 def _limit(entry, kind, value, level=LIMIT_LEVEL):
@@ -58,14 +70,14 @@ def apply_parameter_limits(result, out: dict) -> dict:
         bounds_key = bounds_key or {"prnu_percent": "prnu_log_bounds", "dsnu_e": "dsnu_log_bounds"}[name]
         if m.PRIOR.get(bounds_key) is not None:
             continue  # a log-uniform prior on bounds: no scale to compare with
-        prior_975 = 2.2414 * factor * m.PRIOR[key]
-        hi = float(np.quantile(draws[name], 0.975))
-        if hi > PRIOR_DOMINATED_FRACTION * prior_975:
+        prior_width = (2.2414 - 0.03134) * factor * m.PRIOR[key]  # the half-normal's 2.5–97.5 % points
+        lo, hi = np.quantile(draws[name], [0.025, 0.975])
+        if hi - lo > PRIOR_DOMINATED_FRACTION * prior_width:
             s["constrained"] = False
             s["upper_limit_95"] = float(np.quantile(draws[name], LIMIT_LEVEL))
             s["note"] = (
-                f"the data hardly constrain it: its 97.5 % point is {hi / prior_975:.0%} of the prior's "
-                f"(half-normal, scale {factor * m.PRIOR[key]:g} {s.get('unit', '')}); the upper limit is the prior's"
+                f"the data hardly constrain it: its 95 % interval is {(hi - lo) / prior_width:.0%} as wide as "
+                f"the prior's (half-normal, scale {factor * m.PRIOR[key]:g} {s.get('unit', '')})"
             )
     for s in out.values():
         if s.get("constrained") is not False:
@@ -77,37 +89,67 @@ def apply_parameter_limits(result, out: dict) -> dict:
     return out
 
 
-def _dark_noise_only_bounded(result, params: dict) -> list:
-    """The dark-noise parameters that are upper limits and matter at the scene: read noise (or the
-    combined dark noise), and a dark current whose 95 % upper value would add ≥ 10 % to the dark
-    variance at the scene's exposure time."""
+#: the parameters whose upper limit the derived quantities can follow
+_UPPER_LIMITED = ("read_noise_e", "dark_noise_e", "dark_current_e_per_s", "dsnu_e")
+
+
+def _followers(result, params: dict, names) -> dict:
+    """{derived quantity: the parameters known only as upper limits that it depends on}: a quantity
+    depends on a parameter when that parameter at a tenth of its value (each draw) moves the
+    quantity's median by more than :data:`FOLLOW_FRACTION` of its 95 % width."""
+    causes = [n for n in _UPPER_LIMITED if (params.get(n) or {}).get("limit", {}).get("kind") == "upper"]
+    if not causes:
+        return {}
     p = result.summary_draws()
-    out = []
-    for name in ("read_noise_e", "dark_noise_e"):
-        s = params.get(name)
-        if s and s.get("limit") and name in p and (name == "dark_noise_e" or result.model.terms.dark_current):
-            out.append(name)
-    s = params.get("dark_current_e_per_s")
-    if s and s.get("limit") and result.model.terms.dark_current and "read_noise_e" in p:
-        sc = result.scene
-        dc = s["limit"]["value"] * sc.exposure_time_s * sc.dark_current_factor
-        if dc >= 0.1 * float(np.median(p["read_noise_e"])) ** 2:
-            out.append("dark_current_e_per_s")
+    n = next(iter(p.values())).size
+    take = np.linspace(0, n - 1, min(n, _FOLLOW_DRAWS)).round().astype(int)
+    p = {k: np.asarray(v)[take] for k, v in p.items()}
+    base = _derived_of(result, p)
+    out = {}
+    for c in causes:
+        if c not in p:
+            continue
+        moved = _derived_of(result, {**p, c: 0.1 * p[c]})
+        for name in names:
+            if name not in base or name not in moved:
+                continue
+            lo, med, hi = np.quantile(base[name], [0.025, 0.5, 0.975])
+            shift = abs(float(np.median(moved[name])) - float(med))
+            if shift > FOLLOW_FRACTION * max(float(hi - lo), 1e-12 * abs(float(med))):
+                out.setdefault(name, []).append(c)
     return out
+
+
+def _derived_of(result, p: dict) -> dict:
+    """The derived quantities of the physical draws ``p`` at ``result``'s scene, MTF and metadata."""
+    tmp = type(result)(
+        model=result.model,
+        chains=None,
+        metadata=result.metadata,
+        scene=result.scene,
+        mtf=result.mtf,
+        seed=result.seed,
+        quality="",
+        draws=p,
+    )
+    with np.errstate(all="ignore"):
+        tmp._derive()
+    return {k: np.asarray(v, float) for k, v in tmp.derived.items() if np.size(v) == next(iter(p.values())).size}
 
 
 def apply_derived_limits(result, params: dict, out: dict) -> dict:
     """Mark the derived summaries ``out`` that follow a parameter known only as a limit: lower
-    limits (the 5 % point) of DR, TR and capacity when the dark noise is only an upper limit at the
-    scene, and of every flagged lower bound (no row at saturation); returns ``out``."""
+    limits (the 5 % point) of the quantities that depend on a parameter known only as an upper
+    limit (:func:`_followers`), and of every flagged lower bound (no row at saturation); returns
+    ``out``."""
     draws = result.summary_derived()
-    causes = _dark_noise_only_bounded(result, params)
+    follows = _followers(result, params, [n for n in out if n not in ("mtf_loss_bits", "effective_pixels")])
     for name, s in out.items():
         why = None
         if s.get("lower_bound") is True and name != "effective_pixels":  # s' = s·2^Δs: no full well in it
             why = "full_well_e"
-        elif name in _DARK_NOISE_DERIVED and causes:
-            why = ", ".join(causes)
+        elif name in follows:
+            why = ", ".join(follows[name])
         if why is None or name not in draws:
             continue
         s["limit"] = {
