@@ -131,7 +131,7 @@ def test_one_exposure_time_gives_dark_current_as_a_limit(tmp_path):
     write_ptc_csv(cols, tmp_path / "one_t.csv", metadata={"adc_bits": 8})
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
-        r = bayescap.fit(bayescap.load(tmp_path / "one_t.csv"), seed=2, quality="fast")
+        r = bayescap.fit(bayescap.load(tmp_path / "one_t.csv"), seed=2, quality="fast", fallback=False)
     s = r.to_dict()["parameters"]["dark_current_e_per_s"]
     assert s["constrained"] is False and s["limit"]["kind"] == "upper"
     assert "dark_current_e_per_s" in format_text(r) and "(95 % upper limit)" in format_text(r)
@@ -304,3 +304,15 @@ def test_repr_html_and_batch_table_print_limits_alone(ns_fit):
     assert "&lt; " in h and "95 % upper limit" in h
     row = _batch_table(["cam.csv"], [ns_fit]).splitlines()[-1]
     assert "(95 % lower limit)" in row.split("|")[-1], row
+
+
+def test_a_measured_dark_current_near_the_prior_scale_stays_a_measurement(tmp_path):
+    """The right units: the dark ramp (40 e⁻ over 4 ms) measures 10⁴ e⁻/s, the prior's scale. A
+    posterior much narrower than the prior is a measurement wherever it sits in the prior."""
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        r = bayescap.fit(_camera(tmp_path, scale_t=1.0), seed=1, quality="fast")
+    s = r.to_dict()["parameters"]["dark_current_e_per_s"]
+    assert s["constrained"] is True and "limit" not in s
+    assert s["ci95"][0] < TRUTH.dark_current_e_per_s < s["ci95"][1]
+    assert r.to_dict()["warnings"] == []
