@@ -316,3 +316,11 @@ def test_a_measured_dark_current_near_the_prior_scale_stays_a_measurement(tmp_pa
     assert s["constrained"] is True and "limit" not in s
     assert s["ci95"][0] < TRUTH.dark_current_e_per_s < s["ci95"][1]
     assert r.to_dict()["warnings"] == []
+
+
+def test_warnings_and_limits_survive_save_and_load(ns_fit, tmp_path):
+    back = FitResult.load(ns_fit.save(tmp_path / "r.nc")).to_dict()
+    d = ns_fit.to_dict()
+    assert back["warnings"] == d["warnings"] != []
+    assert back["parameters"]["dark_current_e_per_s"]["limit"] == d["parameters"]["dark_current_e_per_s"]["limit"]
+    assert back["diagnostics"]["start_outside_prior"] == d["diagnostics"]["start_outside_prior"]
