@@ -88,6 +88,18 @@ def test_the_start_lies_inside_the_prior(ns_camera):
     assert moved[0]["guess"] > 1e6 and moved[0]["prior_scale_sd"] > 100
 
 
+def test_the_clip_spread_scan_stays_inside_the_prior(ns_camera):
+    """The start's clip spread is the best of a scan down to 10⁻³ DN; where the likelihood prefers
+    the scan's bottom (as on a 100-level, 512×512 version of the test camera), the start is still
+    within 3.29 sd of the log-normal prior's centre."""
+    m = PTCModel(ns_camera)
+    j = m.idx["log_tau"]
+    m.log_prob = lambda th: -np.abs(np.atleast_2d(th)[:, j] - np.log(1e-3))  # the scan's bottom is best
+    x = m.initial_guess()
+    center = np.log(0.005 * (x[m.idx["clip_dn"]] - m.black_dn))
+    assert abs(x[j] - center) <= 3.2906 * m.PRIOR["tau_log_sd"] + 1e-9
+
+
 def test_unit_problem_is_named_and_the_fit_converges(ns_fit):
     d = ns_fit.to_dict()
     assert d["diagnostics"]["converged"]

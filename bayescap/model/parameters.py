@@ -313,4 +313,11 @@ class _ParametersMixin:
             lp = self.log_prob(cand)
             if np.any(np.isfinite(lp)):
                 x = cand[int(np.nanargmax(np.where(np.isfinite(lp), lp, -np.inf)))]
+            # and inside the prior's bulk: within 3.29 sd of the log-normal's centre (and below the cap)
+            from scipy.special import ndtri
+
+            z = float(-ndtri(0.5 * self.START_TAIL_MASS)) * self.PRIOR["tau_log_sd"]
+            center = np.log(0.005 * max(cref - self.black_dn, 1.0))
+            j = self.idx["log_tau"]
+            x[j] = float(np.clip(x[j], center - z, min(center + z, hi)))
         return x
