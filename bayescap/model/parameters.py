@@ -167,9 +167,9 @@ class _ParametersMixin:
     def _project_into_prior(self, th: dict) -> list:
         """Move the start ``th`` (name -> sampling coordinate) into the prior's bulk, in place, and
         return what was moved: half-normal scales (read noise, dark current, dark noise, PRNU,
-        DSNU) to at most their :data:`START_TAIL_MASS` upper quantile, log-normal ones (the
-        discrepancies, the clip spread's centre) to their central range, bounded ones strictly
-        inside their bounds."""
+        DSNU) to at most their :data:`START_TAIL_MASS` upper quantile, the log-normal
+        discrepancies to their central range, bounded ones strictly inside their bounds (the clip
+        spread, scanned afterwards, is kept inside its prior's range by :meth:`_initial_guess`)."""
         from scipy.special import erfinv, ndtri
 
         P = self.PRIOR
