@@ -82,7 +82,9 @@ class InputsMixin:
                 "the data-driven start lay far in the prior's tail ("
                 + "; ".join(f"{_quantity(p)}, {p['prior_scale_sd']:.3g} prior scales" for p in moved)
                 + "): the fit started inside the prior's 99.9 % range instead; a start that far out "
-                "usually means a unit problem (see the warnings)"
+                "usually means a unit problem ("
+                + ("see the warnings" if self.input_warnings else "check the units of the columns")
+                + ")"
             )
 
     def _check_stranded(self):

@@ -41,12 +41,13 @@ FOLLOW_FRACTION = 0.5
 #: draws the dependence of the derived quantities is checked on
 _FOLLOW_DRAWS = 2000
 
-#: the half-normal prior scale (``PTCModel.PRIOR`` key) of each scale parameter
+#: each scale parameter's half-normal prior: its scale's ``PTCModel.PRIOR`` key, the factor from
+#: the prior's unit to the reported one, and the key of the log-uniform bounds that replace it
 _PRIOR_SCALES = {
-    "read_noise_e": ("read_scale_e", 1.0),
-    "dark_current_e_per_s": ("dark_current_scale_e_per_s", 1.0),
-    "prnu_percent": ("prnu_scale", 100.0),
-    "dsnu_e": ("dsnu_scale_e", 1.0),
+    "read_noise_e": ("read_scale_e", 1.0, "read_log_bounds"),
+    "dark_current_e_per_s": ("dark_current_scale_e_per_s", 1.0, "dark_current_log_bounds"),
+    "prnu_percent": ("prnu_scale", 100.0, "prnu_log_bounds"),
+    "dsnu_e": ("dsnu_scale_e", 1.0, "dsnu_log_bounds"),
 }
 
 
@@ -60,14 +61,10 @@ def apply_parameter_limits(result, out: dict) -> dict:
     data do not determine, and mark prior-dominated scale parameters; returns ``out``."""
     m = result.model
     draws = result.summary_draws()
-    for name, (key, factor) in _PRIOR_SCALES.items():
+    for name, (key, factor, bounds_key) in _PRIOR_SCALES.items():
         s = out.get(name)
         if s is None or name not in draws or s.get("constrained", True) is not True:
-            continue
-        if name == "read_noise_e" and not m.terms.dark_current:
-            continue
-        bounds_key = {"read_noise_e": "read_log_bounds", "dark_current_e_per_s": "dark_current_log_bounds"}.get(name)
-        bounds_key = bounds_key or {"prnu_percent": "prnu_log_bounds", "dsnu_e": "dsnu_log_bounds"}[name]
+            continue  # absent, or already a limit (with one exposure time, read noise is)
         if m.PRIOR.get(bounds_key) is not None:
             continue  # a log-uniform prior on bounds: no scale to compare with
         prior_width = (2.2414 - 0.03134) * factor * m.PRIOR[key]  # the half-normal's 2.5–97.5 % points
