@@ -156,8 +156,9 @@ class DerivedMixin:
             "shares_percent": {n: float(np.median(100.0 * v / total)) for n, v in terms.items()},
         }
 
-    def derived_summary(self) -> dict:
-        """The contract's ``derived`` block."""
+    def derived_summary(self, params: dict | None = None) -> dict:
+        """The contract's ``derived`` block; ``params``: the ``parameters`` block when the caller
+        has it (the limits the derived quantities follow are read from it)."""
         out = {}
         lower = self.flags.get("capacity_lower_bound", False)
         for name, x in self.summary_derived().items():
@@ -167,4 +168,4 @@ class DerivedMixin:
                 extra["lower_bound"] = True
             out[name] = summarize(x, unit, **extra)
             out[name].pop("constrained")
-        return apply_derived_limits(self, self.parameter_summary(), out)
+        return apply_derived_limits(self, self.parameter_summary() if params is None else params, out)

@@ -40,7 +40,8 @@ def short_repr(result) -> str:
         parts.append(f"converged={bool(result.diag['converged'])}")
     if not result.draws:
         return "FitResult(" + ", ".join(parts) + ", no draws)"
-    ps, ds = result.parameter_summary(), result.derived_summary()
+    ps = result.parameter_summary()
+    ds = result.derived_summary(ps)
     p = result.summary_draws()  # stranded walkers left out
 
     def value(s, x):
@@ -59,7 +60,8 @@ def short_repr(result) -> str:
 
 def html_table(result) -> str:
     """An HTML table of the physical parameters and derived quantities: median, 95 % interval, unit."""
-    d = {"parameters": result.parameter_summary(), "derived": result.derived_summary()}
+    ps = result.parameter_summary()
+    d = {"parameters": ps, "derived": result.derived_summary(ps)}
     dg = result.diag
     conv = {True: "converged", False: "NOT CONVERGED"}.get(dg.get("converged"), "")
     head = html.escape(f"{_name(result)}: quality {result.quality}" + (f", {conv}" if conv else ""))

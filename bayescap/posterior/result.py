@@ -330,14 +330,15 @@ class FitResult(DerivedMixin, DiagnoseMixin, ChecksMixin, InputsMixin):
     def to_dict(self) -> dict:
         sensor = dict(self.metadata)
         diag = {k: v for k, v in self.diag.items()}
+        params = self.parameter_summary()
         return json_safe(
             {
                 "bayescap_version": __version__,
                 "input": self.model.data.source,
                 "sensor": sensor,
                 "scene": self.scene.to_dict(),
-                "parameters": self.parameter_summary(),
-                "derived": self.derived_summary(),
+                "parameters": params,
+                "derived": self.derived_summary(params),
                 "model_terms": self.model.terms.names(),
                 "terms_left_out": dict(self.model.terms.reasons),
                 "term_notes": dict(self.model.terms.how),
