@@ -110,7 +110,7 @@ def _refuse_reused_frames(frameset, levels) -> None:
                     "(their difference is the temporal noise)",
                     path=frameset.source,
                 )
-        both = sorted({p.name for p in bright} & {p.name for p in dark if p in set(bright)})
+        both = sorted(p.name for p in set(bright) & set(dark))
         if both:
             raise IngestError(
                 f"{at} {', '.join(both)} is listed both as a bright frame and as the dark frame: "
