@@ -228,12 +228,19 @@ def _fit_many_to_folder(args, datas, kw, scheduler, n_dask) -> int:
     return 0
 
 
+def _summary_cell(s) -> str:
+    """``median [95 % interval]`` of a summary, or its limit alone (``> 1.2e+07 (95 % lower limit)``)
+    for a quantity the data do not determine."""
+    lim = s.get("limit")
+    if lim:
+        return f"{'<' if lim['kind'] == 'upper' else '>'} {lim['value']:.4g} ({100 * lim['level']:g} % {lim['kind']} limit)"
+    lo, hi = s["ci95"]
+    return f"{s['median']:.4g} [{lo:.4g}, {hi:.4g}]"
+
+
 def _folder_table(paths, report, docs) -> str:
     """One line per CSV from the written results: its folder, method, convergence, K and capacity."""
-
-    def q(s):
-        lo, hi = s["ci95"]
-        return f"{s['median']:.4g} [{lo:.4g}, {hi:.4g}]"
+    q = _summary_cell
 
     n_res = sum(r["status"] == "resumed" for r in report)
     lines = [
@@ -254,12 +261,8 @@ def _folder_table(paths, report, docs) -> str:
 
 
 def _batch_table(paths, results) -> str:
-    """One line per CSV: method, convergence, K and capacity with 95 % intervals."""
-    import numpy as np
-
-    def q(x):
-        lo, med, hi = np.quantile(x, [0.025, 0.5, 0.975])
-        return f"{med:.4g} [{lo:.4g}, {hi:.4g}]"
+    """One line per CSV: method, convergence, K and capacity with 95 % intervals (limits alone)."""
+    q = _summary_cell
 
     lines = [
         f"batch summary ({len(paths)} CSVs): median [95 % interval]",
@@ -270,10 +273,11 @@ def _batch_table(paths, results) -> str:
             lines.append(f"{p} | error | - | - | -")
             continue
         dg = r.diag
-        cap = q(r.derived["capacity_bits"]) if "capacity_bits" in r.derived else "n/a"
+        der = r.derived_summary()
+        cap = q(der["capacity_bits"]) if "capacity_bits" in der else "n/a"
         lines.append(
             f"{p} | {dg.get('method', 'mcmc')} | {'yes' if dg.get('converged') else 'NO'} | "
-            f"{q(r.draws['conversion_gain_e_per_dn'])} | {cap}"
+            f"{q(r.parameter_summary()['conversion_gain_e_per_dn'])} | {cap}"
         )
     return "\n".join(lines) + "\n"
 

@@ -50,6 +50,7 @@ def add_ingest_arguments(parser: argparse.ArgumentParser) -> argparse.ArgumentPa
 def run_ingest(args: argparse.Namespace) -> int:
     """Run ``bayescap ingest``: 0 on success (paths printed), 2 on an input error (one line on
     standard error, nothing written)."""
+    notices: list = []
     try:
         paths = ingest(
             args.source,
@@ -58,10 +59,13 @@ def run_ingest(args: argparse.Namespace) -> int:
             channel=args.channel,
             fmt=args.format,
             progress=sys.stderr.isatty(),
+            notices=notices,
         )
     except IngestError as exc:
         print(f"bayescap ingest: error: {exc}", file=sys.stderr)
         return 2
+    for kind, text in notices:  # what was assumed, and what looks implausible in the table
+        print(f"bayescap ingest: {kind}: {text}", file=sys.stderr)
     for p in paths:
         print(p)
     return 0

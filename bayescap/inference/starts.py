@@ -83,7 +83,38 @@ def _map_starts(model, x0=None):
             s = x0.copy()
             s[names.index("log_tau")] += MAP_START_LOG_TAU_SHIFT
             out.append(s)
+    out += _prior_median_starts(model, x0, names)
     return out
+
+
+#: the coordinate of each half-normal scale parameter, for :func:`_prior_median_starts`
+_SCALE_COORDINATES = {
+    "read_noise_e": ("log_read", "read_scale_e"),
+    "dark_noise_e": ("log_dark_noise", "read_scale_e"),
+    "dark_current_e_per_s": ("log_dc", "dark_current_scale_e_per_s"),
+    "prnu_percent": ("log_prnu", "prnu_scale"),
+    "dsnu_e": ("log_dsnu", "dsnu_scale_e"),
+}
+
+
+def _prior_median_starts(model, x0, names):
+    """One more start when the data-driven guess of a half-normal scale (dark current, read noise,
+    ...) lay beyond the prior's bulk and was moved to its edge (``initial_guess(projections=True)``):
+    the guess with every such coordinate at the prior's median (0.674 scales) instead. A guess that
+    far out says the data and the prior disagree (often a unit); the optimiser then climbs from
+    both ends of that coordinate's plausible range."""
+    if not hasattr(model, "initial_guess") or not hasattr(model, "PRIOR"):
+        return []
+    try:
+        _, moved = model.initial_guess(projections=True)
+    except TypeError:  # a model without the projections
+        return []
+    s = np.array(x0, float)
+    for p in moved:
+        coord, key = _SCALE_COORDINATES.get(p["parameter"], (None, None))
+        if coord in names:
+            s[names.index(coord)] = np.log(0.674 * model.PRIOR[key])
+    return [s] if moved else []
 
 
 def _restart_points(x0, n_restarts):

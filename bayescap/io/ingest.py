@@ -96,6 +96,76 @@ def _sensor_name(make: str | None, model: str | None) -> str | None:
     return model or make
 
 
+def _refuse_reused_frames(frameset, levels) -> None:
+    """Refuse a level whose pair is one file twice, or whose bright frames are also its dark: the
+    pair variance would be 0 (or the signal 0), data that cannot be right."""
+    for level in levels:
+        bright = [e.path.resolve() for e in level.bright]
+        dark = [e.path.resolve() for e in level.dark]
+        at = f"at exposure_time_s={level.exposure_time_s:g}"
+        for kind, paths in (("bright", bright), ("dark", dark)):
+            if len(set(paths[:2])) < 2:
+                raise IngestError(
+                    f"{at} the {kind} pair is {paths[0].name} twice: a pair needs two exposures "
+                    "(their difference is the temporal noise)",
+                    path=frameset.source,
+                )
+        both = sorted(p.name for p in set(bright) & set(dark))
+        if both:
+            raise IngestError(
+                f"{at} {', '.join(both)} is listed both as a bright frame and as the dark frame: "
+                "the dark must be taken with the light off",
+                path=frameset.source,
+            )
+
+
+def _refuse_identical_pair(frameset, level, b: SetStatistics, d: SetStatistics) -> None:
+    """Refuse a pair whose two frames are identical (variance exactly 0 below saturation): the same
+    exposure saved twice."""
+    for kind, st, entries in (("bright", b, level.bright), ("dark", d, level.dark)):
+        if st.temporal_var_dn2 == 0 and st.frac_saturated < 1:
+            names = " and ".join(e.path.name for e in entries[:2])
+            raise IngestError(
+                f"at exposure_time_s={level.exposure_time_s:g} the {kind} frames {names} are identical "
+                "(pair variance exactly 0 below saturation): the same exposure saved twice?",
+                path=frameset.source,
+            )
+
+
+def _add_notices(notices, frameset, rows, channels, adc_bits) -> None:
+    """What the ingest assumed and the plausibility warnings of the table it wrote."""
+    from bayescap.io.plausibility import plausibility_warnings
+    from bayescap.io.ptc_csv import PTCData
+
+    t = [r["exposure_time_s"] for r in rows[channels[0]]]
+    if frameset.format == "emva":
+        notices.append(
+            (
+                "note",
+                f"{frameset.source.name}: exposure times read in ns (the EMVA 1288 descriptor's unit, as the "
+                f"emva1288 reference implementation reads them): {min(t) * 1e9:g}–{max(t) * 1e9:g} ns = "
+                f"{min(t):.3g}–{max(t):.3g} s",
+            )
+        )
+    for c in channels:
+        r = rows[c]
+        col = lambda k, r=r: np.array([x[k] if x.get(k) is not None else np.nan for x in r], float)
+        mu_p = col("photons_per_pixel")
+        data = PTCData(
+            exposure_time_s=col("exposure_time_s"),
+            mean_dn=col("mean_dn"),
+            temporal_var_dn2=col("temporal_var_dn2"),
+            dark_mean_dn=col("dark_mean_dn"),
+            dark_temporal_var_dn2=col("dark_temporal_var_dn2"),
+            n_pixels=col("n_pixels"),
+            photons_per_pixel=mu_p if np.all(np.isfinite(mu_p)) else None,
+            frac_saturated=col("frac_saturated"),
+            metadata={"adc_bits": adc_bits},
+        )
+        for w in plausibility_warnings(data):
+            notices.append(("warning", (f"channel {c}: " if len(channels) > 1 else "") + w["message"]))
+
+
 def ingest(
     source: os.PathLike | str,
     *,
@@ -104,6 +174,7 @@ def ingest(
     channel: str = "G",
     fmt: str = "auto",
     progress: bool = False,
+    notices: list | None = None,
 ) -> list[Path]:
     """Turn a set of frames into photon-transfer CSV file(s) (the project's input contract).
 
@@ -123,6 +194,9 @@ def ingest(
         Bayer channel; ``G`` pools the Gr and Gb pixels into one set (means, variances and
         ``n_pixels`` over both). Ignored for monochrome frames (one file, ``# channel: mono``).
     progress : a bar of the exposure levels read, on stderr.
+    notices : a list that receives ``(kind, text)`` pairs: ``"note"`` for what was assumed (the
+        EMVA descriptor's time unit) and ``"warning"`` for the plausibility warnings of the table
+        (:func:`bayescap.io.plausibility.plausibility_warnings`).
     fmt : {"auto", "manifest", "emva"}
         How to read ``source``.
 
@@ -150,6 +224,7 @@ def ingest(
     out = Path(out)
     frameset = load_frame_set(source, fmt=fmt)
     levels = group_levels(frameset)
+    _refuse_reused_frames(frameset, levels)
     reader = _FrameReader(frameset)
 
     # The first frame decides mono vs Bayer, hence which channels are measured.
@@ -188,6 +263,7 @@ def ingest(
             )
         for c, sc in zip(channels, stat_channels):
             b, d = bright[sc], dark[sc]
+            _refuse_identical_pair(frameset, level, b, d)
             rows[c].append(
                 {
                     "exposure_time_s": level.exposure_time_s,
@@ -234,6 +310,8 @@ def ingest(
             if key not in md and key not in _FRAME_OVERRIDE_KEYS:
                 md[key] = value
         files[paths[c]] = _table_text(md, rows[c])
+    if notices is not None:
+        _add_notices(notices, frameset, rows, channels, adc_bits)
     try:
         write_files_atomically(files)
     except OSError as exc:

@@ -144,15 +144,81 @@ class _ParametersMixin:
         return lp
 
     # ------------------------------------------------------------------ start point
-    def initial_guess(self) -> np.ndarray:
-        """A deterministic starting point from EMVA-1288-style linear fits (no randomness).
+    def initial_guess(self, projections: bool = False):
+        """A deterministic starting point from EMVA-1288-style linear fits (no randomness), inside
+        the prior's bulk (:meth:`_project_into_prior`).
 
         Computed once per model (a copy returned each time): it costs ~1.3 ms with its scan of the
         clip spread, and a fast fit asks for it three times (the Newton start, the sampler
-        coordinates, the observation count)."""
-        return self._memoized("initial_guess", self._initial_guess).copy()
+        coordinates, the observation count). With ``projections`` also the list of coordinates
+        whose data-driven guess lay beyond the prior's bulk and was moved into it (dicts with
+        ``parameter``, ``guess``, ``start``, ``unit``, ``prior_scale_sd``)."""
+        x = self._memoized("initial_guess", self._initial_guess).copy()
+        if projections:
+            return x, [dict(p) for p in self._memo.get("start_projections", [])]
+        return x
+
+    #: the prior mass a start may lie beyond, per coordinate and side: the start is moved to the
+    #: prior's 99.9 % quantile (0.1 % beyond). A half-normal scale is bounded above only: in log
+    #: coordinates its density falls linearly towards 0 (a start far below costs a few nats) but
+    #: as x² above the scale, where a start 1 000 prior sd out leaves walkers stranded
+    START_TAIL_MASS = 1e-3
+
+    def _project_into_prior(self, th: dict) -> list:
+        """Move the start ``th`` (name -> sampling coordinate) into the prior's bulk, in place, and
+        return what was moved: half-normal scales (read noise, dark current, dark noise, PRNU,
+        DSNU) to at most their :data:`START_TAIL_MASS` upper quantile, the log-normal
+        discrepancies to their central range, bounded ones strictly inside their bounds (the clip
+        spread, scanned afterwards, is kept inside its prior's range by :meth:`_initial_guess`)."""
+        from scipy.special import erfinv, ndtri
+
+        P = self.PRIOR
+        half_hi = float(np.sqrt(2.0) * erfinv(1.0 - self.START_TAIL_MASS))  # 3.29 scales
+        z_hi = float(-ndtri(0.5 * self.START_TAIL_MASS))  # 3.29 sd
+        moved = []
+        scales = {
+            "log_read": ("read_noise_e", "e-", P["read_scale_e"], P["read_log_bounds"]),
+            "log_dark_noise": ("dark_noise_e", "e-", P["read_scale_e"], None),
+            "log_dc": ("dark_current_e_per_s", "e-/s", P["dark_current_scale_e_per_s"], P["dark_current_log_bounds"]),
+            "log_prnu": ("prnu_percent", "%", P["prnu_scale"], P["prnu_log_bounds"]),
+            "log_dsnu": ("dsnu_e", "e-", P["dsnu_scale_e"], P["dsnu_log_bounds"]),
+        }
+        for name, (phys, unit, scale, bounds) in scales.items():
+            if name not in th:
+                continue
+            if bounds is not None:
+                a, b = np.log(bounds[0]), np.log(bounds[1])
+                th[name] = float(np.clip(th[name], a + 1e-3 * (b - a), b - 1e-3 * (b - a)))
+                continue
+            hi = np.log(half_hi * scale)
+            if th[name] > hi:
+                f = 100.0 if name == "log_prnu" else 1.0
+                moved.append(
+                    {
+                        "parameter": phys,
+                        "guess": f * float(np.exp(th[name])),
+                        "start": f * float(np.exp(hi)),
+                        "unit": unit,
+                        "prior_scale_sd": float(np.exp(th[name]) / scale),
+                    }
+                )
+                th[name] = float(hi)
+        for name, center, sd in (
+            ("log_f", np.log(P["f_center"]), P["f_log_sd"]),
+            ("log_g", np.log(P["g_center"]), P["g_log_sd"]),
+        ):
+            if name in th:
+                th[name] = float(np.clip(th[name], center - z_hi * sd, center + z_hi * sd))
+        lk0, lk1 = P["log_k_bounds"]
+        th["log_k"] = float(np.clip(th["log_k"], lk0 + 1e-3 * (lk1 - lk0), lk1 - 1e-3 * (lk1 - lk0)))
+        if "qe" in th and P["qe_bounds"] is not None:
+            q0, q1 = P["qe_bounds"]
+            th["qe"] = float(np.clip(th["qe"], q0 + 1e-3 * (q1 - q0), q1 - 1e-3 * (q1 - q0)))
+        return moved
 
     def _initial_guess(self) -> np.ndarray:
+        from scipy.special import erfinv
+
         tm = self.terms
         s, v = self.s_obs, self.v
         vd_ok = self.vd[~self.full_sat]
@@ -189,7 +255,12 @@ class _ParametersMixin:
             tmax = max(t.max(), 1e-9)
             dc0 = b if b > 0 else 0.05 * sig0_e2 / tmax
             dc0 = min(dc0, 0.5 * sig0_e2 / tmax) if b <= 0 else dc0
-            r2 = max(sig0_e2 - dc0 * np.median(t), 0.25 * sig0_e2)
+            # the read noise from the dark current inside the prior's bulk (the charge D·t a far-tail
+            # dark current would take out of the dark variance is not there either)
+            dc_in = min(
+                dc0, np.sqrt(2.0) * erfinv(1.0 - self.START_TAIL_MASS) * self.PRIOR["dark_current_scale_e_per_s"]
+            )
+            r2 = max(sig0_e2 - dc_in * np.median(t), 0.25 * sig0_e2)
             th["log_read"] = 0.5 * np.log(r2)
             th["log_dc"] = np.log(max(dc0, 1e-6))
         else:
@@ -226,22 +297,8 @@ class _ParametersMixin:
             th[n] = 0.0
         if tm.discrepancy:
             th["log_f"] = np.log(0.01)
-        # keep the start inside an overridden (bounded) prior
-        P = self.PRIOR
-        for name, key in (
-            ("log_read", "read_log_bounds"),
-            ("log_dc", "dark_current_log_bounds"),
-            ("log_prnu", "prnu_log_bounds"),
-            ("log_dsnu", "dsnu_log_bounds"),
-        ):
-            if name in th and P[key] is not None:
-                a, b = np.log(P[key][0]), np.log(P[key][1])
-                th[name] = float(np.clip(th[name], a + 1e-3 * (b - a), b - 1e-3 * (b - a)))
-        lk0, lk1 = P["log_k_bounds"]
-        th["log_k"] = float(np.clip(th["log_k"], lk0 + 1e-3 * (lk1 - lk0), lk1 - 1e-3 * (lk1 - lk0)))
-        if "qe" in th and P["qe_bounds"] is not None:
-            q0, q1 = P["qe_bounds"]
-            th["qe"] = float(np.clip(th["qe"], q0 + 1e-3 * (q1 - q0), q1 - 1e-3 * (q1 - q0)))
+        # every coordinate inside the prior's bulk; what was moved is reported with the result
+        self.__dict__.setdefault("_memo", {})["start_projections"] = self._project_into_prior(th)
         x = np.array([th[n] for n in self.names], float)
         if tm.clip_spread:
             # the clip spread: a deterministic scan of log_prob over τ from 10⁻³ DN to the prior's cap.
@@ -256,4 +313,11 @@ class _ParametersMixin:
             lp = self.log_prob(cand)
             if np.any(np.isfinite(lp)):
                 x = cand[int(np.nanargmax(np.where(np.isfinite(lp), lp, -np.inf)))]
+            # and inside the prior's bulk: within 3.29 sd of the log-normal's centre (and below the cap)
+            from scipy.special import ndtri
+
+            z = float(-ndtri(0.5 * self.START_TAIL_MASS)) * self.PRIOR["tau_log_sd"]
+            center = np.log(0.005 * max(cref - self.black_dn, 1.0))
+            j = self.idx["log_tau"]
+            x[j] = float(np.clip(x[j], center - z, min(center + z, hi)))
         return x

@@ -15,6 +15,7 @@ from bayescap.physics.capacity import (
     tonal_range_bits,
 )
 from bayescap.physics.noise import NoiseCoefficients, dark_variance_e2, dynamic_range_db, snr_db, variance_terms
+from bayescap.posterior.limits import apply_derived_limits
 from bayescap.posterior.summary import DERIVED_INFO, summarize
 
 __all__ = ["DerivedMixin"]
@@ -155,15 +156,16 @@ class DerivedMixin:
             "shares_percent": {n: float(np.median(100.0 * v / total)) for n, v in terms.items()},
         }
 
-    def derived_summary(self) -> dict:
-        """The contract's ``derived`` block."""
+    def derived_summary(self, params: dict | None = None) -> dict:
+        """The contract's ``derived`` block; ``params``: the ``parameters`` block when the caller
+        has it (the limits the derived quantities follow are read from it)."""
         out = {}
         lower = self.flags.get("capacity_lower_bound", False)
-        for name, x in self.derived.items():
+        for name, x in self.summary_derived().items():
             unit = DERIVED_INFO.get(name, ("bits/pixel", ""))[0]
             extra = {}
             if lower and name not in ("mtf_loss_bits",):
                 extra["lower_bound"] = True
             out[name] = summarize(x, unit, **extra)
             out[name].pop("constrained")
-        return out
+        return apply_derived_limits(self, self.parameter_summary() if params is None else params, out)

@@ -21,6 +21,12 @@ def _median_ci(x):
     return f"{_g(med)} [{_g(lo)}, {_g(hi)}]"
 
 
+def _limit_text(s) -> str:
+    """``< 629 (95 % upper limit)`` for a summary that carries a limit."""
+    lim = s["limit"]
+    return f"{'<' if lim['kind'] == 'upper' else '>'} {_g(lim['value'])} ({100 * lim['level']:g} % {lim['kind']} limit)"
+
+
 def _name(result):
     """The sensor's name (metadata), else the input file's."""
     md = result.metadata or {}
@@ -32,23 +38,30 @@ def short_repr(result) -> str:
     parts = [f"sensor={_name(result)!r}", f"quality={result.quality!r}"]
     if "converged" in result.diag:
         parts.append(f"converged={bool(result.diag['converged'])}")
-    p = result.draws
-    if not p:
+    if not result.draws:
         return "FitResult(" + ", ".join(parts) + ", no draws)"
+    ps = result.parameter_summary()
+    ds = result.derived_summary(ps)
+    p = result.summary_draws()  # stranded walkers left out
+
+    def value(s, x):
+        return _limit_text(s) if s.get("limit") else _median_ci(x)
+
     parts.append(f"K={_median_ci(p['conversion_gain_e_per_dn'])} e-/DN")
     rn = "read_noise_e" if "read_noise_e" in p else "dark_noise_e" if "dark_noise_e" in p else None
     if rn:
-        parts.append(f"{rn.removesuffix('_e')}={_median_ci(p[rn])} e-")
+        parts.append(f"{rn.removesuffix('_e')}={value(ps[rn], p[rn])} e-")
     for cap, unit in (("capacity_bits", "bits"), ("capacity_bits_per_pixel", "bits/pixel")):
-        if cap in result.derived:
-            parts.append(f"capacity={_median_ci(result.derived[cap])} {unit} (95 %)")
+        if cap in ds:
+            parts.append(f"capacity={value(ds[cap], result.summary_derived()[cap])} {unit} (95 %)")
             break
     return "FitResult(" + ", ".join(parts) + ")"
 
 
 def html_table(result) -> str:
     """An HTML table of the physical parameters and derived quantities: median, 95 % interval, unit."""
-    d = {"parameters": result.parameter_summary(), "derived": result.derived_summary()}
+    ps = result.parameter_summary()
+    d = {"parameters": ps, "derived": result.derived_summary(ps)}
     dg = result.diag
     conv = {True: "converged", False: "NOT CONVERGED"}.get(dg.get("converged"), "")
     head = html.escape(f"{_name(result)}: quality {result.quality}" + (f", {conv}" if conv else ""))
@@ -68,6 +81,12 @@ def html_table(result) -> str:
             if n not in s:
                 continue
             v = s[n]
+            if v.get("limit"):
+                rows.append(
+                    f"<tr><td>{html.escape(n)}</td><td>—</td><td>{html.escape(_limit_text(v))}</td>"
+                    f"<td>{html.escape(v.get('unit', ''))}</td></tr>"
+                )
+                continue
             lo, hi = v["ci95"]
             tag = ""
             if v.get("constrained") is False:

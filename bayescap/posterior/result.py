@@ -19,6 +19,8 @@ from bayescap.posterior.checks import ChecksMixin
 from bayescap.posterior.derived import _DERIVED_FLAGS, _DERIVED_NOTE_PREFIXES, DerivedMixin
 from bayescap.posterior.diagnose import _END_MCSE_FAILURE, DiagnoseMixin
 from bayescap.posterior.display import html_table, short_repr
+from bayescap.posterior.inputs import InputsMixin
+from bayescap.posterior.limits import apply_parameter_limits
 from bayescap.posterior.scene import Scene
 from bayescap.posterior.summary import json_safe, summarize
 
@@ -45,7 +47,7 @@ class DerivedValues:
 
 
 @dataclass(repr=False)
-class FitResult(DerivedMixin, DiagnoseMixin, ChecksMixin):
+class FitResult(DerivedMixin, DiagnoseMixin, ChecksMixin, InputsMixin):
     """Posterior of one sensor's noise model and everything derived from it."""
 
     model: PTCModel
@@ -61,6 +63,7 @@ class FitResult(DerivedMixin, DiagnoseMixin, ChecksMixin):
     flags: dict = field(default_factory=dict)  # machine-readable caveats
     diag: dict = field(default_factory=dict)
     mtf_info: dict = field(default_factory=dict)
+    input_warnings: list = field(default_factory=list)  # plausibility of the input (JSON "warnings")
 
     def __repr__(self) -> str:
         """Sensor, quality, convergence, K, read noise and capacity with their 95 % intervals."""
@@ -93,6 +96,7 @@ class FitResult(DerivedMixin, DiagnoseMixin, ChecksMixin):
         self._derive()
         self._diagnose()
         self._check_rows()
+        self._check_inputs()
         return self
 
     @classmethod
@@ -192,6 +196,7 @@ class FitResult(DerivedMixin, DiagnoseMixin, ChecksMixin):
         new.notes = [n for n in self.notes if not n.startswith(_DERIVED_NOTE_PREFIXES)]
         new.flags = {k: v for k, v in self.flags.items() if k not in _DERIVED_FLAGS}
         new.diag = dict(self.diag)
+        new.input_warnings = list(self.input_warnings)
         new.outliers = list(getattr(self, "outliers", []))
         new._derive()
         if new.diag.get("method") in ("emcee", "laplace-is") and new.diag.get("interval_end_mcse"):
@@ -230,8 +235,10 @@ class FitResult(DerivedMixin, DiagnoseMixin, ChecksMixin):
         return np.linspace(0, n - 1, n_max).round().astype(int)
 
     def parameter_summary(self) -> dict:
-        """The contract's ``parameters`` block, with identifiability flags."""
-        p, m, out = self.draws, self.model, {}
+        """The contract's ``parameters`` block, with identifiability flags and, for what the data
+        do not determine, a ``limit`` (:func:`~bayescap.posterior.limits.apply_parameter_limits`).
+        Walkers stranded far below the mode are left out (:meth:`summary_draws`)."""
+        p, m, out = self.summary_draws(), self.model, {}
         k = p["conversion_gain_e_per_dn"]
         out["conversion_gain_e_per_dn"] = summarize(k, "e-/DN")
 
@@ -312,7 +319,7 @@ class FitResult(DerivedMixin, DiagnoseMixin, ChecksMixin):
             out["clip_spread_dn"] = summarize(p["clip_spread_dn"], "DN", note="spread of pixel means at the clip")
         if "mean_discrepancy" in p:
             out["mean_discrepancy"] = summarize(p["mean_discrepancy"], "", note="fractional non-linearity scatter")
-        return out
+        return apply_parameter_limits(self, out)
 
     def emva1288(self) -> dict:
         """The fit in EMVA 1288 (Release 4.0) terms, with intervals (:func:`bayescap.posterior.emva.emva1288_view`)."""
@@ -323,14 +330,15 @@ class FitResult(DerivedMixin, DiagnoseMixin, ChecksMixin):
     def to_dict(self) -> dict:
         sensor = dict(self.metadata)
         diag = {k: v for k, v in self.diag.items()}
+        params = self.parameter_summary()
         return json_safe(
             {
                 "bayescap_version": __version__,
                 "input": self.model.data.source,
                 "sensor": sensor,
                 "scene": self.scene.to_dict(),
-                "parameters": self.parameter_summary(),
-                "derived": self.derived_summary(),
+                "parameters": params,
+                "derived": self.derived_summary(params),
                 "model_terms": self.model.terms.names(),
                 "terms_left_out": dict(self.model.terms.reasons),
                 "term_notes": dict(self.model.terms.how),
@@ -339,6 +347,7 @@ class FitResult(DerivedMixin, DiagnoseMixin, ChecksMixin):
                 "outliers": list(getattr(self, "outliers", [])),
                 **({"model_selection": self.model_selection} if getattr(self, "model_selection", None) else {}),
                 "notes": list(self.notes),
+                "warnings": [dict(w) for w in self.input_warnings],
                 "flags": dict(self.flags),
                 "diagnostics": diag,
             }

@@ -80,6 +80,7 @@ def _result_state(result) -> dict:
             "diag": result.diag,
             "notes": result.notes,
             "flags": result.flags,
+            "input_warnings": result.input_warnings,
             "mtf_info": result.mtf_info,
             "mtf": _mtf_state(result.mtf),
             "outliers": list(getattr(result, "outliers", [])),
@@ -208,6 +209,7 @@ def load_result(path, result_cls):
         notes=list(state["notes"]),
         flags=dict(state["flags"]),
         diag=state["diag"],
+        input_warnings=list(state.get("input_warnings", [])),
         mtf_info=state["mtf_info"],
     )
     r.outliers = list(state["outliers"])

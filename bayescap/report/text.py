@@ -29,7 +29,20 @@ def _fmt(x):
     return f"{x:.4g}"
 
 
+def _limit_row(name, s):
+    """A quantity the data do not determine: its limit alone, never a median with an interval."""
+    lim = s["limit"]
+    sign = "<" if lim["kind"] == "upper" else ">"
+    text = f"{sign} {_fmt(lim['value'])}"
+    line = f"  {name:<28} {text:>11}   ({100 * lim['level']:g} % {lim['kind']} limit)  {s.get('unit', '')}"
+    if lim.get("because"):
+        line += f"   <- follows {lim['because']}"
+    return line
+
+
 def _row(name, s):
+    if s.get("limit"):
+        return _limit_row(name, s)
     lo68, hi68 = s["ci68"]
     lo95, hi95 = s["ci95"]
     unit = s.get("unit", "")
@@ -106,10 +119,18 @@ def format_text(result: FitResult | dict) -> str:
     if cap:
         unit = "bits" if "capacity_bits" in der else "bits/pixel"
         lines.append("")
-        lines.append(
-            f"  capacity C = {_fmt(cap['median'])} {unit}, 95 % interval "
-            f"[{_fmt(cap['ci95'][0])}, {_fmt(cap['ci95'][1])}]" + (" (lower bound)" if cap.get("lower_bound") else "")
-        )
+        if cap.get("limit"):
+            lim = cap["limit"]
+            lines.append(
+                f"  capacity C > {_fmt(lim['value'])} {unit} ({100 * lim['level']:g} % lower limit: "
+                f"follows {lim['because']})"
+            )
+        else:
+            lines.append(
+                f"  capacity C = {_fmt(cap['median'])} {unit}, 95 % interval "
+                f"[{_fmt(cap['ci95'][0])}, {_fmt(cap['ci95'][1])}]"
+                + (" (lower bound)" if cap.get("lower_bound") else "")
+            )
     nb = d.get("noise_budget_mid_grey")
     if nb:
         shares = sorted(nb["shares_percent"].items(), key=lambda kv: -kv[1])
@@ -136,6 +157,10 @@ def format_text(result: FitResult | dict) -> str:
                 f"{v['se_diff']:.1f}   p_loo {v['p_loo']:.1f}   k̂>0.7: {v['n_khat_above_0.7']}"
                 + ("" if v.get("converged", True) else "   NOT CONVERGED")
             )
+    if d.get("warnings"):
+        lines.append("")
+        for w in d["warnings"]:
+            lines.append(f"  ! warning ({w['code']}): {w['message']}")
     if d.get("notes"):
         lines.append("")
         for n in d["notes"]:

@@ -1,0 +1,158 @@
+"""What is printed is what is known: the quantities the data do not determine become limits.
+
+A parameter summary marked ``constrained: false`` keeps every key of the contract (``median``,
+``ci68``, ``ci95``, ``unit``) and gains ``limit = {"kind": "upper" | "lower", "value", "level"}``;
+the text report prints the limit alone (``< 629 (95 % upper limit)``), never a median with an
+interval. Decided here:
+
+* a scale parameter whose posterior reaches down to zero, or whose 95 % interval is nearly as wide
+  as its prior's (the data hardly narrowed it: :data:`PRIOR_DOMINATED_FRACTION`), is an upper limit;
+* the summaries :meth:`FitResult.parameter_summary` already marks (read noise below 0.4 DN,
+  one exposure time, no row at saturation) get their ``limit``;
+* a derived quantity that depends on a parameter known only as an upper limit (DR on the read
+  noise; TR and capacity where the dark noise is above one grey level) is a lower limit: it
+  follows when moving that parameter to a tenth of its value moves the quantity's median by more
+  than :data:`FOLLOW_FRACTION` of its 95 % width.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+__all__ = [
+    "apply_parameter_limits",
+    "apply_derived_limits",
+    "LIMIT_LEVEL",
+    "PRIOR_DOMINATED_FRACTION",
+    "FOLLOW_FRACTION",
+]
+
+#: the one-sided level of every limit
+LIMIT_LEVEL = 0.95
+
+#: a half-normal scale parameter whose posterior 95 % interval is wider than this fraction of the
+#: prior's (0.03–2.24 scales) is not constrained by the data
+PRIOR_DOMINATED_FRACTION = 0.5
+
+#: a derived quantity follows a parameter known only as an upper limit when the parameter at a
+#: tenth of its value moves the quantity's median by more than this fraction of its 95 % width
+FOLLOW_FRACTION = 0.5
+
+#: draws the dependence of the derived quantities is checked on
+_FOLLOW_DRAWS = 2000
+
+#: each scale parameter's half-normal prior: its scale's ``PTCModel.PRIOR`` key, the factor from
+#: the prior's unit to the reported one, and the key of the log-uniform bounds that replace it
+_PRIOR_SCALES = {
+    "read_noise_e": ("read_scale_e", 1.0, "read_log_bounds"),
+    "dark_current_e_per_s": ("dark_current_scale_e_per_s", 1.0, "dark_current_log_bounds"),
+    "prnu_percent": ("prnu_scale", 100.0, "prnu_log_bounds"),
+    "dsnu_e": ("dsnu_scale_e", 1.0, "dsnu_log_bounds"),
+}
+
+
+def _limit(entry, kind, value, level=LIMIT_LEVEL):
+    entry["constrained"] = False
+    entry["limit"] = {"kind": kind, "value": None if value is None else float(value), "level": float(level)}
+
+
+def apply_parameter_limits(result, out: dict) -> dict:
+    """Add ``limit`` to the parameter summaries ``out`` (name -> summary) of ``result`` that the
+    data do not determine, and mark prior-dominated scale parameters; returns ``out``."""
+    m = result.model
+    draws = result.summary_draws()
+    for name, (key, factor, bounds_key) in _PRIOR_SCALES.items():
+        s = out.get(name)
+        if s is None or name not in draws or s.get("constrained", True) is not True:
+            continue  # absent, or already a limit (with one exposure time, read noise is)
+        if m.PRIOR.get(bounds_key) is not None:
+            continue  # a log-uniform prior on bounds: no scale to compare with
+        prior_width = (2.2414 - 0.03134) * factor * m.PRIOR[key]  # the half-normal's 2.5–97.5 % points
+        lo, hi = np.quantile(draws[name], [0.025, 0.975])
+        if hi - lo > PRIOR_DOMINATED_FRACTION * prior_width:
+            s["constrained"] = False
+            s["upper_limit_95"] = float(np.quantile(draws[name], LIMIT_LEVEL))
+            s["note"] = (
+                f"the data hardly constrain it: its 95 % interval is {(hi - lo) / prior_width:.0%} as wide as "
+                f"the prior's (half-normal, scale {factor * m.PRIOR[key]:g} {s.get('unit', '')})"
+            )
+    for s in out.values():
+        if s.get("constrained") is not False:
+            continue
+        if "upper_limit_95" in s:
+            _limit(s, "upper", s["upper_limit_95"])
+        elif "lower_bound" in s and not isinstance(s["lower_bound"], bool):
+            _limit(s, "lower", s["lower_bound"], 0.975)
+    return out
+
+
+#: the parameters whose upper limit the derived quantities can follow
+_UPPER_LIMITED = ("read_noise_e", "dark_noise_e", "dark_current_e_per_s", "dsnu_e")
+
+
+def _followers(result, params: dict, names) -> dict:
+    """{derived quantity: the parameters known only as upper limits that it depends on}: a quantity
+    depends on a parameter when that parameter at a tenth of its value (each draw) moves the
+    quantity's median by more than :data:`FOLLOW_FRACTION` of its 95 % width."""
+    causes = [n for n in _UPPER_LIMITED if (params.get(n) or {}).get("limit", {}).get("kind") == "upper"]
+    if not causes:
+        return {}
+    p = result.summary_draws()
+    n = next(iter(p.values())).size
+    take = np.linspace(0, n - 1, min(n, _FOLLOW_DRAWS)).round().astype(int)
+    p = {k: np.asarray(v)[take] for k, v in p.items()}
+    base = _derived_of(result, p)
+    out = {}
+    for c in causes:
+        if c not in p:
+            continue
+        moved = _derived_of(result, {**p, c: 0.1 * p[c]})
+        for name in names:
+            if name not in base or name not in moved:
+                continue
+            lo, med, hi = np.quantile(base[name], [0.025, 0.5, 0.975])
+            shift = abs(float(np.median(moved[name])) - float(med))
+            if shift > FOLLOW_FRACTION * max(float(hi - lo), 1e-12 * abs(float(med))):
+                out.setdefault(name, []).append(c)
+    return out
+
+
+def _derived_of(result, p: dict) -> dict:
+    """The derived quantities of the physical draws ``p`` at ``result``'s scene, MTF and metadata."""
+    tmp = type(result)(
+        model=result.model,
+        chains=None,
+        metadata=result.metadata,
+        scene=result.scene,
+        mtf=result.mtf,
+        seed=result.seed,
+        quality="",
+        draws=p,
+    )
+    with np.errstate(all="ignore"):
+        tmp._derive()
+    return {k: np.asarray(v, float) for k, v in tmp.derived.items() if np.size(v) == next(iter(p.values())).size}
+
+
+def apply_derived_limits(result, params: dict, out: dict) -> dict:
+    """Mark the derived summaries ``out`` that follow a parameter known only as a limit: lower
+    limits (the 5 % point) of the quantities that depend on a parameter known only as an upper
+    limit (:func:`_followers`), and of every flagged lower bound (no row at saturation); returns
+    ``out``."""
+    draws = result.summary_derived()
+    follows = _followers(result, params, [n for n in out if n not in ("mtf_loss_bits", "effective_pixels")])
+    for name, s in out.items():
+        why = None
+        if s.get("lower_bound") is True and name != "effective_pixels":  # s' = s·2^Δs: no full well in it
+            why = "full_well_e"
+        elif name in follows:
+            why = ", ".join(follows[name])
+        if why is None or name not in draws:
+            continue
+        s["limit"] = {
+            "kind": "lower",
+            "value": float(np.quantile(draws[name], 1.0 - LIMIT_LEVEL)),
+            "level": LIMIT_LEVEL,
+            "because": why,
+        }
+    return out
