@@ -66,8 +66,9 @@ def paper_verdicts(cmp=None, *, sweep9=None, sweep8=None, table1_nominal=None) -
     """Rows ``{section, statement, paper, bayescap, verdict, rule_or_reason}``.
 
     ``cmp``: a :class:`~bayescap.studies.compare.Comparison` of the five Table 2 stand-ins (names
-    ``M2_2.80um`` ...); ``sweep9``/``sweep8``: :func:`~bayescap.studies.sweep.pixel_size_sweep`
-    results (Eq. 9 / Eq. 8); ``table1_nominal``: :func:`~bayescap.studies.sweep.nominal_table1`
+    ``M2_2.80um`` ...); ``sweep9``/``sweep8``: Eq. 9 / Eq. 8 results of
+    :func:`~bayescap.studies.fig4_bands.capacity_bands` (every uncertain input drawn) or of
+    :func:`~bayescap.studies.sweep.pixel_size_sweep` (Table 1 ranges only); ``table1_nominal``: :func:`~bayescap.studies.sweep.nominal_table1`
     (for the binning row). Rows whose inputs are not given are left out."""
     rows = []
 
@@ -83,6 +84,9 @@ def paper_verdicts(cmp=None, *, sweep9=None, sweep8=None, table1_nominal=None) -
             }
         )
 
+    def drawn(x):
+        return "drawn: " + ", ".join(getattr(x, "sources", ("table1",)))
+
     if sweep9 is not None:
         o = sweep9.optimal_pitch_draws_um
         add(
@@ -91,7 +95,7 @@ def paper_verdicts(cmp=None, *, sweep9=None, sweep8=None, table1_nominal=None) -
             "1.45 µm",
             _fmt(o) + " µm",
             _inside(1.45, o),
-            "agree when the paper's value is inside the 95 % interval (Table 1 ranges)",
+            f"agree when the paper's value is inside the 95 % interval ({drawn(sweep9)})",
         )
     if sweep8 is not None:
         o = sweep8.optimal_pitch_draws_um
@@ -101,7 +105,7 @@ def paper_verdicts(cmp=None, *, sweep9=None, sweep8=None, table1_nominal=None) -
             "1.45 µm",
             _fmt(o) + " µm",
             _inside(1.45, o),
-            "agree when the paper's value is inside the 95 % interval",
+            f"agree when the paper's value is inside the 95 % interval ({drawn(sweep8)})",
         )
     if sweep9 is not None:
         i = int(np.argmin(abs(sweep9.table_pitch_um - 1.45)))
@@ -113,7 +117,7 @@ def paper_verdicts(cmp=None, *, sweep9=None, sweep8=None, table1_nominal=None) -
             "≈ 1.3 bit",
             _fmt(d) + " bit",
             _inside(1.3, d),
-            "agree when the paper's value is inside the 95 % interval (TR over the dynamic range, Table 1 ranges)",
+            "agree when the paper's value is inside the 95 % interval (TR over the dynamic range; drawn: table1)",
         )
     if table1_nominal is not None:
         nom = table1_nominal
