@@ -57,3 +57,23 @@ def test_paper_recipe_is_recovered_without_extra_sources():
 def test_bad_source():
     with pytest.raises(ValueError, match="unknown uncertainty sources"):
         F.capacity_bands(sources=("lens",))
+
+
+def test_cli_sweep_bands(capsys):
+    """``bayescap sweep pixel-size --bands ...`` adds the optimum with the drawn inputs; a bad
+    source is refused with status 2 and one line."""
+    import json
+
+    from bayescap.cli.sweep import main
+
+    assert main(["pixel-size", "--draws", "200", "--bands", "table1,wavelength", "--json"]) == 0
+    d = json.loads(capsys.readouterr().out)
+    b = d["optimal_pitch_bands"]
+    assert b["sources"] == ["table1", "wavelength"] and b["n_draws"] == 200
+    direct = F.capacity_bands(
+        np.round(np.arange(1.0, 5.2 + 1e-9, 0.005), 10), sources=("table1", "wavelength"), n_draws=200, seed=0
+    ).optimum_summary()
+    assert b["ci95_um"] == direct["ci95_um"]
+    assert main(["pixel-size", "--bands", "table1,lens"]) == 2
+    err = capsys.readouterr().err
+    assert "--bands" in err and err.strip().count("\n") == 0

@@ -55,6 +55,7 @@ class Fig4Bands:
     delta_s_draws: np.ndarray
     capacity_draws_bits: np.ndarray
     optimal_pitch_draws_um: np.ndarray
+    optimum_at_edge: np.ndarray
     sources: tuple
     table_pitch_um: np.ndarray
     table_tr_bits_draws: np.ndarray
@@ -74,6 +75,7 @@ class Fig4Bands:
             "ci95_um": [float(q[0]), float(q[4])],
             "sources": list(self.sources),
             "n_draws": int(self.optimal_pitch_draws_um.size),
+            "fraction_at_grid_edge": float(np.mean(self.optimum_at_edge)),
         }
 
 
@@ -107,6 +109,8 @@ def capacity_bands(
     pitch = np.asarray(pitch_um, float)
     if pitch.ndim != 1 or pitch.size < 3 or not np.allclose(np.diff(pitch), pitch[1] - pitch[0]):
         raise ValueError("pitch_um must be a uniform increasing grid of at least 3 pitches")
+    if pitch[-1] > 5.2 + 1e-9:
+        raise ValueError("pitches above 5.2 µm are outside Table 1; no TR model there")
     rng = np.random.default_rng(seed)
     w_mm, h_mm = FORMATS_MM[optical_format]
     n_pix = w_mm * h_mm * 1e6 / pitch**2
@@ -145,7 +149,7 @@ def capacity_bands(
     ds = spline(scaled)
 
     cap = n_pix[None, :] * np.exp2(ds) * np.maximum(tr, 0.0)
-    opt, _ = _argmax_refined(pitch, cap)
+    opt, edge = _argmax_refined(pitch, cap)
     settings = {
         "method": method,
         "optical_format": optical_format,
@@ -163,6 +167,7 @@ def capacity_bands(
         delta_s_draws=ds,
         capacity_draws_bits=cap,
         optimal_pitch_draws_um=opt,
+        optimum_at_edge=edge,
         sources=tuple(sources),
         table_pitch_um=tp,
         table_tr_bits_draws=tb,
