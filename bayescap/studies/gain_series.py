@@ -12,8 +12,8 @@ gain does not change are checked for consistency across gains:
 * per gain: conversion gain (e⁻/DN, ∝ 1/gain), read noise in e⁻ (falls with gain when part of it
   is added after the amplifier), clip charge.
 
-A joint fit (one posterior with the shared parameters tied) is **not** implemented: the check
-below is what a joint fit would assume. For a shared parameter with per-gain medians ``m_i`` and
+The joint fit, one posterior with the shared parameters tied, is
+:func:`bayescap.studies.gain_joint.fit_gain_series_jointly`; the check below tests what it assumes. For a shared parameter with per-gain medians ``m_i`` and
 posterior standard deviations ``s_i``, ``χ² = Σ (m_i − m̄)²/s_i²`` with the precision-weighted mean
 ``m̄`` has ``n − 1`` degrees of freedom if the gains agree; the p-value is reported and a parameter
 is called consistent when p > 0.01.
