@@ -94,6 +94,16 @@ def test_importance_sampler_reports_its_check(series):
         assert lo <= TRUTH.quantum_efficiency <= hi
 
 
+def test_short_mcmc_is_reported_unconverged(series):
+    """60 steps cannot give 50 kept steps per autocorrelation time: the result must say so."""
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        j = J.fit_gain_series_jointly(series[0], [1, 2], seed=0, sampler="mcmc", n_steps=60, n_draws=500)
+    assert j.sampler == "mcmc" and j.mcmc["n_steps"] == 60
+    assert not j.converged and any("did not converge" in n for n in j.notes)
+    assert j.draws[0]["quantum_efficiency"].size == 40 * j.mcmc["n_walkers"]
+
+
 def test_bad_sampler(series):
     with pytest.raises(ValueError, match="sampler"):
         J.fit_gain_series_jointly(series[0], [1, 2], sampler="nuts")

@@ -158,8 +158,8 @@ def _mcmc(jm, x_map, cov, start, *, n_steps, seed):
         lambda z: jm.log_prob(x_map + z @ L.T),
         vectorize=True,
         moves=[(emcee.moves.DEMove(), 0.8), (emcee.moves.DESnookerMove(), 0.2)],
-        seed=int(rng.integers(2**31)),
     )
+    sampler.random_state = np.random.RandomState(int(rng.integers(2**31))).get_state()
     sampler.run_mcmc(z0, n_steps, progress=False)
     burn = n_steps // 3
     tau = float(np.max(sampler.get_autocorr_time(discard=burn, tol=0)))
