@@ -78,8 +78,8 @@ BENCHMARKS = {
     ),
     "gain_joint": (
         "joint fit of simulated gain series (shared QE, PRNU, DSNU, dark current): sampler check, truth inside "
-        "the joint intervals, width against separate fits",
-        "3-6 min",
+        "the joint intervals, width against separate fits; two series also by MCMC",
+        "5-15 min",
         None,
     ),
     "quantization_regime": (
