@@ -80,8 +80,8 @@ class Fig4Bands:
 
 
 def _delta_s_spline(method: str, f_number: float, lo_um: float, hi_um: float) -> CubicSpline:
-    """Δs at 555 nm on a fine pitch grid covering [lo, hi]; Δs(P, λ) = spline(P·555/λ)."""
-    p = np.linspace(lo_um, hi_um, 241)
+    """Δs at 555 nm on a 0.01 µm pitch grid covering [lo, hi]; Δs(P, λ) = spline(P·555/λ)."""
+    p = np.linspace(lo_um, hi_um, max(21, int(np.ceil((hi_um - lo_um) / 0.01)) + 1))
     ds, _ = delta_s_vs_pitch(p, f_number=f_number, wavelength_nm=_REF_NM, method=method)
     return CubicSpline(p, ds)
 
