@@ -8,7 +8,7 @@ analog gains 1, 2, 4 with K ∝ 1/gain and read noise sqrt(3.4² + (2 DN · K)²
 12-bit ADC (it clips before the well above gain 1) and four with 14 bits, seeds 101-108; 25 levels,
 80 × 80 pixels, 16-frame stacks every 6th level. Each is fitted jointly
 (:func:`bayescap.studies.gain_joint.fit_gain_series_jointly`, ``sampler="auto"``, seed 0; series
-101 and 105 also with ``sampler="mcmc"``, the fallback, 8000 steps) and
+101 and 105 also with ``sampler="mcmc"``, the fallback, 16000 steps) and
 separately (:func:`bayescap.studies.gain_series.fit_gain_series`, quality fast). Reported: the
 sampler used and its check, whether each truth is inside the joint 95 % interval (shared: QE, PRNU,
 DSNU; per gain: K, read noise, clip charge), and the width of the shared parameters' joint

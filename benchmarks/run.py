@@ -79,7 +79,7 @@ BENCHMARKS = {
     "gain_joint": (
         "joint fit of simulated gain series (shared QE, PRNU, DSNU, dark current): sampler check, truth inside "
         "the joint intervals, width against separate fits; two series also by MCMC",
-        "5-15 min",
+        "10-25 min",
         None,
     ),
     "quantization_regime": (

@@ -22,7 +22,7 @@ Sampling (``sampler``):
   three-gain series of ``benchmarks/gain_joint.py`` k̂ was 0.47-0.68.
 * ``"mcmc"``: emcee with differential-evolution moves in coordinates whitened by the joint Laplace
   covariance, ``n_steps`` steps (a third discarded); converged when the kept steps are at least 50
-  integrated autocorrelation times of the slowest coordinate (default 8000 steps: a few minutes
+  integrated autocorrelation times of the slowest coordinate (default 16000 steps: several minutes
   for three gains on 2 cores).
 * ``"auto"`` (default): importance sampling, and MCMC when its check fails.
 
@@ -178,7 +178,7 @@ def _mcmc(jm, x_map, cov, start, *, n_steps, seed):
 
 
 def fit_gain_series_jointly(
-    datas, gains, *, seed: int = 0, n_draws: int = 4000, sampler: str = "auto", n_steps: int = 8000
+    datas, gains, *, seed: int = 0, n_draws: int = 4000, sampler: str = "auto", n_steps: int = 16000
 ) -> JointGainFit:
     """Joint fit (module docstring) of PTCData ``datas`` at analog ``gains``."""
     if sampler not in ("auto", "is", "mcmc"):
