@@ -76,6 +76,12 @@ BENCHMARKS = {
         "30 s",
         None,
     ),
+    "gain_joint": (
+        "joint fit of simulated gain series (shared QE, PRNU, DSNU, dark current): sampler check, truth inside "
+        "the joint intervals, width against separate fits; two series also by MCMC",
+        "10-25 min",
+        None,
+    ),
     "quantization_regime": (
         "fit times (standard, fast) and log_prob cost of sensors with read noise below half a DN",
         "1-3 min",

@@ -22,7 +22,7 @@ from bayescap.cli.common import (
 )
 from bayescap.cli.datasheet import register as _register_datasheet
 from bayescap.cli.fit import _cmd_fit
-from bayescap.cli.mtf import _cmd_mtf
+from bayescap.cli.mtf import _cmd_mtf, add_lens_arguments
 from bayescap.exceptions import InputError
 
 __all__ = ["main", "build_parser"]
@@ -193,6 +193,7 @@ def build_parser() -> argparse.ArgumentParser:
     )
     p.add_argument("--json", action="store_true", help="print the result as JSON")
     p.add_argument("--out", metavar="FILE.csv", help="write freq_cy_per_px,mtf,mtf_ci95_low,mtf_ci95_high")
+    add_lens_arguments(p)
     p.set_defaults(func=_cmd_mtf)
 
     from bayescap.cli.compare import add_compare_arguments, run_compare

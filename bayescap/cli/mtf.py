@@ -8,6 +8,37 @@ import warnings
 from bayescap.exceptions import InputError
 
 
+def add_lens_arguments(p) -> None:
+    """Options of ``bayescap mtf`` for the detector MTF = system MTF / lens MTF."""
+    p.add_argument(
+        "--lens-mtf",
+        metavar="LENS.csv",
+        default=None,
+        help="lens MTF table (columns frequency_lp_per_mm or frequency_cy_per_px, and mtf): report the "
+        "detector MTF = system MTF / lens MTF (docs/mtf.md)",
+    )
+    p.add_argument("--pixel-pitch-um", type=float, default=None, help="pixel pitch (µm): lp/mm conversions")
+    p.add_argument("--height-px", type=int, default=None, help="image height (pixels): cycles per image height")
+
+
+def detector_summary_text(det) -> str:
+    """A few lines: detector MTF at quarter Nyquist, half Nyquist and Nyquist with 95 % intervals."""
+    lines = ["detector MTF = system MTF / lens MTF (lens taken as exact; 95 % bootstrap interval):"]
+    for f in (0.125, 0.25, 0.5):
+        i = int(abs(det.freq_cy_per_px - f).argmin())
+        where = f"{det.freq_cy_per_px[i]:.3f} cy/px"
+        if det.pixel_pitch_um is not None:
+            where += f" = {det.freq_lp_per_mm[i]:.1f} lp/mm"
+        if det.height_px is not None:
+            where += f" = {det.freq_cy_per_image_height[i]:.0f} cy/image height"
+        if det.valid[i]:
+            lines.append(f"  {where}: {det.mtf[i]:.3f} [{det.ci95[0][i]:.3f}, {det.ci95[1][i]:.3f}]")
+        else:
+            lines.append(f"  {where}: not reported (lens MTF below {det.min_lens_mtf} or outside its table)")
+    lines += [f"  note: {n}" for n in det.notes]
+    return "\n".join(lines) + "\n"
+
+
 def _cmd_mtf(args) -> int:
     import json
 
@@ -28,6 +59,16 @@ def _cmd_mtf(args) -> int:
                 raise ValueError
         except ValueError:
             raise InputError(f"--roi must be x0,y0,x1,y1 (four integers), got '{args.roi}'") from None
+    lens = None
+    if getattr(args, "lens_mtf", None):
+        from bayescap.measure.detector import read_lens_mtf_table
+
+        try:
+            lens = read_lens_mtf_table(args.lens_mtf)
+            if lens.unit == "lp/mm" and args.pixel_pitch_um is None:
+                raise MTFInputError(f"{args.lens_mtf}: the lens table is in lp/mm: give --pixel-pitch-um")
+        except MTFInputError as e:
+            raise InputError(str(e)) from None
     try:
         img = read_image(args.image)
         with warnings.catch_warnings(record=True):  # MTFWarnings come back in r.warnings
@@ -46,9 +87,17 @@ def _cmd_mtf(args) -> int:
         raise InputError(str(e)) from None
     for w in r.warnings:
         print(f"bayescap mtf: warning: {w}", file=sys.stderr)
-    out_text = mtf_table_text(r) if args.out else None
+    det = None
+    if lens is not None:
+        from bayescap.measure.detector import detector_mtf, detector_table_text
+
+        det = detector_mtf(r, lens, pixel_pitch_um=args.pixel_pitch_um, height_px=args.height_px)
+    out_text = (mtf_table_text(r) if det is None else detector_table_text(det)) if args.out else None
     if args.json:
-        sys.stdout.write(json.dumps(r.to_dict(), indent=2, allow_nan=False, default=float) + "\n")
+        d = r.to_dict()
+        if det is not None:
+            d["detector"] = det.to_dict()
+        sys.stdout.write(json.dumps(d, indent=2, allow_nan=False, default=float) + "\n")
     else:
         lo, hi = r.mtf50_ci(0.95) if r.mtf_samples.shape[0] else (float("nan"), float("nan"))
         sys.stdout.write(
@@ -57,6 +106,8 @@ def _cmd_mtf(args) -> int:
             f"({r.mtf_samples.shape[0]} bootstrap draws)\n"
             f"sampling efficiency {100 * r.sampling_efficiency:.0f} %\n"
         )
+        if det is not None:
+            sys.stdout.write(detector_summary_text(det))
     if out_text is not None:  # after the result is printed: a write error does not lose it
         sys.stdout.flush()
         try:

@@ -51,6 +51,19 @@ def add_sweep_arguments(parser: argparse.ArgumentParser) -> argparse.ArgumentPar
         default=None,
         help="evaluate TR at this exposure instead of over the dynamic range",
     )
+    parser.add_argument(
+        "--bands",
+        default=None,
+        metavar="SOURCES",
+        help="also draw these inputs for the optimal pitch, comma-separated: table1,tr_slope,wavelength "
+        "(docs/physics.md, 'Bands with every uncertain input')",
+    )
+    parser.add_argument(
+        "--wavelength-range-nm",
+        default="500,600",
+        metavar="LO,HI",
+        help="wavelength range drawn by --bands wavelength (default 500,600)",
+    )
     parser.add_argument("--draws", type=int, default=2000, help="Table 1 draws (default 2000)")
     parser.add_argument("--seed", type=seed_arg, default=0, help="random seed (default 0)")
     parser.add_argument("--json", action="store_true", help="print JSON instead of a table")
@@ -76,6 +89,22 @@ def run_sweep(args: argparse.Namespace) -> int:
         return refuse(f"--tr-trend must be a finite number (negative: no trend), got {args.tr_trend}")
     if args.exposure_lux_s is not None and not (0.0 < args.exposure_lux_s < math.inf):
         return refuse(f"--exposure-lux-s must be a finite number > 0, got {args.exposure_lux_s}")
+    sources = None
+    if args.bands:
+        from bayescap.studies.fig4_bands import SOURCES
+
+        sources = tuple(x.strip() for x in args.bands.split(",") if x.strip())
+        bad = [x for x in sources if x not in SOURCES]
+        if bad or not sources:
+            return refuse(f"--bands takes a comma-separated list of {', '.join(SOURCES)}, got '{args.bands}'")
+        try:
+            lam = tuple(float(x) for x in args.wavelength_range_nm.split(","))
+            if len(lam) != 2 or not (0 < lam[0] <= lam[1] < math.inf):
+                raise ValueError
+        except ValueError:
+            return refuse(
+                f"--wavelength-range-nm must be LO,HI in nm with 0 < LO <= HI, got '{args.wavelength_range_nm}'"
+            )
     res = pixel_size_sweep(
         optical_format=args.optical_format,
         f_number=args.f_number,
@@ -92,10 +121,38 @@ def run_sweep(args: argparse.Namespace) -> int:
             f"the capacity is zero at every pitch (Δs down to {float(np.min(res.delta_s_bits)):.0f} bits "
             f"at f/{args.f_number:g}, {args.wavelength_nm:g} nm): no optimal pitch exists"
         )
+    bands = None
+    if sources:
+        from bayescap.studies.fig4_bands import capacity_bands
+
+        bands = capacity_bands(
+            np.round(np.arange(1.0, 5.2 + 1e-9, 0.005), 10),
+            sources=sources,
+            n_draws=args.draws,
+            seed=args.seed,
+            method=args.method,
+            optical_format=args.optical_format,
+            f_number=args.f_number,
+            wavelength_range_nm=lam,
+        )
     if args.json:
-        print(json.dumps(res.to_dict(), indent=2))
+        d = res.to_dict()
+        if bands is not None:
+            d["optimal_pitch_bands"] = {**bands.optimum_summary(), "settings": bands.settings}
+        print(json.dumps(d, indent=2))
     else:
         print(_format_table(res))
+        if bands is not None:
+            o = bands.optimum_summary()
+            print(
+                f"optimal pitch with {', '.join(sources)} drawn (PCHIP b', {args.draws} draws): "
+                f"{o['median_um']:.3f} um, 95 % [{o['ci95_um'][0]:.3f}, {o['ci95_um'][1]:.3f}]"
+                + (
+                    f"; {100 * o['fraction_at_grid_edge']:.0f} % of draws at the grid edge"
+                    if o["fraction_at_grid_edge"]
+                    else ""
+                )
+            )
     return 0
 
 

@@ -4,12 +4,16 @@
 
 Everything written here is SIMULATED with :mod:`bayescap.simulate`; nothing is a measurement.
 
-1. ``M*_*.csv``: the five sensors of Table 2 of Tisse, Guichard & Cao (SPIE 2008), with
-   noise parameters taken from Table 1 for their pitch (``data/paper_table1_pixel_parameters.csv``;
-   the 2.80 µm pixel is interpolated linearly in pitch between the 2.20 and 2.90 µm rows) and
-   multiplied by per-manufacturer factors (``MANUFACTURER``) that give the spread the paper
-   reports between same-pitch sensors (a few dB of SNR, about 20 % of capacity between the two
-   1.75 µm sensors). The factors are ours, not the paper's: the paper does not publish them.
+1. ``M*_*.csv``: the five sensors of Table 2 of Tisse, Guichard & Cao (SPIE 2008). Every parameter
+   comes from a published source named in ``SOURCES`` and nothing else: Table 1 of the paper for the
+   pitch (``data/paper_table1_pixel_parameters.csv``; the 2.80 µm pixel interpolated linearly in
+   pitch between the 2.20 and 2.90 µm rows) for sensitivity, full well, dark current and PRNU, and
+   one measured small-pixel sensor of the compiled table (``sensor_specs/``, row ``imx900_lcg``)
+   for what Table 1 does not give (read noise, DSNU). No per-manufacturer factor: nothing published
+   tells M1 from M2, so two sensors of the same pitch share their parameters and differ only by
+   resolution and random seed. No crosstalk: none is published, and the paper's own simulations
+   assume none. The comparison falls where these inputs put it; nothing here is chosen to reproduce
+   a result of the paper's Section 4.
 2. ``datasheet/*.csv``: four real sensors *built from datasheet values*: a PTC simulated from the
    published parameters in ``sensor_specs/sensor_characterization_table.csv`` (copied from the
    shared compiled table, with its README). The parameters are published; the PTC is not.
@@ -48,14 +52,22 @@ TABLE2 = {
     "M1_1.75um": ("M1", 1.75, 2048, 1536, '1/4"'),
 }
 
-#: our per-sensor factors on the Table 1 nominal (sensitivity, full well: multiplicative; PRNU as a
-#: fraction of Table 1's upper bound) and what Table 1 does not give (read noise, DSNU, crosstalk)
-MANUFACTURER = {
-    "M2_2.80um": dict(sens=1.00, fw=1.00, prnu_of_max=0.8, read_noise_e=4.0, dsnu_e=2.0, crosstalk_px=0.20),
-    "M2_2.20um": dict(sens=1.00, fw=0.90, prnu_of_max=0.8, read_noise_e=4.5, dsnu_e=2.0, crosstalk_px=0.25),
-    "M1_2.20um": dict(sens=0.80, fw=0.80, prnu_of_max=1.0, read_noise_e=6.0, dsnu_e=3.0, crosstalk_px=0.25),
-    "M2_1.75um": dict(sens=0.70, fw=0.85, prnu_of_max=1.0, read_noise_e=5.0, dsnu_e=3.0, crosstalk_px=0.36),
-    "M1_1.75um": dict(sens=1.00, fw=1.00, prnu_of_max=0.7, read_noise_e=3.5, dsnu_e=2.0, crosstalk_px=0.30),
+#: the compiled table's row that supplies what Table 1 does not give (read noise, DSNU): the only
+#: row with a pitch inside Table 2's 1.75-2.80 µm range that was measured (EMVA 1288 lab report,
+#: confidence "medium"), at 0 dB analog gain
+GENERATION_ROW = "imx900_lcg"
+
+#: where each stand-in parameter comes from (written into each truth.json and the README)
+SOURCES = {
+    "sensitivity_e_per_lux_s": "Table 1, sensitivity at the pitch",
+    "full_well_e": "Table 1, middle of the printed full-well range at the pitch",
+    "dark_current_e_per_s": "Table 1, dark current at 25 C (Cohen pixels: the 60 C value scaled by the 6 C law)",
+    "prnu_frac": "Table 1, the printed PRNU bound (as in the paper's own Fig. 2(b) simulations)",
+    "quantum_efficiency": "sensitivity / (4090.7 photons/(lux.s.um^2) x pitch^2) (Eq. 4 at 555 nm)",
+    "read_noise_e": f"sensor_specs/sensor_characterization_table.csv row {GENERATION_ROW}, read_noise_e",
+    "dsnu_e": f"sensor_specs/sensor_characterization_table.csv row {GENERATION_ROW}, dsnu_e",
+    "crosstalk": "none: not published for these sensors; the paper's simulations assume none",
+    "manufacturer": "no per-manufacturer difference: none is published",
 }
 SEEDS = {"M2_2.80um": 2801, "M2_2.20um": 2202, "M1_2.20um": 2201, "M2_1.75um": 1752, "M1_1.75um": 1751}
 
@@ -124,26 +136,35 @@ def _write(name, truth: SensorTruth, md: dict, seed: int, out: Path, *, pitch_um
     )
 
 
+def generation_noise() -> dict:
+    """Read noise and DSNU (e⁻) of :data:`GENERATION_ROW` in the compiled sensor table."""
+    row = next(r for r in _spec_rows() if r["id"] == GENERATION_ROW)
+    return {"read_noise_e": float(row["read_noise_e"]), "dsnu_e": float(row["dsnu_e"])}
+
+
+def table2_truth(pitch_um: float) -> SensorTruth:
+    """The stand-in truth at ``pitch_um``: Table 1 at the pitch, the generation's read noise and DSNU."""
+    t1 = table1_at(pitch_um)
+    noise = generation_noise()
+    sens, fw = t1["sensitivity_e_per_lux_s"], t1["full_well_e"]
+    return SensorTruth(
+        conversion_gain_e_per_dn=round(ADC_HEADROOM * fw / (2**ADC_BITS - 1 - BLACK_DN), 4),
+        read_noise_e=noise["read_noise_e"],
+        full_well_e=round(fw, 1),
+        dark_current_e_per_s=round(t1["dark_current_e_per_s"], 3),
+        quantum_efficiency=round(sens / (PHOTONS_PER_LUX_S_UM2 * pitch_um**2), 4),
+        prnu_frac=round(t1["prnu_max_frac"], 5),
+        dsnu_e=noise["dsnu_e"],
+        full_well_spread_frac=0.005,
+        adc_bits=ADC_BITS,
+        black_level_dn=BLACK_DN,
+    )
+
+
 def table2_sensors(out: Path = HERE):
     for name, (manu, pitch, w, h, fmt) in TABLE2.items():
-        t1 = table1_at(pitch)
-        f = MANUFACTURER[name]
-        sens = t1["sensitivity_e_per_lux_s"] * f["sens"]
-        fw = t1["full_well_e"] * f["fw"]
-        qe = sens / (PHOTONS_PER_LUX_S_UM2 * pitch**2)
-        k = ADC_HEADROOM * fw / (2**ADC_BITS - 1 - BLACK_DN)
-        truth = SensorTruth(
-            conversion_gain_e_per_dn=round(k, 4),
-            read_noise_e=f["read_noise_e"],
-            full_well_e=round(fw, 1),
-            dark_current_e_per_s=round(t1["dark_current_e_per_s"], 3),
-            quantum_efficiency=round(qe, 4),
-            prnu_frac=round(f["prnu_of_max"] * t1["prnu_max_frac"], 5),
-            dsnu_e=f["dsnu_e"],
-            full_well_spread_frac=0.005,
-            adc_bits=ADC_BITS,
-            black_level_dn=BLACK_DN,
-        )
+        truth = table2_truth(pitch)
+        sens = table1_at(pitch)["sensitivity_e_per_lux_s"]
         md = {
             "sensor": f"{name} (simulated, Table 2 of Tisse et al. 2008)",
             "manufacturer": manu,
@@ -156,17 +177,11 @@ def table2_sensors(out: Path = HERE):
             "analog_gain": 1.0,
             "temperature_c": 25.0,
             "optical_format": fmt,
-            "crosstalk_sigma_px": f["crosstalk_px"],
             "sensitivity_truth_e_per_lux_s": round(sens, 1),
             "simulated": "yes",
             "note": SIMULATED_NOTE,
         }
-        prov = {
-            "table1_at_pitch": t1,
-            "manufacturer_factors": f,
-            "how": "Table 1 values for the pitch x manufacturer factors (ours); QE = sensitivity / "
-            "(4090.7 photons/(lux.s.um^2) x pitch^2)",
-        }
+        prov = {"table1_at_pitch": table1_at(pitch), "generation_row": GENERATION_ROW, "sources": SOURCES}
         _write(name, truth, md, SEEDS[name], out, pitch_um=pitch, calibrated=True, provenance=prov)
 
 
@@ -185,13 +200,13 @@ def _num(x):
     return float(x) if x not in (None, "") else None
 
 
+def _spec_rows() -> list[dict]:
+    with open(HERE / "sensor_specs" / "sensor_characterization_table.csv", newline="", encoding="utf-8") as f:
+        return list(csv.DictReader(f))
+
+
 def datasheet_sensors(out: Path = HERE / "datasheet"):
-    rows = {
-        r["id"]: r
-        for r in csv.DictReader(
-            open(HERE / "sensor_specs" / "sensor_characterization_table.csv", newline="", encoding="utf-8")
-        )
-    }
+    rows = {r["id"]: r for r in _spec_rows()}
     for rid, extra in DATASHEET.items():
         r = rows[rid]
         pitch = _num(r["pixel_um"])
