@@ -81,6 +81,12 @@ BENCHMARKS = {
         "1-3 min",
         None,
     ),
+    "zoo": (
+        "the sensor zoo (68 frame-simulated sensors nobody tuned to + the Basler set): truth in the 95 % "
+        "interval per parameter and regime, standard and fast times, convergence, flags",
+        "20-60 min",
+        None,
+    ),
 }
 
 
