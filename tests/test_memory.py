@@ -86,3 +86,38 @@ def test_chunked_log_prob_is_bit_identical(tmp_path, monkeypatch):
     chunked = m.log_prob(th)
     assert np.isfinite(whole).sum() > 200
     assert np.array_equal(whole, chunked)
+
+
+def test_chunked_predict_is_bit_identical(tmp_path, monkeypatch):
+    import bayescap.model.ptc_model as pm
+
+    m = _model(tmp_path, 120, spatial=True)
+    x0 = m.initial_guess()
+    th = x0 + 0.02 * np.random.default_rng(2).standard_normal((50, m.ndim))
+    with np.errstate(all="ignore"):
+        whole = m.predict(th)
+        latent = m._last_latent_signal_dn.copy()
+        monkeypatch.setattr(pm, "CHUNK_ELEMENTS", 1)
+        chunked = m.predict(th)
+    assert whole.keys() == chunked.keys()
+    for b in whole:
+        for x, y in zip(whole[b], chunked[b]):
+            assert np.array_equal(np.broadcast_to(x, np.shape(y)), y) and np.shape(x) == np.shape(y), b
+    assert np.array_equal(latent, m._last_latent_signal_dn)
+
+
+def test_outlier_probabilities_in_chunks_equal_the_whole_mean(tmp_path, monkeypatch):
+    m = _model(tmp_path, 120, spatial=True)
+    th = m.initial_guess() + 0.02 * np.random.default_rng(3).standard_normal((40, m.ndim))
+    with np.errstate(all="ignore"):
+        pred = m.predict(th)
+        whole = {
+            b: np.nanmean(m._block_loglik(b, *blk, with_outlier_prob=True)[1], axis=0)
+            for b, blk in pred.items()
+            if b in ("bright_var", "dark_var", "mean")
+        }
+        monkeypatch.setattr(type(m), "OUTLIER_CHUNK_ELEMENTS", 7)
+        chunked = m.outlier_probabilities(th, pred)
+    assert whole.keys() == chunked.keys()
+    for b in whole:
+        assert np.array_equal(whole[b], chunked[b][1]), b

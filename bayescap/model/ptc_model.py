@@ -253,6 +253,50 @@ class PTCModel(_ParametersMixin, _PredictionMixin, _ClipMixin, _LikelihoodMixin)
             return _split_rows(lambda part: _log_posterior(part, lambda good: self, self._chunked_loglik), th)
         return _log_posterior(th, lambda good: self, self._chunked_loglik)
 
+    def _chunk_plan(self, th):
+        """Draws per chunk for the draws ``th`` (n, ndim), and the indices of the draws holding the
+        call's extremes of the conversion gain, clip level and clip spread (those that choose the
+        rows near the clip in :meth:`predict`; none without clip rows)."""
+        # observations per draw, counted from the data (an upper bound of the blocks' columns)
+        obs = 2 * self.vd.size + 3 * self.m.size + 2 * self.full_means.size
+        per = max(CHUNK_MIN_DRAWS, CHUNK_ELEMENTS // obs)
+        extremes = np.zeros(0, int)
+        if self.clip_rows.size and th.shape[0] > per:
+            cols = [self.idx[c] for c in ("log_k", "clip_dn", "log_tau") if c in self.idx]
+            extremes = np.unique([f(th[:, j]) for j in cols for f in (np.argmin, np.argmax)]).astype(int)
+        return per, extremes
+
+    def predict(self, th):
+        """The predicted blocks (:meth:`_PredictionMixin.predict`), for many draws in chunks of
+        draws (as :meth:`_chunked_loglik`), the same numbers bit for bit: memory is the result's
+        arrays plus one chunk's intermediates, not ~12 (draws, observations) arrays."""
+        th = np.atleast_2d(np.asarray(th, float))
+        n = th.shape[0]
+        if self._request_ids is not None:
+            return super().predict(th)
+        per, extremes = self._chunk_plan(th)
+        if n <= per + 6:  # (the chunks of _chunked_loglik, extremes included, stay whole)
+            return super().predict(th)
+        out, latent = {}, None
+        for lo in range(0, n, per):
+            part = th[lo : lo + per]
+            k = part.shape[0]
+            m = k + extremes.size
+            pred = super().predict(np.concatenate([part, th[extremes]]) if extremes.size else part)
+            if not out:  # (draws, observations) arrays are filled chunk by chunk; broadcast ones kept
+                out = {
+                    b: [np.empty((n,) + np.shape(x)[1:], np.asarray(x).dtype) if _draw_rows(x, m) else x for x in v]
+                    for b, v in pred.items()
+                }
+                latent = np.empty((n,) + self._last_latent_signal_dn.shape[1:])
+            for b, v in pred.items():
+                for i, x in enumerate(v):
+                    if _draw_rows(x, m):
+                        out[b][i][lo : lo + k] = x[:k]
+            latent[lo : lo + k] = self._last_latent_signal_dn[:k]
+        self._last_latent_signal_dn = latent
+        return {b: tuple(v) for b, v in out.items()}
+
     def _chunked_loglik(self, th):
         """:meth:`log_likelihood` of draws ``th`` (n, ndim), in chunks of draws of at most
         :data:`CHUNK_ELEMENTS` draws × observations (at least :data:`CHUNK_MIN_DRAWS` draws), so
@@ -266,15 +310,9 @@ class PTCModel(_ParametersMixin, _PredictionMixin, _ClipMixin, _LikelihoodMixin)
         extremes over the whole call (at most six draws, their values discarded), so it makes the
         same choice."""
         n = th.shape[0]
-        # observations per draw, counted from the data (an upper bound of the blocks' columns)
-        obs = 2 * self.vd.size + 3 * self.m.size + 2 * self.full_means.size
-        per = max(CHUNK_MIN_DRAWS, CHUNK_ELEMENTS // obs)
+        per, extremes = self._chunk_plan(th)
         if n <= per:
             return self.log_likelihood(th)
-        extremes = np.zeros(0, int)
-        if self.clip_rows.size:
-            cols = [self.idx[c] for c in ("log_k", "clip_dn", "log_tau") if c in self.idx]
-            extremes = np.unique([f(th[:, j]) for j in cols for f in (np.argmin, np.argmax)]).astype(int)
         out = np.empty(n)
         for lo in range(0, n, per):
             part = th[lo : lo + per]
@@ -301,6 +339,11 @@ class PTCModel(_ParametersMixin, _PredictionMixin, _ClipMixin, _LikelihoodMixin)
         if key not in memo:
             memo[key] = compute()
         return memo[key]
+
+
+def _draw_rows(x, m):
+    """Whether a predicted block's element is a per-draw array of ``m`` draws (not a broadcast one)."""
+    return np.ndim(x) == 2 and np.shape(x)[0] == m
 
 
 def _log_posterior(theta, model_for, loglik=None):
