@@ -23,6 +23,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import re
 import sys
 import time
 import traceback
@@ -88,7 +89,8 @@ def fit_one(path, quality):
 
 def flags_of(d):
     if "refused" in d:
-        return "refused: " + d["refused"]
+        msg = d["refused"]
+        return "refused: " + (msg.split(".csv, ", 1)[1] if ".csv, " in msg else msg)
     if "error" in d:
         return "ERROR " + d["error"]
     diag = d.get("diagnostics", {})
@@ -146,7 +148,25 @@ def main(argv=None):
     ap.add_argument("--only", default=None, help="fit only sensors whose name contains this text (no results file)")
     ap.add_argument("--no-fast", action="store_true")
     ap.add_argument("--jsonl", default=str(CACHE / "last_run.jsonl"), help="every fit's scores and flags")
+    ap.add_argument(
+        "--from-log",
+        default=None,
+        help="write the results file from a run's --jsonl log (a partial run lists its sensors only)",
+    )
     a = ap.parse_args(argv)
+    if a.from_log:
+        recs = [json.loads(line) for line in open(a.from_log)]
+        bas = next((r for r in recs if r["name"].startswith("basler")), None)
+        rows = [r for r in recs if r is not bas]
+        lines = report(
+            rows,
+            bas or {"name": "basler_ccd12 (real)", "regime": "real (reference)", "tags": ()},
+            float("nan"),
+            [r.get("load", float("nan")) for r in rows],
+            a,
+        )
+        emit_lines(lines, OUT)
+        return 0
 
     from _machine import emit
 
@@ -166,7 +186,7 @@ def main(argv=None):
     with open(a.jsonl, "w") as log:
         for z in sensors:
             tr = truths(z)
-            row = {"name": z.name, "regime": z.regime, "tags": z.tags, "notes": z.notes}
+            row = {"name": z.name, "regime": z.regime, "tags": z.tags, "notes": z.notes, "load": _loadavg()}
             for q in ("standard",) + (() if a.no_fast else ("fast",)):
                 load.append(_loadavg())
                 d = fit_one(paths[z.name], q)
@@ -204,6 +224,26 @@ def main(argv=None):
     return 0
 
 
+def _load_text(load):
+    load = [x for x in load if x == x]
+    if not load:
+        return "**Under load**: other sessions shared the 2 cores, so the times are upper bounds of an idle machine's. "
+    return (
+        f"**Under load**: other sessions shared the 2 cores (1-min load average {min(load):.1f}–{max(load):.1f} "
+        "when the fits started), so the times are upper bounds of an idle machine's. "
+    )
+
+
+def _gen_text(t_gen):
+    return f"Simulating the CSVs took {t_gen:.0f} s (cached afterwards)." if t_gen == t_gen else ""
+
+
+def emit_lines(lines, out):
+    from _machine import emit
+
+    emit(lines, out)
+
+
 def _loadavg():
     try:
         return float(open("/proc/loadavg").read().split()[0])
@@ -222,10 +262,11 @@ def report(rows, bas, t_gen, load, a):
         "`python benchmarks/run.py zoo` (this file; `python benchmarks/zoo.py --only TEXT` for a subset). "
         f"{len(rows)} simulated sensors (`bayescap.validation.zoo`, frames from `bayescap.validation.framesim`, "
         "which shares no code with the likelihood) and the real Basler set. Seed 1, each fit alone and timed "
-        "(CSV reading included, imports not). Machine: " + describe_machine() + ". "
-        f"**Under load**: other sessions shared the 2 cores (1-min load average {np.nanmin(load):.1f}–{np.nanmax(load):.1f} "
-        "during the fits), so the times are upper bounds of an idle machine's. "
-        f"Simulating the CSVs took {t_gen:.0f} s (cached afterwards).",
+        "(CSV reading included, imports not). Machine: "
+        + describe_machine()
+        + ". "
+        + _load_text(load)
+        + _gen_text(t_gen),
         "",
         "Cells (standard fit): `ok` truth inside the 95 % interval; `miss`; **MISS>3w** a miss by more than "
         "three interval widths (a defect); `L` a truth the data cannot identify, reported as a limit "
@@ -246,6 +287,7 @@ def report(rows, bas, t_gen, load, a):
             ("yes" if x.get("converged") else "**no**") if x.get("parameters") else "—" for x in (std, fast) if x
         )
         fl = "; ".join(x for x in (std.get("flags", ""), fast.get("flags", "") and "fast: " + fast["flags"]) if x)
+        fl = _short(fl)
         cells = []
         for p in PARAMETERS:
             rec = sc.get(p)
@@ -288,6 +330,15 @@ def report(rows, bas, t_gen, load, a):
             med, mx, n = times(sub, q)
             if n:
                 L.append(f"| {q} | {reg} | {med:.2f} | {mx:.2f} | {n} |")
+    for q in ("standard", "fast"):
+        fitted = [r for r in rows if r.get(q, {}).get("parameters")]
+        refused = [r["name"] for r in rows if "refused" in r.get(q, {}).get("flags", "")]
+        crashed = [r["name"] for r in rows if r.get(q, {}).get("flags", "").startswith("ERROR")]
+        nc = [r["name"] for r in fitted if not r[q].get("converged")]
+        L.append(
+            f"\n{q}: {len(fitted)} fitted, {len(nc)} not converged ({', '.join(nc) or 'none'}), "
+            f"{len(refused)} refused ({', '.join(refused) or 'none'}), {len(crashed)} crashed ({', '.join(crashed) or 'none'})."
+        )
     L += ["", "## Defects found (the work list)", ""]
     for r in rows:
         items = []
@@ -307,8 +358,13 @@ def report(rows, bas, t_gen, load, a):
                         f"{q}: {SHORT[p]} {rec['verdict']} (truth {rec['truth']:.4g}, fit {_fmt_fit(f)}; {rec['why']})"
                     )
         if items:
-            L.append(f"* **{r['name']}** ({r['regime']}; {', '.join(r['tags']) or '-'}): " + "; ".join(items))
+            L.append(f"* **{r['name']}** ({r['regime']}; {', '.join(r['tags']) or '-'}): " + _short("; ".join(items)))
     return L
+
+
+def _short(text):
+    """Flags without the cache path of the CSV a refusal names."""
+    return re.sub(r"\S+\.csv, ", "", text)
 
 
 def _fmt_fit(f):
