@@ -50,6 +50,7 @@ SHORT = {
     "prnu_percent": "PRNU",
     "dsnu_e": "DSNU",
 }
+NOTES = {}
 CELL = {"ok": "ok", "miss": "miss", "MISS>3w": "**MISS>3w**", "claims-constrained": "**L!**", "limit-wrong": "**L✗**"}
 
 
@@ -254,8 +255,9 @@ def _loadavg():
 def report(rows, bas, t_gen, load, a):
     from _machine import describe_machine
 
-    from bayescap.validation.zoo import PARAMETERS
+    from bayescap.validation.zoo import PARAMETERS, zoo
 
+    NOTES.update({z.name: z.notes for z in zoo()})
     L = [
         "# Sensor zoo: truth in the 95 % interval, times, flags",
         "",
@@ -358,7 +360,10 @@ def report(rows, bas, t_gen, load, a):
                         f"{q}: {SHORT[p]} {rec['verdict']} (truth {rec['truth']:.4g}, fit {_fmt_fit(f)}; {rec['why']})"
                     )
         if items:
-            L.append(f"* **{r['name']}** ({r['regime']}; {', '.join(r['tags']) or '-'}): " + _short("; ".join(items)))
+            note = f" [{NOTES[r['name']]}]" if NOTES.get(r["name"]) else ""
+            L.append(
+                f"* **{r['name']}** ({r['regime']}; {', '.join(r['tags']) or '-'}){note}: " + _short("; ".join(items))
+            )
     return L
 
 

@@ -253,7 +253,21 @@ def _hand() -> list[ZooSensor]:
     a(_make("pc_qcmos_k0p1", 16, 0.1, 2.7, seed=31, dark=0.5, levels=30, roi=200))
     a(_make("pc_k0p3_floor", 16, 0.3, 2.0, seed=32, dark=1, adc="floor", black="rand", levels=25))
     # 8-bit
-    a(_make("b8_k200_dsnu50dn", 8, 200, 0.3, seed=40, dsnu_dn=50, black_dn=16, levels=30, clip="well"))
+    a(
+        _make(
+            "b8_k200_dsnu50dn",
+            8,
+            200,
+            0.3,
+            seed=40,
+            dsnu_dn=50,
+            black_dn=16,
+            levels=30,
+            clip="well",
+            notes="black level 16 DN under a 50 DN DSNU: dark pixels clip at 0 DN (a camera set up wrong; "
+            "the model has no term for it and must flag it)",
+        )
+    )
     a(_make("b8_k40_read1", 8, 40, 1.0, seed=41, dsnu_dn=1, levels=30, adc="floor"))
     a(_make("b8_k20_half_black", 8, 20, 0.6, seed=42, black="half", levels=20, spatial="none"))
     # sub-DN and quantization boundaries
