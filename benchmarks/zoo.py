@@ -146,7 +146,11 @@ def basler_row():
 
 def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--only", default=None, help="fit only sensors whose name contains this text (no results file)")
+    ap.add_argument(
+        "--only",
+        default=None,
+        help="fit only sensors whose name contains this text (or one of several, comma-separated); no results file",
+    )
     ap.add_argument("--no-fast", action="store_true")
     ap.add_argument("--jsonl", default=str(CACHE / "last_run.jsonl"), help="every fit's scores and flags")
     ap.add_argument(
@@ -174,7 +178,8 @@ def main(argv=None):
     import bayescap
     from bayescap.validation.zoo import PARAMETERS, ensure_csv, score, truths, zoo
 
-    sensors = [z for z in zoo() if a.only is None or a.only in z.name]
+    only = None if a.only is None else a.only.split(",")
+    sensors = [z for z in zoo() if only is None or any(o in z.name for o in only)]
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
         bayescap.fit(str(BASLER), seed=1, quality="fast")  # imports and first-call costs out of the timings
