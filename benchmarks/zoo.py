@@ -158,6 +158,7 @@ def main(argv=None):
         default=None,
         help="write the results file from a run's --jsonl log (a partial run lists its sensors only)",
     )
+    ap.add_argument("--note", default="", help="a sentence for the results file's header (how this run was made)")
     a = ap.parse_args(argv)
     if a.from_log:
         recs = [json.loads(line) for line in open(a.from_log)]
@@ -275,6 +276,7 @@ def report(rows, bas, t_gen, load, a):
         + _load_text(load)
         + _gen_text(t_gen),
         "",
+        *([a.note, ""] if getattr(a, "note", "") else []),
         "Cells (standard fit): `ok` truth inside the 95 % interval; `miss`; **MISS>3w** a miss by more than "
         "three interval widths (a defect); `L` a truth the data cannot identify, reported as a limit "
         "(`constrained: false`) that holds it; **L!** such a truth reported as constrained; **L✗** a limit that "
