@@ -87,6 +87,12 @@ BENCHMARKS = {
         "1-3 min",
         None,
     ),
+    "zoo": (
+        "the sensor zoo (68 frame-simulated sensors nobody tuned to + the Basler set): truth in the 95 % "
+        "interval per parameter and regime, standard and fast times, convergence, flags",
+        "1-2 h (under load; two 8-bit sensors take 20 min each)",
+        None,
+    ),
 }
 
 

@@ -159,13 +159,36 @@ class _LikelihoodMixin:
         out = {}
         if not self.terms.robust:
             return out
+        n = np.atleast_2d(th).shape[0]
         with np.errstate(over="ignore", invalid="ignore", divide="ignore"):
             for name, blk in (self.predict(th) if pred is None else pred).items():
                 if name not in ROBUST_BLOCKS:
                     continue
-                _, prob = self._block_loglik(name, *blk, with_outlier_prob=True)
-                out[name] = (self.observation_rows(name), np.nanmean(prob, axis=0))
+                out[name] = (self.observation_rows(name), self._mean_outlier_prob(name, blk, n))
         return out
+
+    #: draws × observations per chunk of :meth:`_mean_outlier_prob`
+    OUTLIER_CHUNK_ELEMENTS = 1 << 20
+
+    def _mean_outlier_prob(self, name, blk, n):
+        """``nanmean`` over the ``n`` draws of a block's outlier probabilities, computed in chunks of
+        draws (the density's temporaries are (draws, observations) arrays) and summed draw by draw
+        in order: the same numbers as ``np.nanmean(prob, axis=0)`` of the whole, bit for bit (its
+        sum over the first axis of a C-ordered array also adds row after row)."""
+        cols = max(int(np.shape(blk[1])[-1]), 1)
+        per = max(1, self.OUTLIER_CHUNK_ELEMENTS // cols)
+        tot = cnt = None
+        for lo in range(0, n, per):
+            part = tuple(x[lo : lo + per] if np.ndim(x) == 2 and np.shape(x)[0] == n and n > 1 else x for x in blk[:3])
+            _, prob = self._block_loglik(name, *part, blk[3], with_outlier_prob=True)
+            prob = np.atleast_2d(prob)
+            if tot is None:
+                tot, cnt = np.zeros(prob.shape[1]), np.zeros(prob.shape[1], np.intp)
+            for row in prob:
+                bad = np.isnan(row)
+                tot += np.where(bad, 0.0, row)
+                cnt += ~bad
+        return tot / cnt
 
     def observation_rows(self, block):
         """Data-row labels (1-based file rows) of the observations of a block."""

@@ -58,7 +58,13 @@ from bayescap.model.prediction import _PredictionMixin
 from bayescap.model.terms import ModelTerms, saturation_flags, select_terms
 from bayescap.model.threads import SPLIT_MIN_ELEMENTS, _split_rows
 
-__all__ = ["PTCModel"]
+__all__ = ["PTCModel", "CHUNK_ELEMENTS", "CHUNK_MIN_DRAWS"]
+
+#: a ``log_prob`` call evaluates its likelihood in chunks of draws of at most this many draws ×
+#: observations (:meth:`PTCModel._chunked_loglik`): ~100 MB at the peak, whatever the rows
+CHUNK_ELEMENTS = 1 << 20
+#: ... and of at least this many draws (a call on very many rows: memory then grows with the rows)
+CHUNK_MIN_DRAWS = 4
 
 
 class PTCModel(_ParametersMixin, _PredictionMixin, _ClipMixin, _LikelihoodMixin):
@@ -244,8 +250,78 @@ class PTCModel(_ParametersMixin, _PredictionMixin, _ClipMixin, _LikelihoodMixin)
         allows (:func:`~bayescap.model.threads._split_rows`)."""
         th = np.atleast_2d(np.asarray(theta, float))
         if th.shape[0] >= 1000 and th.shape[0] * self._observations() >= SPLIT_MIN_ELEMENTS:
-            return _split_rows(lambda part: _log_posterior(part, lambda good: self), th)
-        return _log_posterior(th, lambda good: self)
+            return _split_rows(lambda part: _log_posterior(part, lambda good: self, self._chunked_loglik), th)
+        return _log_posterior(th, lambda good: self, self._chunked_loglik)
+
+    def _chunk_plan(self, th):
+        """Draws per chunk for the draws ``th`` (n, ndim), and the indices of the draws holding the
+        call's extremes of the conversion gain, clip level and clip spread (those that choose the
+        rows near the clip in :meth:`predict`; none without clip rows)."""
+        # observations per draw, counted from the data (an upper bound of the blocks' columns)
+        obs = 2 * self.vd.size + 3 * self.m.size + 2 * self.full_means.size
+        per = max(CHUNK_MIN_DRAWS, CHUNK_ELEMENTS // obs)
+        extremes = np.zeros(0, int)
+        if self.clip_rows.size and th.shape[0] > per:
+            cols = [self.idx[c] for c in ("log_k", "clip_dn", "log_tau") if c in self.idx]
+            extremes = np.unique([f(th[:, j]) for j in cols for f in (np.argmin, np.argmax)]).astype(int)
+        return per, extremes
+
+    def predict(self, th):
+        """The predicted blocks (:meth:`_PredictionMixin.predict`), for many draws in chunks of
+        draws (as :meth:`_chunked_loglik`), the same numbers bit for bit: memory is the result's
+        arrays plus one chunk's intermediates, not ~12 (draws, observations) arrays."""
+        th = np.atleast_2d(np.asarray(th, float))
+        n = th.shape[0]
+        if self._request_ids is not None:
+            return super().predict(th)
+        per, extremes = self._chunk_plan(th)
+        if n <= per + 6:  # (the chunks of _chunked_loglik, extremes included, stay whole)
+            return super().predict(th)
+        out, latent = {}, None
+        for lo in range(0, n, per):
+            part = th[lo : lo + per]
+            k = part.shape[0]
+            m = k + extremes.size
+            pred = super().predict(np.concatenate([part, th[extremes]]) if extremes.size else part)
+            if not out:  # (draws, observations) arrays are filled chunk by chunk; broadcast ones kept
+                out = {
+                    b: [np.empty((n,) + np.shape(x)[1:], np.asarray(x).dtype) if _draw_rows(x, m) else x for x in v]
+                    for b, v in pred.items()
+                }
+                latent = np.empty((n,) + self._last_latent_signal_dn.shape[1:])
+            for b, v in pred.items():
+                for i, x in enumerate(v):
+                    if _draw_rows(x, m):
+                        out[b][i][lo : lo + k] = x[:k]
+            latent[lo : lo + k] = self._last_latent_signal_dn[:k]
+        self._last_latent_signal_dn = latent
+        return {b: tuple(v) for b, v in out.items()}
+
+    def _chunked_loglik(self, th):
+        """:meth:`log_likelihood` of draws ``th`` (n, ndim), in chunks of draws of at most
+        :data:`CHUNK_ELEMENTS` draws × observations (at least :data:`CHUNK_MIN_DRAWS` draws), so
+        that a call's memory is bounded whatever the number of rows (the blocks' intermediates are
+        (draws, observations) arrays, ~100 bytes per element alive at the peak).
+
+        The same numbers as one call, bit for bit: every operation of the likelihood is elementwise
+        over (draw, observation) except the choice of rows near the clip, which uses the minimum
+        and maximum over the call's draws of the conversion gain, the clip level and the clip
+        spread (:meth:`predict`). Each chunk is evaluated together with the draws holding those
+        extremes over the whole call (at most six draws, their values discarded), so it makes the
+        same choice."""
+        n = th.shape[0]
+        per, extremes = self._chunk_plan(th)
+        if n <= per:
+            return self.log_likelihood(th)
+        out = np.empty(n)
+        for lo in range(0, n, per):
+            part = th[lo : lo + per]
+            if extremes.size:
+                ll = self.log_likelihood(np.concatenate([part, th[extremes]]))
+                out[lo : lo + part.shape[0]] = ll[: part.shape[0]]
+            else:
+                out[lo : lo + part.shape[0]] = self.log_likelihood(part)
+        return out
 
     def _observations(self) -> int:
         """Observations per draw (the likelihood blocks' columns), counted once from one draw."""
@@ -265,11 +341,17 @@ class PTCModel(_ParametersMixin, _PredictionMixin, _ClipMixin, _LikelihoodMixin)
         return memo[key]
 
 
-def _log_posterior(theta, model_for):
+def _draw_rows(x, m):
+    """Whether a predicted block's element is a per-draw array of ``m`` draws (not a broadcast one)."""
+    return np.ndim(x) == 2 and np.shape(x)[0] == m
+
+
+def _log_posterior(theta, model_for, loglik=None):
     """log prior + log likelihood of draws ``theta`` (n, ndim): the likelihood only where the prior
     is finite. ``model_for(good)`` gives the model to evaluate the draws ``good`` (a boolean mask;
     None: all draws) with: the model itself, or a :class:`~bayescap.model.PTCModelStack` view
-    of those draws."""
+    of those draws. ``loglik``: the function of the good draws that gives their log-likelihood
+    (default: that model's ``log_likelihood``)."""
     th = np.atleast_2d(np.asarray(theta, float))
     with np.errstate(over="ignore", invalid="ignore", divide="ignore"):
         # far-out draws (a walker at log τ = 800) overflow exp() in the prior: −inf, as meant
@@ -278,7 +360,7 @@ def _log_posterior(theta, model_for):
     out = np.full(th.shape[0], -np.inf)
     if np.any(good):
         with np.errstate(over="ignore", invalid="ignore", divide="ignore"):
-            ll = model_for(good).log_likelihood(th[good])
+            ll = (loglik or model_for(good).log_likelihood)(th[good])
         ll = np.where(np.isfinite(ll), ll, -np.inf)
         out[good] = lp[good] + ll
     return out
