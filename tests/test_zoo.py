@@ -163,11 +163,6 @@ def test_zoo_sensor_truth_inside(name, tmp_path):
     _assert_right(_fit_scores(name, tmp_path))
 
 
-@pytest.mark.xfail(
-    strict=True,
-    reason="dark_noise_e of 0.1 DN (one exposure time, black level at the rounding boundary) is reported "
-    "constrained, not as a limit (issue 37)",
-)
 def test_zoo_sub_dn_dark_noise_is_a_limit(tmp_path):
     _assert_right(_fit_scores("i37_10bit_read0p1_one_t", tmp_path))
 

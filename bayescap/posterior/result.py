@@ -261,11 +261,17 @@ class FitResult(DerivedMixin, DiagnoseMixin, ChecksMixin, InputsMixin):
         else:
             dn = p["dark_noise_e"]
             t = float(np.unique(m.t[m.t > 0])[0]) if np.any(m.t > 0) else 0.0
-            out["dark_noise_e"] = summarize(
-                dn,
-                "e-",
-                note=f"sqrt(read² + D·t) at t = {t:g} s: the only identifiable combination with one exposure time",
-            )
+            note = f"sqrt(read² + D·t) at t = {t:g} s: the only identifiable combination with one exposure time"
+            if np.median(dn / k) < 0.4:
+                out["dark_noise_e"] = summarize(
+                    dn,
+                    "e-",
+                    constrained=False,
+                    upper_limit_95=float(np.quantile(dn, 0.95)),
+                    note=note + "; below 0.4 DN it is masked by quantization (EMVA 1288): an upper limit only",
+                )
+            else:
+                out["dark_noise_e"] = summarize(dn, "e-", note=note)
             out["read_noise_e"] = summarize(
                 dn,
                 "e-",
