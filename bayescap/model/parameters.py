@@ -12,6 +12,7 @@ import numpy as np
 
 from bayescap.model.likelihood import _norm_logpdf
 from bayescap.model.quantization import _rounded_normal_moments, _rounded_offset
+from bayescap.model.response import NONLINEARITY_BOUNDS
 from bayescap.physics.noise import dark_variance_e2
 
 __all__ = ["PARAMETER_INFO"]
@@ -29,6 +30,11 @@ PARAMETER_INFO = {
     "clip_spread_dn": ("DN", "spread of the pixel means about the clip level"),
     "variance_discrepancy": ("", "fractional discrepancy of the variances (systematics)"),
     "mean_discrepancy": ("", "fractional discrepancy of the means (non-linearity)"),
+    "response_nonlinearity": (
+        "",
+        "fractional deviation of the response from linearity at the largest unclipped signal",
+    ),
+    "pixel_offset_spread_dn": ("DN", "spread of the pixels' mean offsets about the DN grid (rounding average)"),
 }
 
 
@@ -82,7 +88,25 @@ class _ParametersMixin:
         if self.terms.dsnu:
             out["dsnu_e"] = np.exp(g("log_dsnu"))
         out["variance_discrepancy"] = np.exp(g("log_f")) if self.terms.discrepancy else np.zeros(th.shape[0])
+        if getattr(self.terms, "nonlinearity", False):
+            out["response_nonlinearity"] = g("nl")
+        if getattr(self.terms, "offset_spread", False):
+            out["pixel_offset_spread_dn"] = np.exp(g("log_offset_dn"))
         return out
+
+    def _extra_names(self) -> list:
+        """Sampling coordinates of the response and pixel-offset terms (after the others)."""
+        out = []
+        if getattr(self.terms, "nonlinearity", False):
+            out.append("nl")
+        if getattr(self.terms, "offset_spread", False):
+            out.append("log_offset_dn")
+        return out
+
+    @property
+    def response_ref_dn(self) -> float:
+        """S_ref of the response (:mod:`bayescap.model.response`): the largest unclipped signal (DN)."""
+        return max(float(self.max_mean_ok - self.black_dn), 1e-9)
 
     def dark_var_e2(self, p, t):
         """σ_read² + D·t (e⁻²) for each draw at exposure times t: shape (n_draws, n_t) (Eq. 1's
@@ -141,6 +165,12 @@ class _ParametersMixin:
             lp = lp - 0.5 * g(n) ** 2  # standard normal (constant dropped)
         if self.terms.discrepancy:
             lp = lp + _norm_logpdf(g("log_f"), np.log(P["f_center"]), P["f_log_sd"])
+        if getattr(self.terms, "nonlinearity", False):
+            a = g("nl")
+            lo, hi = NONLINEARITY_BOUNDS
+            lp = lp + _norm_logpdf(a, 0.0, P["nonlinearity_sd"]) + np.where((a > lo) & (a < hi), 0.0, -np.inf)
+        if getattr(self.terms, "offset_spread", False):
+            lp = lp + _halfnormal_log_prior(g("log_offset_dn"), P["offset_spread_scale_dn"])
         return lp
 
     # ------------------------------------------------------------------ start point
@@ -242,7 +272,7 @@ class _ParametersMixin:
         if "qe" in th and P["qe_bounds"] is not None:
             q0, q1 = P["qe_bounds"]
             th["qe"] = float(np.clip(th["qe"], q0 + 1e-3 * (q1 - q0), q1 - 1e-3 * (q1 - q0)))
-        x = np.array([th[n] for n in self.names], float)
+        x = np.array([th.get(n, 0.0) for n in self.names], float)
         if tm.clip_spread:
             # the clip spread: a deterministic scan of log_prob over τ from 10⁻³ DN to the prior's cap.
             # Below the quantization floor the plateau variance depends on τ only for τ ≲ 0.7 DN
@@ -256,4 +286,31 @@ class _ParametersMixin:
             lp = self.log_prob(cand)
             if np.any(np.isfinite(lp)):
                 x = cand[int(np.nanargmax(np.where(np.isfinite(lp), lp, -np.inf)))]
+        x = self._extra_starts(x)
+        return x
+
+    def _extra_starts(self, x):
+        """Start values of the response and pixel-offset terms: the curvature of the means against
+        the photons, and a spread of 0.3 DN (mid-way between one offset and a fully averaged grid)."""
+        x = np.array(x, float)
+        if "nl" in self.idx:
+            from bayescap.model.response import response_evidence
+
+            sig = self.s_obs
+            rows = np.zeros(sig.size, bool)
+            rows[self.lin_rows] = True
+            ev = (
+                response_evidence(sig, self.mu_p, rows & (sig >= 0.05 * sig.max()))
+                if self.terms.quantum_efficiency
+                else None
+            )
+            lo, hi = NONLINEARITY_BOUNDS
+            a0 = (
+                ev[0] * self.response_ref_dn / max(float(sig[rows].max()), 1e-9)
+                if ev is not None and rows.any()
+                else 0.0
+            )
+            x[self.idx["nl"]] = float(np.clip(a0, 0.8 * lo, 0.8 * hi))
+        if "log_offset_dn" in self.idx:
+            x[self.idx["log_offset_dn"]] = np.log(0.3)
         return x

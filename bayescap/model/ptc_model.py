@@ -87,6 +87,8 @@ class PTCModel(_ParametersMixin, _PredictionMixin, _ClipMixin, _LikelihoodMixin)
         g_log_sd=1.5,
         tau_log_sd=1.5,
         tau_max_frac=0.02,
+        nonlinearity_sd=0.1,
+        offset_spread_scale_dn=1.0,
         read_log_bounds=None,
         dark_current_log_bounds=None,
         prnu_log_bounds=None,
@@ -151,6 +153,7 @@ class PTCModel(_ParametersMixin, _PredictionMixin, _ClipMixin, _LikelihoodMixin)
         names += self.pattern_latents
         if tm.discrepancy:
             names.append("log_f")
+        names += self._extra_names()
         self.names = names
         self.ndim = len(names)
         self.idx = {n: i for i, n in enumerate(names)}
