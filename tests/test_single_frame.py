@@ -28,7 +28,7 @@ def test_single_frame_conditional_moments():
     """Given the pair's variance s²_D, a one-frame spatial variance has mean P + T + (s²_D − T)/2
     and variance (1.5 T² + 4PT)/ν (Gaussian noise): checked against a direct simulation."""
     rng = np.random.default_rng(0)
-    n, P, T, reps = 400, 2.0, 3.0, 40000
+    n, P, T, reps = 200, 2.0, 3.0, 10000
     pattern = rng.normal(0.0, np.sqrt(P), n)
     pattern = (pattern - pattern.mean()) / pattern.std(ddof=1) * np.sqrt(P)  # the realised P
     a = pattern + rng.normal(0.0, np.sqrt(T), (reps, n))
@@ -36,10 +36,10 @@ def test_single_frame_conditional_moments():
     sa = a.var(axis=1, ddof=1)
     sd = ((a - b) / np.sqrt(2.0)).var(axis=1, ddof=1)
     nu = n - 1.0
-    # linear regression of s²_A on s²_D: slope ½, residual variance (1.5 T² + 4PT)/ν
+    # linear regression of s²_A on s²_D: slope ½, residual variance (1.5 T² + 4PT)/ν (rel. se 1.4 %)
     slope = np.cov(sa, sd)[0, 1] / sd.var()
     resid = sa - (P + T + 0.5 * (sd - T))
-    assert abs(slope - 0.5) < 0.03
+    assert abs(slope - 0.5) < 0.05  # its standard error is 0.014
     assert abs(resid.mean()) < 4 * resid.std() / np.sqrt(reps)
     assert abs(resid.var() / ((1.5 * T * T + 4 * P * T) / nu) - 1) < 0.05
     # the model's block gives those moments

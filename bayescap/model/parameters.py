@@ -132,6 +132,82 @@ class _ParametersMixin:
         :meth:`_clip_reference_dn` (a wall: log prior −∞ beyond it)."""
         return self.PRIOR["tau_max_frac"] * self._clip_reference_dn(np.atleast_2d(th))
 
+    def parameter_bounds(self) -> dict:
+        """The hard bounds (walls: log prior −∞ beyond) of the physical parameters of this model:
+        ``{name: {"lower": x or None, "upper": x or None, "relative_to": name or None, "why": str}}``.
+        A ``relative_to`` bound is that fraction of the named parameter, per draw (the clip
+        spread's cap is a fraction of the clip level). :meth:`binding_bounds` says which of them
+        the posterior presses against; the reporting side flags those."""
+        P = self.PRIOR
+        lk0, lk1 = P["log_k_bounds"]
+        out = {
+            "conversion_gain_e_per_dn": {
+                "lower": float(np.exp(lk0)),
+                "upper": float(np.exp(lk1)),
+                "relative_to": None,
+                "why": "the gain's prior range",
+            }
+        }
+        if self.terms.clip in ("adc_sampled", "well"):
+            lo, hi = self.clip_bounds
+            out["clip_dn"] = {
+                "lower": float(lo),
+                "upper": float(hi),
+                "relative_to": None,
+                "why": "the clip lies above the largest unclipped mean and below the ADC maximum (+½ DN) "
+                "or the plateau",
+            }
+        if self.terms.clip_spread:
+            out["clip_spread_dn"] = {
+                "lower": None,
+                "upper": float(P["tau_max_frac"]),
+                "relative_to": "clip_dn",
+                "why": "the rows modelled as partly clipped are those within reach of the clip at this spread",
+            }
+        if getattr(self.terms, "nonlinearity", False):
+            lo, hi = NONLINEARITY_BOUNDS
+            out["response_nonlinearity"] = {
+                "lower": lo,
+                "upper": hi,
+                "relative_to": None,
+                "why": "the response stays increasing (invertible) over the measured range",
+            }
+        if self.terms.quantum_efficiency:
+            q0, q1 = P["qe_bounds"] if P["qe_bounds"] is not None else (0.0, 1.0)
+            out["quantum_efficiency"] = {"lower": q0, "upper": q1, "relative_to": None, "why": "a probability"}
+        for name, key, on in (
+            ("read_noise_e", "read_log_bounds", self.terms.dark_current),
+            ("dark_current_e_per_s", "dark_current_log_bounds", self.terms.dark_current),
+            ("dsnu_e", "dsnu_log_bounds", self.terms.dsnu),
+        ):
+            if P[key] is not None and on:
+                out[name] = {"lower": P[key][0], "upper": P[key][1], "relative_to": None, "why": "prior override"}
+        return out
+
+    def binding_bounds(self, p: dict, tol: float = 0.01, min_fraction: float = 0.05) -> dict:
+        """The bounds of :meth:`parameter_bounds` the posterior presses against: those with at
+        least ``min_fraction`` of the draws ``p`` (physical parameters, :meth:`physical`) within
+        ``tol`` of the bound (relative to the bound, or to the range for a lower bound of 0):
+        ``{name: {"side": "upper"|"lower", "bound": value, "fraction_near": f}}``."""
+        out = {}
+        for name, b in self.parameter_bounds().items():
+            if name not in p:
+                continue
+            x = np.asarray(p[name], float)
+            scale = np.asarray(p[b["relative_to"]], float) if b["relative_to"] else 1.0
+            span = (b["upper"] - b["lower"]) if b["lower"] is not None and b["upper"] is not None else None
+            for side in ("upper", "lower"):
+                v = b[side]
+                if v is None:
+                    continue
+                edge = v * scale
+                width = tol * (np.abs(edge) if np.all(np.asarray(edge) != 0) else span * np.abs(scale))
+                near = np.abs(x - edge) <= width
+                f = float(np.mean(near))
+                if f >= min_fraction:
+                    out[name] = {"side": side, "bound": float(np.median(edge)), "fraction_near": f}
+        return out
+
     def log_prior(self, th):
         P = self.PRIOR
         g = lambda n: th[:, self.idx[n]]
