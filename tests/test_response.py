@@ -65,18 +65,3 @@ def test_compressive_sensor_k_unbiased_and_stable_to_rows():
         assert a["ci95"][1] < 0  # compressive, detected
         assert out["derived"]["linearity_error_percent"]["ci95"][0] > 0.2
     assert cis[0][0] < cis[1][1] and cis[1][0] < cis[0][1]
-
-
-def test_parameter_bounds_and_a_binding_clip_spread():
-    """The model lists its walls; draws pressed against the clip spread's cap are named."""
-    from bayescap.model import PTCModel
-
-    d = simulate_ptc(SensorTruth(10.0, 5.0, 30000, adc_bits=12), n_levels=20, shape=(32, 32), seed=4)
-    m = PTCModel(d)
-    b = m.parameter_bounds()
-    assert b["clip_spread_dn"]["relative_to"] == "clip_dn" and b["clip_spread_dn"]["upper"] == m.PRIOR["tau_max_frac"]
-    p = m.physical(np.repeat(m.initial_guess()[None, :], 100, axis=0))
-    assert "clip_spread_dn" not in m.binding_bounds(p)
-    p["clip_spread_dn"] = 0.999 * m.PRIOR["tau_max_frac"] * np.asarray(p.get("clip_dn", m.adc), float) * np.ones(100)
-    hit = m.binding_bounds(p)["clip_spread_dn"]
-    assert hit["side"] == "upper" and hit["fraction_near"] == 1.0

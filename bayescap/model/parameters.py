@@ -127,6 +127,19 @@ class _ParametersMixin:
             return th[:, self.idx["clip_dn"]]
         return np.full(th.shape[0], self.adc, dtype=float)
 
+    #: spatial rows within reach of the clip at a spread of this fraction of the clip level are left
+    #: out of the spatial block (its pattern model is unclipped); the clip spread itself may reach
+    #: ``tau_max_frac``, where the prior has put it 2 sd above its centre
+    PATTERN_CLIP_FRAC = 0.02
+
+    def _pattern_clip_rows(self):
+        """Rows (of the unclipped set) within 8 sd of the clip at a spread of
+        :attr:`PATTERN_CLIP_FRAC` of the clip level (all of :attr:`clip_rows` when there is no clip)."""
+        if self.clip_bounds is None:
+            return self.clip_rows
+        tau = self.PATTERN_CLIP_FRAC * self.clip_bounds[1]
+        return np.nonzero(self.m + 8.0 * np.sqrt(self.v + tau**2) >= self.clip_bounds[0])[0]
+
     def tau_cap_dn(self, th):
         """Upper bound of the clip spread τ (DN) in the prior, per draw: ``tau_max_frac`` of
         :meth:`_clip_reference_dn` (a wall: log prior −∞ beyond it)."""
@@ -187,22 +200,27 @@ class _ParametersMixin:
     def binding_bounds(self, p: dict, tol: float = 0.01, min_fraction: float = 0.05) -> dict:
         """The bounds of :meth:`parameter_bounds` the posterior presses against: those with at
         least ``min_fraction`` of the draws ``p`` (physical parameters, :meth:`physical`) within
-        ``tol`` of the bound (relative to the bound, or to the range for a lower bound of 0):
-        ``{name: {"side": "upper"|"lower", "bound": value, "fraction_near": f}}``."""
+        ``tol`` of the bound, measured as a fraction of the bounded range (in log for a range over
+        a factor 10 or more, and for a bound relative to another parameter, where 1 % of the bound
+        itself): ``{name: {"side": "upper"|"lower", "bound": value, "fraction_near": f}}``."""
         out = {}
         for name, b in self.parameter_bounds().items():
             if name not in p:
                 continue
             x = np.asarray(p[name], float)
+            lo, hi = b["lower"], b["upper"]
             scale = np.asarray(p[b["relative_to"]], float) if b["relative_to"] else 1.0
-            span = (b["upper"] - b["lower"]) if b["lower"] is not None and b["upper"] is not None else None
-            for side in ("upper", "lower"):
-                v = b[side]
+            log = b["relative_to"] is not None or (lo is not None and lo > 0 and hi / lo >= 10.0)
+            for side, v in (("upper", hi), ("lower", lo)):
                 if v is None:
                     continue
                 edge = v * scale
-                width = tol * (np.abs(edge) if np.all(np.asarray(edge) != 0) else span * np.abs(scale))
-                near = np.abs(x - edge) <= width
+                with np.errstate(divide="ignore", invalid="ignore"):
+                    if log:
+                        width = tol * (np.log(hi / lo) if lo is not None and lo > 0 else 1.0)
+                        near = np.abs(np.log(x / edge)) <= width
+                    else:
+                        near = np.abs(x - edge) <= tol * (hi - lo)
                 f = float(np.mean(near))
                 if f >= min_fraction:
                     out[name] = {"side": side, "bound": float(np.median(edge)), "fraction_near": f}

@@ -86,7 +86,7 @@ class PTCModel(_ParametersMixin, _PredictionMixin, _ClipMixin, _LikelihoodMixin)
         g_center=0.005,
         g_log_sd=1.5,
         tau_log_sd=1.5,
-        tau_max_frac=0.02,
+        tau_max_frac=0.1,
         nonlinearity_sd=0.1,
         offset_spread_scale_dn=1.0,
         read_log_bounds=None,
@@ -192,7 +192,7 @@ class PTCModel(_ParametersMixin, _PredictionMixin, _ClipMixin, _LikelihoodMixin)
         self.spd_rows = np.zeros(0, int)
         if tm.prnu and d.spatial_var_dn2 is not None:
             sp = d.spatial_var_dn2[ok]
-            self.sp_rows = np.setdiff1d(np.nonzero(np.isfinite(sp))[0], self.clip_rows)
+            self.sp_rows = np.setdiff1d(np.nonzero(np.isfinite(sp))[0], self._pattern_clip_rows())
             self.sp = sp
         if tm.dsnu and d.dark_spatial_var_dn2 is not None:
             self.spd_rows = np.nonzero(np.isfinite(d.dark_spatial_var_dn2))[0]

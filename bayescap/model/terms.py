@@ -176,9 +176,14 @@ def select_terms(d: PTCData, *, force: dict | None = None) -> ModelTerms:
 
 
 def _unclipped_rows(d: PTCData, full):
-    """Rows whose pixels are all below the clip: not fully clipped, no saturated pixel, and more
-    than 4 temporal sd below the ADC maximum."""
+    """Rows whose pixels are all below the clip: not fully clipped, no saturated pixel, more than
+    4 temporal sd below the ADC maximum, and below 90 % of the signal of the largest temporal
+    variance (a well that clips before the ADC bends the means there without a saturated value)."""
     ok = ~full
+    sig = d.mean_dn - d.dark_mean_dn
+    if np.any(ok):
+        i_peak = np.flatnonzero(ok)[int(np.argmax(d.temporal_var_dn2[ok]))]
+        ok &= sig <= 0.9 * sig[i_peak]
     if d.frac_saturated is not None:
         ok &= ~(d.frac_saturated > 0)
     if d.adc_max_dn is not None:
