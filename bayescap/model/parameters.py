@@ -264,7 +264,10 @@ class _ParametersMixin:
             lo, hi = NONLINEARITY_BOUNDS
             lp = lp + _norm_logpdf(a, 0.0, P["nonlinearity_sd"]) + np.where((a > lo) & (a < hi), 0.0, -np.inf)
         if getattr(self.terms, "offset_spread", False):
-            lp = lp + _halfnormal_log_prior(g("log_offset_dn"), P["offset_spread_scale_dn"])
+            # log-uniform on [1e-3, 2] DN: as much prior mass for one offset shared by every pixel
+            # (below 1e-3 DN the rounded moments do not change, relative 4e-5) as for a fully
+            # averaged grid (above ~0.5 DN); no wall that binds in effect at either end
+            lp = lp + _scale_log_prior(g("log_offset_dn"), None, P["offset_spread_log_bounds"])
         return lp
 
     # ------------------------------------------------------------------ start point

@@ -88,7 +88,7 @@ class PTCModel(_ParametersMixin, _PredictionMixin, _ClipMixin, _LikelihoodMixin)
         tau_log_sd=1.5,
         tau_max_frac=0.1,
         nonlinearity_sd=0.1,
-        offset_spread_scale_dn=1.0,
+        offset_spread_log_bounds=(1e-3, 2.0),
         read_log_bounds=None,
         dark_current_log_bounds=None,
         prnu_log_bounds=None,
