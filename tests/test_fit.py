@@ -7,6 +7,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from conftest import standard_recipe_gain
 
 import bayescap
 from bayescap.inference import chains as inf_chains
@@ -41,18 +42,16 @@ def test_basler_matches_emva1288(basler_fit):
     # to the model's variances at the posterior median gives emva1288's K.
     m = basler_fit.model
     assert m.terms.nonlinearity
-    E, S, W, D = basler_fit.chains.chain.shape
-    th = np.median(basler_fit.chains.chain.reshape(-1, D), axis=0)[None]
-    pred = m.predict(th)
-    sig, v = m.s_obs, pred["bright_var"][1][0] - pred["dark_var"][1][0][~m.full_sat]
-    rows = sig <= 0.7 * sig[np.argmax(m.v)]
-    k_std = np.sum(sig[rows] ** 2) / np.sum(sig[rows] * v[rows])
+    k_std = standard_recipe_gain(basler_fit)
     assert abs(k_std / EMVA_K_E_PER_DN - 1) < 0.01
     assert abs(k / EMVA_K_E_PER_DN - 1) < 0.05
     assert abs(rn / EMVA_READ_NOISE_E - 1) < 0.05
     assert d["diagnostics"]["converged"]
     # η likewise: the standard's responsivity (model means against photons through the origin, same
     # rows) times its K
+    x = basler_fit.chains.chain
+    pred = m.predict(np.median(x.reshape(-1, x.shape[-1]), axis=0)[None])
+    rows = m.s_obs <= 0.7 * m.s_obs[np.argmax(m.v)]
     mu_p, s_model = m.mu_p[rows], pred["mean"][1][0][rows]
     eta_std = np.sum(mu_p * s_model) / np.sum(mu_p**2) * k_std
     assert eta_std == pytest.approx(0.4525, rel=0.02)
