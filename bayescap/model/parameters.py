@@ -392,21 +392,19 @@ class _ParametersMixin:
         x = np.array(x, float)
         if "nl" in self.idx:
             from bayescap.model.response import response_evidence
+            from bayescap.model.terms import _unclipped_rows
 
-            sig = self.s_obs
-            rows = np.zeros(sig.size, bool)
-            rows[self.lin_rows] = True
-            ev = (
-                response_evidence(sig, self.mu_p, rows & (sig >= 0.05 * sig.max()))
-                if self.terms.quantum_efficiency
-                else None
-            )
+            d = self.data
+            sig = d.mean_dn - d.dark_mean_dn
+            rows = _unclipped_rows(d, self.full_sat)
+            a0 = 0.0
+            if rows.any() and d.photons_per_pixel is not None:
+                rows &= sig >= 0.05 * sig[rows].max()
+                ev = response_evidence(sig, np.asarray(d.photons_per_pixel, float), rows)
+                if ev is not None:
+                    # the evidence's curvature is at its brightest row; a is at S_ref
+                    a0 = ev[0] * self.response_ref_dn / max(float(sig[rows].max()), 1e-9)
             lo, hi = NONLINEARITY_BOUNDS
-            a0 = (
-                ev[0] * self.response_ref_dn / max(float(sig[rows].max()), 1e-9)
-                if ev is not None and rows.any()
-                else 0.0
-            )
             x[self.idx["nl"]] = float(np.clip(a0, 0.8 * lo, 0.8 * hi))
         if "log_offset_dn" in self.idx:
             x[self.idx["log_offset_dn"]] = np.log(0.3)
