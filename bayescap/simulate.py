@@ -4,12 +4,18 @@ Per frame and pixel (EMVA 1288's linear camera model, with the fixed patterns of
 
     e   = Poisson(QE·μp·(1 + PRNU map)) + Poisson(D·t) + DSNU map        [e⁻]
     e   = min(e, full well of the pixel)                                  (the well clips)
-    y   = black + (e + N(0, σ_read²)) / K                                 [DN]
+    y   = black + (r(e) + N(0, σ_read²)) / K                              [DN]
     y   = clip(round(y), 0, 2^bits − 1)                                   (quantization, ADC)
 
 The PRNU, DSNU and full-well maps are fixed for a simulated sensor (drawn once from its seed);
 shot and read noise are drawn anew for every frame. Rounding without dither gives the 1/12 DN²
 quantization variance.
+
+The response ``r`` of the charge-to-voltage conversion is linear by default (``r(e) = e``);
+``response_nonlinearity = c`` makes it compressive, ``r(e) = e / (1 + b·e/e_top)`` with
+``b = c/(1 − c)``, so that the output falls short of the linear response by the fraction ``c`` at
+``e_top = (ADC maximum − black)·K`` (the charge that would reach the ADC maximum if linear). It
+acts on the collected charge, before the read noise.
 """
 
 from __future__ import annotations
@@ -37,6 +43,15 @@ class SensorTruth:
     full_well_spread_frac: float = 0.0
     adc_bits: int = 12
     black_level_dn: float = 64.0
+    response_nonlinearity: float = 0.0
+
+    def response_e(self, e):
+        """The charge-to-voltage response r(e) in e⁻ (module docstring): e itself when linear."""
+        c = self.response_nonlinearity
+        if c == 0.0:
+            return e
+        e_top = (self.adc_max_dn - self.black_level_dn) * self.conversion_gain_e_per_dn
+        return e / (1.0 + (c / (1.0 - c)) * e / e_top)
 
     @property
     def adc_max_dn(self) -> float:
@@ -80,7 +95,7 @@ def _frames(truth: SensorTruth, fp: _FixedPattern, photons, t_s, n, shape, rng):
             e += rng.poisson(truth.dark_current_e_per_s * t_s, size=shape)
         if fp.dsnu is not None:
             e += fp.dsnu
-        e = np.minimum(e, fp.fw)
+        e = truth.response_e(np.minimum(e, fp.fw))
         y = (
             truth.black_level_dn
             + (e + truth.read_noise_e * rng.standard_normal(shape)) / truth.conversion_gain_e_per_dn
@@ -137,8 +152,9 @@ def simulate_ptc(
 ) -> PTCData:
     """Simulate a photon-transfer series frame by frame and return it as PTCData.
 
-    With ``spatial_frames = L > 2`` and ``spatial_every = k``, every k-th level also carries the
-    spatial variances of L-frame averages (bright and dark). If ``path`` is given, the contract
+    With ``spatial_frames = L ≥ 1`` and ``spatial_every = k``, every k-th level also carries the
+    spatial variances of L-frame averages (bright and dark); L = 1 and 2 use the pair's own frames
+    (the first frame; the pair's average), L > 2 frames beyond the pair. If ``path`` is given, the contract
     CSV is written there (atomically) and read back, so the result is exactly what a user's
     file would give.
     """
@@ -161,9 +177,10 @@ def simulate_ptc(
     }
     npx = int(np.prod(shape))
     for i, (mu_p, t) in enumerate(zip(photons_per_pixel, exposure_time_s)):
-        L = spatial_frames if (spatial_frames > 2 and spatial_every and i % spatial_every == 0) else 2
-        b = _frames(truth, fp, mu_p, t, L, shape, rng)
-        d = _frames(truth, fp, 0.0, t, L, shape, rng)
+        spatial = spatial_frames >= 1 and spatial_every and i % spatial_every == 0
+        L = spatial_frames if spatial else 2
+        b = _frames(truth, fp, mu_p, t, max(L, 2), shape, rng)
+        d = _frames(truth, fp, 0.0, t, max(L, 2), shape, rng)
         m, v = _pair_stats(b[0], b[1])
         dm, dv = _pair_stats(d[0], d[1])
         cols["exposure_time_s"].append(t)
@@ -174,9 +191,10 @@ def simulate_ptc(
         cols["n_pixels"].append(npx)
         extra["photons_per_pixel"].append(mu_p)
         extra["frac_saturated"].append(float(np.mean(b[:2] >= truth.adc_max_dn)))
-        if L > 2:
-            extra["spatial_var_dn2"].append(float(b.mean(axis=0).var(ddof=1)))
-            extra["dark_spatial_var_dn2"].append(float(d.mean(axis=0).var(ddof=1)))
+        if spatial:
+            # the average of the first L frames (L = 1: the pair's first frame itself)
+            extra["spatial_var_dn2"].append(float(b[:L].mean(axis=0).var(ddof=1)))
+            extra["dark_spatial_var_dn2"].append(float(d[:L].mean(axis=0).var(ddof=1)))
             extra["n_frames"].append(L)
         else:
             extra["spatial_var_dn2"].append(np.nan)
@@ -187,7 +205,7 @@ def simulate_ptc(
         out["photons_per_pixel"] = np.asarray(extra["photons_per_pixel"])
     if include_frac_saturated:
         out["frac_saturated"] = np.asarray(extra["frac_saturated"])
-    if spatial_frames > 2 and spatial_every:
+    if spatial_frames >= 1 and spatial_every:
         for k in ("spatial_var_dn2", "dark_spatial_var_dn2", "n_frames"):
             out[k] = np.asarray(extra[k])
     md = {"sensor": "simulated", "adc_bits": truth.adc_bits, "width_px": 1920, "height_px": 1080}

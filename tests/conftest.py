@@ -14,6 +14,23 @@ def basler_csv():
     return DATA / "emva1288_basler_ccd12.csv"
 
 
+def standard_recipe_gain(result):
+    """EMVA 1288's gain recipe (Δσ² against Δμ through the origin, unweighted, over the rows up to
+    70 % of the signal of the largest temporal variance) applied to the model's variances at the
+    posterior median of ``result``: the K the standard would read off the fitted model. With a
+    non-linear response the model's own K is the small-signal gain, which this averages."""
+    import numpy as np
+
+    m = result.model
+    x = result.chains.chain
+    th = np.median(x.reshape(-1, x.shape[-1]), axis=0)[None]
+    pred = m.predict(th)
+    sig = m.s_obs
+    v = pred["bright_var"][1][0] - pred["dark_var"][1][0][~m.full_sat]
+    rows = sig <= 0.7 * sig[np.argmax(m.v)]
+    return float(np.sum(sig[rows] ** 2) / np.sum(sig[rows] * v[rows]))
+
+
 @pytest.fixture(autouse=True)
 def _quiet_arviz():
     with warnings.catch_warnings():

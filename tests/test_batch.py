@@ -70,9 +70,10 @@ def test_a_model_stacked_with_itself_equals_its_own_calls_bit_for_bit():
     instead of gathering copies; each request's log p is still m.log_prob of that request alone,
     bit for bit, with requests of different spreads in one call (the rows near the clip are
     chosen per request: the second request's gains are spread far wider)."""
-    rng = np.random.default_rng(11)
     models = [PTCModel(bayescap.load("data/emva1288_basler_ccd12.csv"))] + _stackable_sets()[0][:2]
-    for m in models:
+    for i, m in enumerate(models):
+        # a generator per model: its points do not depend on the other models' dimensions
+        rng = np.random.default_rng(11 + i)
         stack = PTCModelStack([m] * 3)
         assert stack._same
         x0 = m.initial_guess()

@@ -9,6 +9,7 @@ import numpy as np
 import pytest
 
 import bayescap
+from bayescap.model import select_terms
 from bayescap.posterior.emva import emva1288_view
 from bayescap.report.datasheet import datasheet_html
 
@@ -17,7 +18,11 @@ REF = Path(__file__).resolve().parents[1] / "data" / "emva1288_refset001" / "ref
 
 @pytest.fixture(scope="module")
 def basler_fit(basler_csv):
-    return bayescap.fit(basler_csv, seed=1)
+    # the standard's quantities are those of its linear model: fitted with the response held linear
+    # (with the response term the set selects, K, R and η are the small-signal values, which the
+    # standard's fits over 0–70 % of saturation average with the compression)
+    d = bayescap.load(basler_csv)
+    return bayescap.fit(d, seed=1, terms=select_terms(d, force={"nonlinearity": False}))
 
 
 @pytest.fixture(scope="module")
@@ -62,9 +67,21 @@ def test_view_is_json_with_names_symbols_units(view):
     for key in ("K", "QE", "sigma_d", "u_e_sat", "DR", "SNR_max", "DSNU1288", "PRNU1288"):
         lo, hi = q[key]["ci95"]
         assert lo <= q[key]["median"] <= hi, key
-    assert q["LE"]["ci95"] is None  # data-only: a value with a note
+    assert q["LE"]["ci95"] is None  # the linear model: LE from the data only, a value with a note
     assert "full_well_e" in q["u_e_sat"]["note"]  # named apart from bayescap's clip
     assert q["K"]["bayescap"] == "1 / conversion_gain_e_per_dn"
+
+
+def test_response_term_gives_le_an_interval(basler_csv, ref):
+    """The Basler set's means bend against the photons (about −2 % at the top): the response term
+    is selected and the view's LE carries the fitted response's interval, beside the standard's
+    value from the rows as its recipe."""
+    r = bayescap.fit(basler_csv, seed=1, quality="fast")
+    assert r.model.terms.nonlinearity
+    le = emva1288_view(r)["quantities"]["LE"]
+    lo, hi = le["ci95"]
+    assert 0 < lo <= le["median"] <= hi
+    assert le["recipe"] == pytest.approx(0.5 * (ref["LE_max"] - ref["LE_min"]), abs=2e-4)
 
 
 def test_standard_recipe_reproduces_emva1288(view, ref):

@@ -375,8 +375,8 @@ def _check_value(col, v, path, row):
         raise PTCInputError(f"negative {what} {v:g} is physically impossible", path=path, row=row, column=col)
     if col == "n_pixels" and (v < 2 or v != int(v)):
         raise PTCInputError(f"n_pixels must be a whole number >= 2, got {v:g}", path=path, row=row, column=col)
-    if col == "n_frames" and (v < 2 or v != int(v)):
-        raise PTCInputError(f"n_frames must be a whole number >= 2, got {v:g}", path=path, row=row, column=col)
+    if col == "n_frames" and (v < 1 or v != int(v)):
+        raise PTCInputError(f"n_frames must be a whole number >= 1, got {v:g}", path=path, row=row, column=col)
     if col == "frac_saturated" and not 0 <= v <= 1:
         raise PTCInputError(f"frac_saturated must be in [0, 1], got {v:g}", path=path, row=row, column=col)
 

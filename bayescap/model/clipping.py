@@ -129,7 +129,7 @@ class _ClipMixin:
         values, unclipped fraction = dE/dμ)."""
         m_obs = self.m[..., rows]
         dm = self.dm[..., rows]
-        K = k[:, None]
+        K = k[:, None] if np.ndim(k) == 1 else k  # per row: an effective gain (a non-linear response)
         shape = pre_var_dn2.shape
         cc = np.broadcast_to(c[:, None], shape)
         tt_ = np.broadcast_to(tau[:, None], shape)

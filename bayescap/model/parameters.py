@@ -12,6 +12,7 @@ import numpy as np
 
 from bayescap.model.likelihood import _norm_logpdf
 from bayescap.model.quantization import _rounded_normal_moments, _rounded_offset
+from bayescap.model.response import NONLINEARITY_BOUNDS
 from bayescap.physics.noise import dark_variance_e2
 
 __all__ = ["PARAMETER_INFO"]
@@ -29,6 +30,11 @@ PARAMETER_INFO = {
     "clip_spread_dn": ("DN", "spread of the pixel means about the clip level"),
     "variance_discrepancy": ("", "fractional discrepancy of the variances (systematics)"),
     "mean_discrepancy": ("", "fractional discrepancy of the means (non-linearity)"),
+    "response_nonlinearity": (
+        "",
+        "fractional deviation of the response from linearity at the largest unclipped signal",
+    ),
+    "pixel_offset_spread_dn": ("DN", "spread of the pixels' mean offsets about the DN grid (rounding average)"),
 }
 
 
@@ -82,7 +88,25 @@ class _ParametersMixin:
         if self.terms.dsnu:
             out["dsnu_e"] = np.exp(g("log_dsnu"))
         out["variance_discrepancy"] = np.exp(g("log_f")) if self.terms.discrepancy else np.zeros(th.shape[0])
+        if getattr(self.terms, "nonlinearity", False):
+            out["response_nonlinearity"] = g("nl")
+        if getattr(self.terms, "offset_spread", False):
+            out["pixel_offset_spread_dn"] = np.exp(g("log_offset_dn"))
         return out
+
+    def _extra_names(self) -> list:
+        """Sampling coordinates of the response and pixel-offset terms (after the others)."""
+        out = []
+        if getattr(self.terms, "nonlinearity", False):
+            out.append("nl")
+        if getattr(self.terms, "offset_spread", False):
+            out.append("log_offset_dn")
+        return out
+
+    @property
+    def response_ref_dn(self) -> float:
+        """S_ref of the response (:mod:`bayescap.model.response`): the largest unclipped signal (DN)."""
+        return max(float(self.max_mean_ok - self.black_dn), 1e-9)
 
     def dark_var_e2(self, p, t):
         """σ_read² + D·t (e⁻²) for each draw at exposure times t: shape (n_draws, n_t) (Eq. 1's
@@ -103,10 +127,104 @@ class _ParametersMixin:
             return th[:, self.idx["clip_dn"]]
         return np.full(th.shape[0], self.adc, dtype=float)
 
+    #: spatial rows within reach of the clip at a spread of this fraction of the clip level are left
+    #: out of the spatial block (its pattern model is unclipped); the clip spread itself may reach
+    #: ``tau_max_frac``, where the prior has put it 2 sd above its centre
+    PATTERN_CLIP_FRAC = 0.02
+
+    def _pattern_clip_rows(self):
+        """Rows (of the unclipped set) within 8 sd of the clip at a spread of
+        :attr:`PATTERN_CLIP_FRAC` of the clip level (all of :attr:`clip_rows` when there is no clip)."""
+        if self.clip_bounds is None:
+            return self.clip_rows
+        tau = self.PATTERN_CLIP_FRAC * self.clip_bounds[1]
+        return np.nonzero(self.m + 8.0 * np.sqrt(self.v + tau**2) >= self.clip_bounds[0])[0]
+
     def tau_cap_dn(self, th):
         """Upper bound of the clip spread τ (DN) in the prior, per draw: ``tau_max_frac`` of
         :meth:`_clip_reference_dn` (a wall: log prior −∞ beyond it)."""
         return self.PRIOR["tau_max_frac"] * self._clip_reference_dn(np.atleast_2d(th))
+
+    def parameter_bounds(self) -> dict:
+        """The hard bounds (walls: log prior −∞ beyond) of the physical parameters of this model:
+        ``{name: {"lower": x or None, "upper": x or None, "relative_to": name or None, "why": str}}``.
+        A ``relative_to`` bound is that fraction of the named parameter, per draw (the clip
+        spread's cap is a fraction of the clip level). :meth:`binding_bounds` says which of them
+        the posterior presses against; the reporting side flags those."""
+        P = self.PRIOR
+        lk0, lk1 = P["log_k_bounds"]
+        out = {
+            "conversion_gain_e_per_dn": {
+                "lower": float(np.exp(lk0)),
+                "upper": float(np.exp(lk1)),
+                "relative_to": None,
+                "why": "the gain's prior range",
+            }
+        }
+        if self.terms.clip in ("adc_sampled", "well"):
+            lo, hi = self.clip_bounds
+            out["clip_dn"] = {
+                "lower": float(lo),
+                "upper": float(hi),
+                "relative_to": None,
+                "why": "the clip lies above the largest unclipped mean and below the ADC maximum (+½ DN) "
+                "or the plateau",
+            }
+        if self.terms.clip_spread:
+            out["clip_spread_dn"] = {
+                "lower": None,
+                "upper": float(P["tau_max_frac"]),
+                "relative_to": "clip_dn",
+                "why": "the rows modelled as partly clipped are those within reach of the clip at this spread",
+            }
+        if getattr(self.terms, "nonlinearity", False):
+            lo, hi = NONLINEARITY_BOUNDS
+            out["response_nonlinearity"] = {
+                "lower": lo,
+                "upper": hi,
+                "relative_to": None,
+                "why": "the response stays increasing (invertible) over the measured range",
+            }
+        if self.terms.quantum_efficiency:
+            q0, q1 = P["qe_bounds"] if P["qe_bounds"] is not None else (0.0, 1.0)
+            out["quantum_efficiency"] = {"lower": q0, "upper": q1, "relative_to": None, "why": "a probability"}
+        for name, key, on in (
+            ("read_noise_e", "read_log_bounds", self.terms.dark_current),
+            ("dark_current_e_per_s", "dark_current_log_bounds", self.terms.dark_current),
+            ("dsnu_e", "dsnu_log_bounds", self.terms.dsnu),
+        ):
+            if P[key] is not None and on:
+                out[name] = {"lower": P[key][0], "upper": P[key][1], "relative_to": None, "why": "prior override"}
+        return out
+
+    def binding_bounds(self, p: dict, tol: float = 0.01, min_fraction: float = 0.05) -> dict:
+        """The bounds of :meth:`parameter_bounds` the posterior presses against: those with at
+        least ``min_fraction`` of the draws ``p`` (physical parameters, :meth:`physical`) within
+        ``tol`` of the bound, measured as a fraction of the bounded range (in log for a range over
+        a factor 10 or more, and for a bound relative to another parameter, where 1 % of the bound
+        itself): ``{name: {"side": "upper"|"lower", "bound": value, "fraction_near": f}}``."""
+        out = {}
+        for name, b in self.parameter_bounds().items():
+            if name not in p:
+                continue
+            x = np.asarray(p[name], float)
+            lo, hi = b["lower"], b["upper"]
+            scale = np.asarray(p[b["relative_to"]], float) if b["relative_to"] else 1.0
+            log = b["relative_to"] is not None or (lo is not None and lo > 0 and hi / lo >= 10.0)
+            for side, v in (("upper", hi), ("lower", lo)):
+                if v is None:
+                    continue
+                edge = v * scale
+                with np.errstate(divide="ignore", invalid="ignore"):
+                    if log:
+                        width = tol * (np.log(hi / lo) if lo is not None and lo > 0 else 1.0)
+                        near = np.abs(np.log(x / edge)) <= width
+                    else:
+                        near = np.abs(x - edge) <= tol * (hi - lo)
+                f = float(np.mean(near))
+                if f >= min_fraction:
+                    out[name] = {"side": side, "bound": float(np.median(edge)), "fraction_near": f}
+        return out
 
     def log_prior(self, th):
         P = self.PRIOR
@@ -141,6 +259,15 @@ class _ParametersMixin:
             lp = lp - 0.5 * g(n) ** 2  # standard normal (constant dropped)
         if self.terms.discrepancy:
             lp = lp + _norm_logpdf(g("log_f"), np.log(P["f_center"]), P["f_log_sd"])
+        if getattr(self.terms, "nonlinearity", False):
+            a = g("nl")
+            lo, hi = NONLINEARITY_BOUNDS
+            lp = lp + _norm_logpdf(a, 0.0, P["nonlinearity_sd"]) + np.where((a > lo) & (a < hi), 0.0, -np.inf)
+        if getattr(self.terms, "offset_spread", False):
+            # log-uniform on [1e-3, 2] DN: as much prior mass for one offset shared by every pixel
+            # (below 1e-3 DN the rounded moments do not change, relative 4e-5) as for a fully
+            # averaged grid (above ~0.5 DN); no wall that binds in effect at either end
+            lp = lp + _scale_log_prior(g("log_offset_dn"), None, P["offset_spread_log_bounds"])
         return lp
 
     # ------------------------------------------------------------------ start point
@@ -299,7 +426,7 @@ class _ParametersMixin:
             th["log_f"] = np.log(0.01)
         # every coordinate inside the prior's bulk; what was moved is reported with the result
         self.__dict__.setdefault("_memo", {})["start_projections"] = self._project_into_prior(th)
-        x = np.array([th[n] for n in self.names], float)
+        x = np.array([th.get(n, 0.0) for n in self.names], float)
         if tm.clip_spread:
             # the clip spread: a deterministic scan of log_prob over τ from 10⁻³ DN to the prior's cap.
             # Below the quantization floor the plateau variance depends on τ only for τ ≲ 0.7 DN
@@ -320,4 +447,29 @@ class _ParametersMixin:
             center = np.log(0.005 * max(cref - self.black_dn, 1.0))
             j = self.idx["log_tau"]
             x[j] = float(np.clip(x[j], center - z, min(center + z, hi)))
+        x = self._extra_starts(x)
+        return x
+
+    def _extra_starts(self, x):
+        """Start values of the response and pixel-offset terms: the curvature of the means against
+        the photons, and a spread of 0.3 DN (mid-way between one offset and a fully averaged grid)."""
+        x = np.array(x, float)
+        if "nl" in self.idx:
+            from bayescap.model.response import response_evidence
+            from bayescap.model.terms import _unclipped_rows
+
+            d = self.data
+            sig = d.mean_dn - d.dark_mean_dn
+            rows = _unclipped_rows(d, self.full_sat)
+            a0 = 0.0
+            if rows.any() and d.photons_per_pixel is not None:
+                rows &= sig >= 0.05 * sig[rows].max()
+                ev = response_evidence(sig, np.asarray(d.photons_per_pixel, float), rows)
+                if ev is not None:
+                    # the evidence's curvature is at its brightest row; a is at S_ref
+                    a0 = ev[0] * self.response_ref_dn / max(float(sig[rows].max()), 1e-9)
+            lo, hi = NONLINEARITY_BOUNDS
+            x[self.idx["nl"]] = float(np.clip(a0, 0.8 * lo, 0.8 * hi))
+        if "log_offset_dn" in self.idx:
+            x[self.idx["log_offset_dn"]] = np.log(0.3)
         return x

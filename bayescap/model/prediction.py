@@ -9,6 +9,7 @@ import numpy as np
 
 from bayescap.model.pixel_quantization import _quantized_pixel_moments
 from bayescap.model.quantization import _rounded_offset
+from bayescap.model.response import response, response_inverse, response_slope
 
 #: below this s² + σ_o² (DN²) the rounded-normal moments replace Sheppard's σ² + 1/12
 _QUANT_EXACT_S2 = 0.5
@@ -120,13 +121,25 @@ class _PredictionMixin:
         rd2_all = self.dark_var_e2(p, self.t)
         out = {}
         pa, pb, pc = self._pattern_moments(th, p)  # realised ROI patterns (zeros without the terms)
+        # spread of the pixels' mean offsets about the DN grid not described by the patterns
+        # (fitted when no spatial column tells it, see select_terms)
+        so2 = p["pixel_offset_spread_dn"][:, None] ** 2 if "pixel_offset_spread_dn" in p else 0.0
         # dark temporal variances (all rows); rounding at the measured offset below 1 DN
-        vdm, phi_d, hd = self._quantized_var(rd2_all / (K * K), self.dark_frac_dn, pb / (K * K))
+        vdm, phi_d, hd = self._quantized_var(rd2_all / (K * K), self.dark_frac_dn, pb / (K * K) + so2)
         out["dark_var"] = (self.vd, vdm, 1.0 / (phi_d / self.nu_d + f2), "gamma")
         # bright temporal variances, unclipped rows: S from the measured mean
         S = np.broadcast_to(self.s_obs, rd2_ok.shape).copy()
+        if "response_nonlinearity" in p:
+            # the response S = g(x) (bayescap.model.response): shot noise g'(x)²·x/K, patterns g'(x)·x
+            a_nl = p["response_nonlinearity"][:, None]
+            x_lin = response_inverse(S, a_nl, self.response_ref_dn)
+            Sx = response_slope(x_lin, a_nl, self.response_ref_dn) * x_lin
+            shot = Sx * Sx / np.where(x_lin > 0, x_lin, 1.0) / K
+            shot = np.where(x_lin > 0, shot, S / K)
+        else:
+            a_nl, Sx, shot = None, S, S / K
         vm, phi_b, hb = self._quantized_var(
-            S / K + rd2_ok / (K * K), self.bright_frac_dn, pa * S * S + pb / (K * K) + 2.0 * pc * S / K
+            shot + rd2_ok / (K * K), self.bright_frac_dn, pa * Sx * Sx + pb / (K * K) + 2.0 * pc * Sx / K + so2
         )
         slope = np.ones_like(vm)
         if self.clip_rows.size:
@@ -160,11 +173,15 @@ class _PredictionMixin:
                 )
                 pre = dc_e2 / (K * K)
                 post = (rd2_ok[:, rows] - dc_e2) / (K * K) + 1.0 / 12.0
-                mu, var_c, sl = self._latent_clip_rows(k, pre, tau, c, rows)
+                mu, var_c, sl = self._latent_clip_rows(
+                    self._clip_gain(k, S, None if a_nl is None else shot, rows), pre, tau, c, rows
+                )
                 vm[:, rows] = put(var_c + post, vm[:, rows])
             else:
                 # the ADC clips everything; quantization survives only for the unclipped pixels
-                mu, var_c, sl = self._latent_clip_rows(k, rd2_ok[:, rows] / (K * K), tau, c, rows)
+                mu, var_c, sl = self._latent_clip_rows(
+                    self._clip_gain(k, S, None if a_nl is None else shot, rows), rd2_ok[:, rows] / (K * K), tau, c, rows
+                )
                 vm[:, rows] = put(var_c + sl / 12.0, vm[:, rows])
             S[:, rows] = put(mu - self.dm[..., rows], S[:, rows])
             slope[:, rows] = put(sl, slope[:, rows])
@@ -174,6 +191,8 @@ class _PredictionMixin:
             qe = p["quantum_efficiency"][:, None]
             g2 = p["mean_discrepancy"][:, None] ** 2
             s_model = qe * self.mu_p / K
+            if a_nl is not None:
+                s_model = response(s_model, a_nl, self.response_ref_dn)
             m_err2 = (self.v + self.vd_ok) / (self.nu + 1.0)
             sd = np.sqrt(g2 * s_model**2 + m_err2 / np.maximum(slope, 1e-6) ** 2)
             out["mean"] = (S, s_model, sd, "normal")
@@ -220,25 +239,56 @@ class _PredictionMixin:
             r = self.sp_rows
             Sr = S[:, r]
             # realised pattern, plus what rounding adds to it below the quantization floor
-            P = pa * Sr * Sr + pb / (K * K) + 2.0 * pc * Sr / K + hb[:, r]
-            T = vm[:, r] / self.L_ok[..., r]
-            out["spatial_var"] = (
-                self.sp[..., r],
-                np.maximum(P + T, 1e-12),
-                self._pattern_shape(P, T, self.nu[..., r], f2),
-                "gamma",
+            Sxr = Sx[:, r] if a_nl is not None else Sr
+            P = pa * Sxr * Sxr + pb / (K * K) + 2.0 * pc * Sxr / K + hb[:, r]
+            out["spatial_var"] = self._spatial_block(
+                self.sp[..., r], P, vm[:, r], self.L_ok[..., r], self.v[..., r], self.nu[..., r], f2
             )
         if self.spd_rows.size:
             r = self.spd_rows
             P = pb / (K * K) + hd[:, r]
-            T = vdm[:, r] / self.L_all[..., r]
-            out["dark_spatial_var"] = (
+            out["dark_spatial_var"] = self._spatial_block(
                 np.maximum(self.spd[..., r], 1e-9),
-                np.maximum(P + T, 1e-12),
-                self._pattern_shape(P, T, self.nu_d[..., r], f2),
-                "gamma",
+                P,
+                vdm[:, r],
+                self.L_all[..., r],
+                self.vd[..., r],
+                self.nu_d[..., r],
+                f2,
             )
         return out
+
+    @staticmethod
+    def _clip_gain(k, S, shot, rows):
+        """The gain the clip rows' latent solver uses for their shot noise: K itself for a linear
+        response, else the effective K·S/(g'²·x) at the measured signal (the response's bend of the
+        shot noise, evaluated at the measured mean, where the latent mean lies within the clip's
+        roll-off)."""
+        if shot is None:
+            return k
+        keff = S[:, rows] / np.maximum(shot[:, rows], 1e-300)
+        lin = k[:, None] * np.ones_like(keff)
+        return np.where(S[:, rows] > 0, keff, lin)
+
+    @classmethod
+    def _spatial_block(cls, obs, P, v1, L, v_pair, nu, f2):
+        """The spatial-variance block of L-frame averages: pattern P plus temporal part T = v₁/L
+        (v₁ the one-frame temporal variance). L ≥ 2 frames averaged are independent of the pair
+        difference; a single frame (L = 1) is the pair's first frame A, whose noise the pair's
+        temporal estimate s²_D (D = (A − B)/√2) shares: for Gaussian noise Cov(s²_A, s²_D) = T²/ν
+        and Var(s²_D) = 2T²/ν, so given the measured s²_D the spatial variance has mean
+        P + T + (s²_D − T)/2 and variance Var(s²_A) − T²/(2ν) = (1.5 T² + 4PT)/ν."""
+        T = v1 / L
+        shape = cls._pattern_shape(P, T, nu, f2)
+        one = L == 1
+        if not np.any(one):
+            return obs, np.maximum(P + T, 1e-12), shape, "gamma"
+        Pp = np.maximum(P, 0.0)
+        mean_c = Pp + 0.5 * (T + v_pair)
+        rel_c = (1.5 * T * T + 4.0 * Pp * T) / (nu * mean_c**2)
+        mean = np.where(one, mean_c, P + T)
+        shape = np.where(one, 1.0 / (rel_c + f2), shape)
+        return obs, np.maximum(mean, 1e-12), shape, "gamma"
 
     @staticmethod
     def _pattern_shape(P, T, nu, f2):

@@ -92,7 +92,9 @@ class PTCModel(_ParametersMixin, _PredictionMixin, _ClipMixin, _LikelihoodMixin)
         g_center=0.005,
         g_log_sd=1.5,
         tau_log_sd=1.5,
-        tau_max_frac=0.02,
+        tau_max_frac=0.1,
+        nonlinearity_sd=0.1,
+        offset_spread_log_bounds=(1e-3, 2.0),
         read_log_bounds=None,
         dark_current_log_bounds=None,
         prnu_log_bounds=None,
@@ -157,6 +159,7 @@ class PTCModel(_ParametersMixin, _PredictionMixin, _ClipMixin, _LikelihoodMixin)
         names += self.pattern_latents
         if tm.discrepancy:
             names.append("log_f")
+        names += self._extra_names()
         self.names = names
         self.ndim = len(names)
         self.idx = {n: i for i, n in enumerate(names)}
@@ -195,7 +198,7 @@ class PTCModel(_ParametersMixin, _PredictionMixin, _ClipMixin, _LikelihoodMixin)
         self.spd_rows = np.zeros(0, int)
         if tm.prnu and d.spatial_var_dn2 is not None:
             sp = d.spatial_var_dn2[ok]
-            self.sp_rows = np.setdiff1d(np.nonzero(np.isfinite(sp))[0], self.clip_rows)
+            self.sp_rows = np.setdiff1d(np.nonzero(np.isfinite(sp))[0], self._pattern_clip_rows())
             self.sp = sp
         if tm.dsnu and d.dark_spatial_var_dn2 is not None:
             self.spd_rows = np.nonzero(np.isfinite(d.dark_spatial_var_dn2))[0]

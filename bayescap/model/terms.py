@@ -11,6 +11,7 @@ import numpy as np
 
 from bayescap.exceptions import PTCInputError
 from bayescap.io.ptc_csv import PTCData, check_not_all_saturated
+from bayescap.model.response import EVIDENCE_MIN, EVIDENCE_SIGMA, response_evidence
 
 __all__ = ["ModelTerms", "saturation_flags", "select_terms"]
 
@@ -27,6 +28,8 @@ class ModelTerms:
     dsnu: bool
     robust: bool = True
     discrepancy: bool = True
+    nonlinearity: bool = False
+    offset_spread: bool = False
     reasons: dict = field(default_factory=dict)  # term -> why it is left out
     how: dict = field(default_factory=dict)  # term -> how an included term enters (caveats)
 
@@ -46,6 +49,10 @@ class ModelTerms:
             out.append("outlier_mixture")
         if self.quantum_efficiency:
             out += ["quantum_efficiency", "mean_discrepancy"]
+        if self.nonlinearity:
+            out.append("response_nonlinearity")
+        if self.offset_spread:
+            out.append("pixel_offset_spread")
         return out
 
 
@@ -151,7 +158,83 @@ def select_terms(d: PTCData, *, force: dict | None = None) -> ModelTerms:
         reasons["prnu"] = "no spatial_var_dn2 column: pair differences cancel fixed-pattern noise"
     if not dsnu:
         reasons["dsnu"] = "no dark_spatial_var_dn2 column: pair differences cancel fixed-pattern noise"
-    terms = dict(dark_current=multi_t, clip=clip, clip_spread=clip_spread, quantum_efficiency=qe, prnu=prnu, dsnu=dsnu)
+    nonlin = _select_nonlinearity(d, full, reasons, how)
+    offsets = _select_offset_spread(d, dsnu, full, reasons, how)
+    terms = dict(
+        dark_current=multi_t,
+        clip=clip,
+        clip_spread=clip_spread,
+        quantum_efficiency=qe,
+        prnu=prnu,
+        dsnu=dsnu,
+        nonlinearity=nonlin,
+        offset_spread=offsets,
+    )
     if force:
         terms.update(force)
     return ModelTerms(**terms, reasons=reasons, how=how)
+
+
+def _unclipped_rows(d: PTCData, full):
+    """Rows whose pixels are all below the clip: not fully clipped, no saturated pixel, more than
+    4 temporal sd below the ADC maximum, and below 90 % of the signal of the largest temporal
+    variance (a well that clips before the ADC bends the means there without a saturated value)."""
+    ok = ~full
+    sig = d.mean_dn - d.dark_mean_dn
+    if np.any(ok):
+        i_peak = np.flatnonzero(ok)[int(np.argmax(d.temporal_var_dn2[ok]))]
+        ok &= sig <= 0.9 * sig[i_peak]
+    if d.frac_saturated is not None:
+        ok &= ~(d.frac_saturated > 0)
+    if d.adc_max_dn is not None:
+        ok &= d.mean_dn + 4.0 * np.sqrt(np.maximum(d.temporal_var_dn2, 0.0)) < d.adc_max_dn
+    return ok
+
+
+def _select_nonlinearity(d: PTCData, full, reasons, how) -> bool:
+    """The response term (:mod:`bayescap.model.response`) enters when the means bend against the
+    photons: a curvature of at least ``EVIDENCE_MIN`` at the top, ``EVIDENCE_SIGMA`` standard
+    errors from zero, over the unclipped rows from 5 % of the largest signal up."""
+    if d.photons_per_pixel is None:
+        reasons["response_nonlinearity"] = (
+            "no photons_per_pixel column: the response cannot be told from the variance's curvature"
+        )
+        return False
+    sig = d.mean_dn - d.dark_mean_dn
+    ok = _unclipped_rows(d, full)
+    if not np.any(ok):
+        reasons["response_nonlinearity"] = "no unclipped row to measure the response on"
+        return False
+    rows = ok & (sig >= 0.05 * sig[ok].max())
+    ev = response_evidence(sig, np.asarray(d.photons_per_pixel, float), rows)
+    if ev is None:
+        reasons["response_nonlinearity"] = "fewer than five unclipped rows with photons: the response is not measured"
+        return False
+    a, se = ev
+    if abs(a) >= EVIDENCE_MIN and abs(a) >= EVIDENCE_SIGMA * se:
+        how["response_nonlinearity"] = (
+            f"the means bend against the photons: {100 * a:+.2g} % at the top of the unclipped rows "
+            f"(± {100 * se:.2g} %); the response S = x(1 + a·x/S_ref) enters the means and the variances"
+        )
+        return True
+    reasons["response_nonlinearity"] = (
+        f"the means are linear in the photons within the data's precision: {100 * a:+.2g} ± {100 * se:.2g} % "
+        "at the top of the unclipped rows"
+    )
+    return False
+
+
+def _select_offset_spread(d: PTCData, dsnu: bool, full, reasons, how) -> bool:
+    """Without spatial columns (no DSNU term) the spread of the pixels' mean offsets about the
+    integer DN grid is unknown; rounding depends on it where the temporal noise is below the
+    quantization floor (variance < 0.6 DN²): there it is a nuisance parameter."""
+    if dsnu:
+        return False
+    low = np.concatenate([d.dark_temporal_var_dn2, d.temporal_var_dn2[~full]])
+    if np.any(low < 0.6):
+        how["pixel_offset_spread"] = (
+            "rows below the quantization floor and no spatial column: the spread of the pixels' mean "
+            "offsets (DSNU) about the DN grid is fitted, so rounding is averaged over it"
+        )
+        return True
+    return False

@@ -14,6 +14,7 @@ from bayescap.physics.capacity import (
     tonal_range,
     tonal_range_bits,
 )
+from bayescap.physics.linearity import linearity_error_percent
 from bayescap.physics.noise import NoiseCoefficients, dark_variance_e2, dynamic_range_db, snr_db, variance_terms
 from bayescap.posterior.limits import apply_derived_limits
 from bayescap.posterior.summary import DERIVED_INFO, summarize
@@ -27,9 +28,10 @@ _DERIVED_NOTE_PREFIXES = (
     "the MTF reaches zero",
     "noise stays below one",
     "the MTF exceeds 1",
+    "the posterior presses against",
 )
 #: the flags it sets, dropped likewise
-_DERIVED_FLAGS = ("capacity_lower_bound", "mtf_band_cut", "mtf_above_one")
+_DERIVED_FLAGS = ("capacity_lower_bound", "mtf_band_cut", "mtf_above_one", "bound_binding")
 
 
 class DerivedMixin:
@@ -89,6 +91,17 @@ class DerivedMixin:
             "snr_max_db": snr_db(coeffs, s_max),
             "mtf_loss_bits": ds,
         }
+        if "response_nonlinearity" in p:
+            self.derived["linearity_error_percent"] = self._linearity_error(p["response_nonlinearity"])
+        binding = self.model.binding_bounds(p) if hasattr(self.model, "binding_bounds") else {}
+        if binding:
+            self.flags["bound_binding"] = binding
+            for name, b in binding.items():
+                self.notes.append(
+                    f"the posterior presses against the {b['side']} bound of {name} ({b['bound']:.4g}; "
+                    f"{100 * b['fraction_near']:.0f} % of the draws within 1 % of it): its interval is cut "
+                    "there, and what depends on it is conditional on the bound"
+                )
         if w and h:
             s = float(w) * float(h)
             self.derived["effective_pixels"] = effective_pixels(s, ds)
@@ -126,6 +139,16 @@ class DerivedMixin:
                 "noise stays below one 8-bit grey level over part of the range: TR is "
                 "limited by the 8-bit-equivalent scale (the max(σ, 1) floor of Eq. 7)"
             )
+
+    def _linearity_error(self, a):
+        """EMVA 1288's LE (%) of the fitted response, per draw, over 5–95 % of the largest
+        unclipped signal (:func:`~bayescap.physics.linearity.linearity_error_percent`)."""
+        from bayescap.model.response import response, response_inverse
+
+        s_ref = self.model.response_ref_dn
+        a = np.asarray(a, float)
+        x_sat = response_inverse(s_ref, a, s_ref)
+        return linearity_error_percent(lambda x: response(x, a[:, None], s_ref), x_sat)
 
     def noise_budget(self, fraction_of_range=0.5):
         """Share of each Eq. 1 term in the noise variance at a signal level of the scene

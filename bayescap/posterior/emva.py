@@ -440,6 +440,18 @@ def emva1288_view(result) -> dict:
             bayescap="mean_discrepancy (a scatter, not this)",
             note="LE = (max δ_y − min δ_y)/2 over the same rows",
         )
+        le_draws = getattr(result, "derived", {}).get("linearity_error_percent")
+        if le_draws is not None:
+            q["LE"] = _entry(
+                "Linearity error",
+                "LE",
+                "%",
+                np.asarray(le_draws, float),
+                recipe=0.5 * (hi_ - lo_),
+                bayescap="derived.linearity_error_percent",
+                note="the fitted response's LE (the standard's line and δ over 5–95 % of the largest unclipped "
+                "signal), with its interval; recipe: the same from the measured rows",
+            )
     sp = sw.spatial
     if "dsnu_e" in p:
         dsnu = np.asarray(p["dsnu_e"], float)

@@ -325,6 +325,14 @@ class FitResult(DerivedMixin, DiagnoseMixin, ChecksMixin, InputsMixin):
             out["clip_spread_dn"] = summarize(p["clip_spread_dn"], "DN", note="spread of pixel means at the clip")
         if "mean_discrepancy" in p:
             out["mean_discrepancy"] = summarize(p["mean_discrepancy"], "", note="fractional non-linearity scatter")
+        if "response_nonlinearity" in p:
+            out["response_nonlinearity"] = summarize(
+                p["response_nonlinearity"],
+                "",
+                note="fractional deviation of the response at the largest unclipped signal",
+            )
+        if "pixel_offset_spread_dn" in p:
+            nonneg("pixel_offset_spread_dn", p["pixel_offset_spread_dn"], "DN")
         return apply_parameter_limits(self, out)
 
     def emva1288(self) -> dict:

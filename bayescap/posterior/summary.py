@@ -16,6 +16,7 @@ DERIVED_INFO = {
     "mtf_loss_bits": ("bits", "Δs (Eq. 9)"),
     "effective_pixels": ("pixels", "s' = s·2^Δs"),
     "capacity_bits": ("bits", "C = s'·b' (Eq. 6)"),
+    "linearity_error_percent": ("%", "EMVA 1288 linearity error LE of the fitted response (5–95 % of saturation)"),
 }
 
 #: the order the reports list the physical parameters and derived quantities in
@@ -31,6 +32,8 @@ PARAMETER_ORDER = [
     "clip_spread_dn",
     "variance_discrepancy",
     "mean_discrepancy",
+    "response_nonlinearity",
+    "pixel_offset_spread_dn",
 ]
 DERIVED_ORDER = [
     "snr_max_db",
@@ -40,6 +43,7 @@ DERIVED_ORDER = [
     "effective_pixels",
     "capacity_bits",
     "capacity_bits_per_pixel",
+    "linearity_error_percent",
 ]
 
 

@@ -1,0 +1,78 @@
+"""The sensor's response and its non-linearity: the output signal S (DN above the dark level) as a
+function of the linear signal x (DN, charge/K),
+
+    S = g(x) = x · (1 + a · x / S_ref),
+
+``a`` the fractional deviation from linearity at the reference signal ``S_ref`` (the largest
+unclipped measured signal): a < 0 compressive, a > 0 expansive. Shot noise is Poisson in the
+charge, so the output variance it causes is g'(x)²·x/K (delta method; g' = 1 + 2a·x/S_ref): the
+response bends the photon-transfer curve as well as the mean. Read noise is added after the
+conversion and is not bent.
+
+:func:`response_evidence` measures, from the means against ``photons_per_pixel`` alone, whether
+the data need the term (:func:`~bayescap.model.terms.select_terms`).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+__all__ = ["NONLINEARITY_BOUNDS", "response", "response_inverse", "response_slope", "response_evidence"]
+
+#: hard bounds of ``a``: below −0.25 the response has a maximum inside the measured range (g' = 0
+#: at x = S_ref/(−2a) < 2 S_ref) and is no longer invertible there; 0.5 is far beyond any sensor
+#: (a 50 % excess of signal at the top)
+NONLINEARITY_BOUNDS = (-0.24, 0.5)
+#: the term is selected when the curvature of the means against the photons is at least this at the
+#: top of the range (fraction) and at least :data:`EVIDENCE_SIGMA` standard errors from zero
+EVIDENCE_MIN = 0.003
+EVIDENCE_SIGMA = 4.0
+
+
+def response(x, a, s_ref):
+    """g(x) = x (1 + a x / S_ref)."""
+    return x * (1.0 + a * x / s_ref)
+
+
+def response_slope(x, a, s_ref):
+    """g'(x) = 1 + 2 a x / S_ref."""
+    return 1.0 + 2.0 * a * x / s_ref
+
+
+def response_inverse(s, a, s_ref):
+    """x with g(x) = s, the root on the increasing branch: 2s / (1 + √(1 + 4as/S_ref)) (no
+    cancellation as a → 0). Beyond the maximum of a compressive response (no root) the root of
+    the maximum, x = S_ref/(−2a)."""
+    disc = np.maximum(1.0 + 4.0 * a * s / s_ref, 0.0)
+    return 2.0 * s / (1.0 + np.sqrt(disc))
+
+
+def response_evidence(signal_dn, photons, weights_rows):
+    """Curvature of the means against the photons: fit ``S = b₀ + b₁ μp + b₂ μp²`` (the offset as
+    in EMVA 1288's linearity line; relative residuals) over the rows ``weights_rows`` (a boolean mask), and return
+    ``(a, se)``: the fractional deviation b₂ μp,top / b₁ at the brightest of those rows and its
+    standard error from the residual scatter. ``None`` with fewer than five rows."""
+    r = np.asarray(weights_rows, bool) & np.isfinite(photons) & (signal_dn > 0) & (photons > 0)
+    if r.sum() < 5:
+        return None
+    S, mp = signal_dn[r], photons[r]
+    top = float(mp[np.argmax(S)])
+    u = mp / top
+    A = np.vstack([np.ones_like(u), u, u * u]).T / S[:, None]  # relative residuals: rows weighted by 1/S
+    y = np.ones_like(S)
+    coef, *_ = np.linalg.lstsq(A, y, rcond=None)
+    resid = y - A @ coef
+    dof = max(S.size - 3, 1)
+    s2 = float(resid @ resid) / dof
+    try:
+        cov = s2 * np.linalg.inv(A.T @ A)
+    except np.linalg.LinAlgError:
+        return None
+    _, b1, b2 = coef
+    if not b1 > 0:
+        return None
+    a = b2 / b1
+    # delta method for the ratio
+    g = np.array([0.0, -b2 / b1**2, 1.0 / b1])
+    se = float(np.sqrt(max(g @ cov @ g, 0.0)))
+    return float(a), se
