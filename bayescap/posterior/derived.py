@@ -31,7 +31,7 @@ _DERIVED_NOTE_PREFIXES = (
     "the posterior presses against",
 )
 #: the flags it sets, dropped likewise
-_DERIVED_FLAGS = ("capacity_lower_bound", "mtf_band_cut", "mtf_above_one", "bound_binding")
+_DERIVED_FLAGS = ("capacity_lower_bound", "mtf_band_cut", "mtf_above_one")
 
 
 class DerivedMixin:
@@ -93,15 +93,6 @@ class DerivedMixin:
         }
         if "response_nonlinearity" in p:
             self.derived["linearity_error_percent"] = self._linearity_error(p["response_nonlinearity"])
-        binding = self.model.binding_bounds(p) if hasattr(self.model, "binding_bounds") else {}
-        if binding:
-            self.flags["bound_binding"] = binding
-            for name, b in binding.items():
-                self.notes.append(
-                    f"the posterior presses against the {b['side']} bound of {name} ({b['bound']:.4g}; "
-                    f"{100 * b['fraction_near']:.0f} % of the draws within 1 % of it): its interval is cut "
-                    "there, and what depends on it is conditional on the bound"
-                )
         if w and h:
             s = float(w) * float(h)
             self.derived["effective_pixels"] = effective_pixels(s, ds)

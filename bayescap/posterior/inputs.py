@@ -21,6 +21,17 @@ def _quantity(p):
     return f"{p['parameter']} {p['guess']:.3g} {p['unit']}"
 
 
+#: what a wall the model names means for the result, where a generic sentence would say too little
+_CONSEQUENCE = {
+    ("clip_dn", "lower"): "the clip sits just above the brightest unclipped row: full well is known only to "
+    "lie between that row's signal and the next row's, and its interval is cut there",
+    ("response_nonlinearity", "lower"): "the response bends more than the model's range allows: "
+    "K and full well are biased; fit the rows below the bend",
+    ("response_nonlinearity", "upper"): "the response bends more than the model's range allows: "
+    "K and full well are biased; fit the rows below the bend",
+}
+
+
 class InputsMixin:
     """Checks of :class:`~bayescap.posterior.FitResult` on its input and start, written to
     ``input_warnings``, ``diag``, ``notes`` and ``flags``; and the draws the summaries use."""
@@ -160,6 +171,20 @@ class InputsMixin:
                         "bound": f"the prior's {side} bound {b[0 if side == 'lower' else 1]:g}",
                         "consequence": "the interval ends at the bound you set, not where the data put it",
                     }
+        # every other wall the model names (:meth:`PTCModel.parameter_bounds`), judged on the draws
+        if hasattr(m, "binding_bounds"):
+            same = {"clip_dn": "full_well_e"}
+            for name, b in m.binding_bounds(m.physical(th)).items():
+                if name in found or same.get(name) in found:
+                    continue
+                found[name] = {
+                    "side": b["side"],
+                    "bound": f"{b['bound']:.4g} ({100 * b['fraction_near']:.0f} % of the draws within 1 % of it)",
+                    "consequence": _CONSEQUENCE.get(
+                        (name, b["side"]),
+                        "its interval is cut at the bound, and what depends on it is conditional on it",
+                    ),
+                }
         if found:
             self.flags["bound_binding"] = found
             for name, f in found.items():
