@@ -9,7 +9,7 @@ import sys
 
 
 def add_datasheet_arguments(p: argparse.ArgumentParser) -> None:
-    from bayescap.cli.common import _add_metadata_overrides, add_fast_arguments, seed_arg
+    from bayescap.cli.common import _add_metadata_overrides, add_fast_arguments, add_strict_argument, seed_arg
 
     p.add_argument("csv", help="photon-transfer CSV (with photons_per_pixel for η, μp.min, μp.sat and LE)")
     p.add_argument("-o", "--output", default="datasheet.html", help="HTML file to write (default datasheet.html)")
@@ -28,13 +28,14 @@ def add_datasheet_arguments(p: argparse.ArgumentParser) -> None:
         help="also write the EMVA 1288 view (bayescap.posterior.emva.emva1288_view) as JSON",
     )
     add_fast_arguments(p)
+    add_strict_argument(p)
     _add_metadata_overrides(p)
 
 
 def run_datasheet(args) -> int:
     """``bayescap datasheet``: returns the exit status (2 with one line on bad input)."""
     from bayescap.api import fit, load
-    from bayescap.cli.common import _OVERRIDE_KEYS, fast_settings_from_args
+    from bayescap.cli.common import _OVERRIDE_KEYS, fast_settings_from_args, strict_status
     from bayescap.exceptions import InputError, PTCInputError
     from bayescap.io.atomic import atomic_write_text
     from bayescap.posterior.emva import emva1288_view
@@ -54,16 +55,18 @@ def run_datasheet(args) -> int:
         print(f"bayescap: error: {e}", file=sys.stderr)
         return 2
     print(f"wrote {args.output}" + (f" and {args.json}" if args.json else ""))
-    return 0
+    return strict_status(args, [result])
 
 
-def register(sub) -> None:
-    """Add ``datasheet`` to the command line's subcommands ``sub``."""
+def register(sub, epilog=None) -> None:
+    """Add ``datasheet`` to the command line's subcommands ``sub`` (``epilog``: the exit statuses)."""
     p = sub.add_parser(
         "datasheet",
         help="one-page EMVA 1288 datasheet (HTML) of a fit, with credible intervals",
         description="Fit a photon-transfer CSV and write the EMVA 1288 Release 4.0 quantities with 95 %% "
         "credible intervals, the standard's recipe beside them, the PTC and SNR plots (docs/emva1288.md).",
+        epilog=epilog,
+        formatter_class=argparse.RawDescriptionHelpFormatter,
     )
     add_datasheet_arguments(p)
     p.set_defaults(func=run_datasheet)
