@@ -75,3 +75,26 @@ def test_help_of_report_and_datasheet_documents_strict(capsys):
             main([cmd, "--help"])
         out = capsys.readouterr().out
         assert "--strict" in out and "3  --strict and a result not converged" in out, cmd
+
+
+def test_datasheet_pdf(basler_csv, basler_fast, tmp_path, capsys, monkeypatch):
+    """``-o NAME.pdf`` writes a one-page PDF (matplotlib's PDF backend, no pyplot, no backend
+    switch) atomically: a valid PDF, one page, no temporary file left; a '$' in the name is no
+    math text. ``--pdf`` beside the HTML is refused onto the input before any fitting."""
+    import re
+
+    import matplotlib
+
+    _fit_returns(monkeypatch, basler_fast, converged=True)
+    backend = matplotlib.get_backend()
+    out = tmp_path / "sheet $5.pdf"
+    assert main(["datasheet", str(basler_csv), "-o", str(out), "--strict"]) == 0
+    data = out.read_bytes()
+    assert data.startswith(b"%PDF-") and data.rstrip().endswith(b"%%EOF")
+    assert len(re.findall(rb"/Type\s*/Page\b", data)) == 1
+    assert re.search(rb"/Type\s*/Pages\b.*?/Count\s+1\b", data, flags=re.S)
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["sheet $5.pdf"]
+    assert matplotlib.get_backend() == backend
+    capsys.readouterr()
+    assert main(["datasheet", str(basler_csv), "-o", str(tmp_path / "d.html"), "--pdf", str(basler_csv)]) == 2
+    assert "would overwrite an input" in capsys.readouterr().err

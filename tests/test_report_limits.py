@@ -11,7 +11,7 @@ import pytest
 
 import bayescap
 from bayescap.posterior.emva import emva1288_view
-from bayescap.report.datasheet import datasheet_html, emva_limits
+from bayescap.report.datasheet import _fmt, datasheet_html, emva_limits
 from bayescap.report.html import _quantity_row
 
 
@@ -71,3 +71,16 @@ def test_datasheet_prints_limits_alone(basler_fast):
     assert "(97.5 % upper limit)" in _row(page, "DSNU in DN")
     k = _row(page, "<td>K</td>")
     assert " – " in k and "limit" not in k
+
+
+def test_datasheet_pdf_table_prints_limits_alone(basler_fast):
+    """The PDF's table rows: the limit and its kind in place of a median and an interval."""
+    from bayescap.report.datasheet_pdf import _rows
+
+    view = emva1288_view(basler_fast)
+    limits = emva_limits(view, basler_fast.to_dict()["parameters"])
+    rows = {r[1]: r for r in _rows(view, limits)}
+    lim = limits["u_I_var"]
+    assert rows["μ_I.var"][3:5] == [f"< {_fmt(lim['value'])}", "(95 % upper limit)"]
+    assert rows["DSNU1288.DN"][4] == "(97.5 % upper limit)"
+    assert rows["K"][3] == _fmt(view["quantities"]["K"]["median"]) and " – " in rows["K"][4]

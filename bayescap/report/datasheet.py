@@ -133,18 +133,21 @@ def _png(fig) -> str:
     return base64.b64encode(buf.getvalue()).decode("ascii")
 
 
-def ptc_figure(result, view=None):
+def ptc_figure(result, view=None, ax=None):
     """The standard's photon-transfer plot: σ²_y − σ²_y.dark against μ_y − μ_y.dark (DN) for the
     sweep rows, the sensitivity rows (≤ 70 % of saturation) apart, with the line of slope K
-    (posterior median, 95 % band) and the saturation point."""
+    (posterior median, 95 % band) and the saturation point. ``ax``: draw into it (its figure is
+    returned) instead of a figure of its own."""
     from matplotlib.figure import Figure
 
     view = emva1288_view(result) if view is None else view
     sw = _Sweep(result.model.data)
     x, y = sw.signal, sw.s2_y - sw.s2_dark
     K = 1.0 / np.asarray(result.draws["conversion_gain_e_per_dn"], float)
-    fig = Figure(figsize=(4.6, 3.3), dpi=90)
-    ax = fig.add_subplot(1, 1, 1)
+    own = ax is None  # a figure of its own, or an axes of the caller's (the PDF page)
+    if own:
+        ax = Figure(figsize=(4.6, 3.3), dpi=90).add_subplot(1, 1, 1)
+    fig = ax.figure
     ax.plot(x[~sw.sens], y[~sw.sens], "o", ms=3, mfc="none", color="0.45", label="rows")
     ax.plot(x[sw.sens], y[sw.sens], "o", ms=3, color="C0", label="fit range of the standard (≤ 70 %)")
     xs = np.linspace(0.0, float(np.max(x)), 50)
@@ -158,15 +161,16 @@ def ptc_figure(result, view=None):
     ax.set_title("Photon transfer", fontsize=10)
     ax.legend(fontsize=7, loc="upper left")
     ax.grid(alpha=0.3)
-    fig.tight_layout()
+    if own:
+        fig.tight_layout()
     return fig
 
 
-def snr_figure(result, view=None, limits=None):
+def snr_figure(result, view=None, limits=None, ax=None):
     """The standard's SNR plot: measured SNR = (μ_y − μ_y.dark)/σ_y of the sweep rows against the
     photons per pixel (electrons without photons_per_pixel), the linear model's temporal SNR
     η μ_p / sqrt(σ_d² + σ_q²/K² + η μ_p) (posterior median, 95 % band), the ideal sqrt(μ_p), and
-    μp.min and μp.sat."""
+    μp.min and μp.sat (at their limit where they are one). ``ax`` as for :func:`ptc_figure`."""
     from matplotlib.figure import Figure
 
     view = emva1288_view(result) if view is None else view
@@ -188,8 +192,10 @@ def snr_figure(result, view=None, limits=None):
     xs = np.geomspace(bottom, top, 120)[None, :]
     snr = eta * xs / np.sqrt(sig_d**2 + S2Q * k**2 + eta * xs)
     lo, med, hi = np.quantile(snr, [0.025, 0.5, 0.975], axis=0)
-    fig = Figure(figsize=(4.6, 3.3), dpi=90)
-    ax = fig.add_subplot(1, 1, 1)
+    own = ax is None  # a figure of its own, or an axes of the caller's (the PDF page)
+    if own:
+        ax = Figure(figsize=(4.6, 3.3), dpi=90).add_subplot(1, 1, 1)
+    fig = ax.figure
     ax.fill_between(xs[0], lo, hi, color="C1", alpha=0.3, lw=0)
     ax.plot(xs[0], med, "-", color="C1", lw=1, label="linear model (posterior)")
     ax.plot(xs[0], np.sqrt(np.median(eta) * xs[0]), ":", color="0.3", lw=1, label="ideal sqrt(η μ_p)")
@@ -209,7 +215,8 @@ def snr_figure(result, view=None, limits=None):
     ax.set_title("Signal-to-noise ratio", fontsize=10)
     ax.legend(fontsize=7, loc="upper left")
     ax.grid(alpha=0.3, which="both")
-    fig.tight_layout()
+    if own:
+        fig.tight_layout()
     return fig
 
 
