@@ -89,7 +89,7 @@ def run_datasheet(args) -> int:
             written.append(str(args.json))
     except OSError as e:
         done = f" ({', '.join(written)} written)" if written else ""
-        print(f"bayescap: error: cannot write ({e.strerror or e}){done}", file=sys.stderr)
+        print(f"bayescap: error: cannot write {e.filename or 'an output'} ({e.strerror or e}){done}", file=sys.stderr)
         return 1
     print("wrote " + " and ".join(written))
     return strict_status(args, [result])
