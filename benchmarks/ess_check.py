@@ -1,13 +1,14 @@
 """Which ESS is right for bayescap's ensembles: walkers as chains, or the independent ensembles as chains?
 
-    python benchmarks/ess_check.py [--seeds 24] [--quick]
+    python benchmarks/ess_check.py [--seeds 24] [--presets standard,fast] [--quick]
 
 The report's ESS could count each walker of each ensemble as a chain (``E·W`` chains of ``S``
 steps) or each independent ensemble as one chain (``E`` chains of ``S·W`` draws, the layout of
 ``posterior.nc``, :func:`bayescap.inference.diagnostics.draw_order`): on a standard fit the
 walker count is 35–40 % below the ensemble count. This script decides between them by measurement: for each sensor it
-runs the ``standard`` preset's sampler with a fixed budget (one round: its burn-in and first
-production round, no extension, so every seed has the same length) with ``--seeds`` seeds, and
+runs each MCMC preset's sampler (``standard``: 4 ensembles; ``fast``, the fast path's fallback: 2)
+with a fixed budget (one round: its burn-in and first production round, no extension, so every
+seed has the same length) with ``--seeds`` seeds, and
 compares, per sampled parameter (the sampler's coordinates, on which the report's diagnostics
 are computed),
 
@@ -86,6 +87,9 @@ def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--seeds", type=int, default=24)
     ap.add_argument("--quick", action="store_true", help="8 seeds, the Basler sensor only (a development run)")
+    ap.add_argument(
+        "--presets", default="standard,fast", help="MCMC presets to check, comma-separated (default standard,fast)"
+    )
     a = ap.parse_args(argv)
     from scipy.stats import chi2
 
@@ -95,7 +99,7 @@ def main(argv=None):
 
     n_seeds = 8 if a.quick else a.seeds
     sensors = SENSORS[:1] if a.quick else SENSORS
-    settings = replace(QUALITY_PRESETS["standard"], max_rounds=1)
+    presets = [p for p in a.presets.split(",") if p]
     lo, hi = (np.sqrt(chi2.ppf(q, n_seeds - 1) / (n_seeds - 1)) for q in (0.025, 0.975))
     lines = [
         "# Which ESS: walkers as chains or ensembles as chains",
@@ -104,9 +108,8 @@ def main(argv=None):
         "",
         f"Machine: {describe_machine()} (shared with other jobs: times are under load).",
         "",
-        f"The `standard` preset's sampler with a fixed budget ({settings.n_ensembles} ensembles, "
-        f"{settings.n_burn} burn-in + {settings.n_steps} production steps, one round), {n_seeds} seeds "
-        "per sensor; the sampler's coordinates. *spread*: the sd across seeds of the posterior mean "
+        "Each MCMC preset's sampler with a fixed budget (its burn-in and first production round, no "
+        f"extension), {n_seeds} seeds per sensor; the sampler's coordinates. *spread*: the sd across seeds of the posterior mean "
         "(or quantile); *pred*: the Monte Carlo error each ESS definition predicts (posterior sd/√ESS, "
         "or ArviZ's quantile MCSE), root mean square over the seeds; *ratio* = spread/pred, 1 when "
         f"the ESS is right. With {n_seeds} seeds a true ratio of 1 gives a measured ratio between "
@@ -114,7 +117,8 @@ def main(argv=None):
         "",
     ]
     summary = []
-    for path in sensors:
+    for preset, path in [(p, s) for p in presets for s in sensors]:
+        settings = replace(QUALITY_PRESETS[preset], max_rounds=1)
         data = load(ROOT / path)
         model = PTCModel(data, terms=select_terms(data))
         rows, walls = [], []
@@ -123,12 +127,13 @@ def main(argv=None):
             r, c = one_fit(model, settings, 1000 + s)
             walls.append(time.perf_counter() - t)
             rows.append(r)
-            print(f"{path} seed {s}: {walls[-1]:.1f} s", file=sys.stderr, flush=True)
+            print(f"{preset} {path} seed {s}: {walls[-1]:.1f} s", file=sys.stderr, flush=True)
         E, S, W, D = c.chain.shape
         lines += [
-            f"## {path}",
+            f"## `{preset}`: {path}",
             "",
-            f"{E} ensembles × {W} walkers × {S} steps; {np.mean(walls):.1f} s a fit (one process, under load).",
+            f"{E} ensembles × {W} walkers × {settings.n_burn} burn-in + {S} steps; {np.mean(walls):.1f} s a fit "
+            "(one process, under load).",
             "",
             "| parameter | ESS walker (bulk / tail) | ESS ensemble (bulk / tail) | spread of mean | pred walker | ratio walker "
             "| pred ensemble | ratio ensemble | q05/q95 ratio walker | q05/q95 ratio ensemble |",
@@ -162,12 +167,19 @@ def main(argv=None):
             f"{gm['q_ensemble']:.2f} (ensemble).",
             "",
         ]
-        summary.append((path, gm))
-    lines += ["## Summary", "", "| sensor | mean: walker | mean: ensemble | quantiles: walker | quantiles: ensemble |"]
-    lines.append("|---|---|---|---|---|")
-    for path, gm in summary:
+        summary.append((preset, path, gm))
+    lines += [
+        "## Summary",
+        "",
+        "Geometric mean over the parameters of spread/predicted (1: the ESS is right).",
+        "",
+        "| preset | sensor | mean: walker | mean: ensemble | quantiles: walker | quantiles: ensemble |",
+        "|---|---|---|---|---|---|",
+    ]
+    for preset, path, gm in summary:
         lines.append(
-            f"| {path} | {gm['walker']:.2f} | {gm['ensemble']:.2f} | {gm['q_walker']:.2f} | {gm['q_ensemble']:.2f} |"
+            f"| {preset} | {path} | {gm['walker']:.2f} | {gm['ensemble']:.2f} | {gm['q_walker']:.2f} "
+            f"| {gm['q_ensemble']:.2f} |"
         )
     emit(lines, OUT)
 

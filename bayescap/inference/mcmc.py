@@ -6,8 +6,8 @@ so R-hat across them means little. We run ``n_ensembles`` independently seeded e
 each started from its own draw around the optimum, and compute R-hat and ESS with one chain per
 ensemble (Vehtari et al. 2021; :func:`bayescap.inference.diagnostics.by_ensemble`, the layout
 of ``posterior.nc``: ``benchmarks/ess_check.py`` measured that this ESS predicts the spread of
-posterior means and quantiles across seeds, where one chain per walker understated the ESS by
-~30 %). The diagnostics are checked
+posterior quantiles across seeds, and that of the means to 6–12 %, where one chain per walker
+understated the ESS by 25–35 %). The diagnostics are checked
 on every parameter and on the capacity (see :mod:`bayescap.posterior`).
 """
 
