@@ -73,7 +73,7 @@ BENCHMARKS = {
     "ess_check": (
         "which ESS is right for the ensembles: the spread of posterior means and quantiles across 24 seeds "
         "against the Monte Carlo error predicted with walkers or ensembles as chains (Basler, one simulated)",
-        "5-10 min",
+        "8-15 min",
         "1 min",
     ),
     "bench_logprob": ("cost of one vectorised PTCModel.log_prob call on the bundled and benchmark CSVs", "10 s", None),
