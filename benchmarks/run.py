@@ -70,6 +70,12 @@ BENCHMARKS = {
         "10 s",
         None,
     ),
+    "ess_check": (
+        "which ESS is right for the ensembles: the spread of posterior means and quantiles across 24 seeds "
+        "against the Monte Carlo error predicted with walkers or ensembles as chains (Basler, one simulated)",
+        "8-15 min",
+        "1 min",
+    ),
     "bench_logprob": ("cost of one vectorised PTCModel.log_prob call on the bundled and benchmark CSVs", "10 s", None),
     "fast_budget": (
         "where the fast path's time goes: log_prob calls against the rest, per phase, on the speed_accuracy sensors",

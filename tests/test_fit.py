@@ -573,16 +573,16 @@ def _ar1_walkers(rng, E, S, W, phi):
     return x
 
 
-def test_quantile_mcse_is_arviz_quantile_mcse_with_walkers_as_chains():
+def test_quantile_mcse_is_arviz_quantile_mcse_with_ensembles_as_chains():
     """diagnostics.quantile_mcse (the MCMC interval ends' Monte Carlo error) is ArviZ 0.x's
-    mcse(method="quantile") on the (walkers, steps) layout of the tail ESS, to rounding."""
+    mcse(method="quantile") on the ensembles-as-chains layout of the ESS (posterior.nc's), to rounding."""
 
     import arviz as az
 
     x = np.exp(0.5 * _ar1_walkers(np.random.default_rng(3), 4, 200, 48, 0.8))  # skewed
-    by_walker = np.transpose(x, (0, 2, 1)).reshape(4 * 48, 200)
+    ens = inf_diagnostics.by_ensemble(x)
     ours = inf_diagnostics.quantile_mcse(x, [0.025, 0.975])
-    theirs = [float(az.mcse(by_walker, method="quantile", prob=p)) for p in (0.025, 0.975)]
+    theirs = [float(az.mcse(ens, method="quantile", prob=p)) for p in (0.025, 0.975)]
     assert ours == pytest.approx(theirs, rel=1e-12)
     lo, hi = np.quantile(x, [0.025, 0.975])
     assert inf_diagnostics.interval_end_mcse_mcmc(x) == pytest.approx(max(theirs) / (hi - lo), rel=1e-12)

@@ -18,6 +18,7 @@ from bayescap.cli.common import (
     EXIT_INPUT,
     _add_metadata_overrides,
     add_fast_arguments,
+    add_strict_argument,
     seed_arg,
 )
 from bayescap.cli.datasheet import register as _register_datasheet
@@ -31,7 +32,7 @@ EXIT_STATUS_HELP = """exit status:
   0  done (without --strict also when a result is NOT CONVERGED: it says so)
   1  an output could not be written (the result was printed first), or a CSV of a batch failed
   2  bad input or usage: one line on standard error, nothing written
-  3  --strict and a result not converged
+  3  --strict and a result not converged (the outputs are written first)
   130 interrupted; 141 standard output closed early (a pipe into 'head')"""
 
 
@@ -78,12 +79,7 @@ def build_parser() -> argparse.ArgumentParser:
         help="random seed: the same seed gives the same numbers (default: one is drawn, and "
         "recorded in the JSON and the report as 'seed N (drawn)')",
     )
-    p.add_argument(
-        "--strict",
-        action="store_true",
-        help="exit with status 3 when a result is not converged (or a fast path was rejected "
-        "without a fallback): scripts can tell without reading the JSON",
-    )
+    add_strict_argument(p)
     p.add_argument(
         "--out",
         metavar="DIR",
@@ -213,6 +209,8 @@ def build_parser() -> argparse.ArgumentParser:
         "report",
         help="self-contained HTML report of one or more sensors",
         description="Fit the sensors and write one self-contained HTML page (docs/compare.md).",
+        epilog=EXIT_STATUS_HELP,
+        formatter_class=argparse.RawDescriptionHelpFormatter,
     )
     add_report_arguments(p)
     p.set_defaults(func=run_report)
@@ -227,7 +225,7 @@ def build_parser() -> argparse.ArgumentParser:
     )
     add_sweep_arguments(p)
     p.set_defaults(func=run_sweep)
-    _register_datasheet(sub)  # bayescap datasheet (cli/datasheet.py)
+    _register_datasheet(sub, epilog=EXIT_STATUS_HELP)  # bayescap datasheet (cli/datasheet.py)
     return parser
 
 

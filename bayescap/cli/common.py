@@ -16,6 +16,30 @@ EXIT_NOT_CONVERGED = 3
 EXIT_BROKEN_PIPE = 141
 
 
+STRICT_HELP = (
+    "exit with status 3 when a result is not converged (or a fast path was rejected without a "
+    "fallback), after writing the outputs: scripts can tell without reading the JSON"
+)
+
+
+def add_strict_argument(p) -> None:
+    """``--strict`` (``fit``, ``report``, ``datasheet``), read back by :func:`strict_status`."""
+    p.add_argument("--strict", action="store_true", help=STRICT_HELP)
+
+
+def strict_status(args, results) -> int:
+    """0, or with ``--strict`` :data:`EXIT_NOT_CONVERGED` (one line on standard error) when a
+    result of ``results`` (FitResults; exceptions of a batch are skipped) is not converged (a
+    rejected fast path without a fallback is flagged not converged too)."""
+    import sys
+
+    bad = [r for r in results if not isinstance(r, BaseException) and not r.diag.get("converged")]
+    if getattr(args, "strict", False) and bad:
+        print(f"bayescap: {len(bad)} of {len(results)} result(s) NOT CONVERGED (--strict)", file=sys.stderr)
+        return EXIT_NOT_CONVERGED
+    return 0
+
+
 def seed_arg(text: str) -> int:
     """argparse type of ``--seed``: a whole number >= 0 (numpy's SeedSequence refuses negative
     seeds, with a traceback)."""

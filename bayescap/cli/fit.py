@@ -4,7 +4,13 @@ from __future__ import annotations
 
 import sys
 
-from bayescap.cli.common import _OVERRIDE_KEYS, EXIT_FAILURE, EXIT_NOT_CONVERGED, fast_settings_from_args
+from bayescap.cli.common import (
+    _OVERRIDE_KEYS,
+    EXIT_FAILURE,
+    EXIT_NOT_CONVERGED,
+    fast_settings_from_args,
+    strict_status,
+)
 from bayescap.exceptions import InputError
 
 
@@ -89,13 +95,8 @@ def _cmd_fit(args) -> int:
 
 
 def _strict_status(args, results) -> int:
-    """0, or with ``--strict`` 3 when a result is not converged (a rejected fast path without a
-    fallback is flagged not converged too)."""
-    bad = [r for r in results if not isinstance(r, BaseException) and not r.diag.get("converged")]
-    if getattr(args, "strict", False) and bad:
-        print(f"bayescap: {len(bad)} of {len(results)} result(s) NOT CONVERGED (--strict)", file=sys.stderr)
-        return EXIT_NOT_CONVERGED
-    return 0
+    """:func:`bayescap.cli.common.strict_status` (the exit status of ``--strict``)."""
+    return strict_status(args, results)
 
 
 def write_error(out, err: OSError) -> str:

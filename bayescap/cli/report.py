@@ -14,17 +14,18 @@ from bayescap.studies.compare import (
 
 
 def add_report_arguments(p: argparse.ArgumentParser) -> None:
-    from bayescap.cli.common import add_comparison_arguments
+    from bayescap.cli.common import add_comparison_arguments, add_strict_argument
 
     p.add_argument("csv", nargs="+", help="photon-transfer CSVs, one per sensor")
     p.add_argument("-o", "--output", default="report.html", help="HTML file to write (default report.html)")
     add_comparison_arguments(p)
     p.add_argument("--title", default="bayescap sensor comparison")
+    add_strict_argument(p)
 
 
 def run_report(args) -> int:
     """``bayescap report``: returns the exit status (2 with one line on bad input)."""
-    from bayescap.cli.common import fast_settings_from_args
+    from bayescap.cli.common import fast_settings_from_args, strict_status
     from bayescap.exceptions import ConvergenceWarning, InputError, PTCInputError
 
     try:
@@ -63,4 +64,4 @@ def run_report(args) -> int:
         print(f"bayescap: error: cannot write {args.output} ({e.strerror or e}); nothing was written", file=sys.stderr)
         return 1
     print(f"wrote {out}")
-    return 0
+    return strict_status(args, [sc.result for sc in cmp.sensors])

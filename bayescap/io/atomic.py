@@ -13,6 +13,7 @@ from typing import Callable, Iterable
 
 __all__ = [
     "atomic_write_text",
+    "atomic_write_bytes",
     "write_files_atomically",
     "write_dir_atomically",
     "output_problem",
@@ -83,8 +84,9 @@ def _create_temp(target: Path) -> tuple[int, str]:
             continue
 
 
-def write_files_atomically(files: dict[Path, str]) -> None:
-    """Write every file to a temporary file in its directory, then os.replace them all.
+def write_files_atomically(files: dict[Path, str | bytes]) -> None:
+    """Write every file (text as UTF-8, or bytes as they are) to a temporary file in its
+    directory, then os.replace them all.
 
     Nothing is replaced until every temporary file is written and synced, so an error while
     writing leaves all targets as they were; temporary files are removed. The files get the
@@ -97,7 +99,8 @@ def write_files_atomically(files: dict[Path, str]) -> None:
             target.parent.mkdir(parents=True, exist_ok=True)
             fd, tmp = _create_temp(target)
             temps.append((tmp, target))
-            with os.fdopen(fd, "w", encoding="utf-8", newline="") as fh:
+            binary = isinstance(text, (bytes, bytearray))
+            with os.fdopen(fd, "wb") if binary else os.fdopen(fd, "w", encoding="utf-8", newline="") as fh:
                 fh.write(text)
                 fh.flush()
                 os.fsync(fh.fileno())
@@ -112,6 +115,11 @@ def write_files_atomically(files: dict[Path, str]) -> None:
 def atomic_write_text(path: os.PathLike | str, text: str) -> None:
     """Write ``text`` to ``path`` atomically: a temp file in the same folder, then rename."""
     write_files_atomically({Path(path): text})
+
+
+def atomic_write_bytes(path: os.PathLike | str, data: bytes) -> None:
+    """Write ``data`` to ``path`` atomically: a temp file in the same folder, then rename."""
+    write_files_atomically({Path(path): data})
 
 
 def _umask() -> int:

@@ -5,10 +5,10 @@ Groups:
 - ``posterior``: the physical parameters and the derived quantities, each with a ``units``
   attribute. **Chains are the independent ensembles**; each ensemble's walkers are flattened into
   its draws: first the draws of the first half of the production steps (walker by walker, each in
-  step order), then those of the second half. ArviZ's split R-hat splits a chain into those two
-  halves, so ``az.rhat`` on the file is the report's R-hat (over ensembles, split in time:
-  :mod:`bayescap.inference.diagnostics`) to rounding. The report's ESS counts each walker as a
-  chain: :func:`walker_chains` gives that view, on which ``az.ess`` is the report's. A fast-path
+  step order), then those of the second half (:func:`bayescap.inference.diagnostics.draw_order`).
+  ArviZ's split R-hat splits a chain into those two halves (a split in time), and the report's
+  diagnostics use the same chains (:func:`bayescap.inference.diagnostics.by_ensemble`), so
+  ``az.rhat`` and ``az.ess`` (bulk and tail) on the file are the report's to rounding. A fast-path
   (Laplace–IS) result has one chain of resampled importance draws (attribute ``chains``), for
   which R-hat does not apply.
 - ``unconstrained_posterior``: the sampler's coordinates (``log_k``, ...), the ones the report's
@@ -34,10 +34,11 @@ import warnings
 import numpy as np
 
 from bayescap._version import __version__
+from bayescap.inference.diagnostics import draw_order
 from bayescap.model.likelihood import OUTLIER_RATE, OUTLIER_REL_SD, ROBUST_BLOCKS
 from bayescap.posterior.summary import DERIVED_INFO
 
-__all__ = ["PREDICTIVE_MAX_DRAWS", "UNITS", "to_inference_data", "walker_chains", "draw_order", "INPUT_COLUMNS"]
+__all__ = ["PREDICTIVE_MAX_DRAWS", "UNITS", "to_inference_data", "draw_order", "INPUT_COLUMNS"]
 
 #: at most this many draws (all chains together) in the log_likelihood and posterior_predictive
 #: groups (as many as bayescap.studies.selection.loo uses): half a fast-path result's 4000, a
@@ -79,21 +80,6 @@ INPUT_COLUMNS = (
     "frac_saturated",
     "row_numbers",
 )
-
-
-def draw_order(n_steps, n_walkers):
-    """``(order, step, walker)``: draw ``j`` of an ensemble's chain in the file is its step-major
-    draw ``order[j]`` (``step * n_walkers + walker``), from step ``step[j]`` of walker
-    ``walker[j]``. The draws in the first half of the step-major order come first, then the middle
-    draw of an odd count, then the second half (ArviZ's split of a chain), each walker by walker in
-    step order."""
-    n = n_steps * n_walkers
-    i = np.arange(n)
-    half = n // 2
-    part = np.where(i < half, 0, np.where(i >= n - half, 2, 1))
-    s, w = np.divmod(i, n_walkers)
-    order = np.lexsort((s, w, part))
-    return order, s[order], w[order]
 
 
 def _is_importance(result) -> bool:
@@ -160,8 +146,7 @@ def _chains_description(result, E, S, W):
     return (
         f"{E} chains = the independent ensembles; each chain holds its {W} walkers × {S} steps: the "
         "draws of the first half of the steps, walker by walker in step order, then those of the "
-        "second half (coordinates step and walker), so that ArviZ's split R-hat is the report's; "
-        "the report's ESS counts each walker as a chain (bayescap.posterior.walker_chains)"
+        "second half (coordinates step and walker), so that ArviZ's split R-hat and ESS are the report's"
     )
 
 
@@ -267,22 +252,3 @@ def _plain(obj):
     if isinstance(obj, np.generic):
         return obj.item()
     return obj
-
-
-def walker_chains(idata, group="posterior"):
-    """The ``group`` of a bayescap InferenceData with each walker as a chain (chain = ensemble ×
-    walker, draw = step): the layout of the report's ESS (``az.ess(walker_chains(idata))`` is the
-    report's ``ess_bulk``; ``method="tail"`` its ``ess_tail``)."""
-    import xarray as xr
-
-    ds = idata[group]
-    E, n = ds.sizes["chain"], ds.sizes["draw"]
-    step, walker = ds["step"].values, ds["walker"].values
-    S, W = int(step.max()) + 1, int(walker.max()) + 1
-    pos = np.empty((W, S), int)
-    pos[walker, step] = np.arange(n)
-    out = {}
-    for name, v in ds.data_vars.items():
-        a = v.values[:, pos]  # (E, W, S)
-        out[name] = (("chain", "draw"), a.reshape(E * W, S), dict(v.attrs))
-    return xr.Dataset(out, coords={"chain": np.arange(E * W), "draw": np.arange(S)})

@@ -21,7 +21,7 @@ from bayescap._version import __version__
 from bayescap.io.atomic import atomic_write_text
 from bayescap.posterior.emva import S2Q, _Sweep, emva1288_view
 
-__all__ = ["datasheet_html", "write_datasheet", "ptc_figure", "snr_figure"]
+__all__ = ["datasheet_html", "write_datasheet", "ptc_figure", "snr_figure", "emva_limits"]
 
 #: the rows of the table, in the order a datasheet lists them
 TABLE_ORDER = (
@@ -55,6 +55,60 @@ TABLE_ORDER = (
 )
 N_CURVE_DRAWS = 400
 
+#: EMVA quantities that follow a bayescap parameter the data may determine only as a limit:
+#: key -> (the parameters, +1 where the quantity grows with them, -1 where it falls). The
+#: quantities equal to the parameter (σ_d, DSNU1288, PRNU1288, μ_I.var) print the parameter's own
+#: limit; the others the matching end of their own 95 % interval (a 97.5 % one-sided limit)
+_FOLLOWS = {
+    "sigma_d": (("read_noise_e", "dark_noise_e"), 1),
+    "sigma_d_DN": (("read_noise_e", "dark_noise_e"), 1),
+    "sigma_y_dark": (("read_noise_e", "dark_noise_e"), 1),
+    "u_e_min": (("read_noise_e", "dark_noise_e"), 1),
+    "u_p_min": (("read_noise_e", "dark_noise_e"), 1),
+    "u_p_min_area": (("read_noise_e", "dark_noise_e"), 1),
+    "DR": (("read_noise_e", "dark_noise_e"), -1),
+    "DR_dB": (("read_noise_e", "dark_noise_e"), -1),
+    "DR_bit": (("read_noise_e", "dark_noise_e"), -1),
+    "DSNU1288": (("dsnu_e",), 1),
+    "DSNU1288_DN": (("dsnu_e",), 1),
+    "PRNU1288": (("prnu_percent",), 1),
+    "u_I_var": (("dark_current_e_per_s",), 1),
+}
+
+
+def emva_limits(view, parameters) -> dict:
+    """{EMVA key: {kind, value, level, because}} for the quantities of ``view`` that follow a
+    parameter known only as an upper limit (``parameters``: ``result.to_dict()["parameters"]``,
+    whose limits :mod:`bayescap.posterior.limits` sets). The datasheet prints these as limits
+    alone, as the text report does."""
+    q = view["quantities"]
+    out = {}
+    for key, (names, sign) in _FOLLOWS.items():
+        it = q.get(key)
+        if it is None:
+            continue
+        causes = [n for n in names if (parameters.get(n) or {}).get("limit", {}).get("kind") == "upper"]
+        if not causes:
+            continue
+        own = parameters[causes[0]]["limit"]
+        if it.get("bayescap") == causes[0] and own.get("value") is not None:
+            out[key] = {"kind": "upper", "value": own["value"], "level": own["level"], "because": causes[0]}
+        elif it.get("ci95") is not None:
+            lo, hi = it["ci95"]
+            out[key] = {
+                "kind": "upper" if sign > 0 else "lower",
+                "value": hi if sign > 0 else lo,
+                "level": 0.975,
+                "because": ", ".join(causes),
+            }
+    return out
+
+
+def _limit_text(lim, unit) -> str:
+    """``< 136.7 e-/s (95 % upper limit)``."""
+    sign = "<" if lim["kind"] == "upper" else ">"
+    return f"{sign} {_fmt(lim['value'])}{' ' + unit if unit else ''} ({100 * lim['level']:g} % {lim['kind']} limit)"
+
 
 def _fmt(x):
     if x is None:
@@ -79,18 +133,21 @@ def _png(fig) -> str:
     return base64.b64encode(buf.getvalue()).decode("ascii")
 
 
-def ptc_figure(result, view=None):
+def ptc_figure(result, view=None, ax=None):
     """The standard's photon-transfer plot: σ²_y − σ²_y.dark against μ_y − μ_y.dark (DN) for the
     sweep rows, the sensitivity rows (≤ 70 % of saturation) apart, with the line of slope K
-    (posterior median, 95 % band) and the saturation point."""
+    (posterior median, 95 % band) and the saturation point. ``ax``: draw into it (its figure is
+    returned) instead of a figure of its own."""
     from matplotlib.figure import Figure
 
     view = emva1288_view(result) if view is None else view
     sw = _Sweep(result.model.data)
     x, y = sw.signal, sw.s2_y - sw.s2_dark
     K = 1.0 / np.asarray(result.draws["conversion_gain_e_per_dn"], float)
-    fig = Figure(figsize=(4.6, 3.3), dpi=90)
-    ax = fig.add_subplot(1, 1, 1)
+    own = ax is None  # a figure of its own, or an axes of the caller's (the PDF page)
+    if own:
+        ax = Figure(figsize=(4.6, 3.3), dpi=90).add_subplot(1, 1, 1)
+    fig = ax.figure
     ax.plot(x[~sw.sens], y[~sw.sens], "o", ms=3, mfc="none", color="0.45", label="rows")
     ax.plot(x[sw.sens], y[sw.sens], "o", ms=3, color="C0", label="fit range of the standard (≤ 70 %)")
     xs = np.linspace(0.0, float(np.max(x)), 50)
@@ -104,15 +161,16 @@ def ptc_figure(result, view=None):
     ax.set_title("Photon transfer", fontsize=10)
     ax.legend(fontsize=7, loc="upper left")
     ax.grid(alpha=0.3)
-    fig.tight_layout()
+    if own:
+        fig.tight_layout()
     return fig
 
 
-def snr_figure(result, view=None):
+def snr_figure(result, view=None, limits=None, ax=None):
     """The standard's SNR plot: measured SNR = (μ_y − μ_y.dark)/σ_y of the sweep rows against the
     photons per pixel (electrons without photons_per_pixel), the linear model's temporal SNR
     η μ_p / sqrt(σ_d² + σ_q²/K² + η μ_p) (posterior median, 95 % band), the ideal sqrt(μ_p), and
-    μp.min and μp.sat."""
+    μp.min and μp.sat (at their limit where they are one). ``ax`` as for :func:`ptc_figure`."""
     from matplotlib.figure import Figure
 
     view = emva1288_view(result) if view is None else view
@@ -134,14 +192,21 @@ def snr_figure(result, view=None):
     xs = np.geomspace(bottom, top, 120)[None, :]
     snr = eta * xs / np.sqrt(sig_d**2 + S2Q * k**2 + eta * xs)
     lo, med, hi = np.quantile(snr, [0.025, 0.5, 0.975], axis=0)
-    fig = Figure(figsize=(4.6, 3.3), dpi=90)
-    ax = fig.add_subplot(1, 1, 1)
+    own = ax is None  # a figure of its own, or an axes of the caller's (the PDF page)
+    if own:
+        ax = Figure(figsize=(4.6, 3.3), dpi=90).add_subplot(1, 1, 1)
+    fig = ax.figure
     ax.fill_between(xs[0], lo, hi, color="C1", alpha=0.3, lw=0)
     ax.plot(xs[0], med, "-", color="C1", lw=1, label="linear model (posterior)")
     ax.plot(xs[0], np.sqrt(np.median(eta) * xs[0]), ":", color="0.3", lw=1, label="ideal sqrt(η μ_p)")
     ax.plot(xdata[good], snr_data[good], "o", ms=3, color="C0", label="rows")
+    limits = emva_limits(view, result.to_dict()["parameters"]) if limits is None else limits
     for key, label, style in (("u_p_min", "μp.min", "-."), ("u_p_sat", "μp.sat", "--")):
-        if photons and q.get(key, {}).get("median"):
+        lim = limits.get(key)
+        if photons and lim and lim.get("value"):  # a limit is drawn as its limit, never as a median
+            sign = "<" if lim["kind"] == "upper" else ">"
+            ax.axvline(lim["value"], color="C3", lw=0.8, ls=style, label=f"{label} {sign} this ({lim['kind']} limit)")
+        elif photons and q.get(key, {}).get("median"):
             ax.axvline(q[key]["median"], color="C3", lw=0.8, ls=style, label=label)
     ax.set_xscale("log")
     ax.set_yscale("log")
@@ -150,7 +215,8 @@ def snr_figure(result, view=None):
     ax.set_title("Signal-to-noise ratio", fontsize=10)
     ax.legend(fontsize=7, loc="upper left")
     ax.grid(alpha=0.3, which="both")
-    fig.tight_layout()
+    if own:
+        fig.tight_layout()
     return fig
 
 
@@ -186,18 +252,26 @@ def datasheet_html(result, *, view=None, title=None) -> str:
     meta = dict(result.metadata)
     name = title or meta.get("sensor") or Path(str(result.model.data.source)).stem
     e = html.escape
+    limits = emva_limits(view, result.to_dict()["parameters"])
     rows = []
     for key in TABLE_ORDER:
         if key not in q:
             continue
         it = q[key]
         ci = it["ci95"]
-        ci_s = "–" if ci is None else f"{_fmt(ci[0])} – {_fmt(ci[1])}"
+        if key in limits:  # the limit alone, in the median and interval columns together
+            lim = limits[key]
+            value = f"<td class=n colspan=2>{e(_limit_text(lim, it['unit'] or ''))}</td>"
+            note = f"data determine it only as a limit (follows {lim['because']}). {it['note'] or ''}"
+        else:
+            ci_s = "–" if ci is None else f"{_fmt(ci[0])} – {_fmt(ci[1])}"
+            value = f"<td class=n>{_fmt(it['median'])}</td><td class=n>{ci_s}</td>"
+            note = it["note"] or ""
         rows.append(
             "<tr>"
             f"<td>{e(it['name'])}</td><td>{e(it['symbol'])}</td><td>{e(it['unit'] or '')}</td>"
-            f"<td class=n>{_fmt(it['median'])}</td><td class=n>{ci_s}</td><td class=n>{_fmt(it['recipe'])}</td>"
-            f"<td>{e(it['bayescap'] or '')}</td><td class=note>{e(it['note'] or '')}</td>"
+            f"{value}<td class=n>{_fmt(it['recipe'])}</td>"
+            f"<td>{e(it['bayescap'] or '')}</td><td class=note>{e(note)}</td>"
             "</tr>"
         )
     table = (
@@ -223,7 +297,7 @@ def datasheet_html(result, *, view=None, title=None) -> str:
     conv = _convergence_line(result)
     conv_cls = "" if (result.diag or {}).get("converged") else " class=bad"
     ptc = _png(ptc_figure(result, view))
-    snr = _png(snr_figure(result, view))
+    snr = _png(snr_figure(result, view, limits))
     return (
         "<!DOCTYPE html><html><head><meta charset='utf-8'>"
         f"<title>{e(str(name))}: EMVA 1288 datasheet</title><style>{_CSS}</style></head><body>"

@@ -314,7 +314,18 @@ def _f(x, fmt="{:.4g}"):
     return fmt.format(x)
 
 
+def _limit_text(lim, scale=1.0, fmt="{:.4g}") -> str:
+    """``&lt; 629 (95 % upper limit)``: a quantity the data do not determine, as its limit alone."""
+    value = "—" if lim.get("value") is None else _f(lim["value"] / scale, fmt)
+    because = f", follows {_e(lim['because'])}" if lim.get("because") else ""
+    sign = "&lt;" if lim["kind"] == "upper" else "&gt;"
+    return f"{sign} {value} <span class=small>({100 * lim['level']:g} % {_e(lim['kind'])} limit{because})</span>"
+
+
 def _iv(s, scale=1.0, fmt="{:.4g}"):
+    """Median [95 %] of a summary; its limit alone when it carries one (``limit``)."""
+    if s and s.get("limit"):
+        return _limit_text(s["limit"], scale, fmt)
     if not s or s.get("median") is None:
         return "—"
     lo, hi = s["ci95"]
