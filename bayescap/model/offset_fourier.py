@@ -43,6 +43,11 @@ _B_MIN = 30.0
 _SO_MIN = 0.005
 #: ... and the computed V and E4 are ≥ this (DN², DN⁴): the absolute error < 1e-9 is then < 1e-4 relative
 _V_MIN = 1e-5
+#: elements whose offset is more than this many τ = √(s² + σ_o²) from the nearest DN boundary are not
+#: evaluated: V ≤ E[round(X)²], X ~ N(δ, τ²), ≤ 2Φ(−z)(1 + 2 %) < 5e-6 < :data:`_V_MIN` for
+#: z = (½ − |δ|)/τ > 4.6 (τ ≤ 1 DN), so the series would not serve them (a sensor whose dark
+#: pixels sit 0.1 DN from an integer with 0.1 DN of noise spent 40 % more on its moments)
+_Z_SKIP = 4.6
 #: elements per chunk of the evaluation at 32 harmonics (temporaries of a few MB)
 _CHUNK = 4096
 
@@ -167,6 +172,8 @@ def offset_fourier_moments(delta, s, so):
     E4 = np.full(delta.shape, np.nan)
     H = np.full(delta.shape, np.nan)
     tiers = _tier(s, so)
+    with np.errstate(invalid="ignore"):
+        tiers[(0.5 - np.abs(delta)) > _Z_SKIP * np.sqrt(s * s + so * so)] = 0
     for K in _K_TIERS:
         at_K = np.flatnonzero(tiers == K)
         step = _CHUNK * (_KMAX // K)
