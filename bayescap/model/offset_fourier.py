@@ -16,8 +16,9 @@ with K²(π²s²/2 + 2π²σ_o²) ≥ 30 (the neglected terms are below e^{−30
 harmonics decay as e^{−π²k²s²/2}, the slowest of the three). The absolute error, from the
 interpolation in s, is below 1e-9 DN² (measured against the exact evaluation on 200 000 random
 (δ, s, σ_o)); :func:`offset_fourier_moments` returns an element only where that is a relative
-error ≤ 1e-5: V and E4 ≥ :data:`_V_MIN` and σ_o ≥ :data:`_SO_MIN` (smaller spreads make H a
-difference of nearly equal numbers). The others stay with the exact evaluation.
+error ≤ 1e-4: V and E4 ≥ :data:`_V_MIN` and σ_o ≥ :data:`_SO_MIN` (smaller spreads make H a
+difference of nearly equal numbers); measured there: ≤ 2.2e-6 of V, E4 and H (150 000 random points,
+27 000 of them served). The others stay with the exact evaluation.
 ``tests/test_offset_fourier.py`` bounds the relative errors of V, E4 and H by 1e-4 on a dense random
 set over the served domain and its edges.
 """

@@ -113,8 +113,8 @@ def _quantized_pixel_moments(delta, s, so, exact=False):
     * H  = var_o(E[round(o + sε) | o]) − σ_o², the spatial variance that rounding adds to the
       pixel means (up to 1/12 DN² for s → 0: a pattern whose pixels sit still is quantized too).
 
-    Where its error bound holds (relative 1e-5 of V, E4 and H; :mod:`~bayescap.model.offset_fourier`)
-    and ``exact`` is false, a Fourier series in δ whose coefficients are tabulated in s (5-10× faster
+    Where its error bound holds (relative 1e-4 of V, E4 and H; :mod:`~bayescap.model.offset_fourier`)
+    and ``exact`` is false, a Fourier series in δ whose coefficients are tabulated in s (3-8× faster
     than the grid). Elsewhere, or with ``exact``, the offsets' distribution modulo 1 DN is the
     wrapped normal, integrated on a periodic midpoint
     grid of 8-1 024 points chosen per element from s and σ_o (:func:`_grid_size`; uniform for
