@@ -167,9 +167,6 @@ def test_zoo_sub_dn_dark_noise_is_a_limit(tmp_path):
     _assert_right(_fit_scores("i37_10bit_read0p1_one_t", tmp_path))
 
 
-@pytest.mark.xfail(
-    strict=True, reason="n_frames = 1 (a one-frame spatial variance) is refused by the CSV reader (issue 37)"
-)
 def test_zoo_single_frame_spatial_variance(tmp_path):
     _assert_right(_fit_scores("nf1_typical_12bit", tmp_path))
 

@@ -56,11 +56,6 @@ class ZooSensor:
     def regime(self) -> str:
         return regime_of(self.sensor)
 
-    @property
-    def refused_by_parser(self) -> bool:
-        """n_frames = 1 is refused by the CSV reader this zoo was written against."""
-        return bool(self.acq.spatial_rows) and self.acq.n_frames == 1
-
     def metadata(self) -> dict:
         s = self.sensor
         return {
