@@ -14,7 +14,8 @@ and compared with emva1288's reference values (a reference, not a truth: not cou
 
 Cells: ``ok`` truth inside the 95 % interval, ``miss``, ``MISS>3w`` a miss by more than three
 interval widths (a defect), ``L`` a non-identifiable truth reported as a limit (``constrained:
-false``) that holds it, ``L!`` a non-identifiable truth reported as constrained, ``L✗`` a limit that
+false``) that holds it, ``L+`` such a truth detected (a constrained interval that holds it), ``L!`` a
+non-identifiable truth reported as constrained with an interval that excludes it, ``L✗`` a limit that
 excludes the truth, ``(…)`` an unscored truth (between identifiable and not), ``–`` no such
 parameter in the fit.
 """
@@ -51,7 +52,14 @@ SHORT = {
     "dsnu_e": "DSNU",
 }
 NOTES = {}
-CELL = {"ok": "ok", "miss": "miss", "MISS>3w": "**MISS>3w**", "claims-constrained": "**L!**", "limit-wrong": "**L✗**"}
+CELL = {
+    "ok": "ok",
+    "miss": "miss",
+    "MISS>3w": "**MISS>3w**",
+    "claims-constrained": "**L!**",
+    "limit-wrong": "**L✗**",
+    "detected": "L+",
+}
 
 
 def cell(rec):
@@ -124,7 +132,7 @@ def summarize(rows, key):
                     c[1] += 1
                 elif rec["status"] == "limit":
                     c = lim[(reg, p)]
-                    c[0] += rec["verdict"] == "ok"
+                    c[0] += rec["verdict"] in ("ok", "detected")
                     c[1] += 1
     return cov, lim
 
@@ -279,7 +287,9 @@ def report(rows, bas, t_gen, load, a):
         *([a.note, ""] if getattr(a, "note", "") else []),
         "Cells (standard fit): `ok` truth inside the 95 % interval; `miss`; **MISS>3w** a miss by more than "
         "three interval widths (a defect); `L` a truth the data cannot identify, reported as a limit "
-        "(`constrained: false`) that holds it; **L!** such a truth reported as constrained; **L✗** a limit that "
+        "(`constrained: false`) that holds it; `L+` such a truth detected in this realisation (a constrained 95 % "
+        "interval that holds it); **L!** such a truth reported as constrained with an interval that excludes it; "
+        "**L✗** a limit that "
         "excludes the truth; `(…)` a truth between identifiable and not (shown, not counted); `–` no such "
         "parameter in the fit; empty: not applicable (no spatial columns, one exposure time). "
         "Which truths count as identifiable: `bayescap.validation.zoo.truths`.",

@@ -7,6 +7,7 @@ from __future__ import annotations
 import re
 import warnings
 
+import numpy as np
 import pytest
 
 import bayescap
@@ -84,3 +85,32 @@ def test_datasheet_pdf_table_prints_limits_alone(basler_fast):
     assert rows["μ_I.var"][3:5] == [f"< {_fmt(lim['value'])}", "(95 % upper limit)"]
     assert rows["DSNU1288.DN"][4] == "(97.5 % upper limit)"
     assert rows["K"][3] == _fmt(view["quantities"]["K"]["median"]) and " – " in rows["K"][4]
+
+
+def _summary_with_draws(model, draws):
+    """The parameter summaries of a result holding ``draws`` (no chains: every draw counts)."""
+    from bayescap.posterior import FitResult
+
+    r = FitResult(model=model, chains=None, metadata={}, scene=None, mtf=None, seed=0, quality="", draws=draws)
+    return r.parameter_summary()
+
+
+def test_read_noise_below_the_quantization_floor_is_limited_at_the_floor(tmp_path):
+    """A tight read-noise posterior below 0.4 DN rests on the rounding model alone: its limit is
+    at least the floor. Constructed like the zoo's i37_8bit_k100_dsnu (8-bit, K = 100 e-/DN, read
+    5 e- = 0.05 DN), whose fit gave 4.78 [4.66, 4.88] e- and an upper limit of 4.86 e-."""
+    from bayescap.model import PTCModel
+    from bayescap.simulate import SensorTruth, simulate_ptc
+
+    truth = SensorTruth(100.0, 5.0, 30000.0, dark_current_e_per_s=10.0, adc_bits=8, black_level_dn=4.0)
+    simulate_ptc(truth, n_levels=12, seed=3, path=tmp_path / "s.csv")
+    model = PTCModel(bayescap.load(tmp_path / "s.csv"))
+    rng = np.random.default_rng(0)
+    n = 4000
+    draws = model.physical(np.repeat(np.atleast_2d(model.initial_guess()), n, axis=0))
+    draws["conversion_gain_e_per_dn"] = rng.normal(100.0, 0.3, n)
+    draws["read_noise_e"] = rng.normal(4.78, 0.06, n)
+    s = _summary_with_draws(model, draws)["read_noise_e"]
+    assert s["constrained"] is False and s["limit"]["kind"] == "upper"
+    assert s["limit"]["value"] == s["upper_limit_95"] >= 0.4 * 100.0 * 0.999 > truth.read_noise_e
+    assert s["ci95"][1] < truth.read_noise_e  # the posterior itself stays as it is, in ci95

@@ -167,9 +167,6 @@ def test_zoo_sub_dn_dark_noise_is_a_limit(tmp_path):
     _assert_right(_fit_scores("i37_10bit_read0p1_one_t", tmp_path))
 
 
-@pytest.mark.xfail(
-    strict=True, reason="n_frames = 1 (a one-frame spatial variance) is refused by the CSV reader (issue 37)"
-)
 def test_zoo_single_frame_spatial_variance(tmp_path):
     _assert_right(_fit_scores("nf1_typical_12bit", tmp_path))
 
@@ -183,3 +180,20 @@ def test_truths_mark_what_the_data_cannot_identify():
     assert by["acq_no_fpn"]["prnu_percent"][1] == "limit"
     assert by["acq_roi_1000"]["dsnu_e"][1] == "identifiable"
     assert np.isclose(by["acq_roi_1000"]["conversion_gain_e_per_dn"][0], 3.0)
+
+
+def test_score_tells_a_detection_from_a_false_claim():
+    """A truth the data are not expected to identify (status ``limit``) that one realisation
+    detects, with a constrained 95 % interval holding it (draw33_14bit's dark current: 822 [174,
+    1514] e-/s, truth 349, expected significance ~1 sd), is ``detected``; a constrained interval
+    that excludes it (sub_12bit_read0p2_int's DSNU 0.33 [0.23, 0.45] e-, truth 0) is a false claim."""
+    tr = {"dark_current_e_per_s": (349.4, "limit", ""), "dsnu_e": (0.0, "limit", "")}
+    fit = {
+        "parameters": {
+            "dark_current_e_per_s": {"median": 822.0, "ci95": [173.9, 1513.5], "constrained": True},
+            "dsnu_e": {"median": 0.33, "ci95": [0.23, 0.45], "constrained": True},
+        }
+    }
+    sc = score(tr, fit)
+    assert sc["dark_current_e_per_s"]["verdict"] == "detected"
+    assert sc["dsnu_e"]["verdict"] == "claims-constrained"
