@@ -39,11 +39,12 @@ NONLINEARITY_BOUNDS = (-0.24, 0.5)
 EVIDENCE_MIN = 0.003
 EVIDENCE_SIGMA = 4.0
 #: without photons: the PTC's relative bend at the top (≈ 3a) must be at least this, and at least
-#: :data:`VARIANCE_EVIDENCE_SIGMA` standard errors from zero. 3 rather than 4: a bend left out
-#: biases K by about as many of its own standard errors as the bend has (K and the bend come from
-#: the same variances), while a bend wrongly let in only widens K's interval
+#: :data:`VARIANCE_EVIDENCE_SIGMA` standard errors from zero. 2 rather than the means' 4: K and the
+#: bend come from the same variances, and a bend left out biases K by about twice as many of K's
+#: own standard errors as the bend has (benchmarks/ptc_curvature.py: a bend of ~4 sd, K 7 sd off),
+#: while a bend wrongly let in (5 % of linear sensors) only widens K's interval
 VARIANCE_EVIDENCE_MIN = 0.005
-VARIANCE_EVIDENCE_SIGMA = 3.0
+VARIANCE_EVIDENCE_SIGMA = 2.0
 
 
 def response(x, a, s_ref):
@@ -96,12 +97,13 @@ def response_evidence(signal_dn, photons, weights_rows):
 
 
 def variance_curvature_evidence(signal_dn, var_dn2, dark_var_dn2, n_pixels, rows):
-    """Bend of the temporal PTC: fit ``V − V_dark = c₀ + c₁ S + c₂ S²`` over the rows ``rows`` (a
-    boolean mask), each row weighted by its sampling error (a pair variance over n pixels has relative
-    sd √(2/(n−1)); the dark row's error adds), and return ``(bend, se)``: the relative bend
-    c₂ S_top / c₁ at the brightest of those rows and its standard error. The error is scaled up by
-    √(χ²/dof) when the rows scatter beyond their sampling error (never down). ``None`` with fewer
-    than five rows or a non-increasing PTC."""
+    """Bend of the temporal PTC: fit the shot-noise variance ``V − V_dark = c₁ S + c₂ S²`` over the
+    rows ``rows`` (a boolean mask), through zero (each row's dark variance carries its read noise,
+    dark shot noise and rounding, as in the model), each row weighted by its sampling error (a pair
+    variance over n pixels has relative sd √(2/(n−1)); the dark row's error adds), and return
+    ``(bend, se)``: the relative bend c₂ S_top / c₁ at the brightest of those rows and its standard
+    error. The error is scaled up by √(χ²/dof) when the rows scatter beyond their sampling error
+    (never down). ``None`` with fewer than five rows or a non-increasing PTC."""
     S = np.asarray(signal_dn, float)
     V = np.asarray(var_dn2, float)
     Vd = np.asarray(dark_var_dn2, float)
@@ -111,19 +113,18 @@ def variance_curvature_evidence(signal_dn, var_dn2, dark_var_dn2, n_pixels, rows
         return None
     S, y, nu = S[r], V[r] - Vd[r], nu[r]
     sd = np.sqrt(2.0 * (V[r] ** 2 + Vd[r] ** 2) / nu)
-    top = float(S.max())
-    u = S / top
-    A = np.vstack([np.ones_like(u), u, u * u]).T / sd[:, None]
+    u = S / float(S.max())
+    A = np.vstack([u, u * u]).T / sd[:, None]
     b = y / sd
     coef, *_ = np.linalg.lstsq(A, b, rcond=None)
     resid = b - A @ coef
-    chi2_dof = float(resid @ resid) / max(S.size - 3, 1)
+    chi2_dof = float(resid @ resid) / max(S.size - 2, 1)
     try:
         cov = max(chi2_dof, 1.0) * np.linalg.inv(A.T @ A)
     except np.linalg.LinAlgError:
         return None
-    _, c1, c2 = coef
+    c1, c2 = coef
     if not c1 > 0:
         return None
-    g = np.array([0.0, -c2 / c1**2, 1.0 / c1])
+    g = np.array([-c2 / c1**2, 1.0 / c1])
     return float(c2 / c1), float(np.sqrt(max(g @ cov @ g, 0.0)))
