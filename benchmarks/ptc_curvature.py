@@ -61,10 +61,10 @@ def summarize(rows, key_a, key_b):
 
 def main():
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--quick", action="store_true", help="6 seeds instead of 20")
+    ap.add_argument("--quick", action="store_true", help="6 seeds instead of 40")
     ap.add_argument("--seeds", type=int, default=None)
     a = ap.parse_args()
-    n = a.seeds or (6 if a.quick else 20)
+    n = a.seeds or (6 if a.quick else 40)
     seeds = range(100, 100 + n)
     t0 = time.perf_counter()
     L = [
