@@ -452,19 +452,24 @@ class _ParametersMixin:
 
     def _extra_starts(self, x):
         """Start values of the response and pixel-offset terms: the curvature of the means against
-        the photons, and a spread of 0.3 DN (mid-way between one offset and a fully averaged grid)."""
+        the photons (without photons a third of the PTC's bend), and a spread of 0.3 DN (mid-way between one offset and a fully averaged grid)."""
         x = np.array(x, float)
         if "nl" in self.idx:
-            from bayescap.model.response import response_evidence
+            from bayescap.model.response import response_evidence, variance_curvature_evidence
             from bayescap.model.terms import _unclipped_rows
 
             d = self.data
             sig = d.mean_dn - d.dark_mean_dn
             rows = _unclipped_rows(d, self.full_sat)
             a0 = 0.0
-            if rows.any() and d.photons_per_pixel is not None:
+            if rows.any():
                 rows &= sig >= 0.05 * sig[rows].max()
-                ev = response_evidence(sig, np.asarray(d.photons_per_pixel, float), rows)
+                if d.photons_per_pixel is not None:
+                    ev = response_evidence(sig, np.asarray(d.photons_per_pixel, float), rows)
+                else:
+                    # the PTC's bend is ≈ 3a (bayescap.model.response)
+                    ev = variance_curvature_evidence(sig, d.temporal_var_dn2, d.dark_temporal_var_dn2, d.n_pixels, rows)
+                    ev = None if ev is None else (ev[0] / 3.0, ev[1] / 3.0)
                 if ev is not None:
                     # the evidence's curvature is at its brightest row; a is at S_ref
                     a0 = ev[0] * self.response_ref_dn / max(float(sig[rows].max()), 1e-9)

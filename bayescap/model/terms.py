@@ -11,7 +11,14 @@ import numpy as np
 
 from bayescap.exceptions import PTCInputError
 from bayescap.io.ptc_csv import PTCData, check_not_all_saturated
-from bayescap.model.response import EVIDENCE_MIN, EVIDENCE_SIGMA, response_evidence
+from bayescap.model.response import (
+    EVIDENCE_MIN,
+    EVIDENCE_SIGMA,
+    VARIANCE_EVIDENCE_MIN,
+    VARIANCE_EVIDENCE_SIGMA,
+    response_evidence,
+    variance_curvature_evidence,
+)
 
 __all__ = ["ModelTerms", "saturation_flags", "select_terms"]
 
@@ -194,18 +201,16 @@ def _unclipped_rows(d: PTCData, full):
 def _select_nonlinearity(d: PTCData, full, reasons, how) -> bool:
     """The response term (:mod:`bayescap.model.response`) enters when the means bend against the
     photons: a curvature of at least ``EVIDENCE_MIN`` at the top, ``EVIDENCE_SIGMA`` standard
-    errors from zero, over the unclipped rows from 5 % of the largest signal up."""
-    if d.photons_per_pixel is None:
-        reasons["response_nonlinearity"] = (
-            "no photons_per_pixel column: the response cannot be told from the variance's curvature"
-        )
-        return False
+    errors from zero, over the unclipped rows from 5 % of the largest signal up. Without photon
+    counts, when the temporal PTC bends over those rows (:func:`_select_ptc_curvature`)."""
     sig = d.mean_dn - d.dark_mean_dn
     ok = _unclipped_rows(d, full)
     if not np.any(ok):
         reasons["response_nonlinearity"] = "no unclipped row to measure the response on"
         return False
     rows = ok & (sig >= 0.05 * sig[ok].max())
+    if d.photons_per_pixel is None:
+        return _select_ptc_curvature(d, sig, rows, reasons, how)
     ev = response_evidence(sig, np.asarray(d.photons_per_pixel, float), rows)
     if ev is None:
         reasons["response_nonlinearity"] = "fewer than five unclipped rows with photons: the response is not measured"
@@ -220,6 +225,35 @@ def _select_nonlinearity(d: PTCData, full, reasons, how) -> bool:
     reasons["response_nonlinearity"] = (
         f"the means are linear in the photons within the data's precision: {100 * a:+.2g} ± {100 * se:.2g} % "
         "at the top of the unclipped rows"
+    )
+    return False
+
+
+def _select_ptc_curvature(d: PTCData, sig, rows, reasons, how) -> bool:
+    """Without photons: the response term enters when the temporal PTC (variance less the dark
+    variance, against the signal) bends by at least ``VARIANCE_EVIDENCE_MIN`` at the top of the
+    rows, ``VARIANCE_EVIDENCE_SIGMA`` standard errors (its sampling error) from zero. The variances fix the
+    bend (≈ 3a) and the small-signal gain; whether the response or the variance bends (a
+    brighter-fatter-like loss) needs the means against the photons."""
+    ev = variance_curvature_evidence(sig, d.temporal_var_dn2, d.dark_temporal_var_dn2, d.n_pixels, rows)
+    if ev is None:
+        reasons["response_nonlinearity"] = (
+            "no photons_per_pixel column and fewer than five unclipped rows: the PTC's curvature is not measured"
+        )
+        return False
+    bend, se = ev
+    if abs(bend) >= VARIANCE_EVIDENCE_MIN and abs(bend) >= VARIANCE_EVIDENCE_SIGMA * se:
+        how["response_nonlinearity"] = (
+            f"no photons_per_pixel column, and the temporal PTC bends {100 * bend:+.2g} % (± {100 * se:.2g} %) "
+            "at the top of the unclipped rows: fitted as the response S = x(1 + a·x/S_ref), from the variances "
+            "alone (their bend is ≈ 3a). K is the small-signal gain either way, but a variance loss that leaves "
+            "the means straight (brighter-fatter) bends the PTC alike: a and the linearity error assume the "
+            "response reading; photon counts would tell the two apart"
+        )
+        return True
+    reasons["response_nonlinearity"] = (
+        f"no photons_per_pixel column, and the temporal PTC is straight within its sampling error: "
+        f"{100 * bend:+.2g} ± {100 * se:.2g} % at the top of the unclipped rows"
     )
     return False
 
