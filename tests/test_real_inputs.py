@@ -292,7 +292,7 @@ def test_a_stranded_walker_never_sets_an_interval_end(ns_fit):
 
 
 def test_a_bound_that_binds_is_flagged(ns_fit):
-    """The clip spread piled against its cap (2 % of the clip level) is flagged with its consequence."""
+    """The clip spread piled against its cap (a fraction of the clip level) is flagged with its consequence."""
     m = ns_fit.model
     x = np.array(ns_fit.chains.chain.reshape(-1, m.ndim))
     cap = np.log(m.tau_cap_dn(x))
@@ -302,7 +302,7 @@ def test_a_bound_that_binds_is_flagged(ns_fit):
         warnings.simplefilter("ignore")
         r = FitResult.from_chains(m, _synthetic_chains(m, x), **kw)
     f = r.to_dict()["flags"]["bound_binding"]["clip_spread_dn"]
-    assert f["side"] == "upper" and "2 % of the clip level" in f["bound"]
+    assert f["side"] == "upper" and f"{100 * m.PRIOR['tau_max_frac']:g} % of the clip level" in f["bound"]
     assert "clip_spread_dn sits at its upper bound" in format_text(r)
     assert "bound_binding" not in ns_fit.flags
 
