@@ -204,7 +204,7 @@ def plot_snr_exposure(cmp: Comparison, h_grid=H0_GRID_LUX_S):
     ax.set_xscale("log")
     ax.set_xlabel("photometric exposure H (lux·s)")
     ax.set_ylabel("SNR (dB)")
-    ax.set_title("SNR vs exposure (Eq. 1, 95 % bands; curves end at the clip)", fontsize=10)
+    ax.set_title("SNR vs exposure (Eq. 1; 95 % bands, often thinner than a line; curves end at the clip)", fontsize=10)
     if not drawn:
         ax.text(0.5, 0.5, "no sensor has an exposure calibration", transform=ax.transAxes, ha="center")
     else:
