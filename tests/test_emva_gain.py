@@ -36,7 +36,8 @@ def _recipe_inverse_k_se(sw):
 def test_basler_gain_is_the_standards_average_not_the_small_signal_gain(basler_csv):
     r = _fast_fit(basler_csv)
     assert r.model.terms.nonlinearity  # the set's compressive response (a ≈ −0.02) is selected
-    q = emva1288_view(r)["quantities"]
+    view = emva1288_view(r)
+    q = view["quantities"]
     inv = q["inverse_K"]
     assert inv["recipe"] == pytest.approx(EMVA1288_INVERSE_K, rel=1e-4)
     lo, hi = inv["ci95"]
@@ -48,6 +49,7 @@ def test_basler_gain_is_the_standards_average_not_the_small_signal_gain(basler_c
     k_lo, k_hi = np.quantile(r.draws["conversion_gain_e_per_dn"], [0.025, 0.975])
     assert k_hi < lo
     assert inv["bayescap"].startswith("not ") and "small-signal" in inv["note"]
+    assert any("small-signal gain" in n for n in view["notes"])  # what the electron quantities use
 
 
 def test_linear_sensor_gain_is_the_conversion_gain():

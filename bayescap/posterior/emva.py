@@ -254,6 +254,12 @@ def emva1288_view(result) -> dict:
         "line of Δσ²_y against Δμ_y through the origin over the sensitivity rows (up to 70 % of saturation), an "
         f"average gain over those rows; here {how_k}; recipe: the line through the measured variances. {small}",
     )
+    if bent:
+        notes.append(
+            "response_nonlinearity is in the model: K and 1/K are the standard's straight-line average over its "
+            "rows; the quantities converted to electrons (η, σ_d, μe.sat, μe.min, DSNU1288, μ_I) use bayescap's "
+            "small-signal gain conversion_gain_e_per_dn"
+        )
     q["inverse_K"] = _entry(
         "Inverse system gain",
         "1/K",
