@@ -241,7 +241,8 @@ def emva1288_view(result) -> dict:
         f"response_nonlinearity is in the model, as here: {k_ss[0]:.4g} [{k_ss[1][0]:.4g}, {k_ss[1][1]:.4g}] e-/DN, "
         "not this entry"
         if bent
-        else "with a linear response the line's slope is 1 / conversion_gain_e_per_dn, bayescap's gain"
+        else "with a linear response the line's slope is 1 / conversion_gain_e_per_dn, bayescap's gain (exactly "
+        "where the dark variances exceed 0.2 DN²; below, the exact rounding moments bend it slightly)"
     )
     q["K"] = _entry(
         "System gain",
