@@ -28,7 +28,8 @@ EMVA_RELEASE = "EMVA 1288 Release 4.0 (linear model)"
 S2Q = 1.0 / 12.0
 #: the standard's floor of the dark temporal variance σ²_y.dark (DN²): below it quantization rules
 S2_YDARK_FLOOR = 0.24
-#: draws the model's variance peak is located on (a grid search per draw)
+#: draws the model's variance peak is located on (a grid search per draw), and the model's line of
+#: the standard's gain is fitted on (one prediction per draw)
 N_PEAK_DRAWS = 4000
 
 
@@ -63,6 +64,7 @@ class _Sweep:
         sweep = d.n_pixels == np.max(d.n_pixels)
         order = np.argsort(d.exposure_time_s[sweep], kind="stable")
         pick = lambda a: None if a is None else np.asarray(a, float)[sweep][order]
+        self.data_rows = np.flatnonzero(sweep)[order]  # the CSV row index of each sweep row
         self.t = pick(d.exposure_time_s)
         self.mu_y = pick(d.mean_dn)
         self.mu_dark = pick(d.dark_mean_dn)
@@ -135,6 +137,26 @@ class _Sweep:
         return {"slope": float(a), "offset": float(b), "deviation_percent": dev, "mu_p": X}
 
 
+def _model_gain(result, sw, idx):
+    """K per draw (DN/e⁻) by the standard's definition applied to the fitted model: the unweighted
+    slope through the origin of the model's Δσ²_y (temporal variance minus the dark row's, each as the
+    model predicts it for that row, rounding and clip included) against Δμ_y over the sensitivity rows,
+    for the draws ``idx``. The model takes a row's measured mean as its signal (without photon counts it
+    predicts no other), so the line is the model's variance curve sampled where the standard samples
+    the data. None without the sampler's chain or with a sensitivity row the model left out."""
+    m, ch = result.model, getattr(result, "chains", None)
+    rows = sw.data_rows[sw.sens]
+    pos = np.searchsorted(m.rows, rows)
+    if ch is None or rows.size == 0 or pos.max() >= m.rows.size or not np.array_equal(m.rows[pos], rows):
+        return None
+    th = ch.chain.reshape(-1, ch.chain.shape[-1])[idx]
+    with np.errstate(all="ignore"):
+        pred = m.predict(th)
+    ds2 = pred["bright_var"][1][:, pos] - pred["dark_var"][1][:, rows]
+    x = m.s_obs[pos]
+    return np.sum(x * ds2, axis=1) / np.sum(x * x)
+
+
 def _model_variance_peak(result, sw, p, idx):
     """μe.sat per draw from the model: the latent (linear) signal, in e⁻, at which the model's
     temporal variance of the clipped output is largest: the standard's saturation point found on
@@ -204,25 +226,49 @@ def emva1288_view(result) -> dict:
     notes = []
     q = {}
     K_rec = sw.recipe_gain()
+    idx = result.thin_index(N_PEAK_DRAWS)
+    K_std = _model_gain(result, sw, idx)
+    bent = "response_nonlinearity" in p
+    if K_std is None:  # (no chain: the model's gain, the same thing for a linear response)
+        K_std, how_k = K, "per posterior draw as 1 / conversion_gain_e_per_dn (no chain to evaluate the line on)"
+    else:
+        how_k = (
+            f"the same line through the fitted model's variances at those rows' signals, per draw ({idx.size} draws)"
+        )
+    k_ss = _q(k)
+    small = (
+        "bayescap's conversion_gain_e_per_dn is the small-signal gain (the slope at zero signal) when "
+        f"response_nonlinearity is in the model, as here: {k_ss[0]:.4g} [{k_ss[1][0]:.4g}, {k_ss[1][1]:.4g}] e-/DN, "
+        "not this entry"
+        if bent
+        else "with a linear response the line's slope is 1 / conversion_gain_e_per_dn, bayescap's gain (exactly "
+        "where the dark variances exceed 0.2 DN²; below, the exact rounding moments bend it slightly)"
+    )
     q["K"] = _entry(
         "System gain",
         "K",
         "DN/e-",
-        K,
-        bayescap="1 / conversion_gain_e_per_dn",
+        K_std,
+        bayescap="not 1 / conversion_gain_e_per_dn (small-signal)" if bent else "1 / conversion_gain_e_per_dn",
         recipe=K_rec,
-        note="the standard's K is DN per electron, the inverse of bayescap's conversion gain (e-/DN). "
-        "The standard fits Δσ²_y against Δμ_y through the origin, unweighted, up to 70 % of saturation; "
-        "bayescap fits every row, each weighted by its variance's sampling error",
+        note="the standard's K (DN per electron, the inverse of bayescap's e-/DN gain): the unweighted straight "
+        "line of Δσ²_y against Δμ_y through the origin over the sensitivity rows (up to 70 % of saturation), an "
+        f"average gain over those rows; here {how_k}; recipe: the line through the measured variances. {small}",
     )
+    if bent:
+        notes.append(
+            "response_nonlinearity is in the model: K and 1/K are the standard's straight-line average over its "
+            "rows; the quantities converted to electrons (η, σ_d, μe.sat, μe.min, DSNU1288, μ_I) use bayescap's "
+            "small-signal gain conversion_gain_e_per_dn"
+        )
     q["inverse_K"] = _entry(
         "Inverse system gain",
         "1/K",
         "e-/DN",
-        k,
-        bayescap="conversion_gain_e_per_dn",
+        1.0 / np.asarray(K_std, float),
+        bayescap="not conversion_gain_e_per_dn (small-signal)" if bent else "conversion_gain_e_per_dn",
         recipe=1.0 / K_rec,
-        note="the same quantity as bayescap's conversion gain",
+        note="1/K of the standard's straight-line average over its rows. " + small,
     )
     R_rec = sw.recipe_responsivity()
     if eta is not None:
@@ -306,7 +352,6 @@ def emva1288_view(result) -> dict:
             note=how + ". bayescap's full_well_e is a different quantity: the charge at the clip (ADC maximum "
             "or well), where the mean stops rising; the variance peaks below it, as pixels start to clip",
         )
-        idx = result.thin_index(N_PEAK_DRAWS)
         peak = _model_variance_peak(result, sw, p, idx)
         if peak is not None:
             q["u_e_sat_model"] = _entry(
