@@ -50,6 +50,10 @@ def test_basler_gain_is_the_standards_average_not_the_small_signal_gain(basler_c
     assert k_hi < lo
     assert inv["bayescap"].startswith("not ") and "small-signal" in inv["note"]
     assert any("small-signal gain" in n for n in view["notes"])  # what the electron quantities use
+    # the fit's own result carries the same gain beside K, so a user sees both without the datasheet
+    der = r.to_dict()["derived"]["emva1288_gain_e_per_dn"]
+    assert der["median"] == pytest.approx(inv["median"], rel=2e-3)
+    assert der["ci95"][0] > k_hi
 
 
 def test_linear_sensor_gain_is_the_conversion_gain():
@@ -65,3 +69,4 @@ def test_linear_sensor_gain_is_the_conversion_gain():
     inv = emva1288_view(r)["quantities"]["inverse_K"]
     assert inv["bayescap"] == "conversion_gain_e_per_dn"
     assert inv["median"] == pytest.approx(np.median(k), rel=1e-12)
+    assert "emva1288_gain_e_per_dn" not in r.to_dict()["derived"]  # the same number as K: not repeated

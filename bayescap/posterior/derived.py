@@ -182,4 +182,12 @@ class DerivedMixin:
                 extra["lower_bound"] = True
             out[name] = summarize(x, unit, **extra)
             out[name].pop("constrained")
+        if "response_nonlinearity" in self.draws:
+            # K is the small-signal gain here; beside it, the gain a straight-line EMVA 1288 fit reports
+            from bayescap.posterior.emva import emva1288_gain_draws
+
+            k_emva = emva1288_gain_draws(self)
+            if k_emva is not None:
+                out["emva1288_gain_e_per_dn"] = summarize(k_emva, "e-/DN")
+                out["emva1288_gain_e_per_dn"].pop("constrained")
         return apply_derived_limits(self, self.parameter_summary() if params is None else params, out)

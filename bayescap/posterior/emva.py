@@ -20,7 +20,7 @@ import numpy as np
 
 from bayescap.posterior.summary import json_safe
 
-__all__ = ["emva1288_view", "EMVA_RELEASE"]
+__all__ = ["emva1288_view", "emva1288_gain_draws", "EMVA_RELEASE"]
 
 EMVA_RELEASE = "EMVA 1288 Release 4.0 (linear model)"
 
@@ -155,6 +155,20 @@ def _model_gain(result, sw, idx):
     ds2 = pred["bright_var"][1][:, pos] - pred["dark_var"][1][:, rows]
     x = m.s_obs[pos]
     return np.sum(x * ds2, axis=1) / np.sum(x * x)
+
+
+def emva1288_gain_draws(result, n_max=N_PEAK_DRAWS):
+    """The conversion gain (e⁻/DN) as EMVA 1288 defines it, per draw: the inverse of the standard's
+    straight line of Δσ²_y against Δμ_y through the fitted model over the standard's sensitivity rows
+    (:func:`_model_gain`), on at most ``n_max`` draws of the walkers kept for the summaries. With a
+    linear response it is ``conversion_gain_e_per_dn``; with ``response_nonlinearity`` it is the gain
+    averaged over those rows, the number an EMVA 1288 datasheet prints. None without a chain."""
+    kept = result._kept_mask() if hasattr(result, "_kept_mask") else None
+    n = next(iter(result.draws.values())).size
+    pool = np.arange(n) if kept is None else np.flatnonzero(kept)
+    idx = pool if pool.size <= n_max else pool[np.linspace(0, pool.size - 1, n_max).round().astype(int)]
+    K = _model_gain(result, _Sweep(result.model.data), idx)
+    return None if K is None else 1.0 / K
 
 
 def _model_variance_peak(result, sw, p, idx):

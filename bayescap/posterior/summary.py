@@ -17,6 +17,10 @@ DERIVED_INFO = {
     "effective_pixels": ("pixels", "s' = s·2^Δs"),
     "capacity_bits": ("bits", "C = s'·b' (Eq. 6)"),
     "linearity_error_percent": ("%", "EMVA 1288 linearity error LE of the fitted response (5–95 % of saturation)"),
+    "emva1288_gain_e_per_dn": (
+        "e-/DN",
+        "EMVA 1288's gain: its straight line through the fitted PTC up to 70 % of saturation",
+    ),
 }
 
 #: the order the reports list the physical parameters and derived quantities in
@@ -44,6 +48,7 @@ DERIVED_ORDER = [
     "capacity_bits",
     "capacity_bits_per_pixel",
     "linearity_error_percent",
+    "emva1288_gain_e_per_dn",
 ]
 
 
