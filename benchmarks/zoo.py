@@ -59,6 +59,7 @@ CELL = {
     "claims-constrained": "**L!**",
     "limit-wrong": "**L✗**",
     "detected": "L+",
+    "limited": "L≥",
 }
 
 
@@ -126,7 +127,11 @@ def summarize(rows, key):
             if rec["verdict"] == "absent":
                 continue
             for reg in (r["regime"], "all"):
-                if rec["status"] == "identifiable":
+                if rec["status"] == "identifiable" and rec["verdict"] == "limited":
+                    c = lim[(reg, "identifiable reported as a lower limit")]
+                    c[0] += 1
+                    c[1] += 1
+                elif rec["status"] == "identifiable":
                     c = cov[(reg, p)]
                     c[0] += rec["verdict"] == "ok"
                     c[1] += 1
@@ -288,7 +293,8 @@ def report(rows, bas, t_gen, load, a):
         "Cells (standard fit): `ok` truth inside the 95 % interval; `miss`; **MISS>3w** a miss by more than "
         "three interval widths (a defect); `L` a truth the data cannot identify, reported as a limit "
         "(`constrained: false`) that holds it; `L+` such a truth detected in this realisation (a constrained 95 % "
-        "interval that holds it); **L!** such a truth reported as constrained with an interval that excludes it; "
+        "interval that holds it); `L≥` an identifiable truth the fit reports only as a lower limit that holds it "
+        "(its data flagged as biased: dark rows clipped at 0 DN; counted apart from the coverage); **L!** such a truth reported as constrained with an interval that excludes it; "
         "**L✗** a limit that "
         "excludes the truth; `(…)` a truth between identifiable and not (shown, not counted); `–` no such "
         "parameter in the fit; empty: not applicable (no spatial columns, one exposure time). "

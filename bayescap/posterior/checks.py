@@ -48,8 +48,8 @@ class ChecksMixin:
             )
 
     #: dark rows whose mean sits fewer than this many sd (temporal and, where measured, spatial)
-    #: above 0 DN: the ADC's zero clips the low tail, shrinking the dark variances (≈ 0.2 % at 2.5 sd,
-    #: 1.3 % at 2 sd, against a ≈ 1 % sampling error), a censoring the model does not have
+    #: above 0 DN: the ADC's zero clips the low tail, shrinking the dark variances (≈ 1.1 % at 2.5 sd,
+    #: 4 % at 2 sd, against a ≈ 1 % sampling error), a censoring the model does not have
     DARK_FLOOR_SD = 2.5
 
     def _check_dark_floor(self):
@@ -63,6 +63,7 @@ class ChecksMixin:
         with np.errstate(divide="ignore", invalid="ignore"):
             margin = np.asarray(d.dark_mean_dn, float) / np.sqrt(np.maximum(var, 1e-12))
         low = np.nonzero(margin < self.DARK_FLOOR_SD)[0]
+        self.dark_floor_margin_sd = float(np.min(margin)) if margin.size else float("inf")
         if low.size:
             rows = [int(d.row_label(i)) for i in low]
             self.flags["dark_floor_clipping"] = rows

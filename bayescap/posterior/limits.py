@@ -56,11 +56,54 @@ def _limit(entry, kind, value, level=LIMIT_LEVEL):
     entry["limit"] = {"kind": kind, "value": None if value is None else float(value), "level": float(level)}
 
 
+def clipped_variance_fraction(margin_sd):
+    """Var(max(X, 0)) / Var(X) for X normal with its mean ``margin_sd`` sd above 0: how much the ADC's
+    zero shrinks a dark variance when it clips the low tail (0.998 at 2.5 sd, 0.99 at 2, 0.57 at 0.5)."""
+    from scipy.stats import norm
+
+    m = float(margin_sd)
+    p, q = norm.cdf(m), norm.pdf(m)
+    mean = m * p + q  # E[max(X, 0)]
+    second = (m * m + 1.0) * p + m * q  # E[max(X, 0)²]
+    return max(second - mean * mean, 0.0)
+
+
+def _floor_clipped_limits(result, out, draws):
+    """Read noise, dark noise and DSNU measured on dark rows the ADC's zero clips are biased low by
+    the censoring (:meth:`ChecksMixin._check_dark_floor`): where that bias exceeds half of the
+    parameter's 95 % half-width, the parameter is a lower limit (its 2.5 % point), never an interval."""
+    margin = getattr(result, "dark_floor_margin_sd", None)
+    if not result.flags.get("dark_floor_clipping") or margin is None:
+        return
+    shrink = 1.0 - np.sqrt(clipped_variance_fraction(margin))  # fractional bias of a noise sd
+    for name in _FLOOR_BIASED:
+        s = out.get(name)
+        if s is None or name not in draws:
+            continue
+        lo, med, hi = np.quantile(draws[name], [0.025, 0.5, 0.975])
+        if shrink * med <= 0.25 * (hi - lo):
+            continue
+        s.pop("upper_limit_95", None)
+        s.pop("limit", None)
+        s["constrained"] = False
+        s["lower_bound"] = float(lo)
+        s["note"] = (
+            f"the ADC's zero clips the darkest pixels (dark mean {margin:.1f} sd above 0 DN): the dark "
+            f"variances it is measured on shrink by ~{1 - clipped_variance_fraction(margin):.0%}, so it is "
+            "a lower limit only (raise the black level, as EMVA 1288 requires)"
+        )
+
+
+#: the parameters measured on the dark rows' spread, biased low when the ADC's zero clips it
+_FLOOR_BIASED = ("read_noise_e", "dark_noise_e", "dsnu_e")
+
+
 def apply_parameter_limits(result, out: dict) -> dict:
     """Add ``limit`` to the parameter summaries ``out`` (name -> summary) of ``result`` that the
     data do not determine, and mark prior-dominated scale parameters; returns ``out``."""
     m = result.model
     draws = result.summary_draws()
+    _floor_clipped_limits(result, out, draws)
     for name, (key, factor, bounds_key) in _PRIOR_SCALES.items():
         s = out.get(name)
         if s is None or name not in draws or s.get("constrained", True) is not True:

@@ -412,7 +412,9 @@ def score(zs_truths: dict, result: dict) -> dict:
     expected significance is below the limit threshold can still stand out in one realisation: at
     an expected 1.1 sd, the fit's detection rule, about 2.5 sd, is passed ~8 % of the time),
     ``claims-constrained`` when that interval excludes the truth, ``limit-wrong`` when its limit
-    excludes the truth; ``absent`` when the fit has no such parameter."""
+    excludes the truth; ``limited`` for an identifiable truth that the fit reports only as a lower
+    limit holding it (flagged data, e.g. dark rows clipped at 0 DN); ``absent`` when the fit has no
+    such parameter."""
     pars = result.get("parameters", {})
     out = {}
     for name, (truth, status, why) in zs_truths.items():
@@ -438,6 +440,9 @@ def score(zs_truths: dict, result: dict) -> dict:
                 rec["verdict"] = "limit-wrong"
             else:
                 rec["verdict"] = "ok"
+        elif (p.get("limit") or {}).get("kind") == "lower" and p.get("constrained") is False:
+            # an identifiable truth the fit reports only as a lower limit (its data flagged as biased)
+            rec["verdict"] = "limited" if truth >= p["limit"]["value"] else "limit-wrong"
         else:
             if rec["inside"]:
                 rec["verdict"] = "ok"
