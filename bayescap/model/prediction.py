@@ -242,7 +242,7 @@ class _PredictionMixin:
             Sxr = Sx[:, r] if a_nl is not None else Sr
             P = pa * Sxr * Sxr + pb / (K * K) + 2.0 * pc * Sxr / K + hb[:, r]
             out["spatial_var"] = self._spatial_block(
-                self.sp[..., r], P, vm[:, r], self.L_ok[..., r], self.v[..., r], self.nu[..., r], f2
+                self.sp[..., r], P, vm[:, r], self.L_ok[..., r], self.v[..., r], self.nu[..., r], f2, phi_b[:, r]
             )
         if self.spd_rows.size:
             r = self.spd_rows
@@ -255,6 +255,7 @@ class _PredictionMixin:
                 self.vd[..., r],
                 self.nu_d[..., r],
                 f2,
+                phi_d[:, r],
             )
         return out
 
@@ -271,28 +272,36 @@ class _PredictionMixin:
         return np.where(S[:, rows] > 0, keff, lin)
 
     @classmethod
-    def _spatial_block(cls, obs, P, v1, L, v_pair, nu, f2):
+    def _spatial_block(cls, obs, P, v1, L, v_pair, nu, f2, phi=2.0):
         """The spatial-variance block of L-frame averages: pattern P plus temporal part T = v₁/L
-        (v₁ the one-frame temporal variance). L ≥ 2 frames averaged are independent of the pair
-        difference; a single frame (L = 1) is the pair's first frame A, whose noise the pair's
-        temporal estimate s²_D (D = (A − B)/√2) shares: for Gaussian noise Cov(s²_A, s²_D) = T²/ν
-        and Var(s²_D) = 2T²/ν, so given the measured s²_D the spatial variance has mean
-        P + T + (s²_D − T)/2 and variance Var(s²_A) − T²/(2ν) = (1.5 T² + 4PT)/ν."""
+        (v₁ the one-frame temporal variance, φ the factor of its pair estimate's sampling variance,
+        2 for a normal: the rounded values of noise below a DN are far from normal, and their fourth
+        cumulant κ₄ = (2φ − 4)·v₁² widens every sample variance below).
+
+        L ≥ 2 frames averaged are independent of the pair difference, and the average's fourth
+        cumulant is κ₄/L³: Var(s²_T) = (2 + (2φ − 4)/L)·T²/ν. A single frame (L = 1) is the pair's
+        first frame A, whose noise the pair's temporal estimate s²_D (D = (A − B)/√2) shares:
+        Var(s²_A) = (2φ − 2)·T²/ν, Cov(s²_A, s²_D) = (φ − 1)·T²/ν, Var(s²_D) = φ·T²/ν, so given the
+        measured s²_D the spatial variance has mean P + T + (1 − 1/φ)(s²_D − T) and variance
+        ((2φ − 2) − (φ − 1)²/φ)·T²/ν + 4PT/ν (for a normal, P + T + (s²_D − T)/2 and (1.5 T² + 4PT)/ν)."""
         T = v1 / L
-        shape = cls._pattern_shape(P, T, nu, f2)
+        phi = np.maximum(np.broadcast_to(phi, np.shape(T)), 1.0)  # φ ≥ 1: a variance's variance ≥ 0
+        shape = cls._pattern_shape(P, T, nu, f2, 2.0 + (2.0 * phi - 4.0) / L)
         one = L == 1
         if not np.any(one):
             return obs, np.maximum(P + T, 1e-12), shape, "gamma"
         Pp = np.maximum(P, 0.0)
-        mean_c = Pp + 0.5 * (T + v_pair)
-        rel_c = (1.5 * T * T + 4.0 * Pp * T) / (nu * mean_c**2)
+        mean_c = Pp + T + (1.0 - 1.0 / phi) * (v_pair - T)
+        mean_c = np.maximum(mean_c, 1e-12)
+        rel_c = ((2.0 * phi - 2.0 - (phi - 1.0) ** 2 / phi) * T * T + 4.0 * Pp * T) / (nu * mean_c**2)
         mean = np.where(one, mean_c, P + T)
         shape = np.where(one, 1.0 / (rel_c + f2), shape)
         return obs, np.maximum(mean, 1e-12), shape, "gamma"
 
     @staticmethod
-    def _pattern_shape(P, T, nu, f2):
-        """Gamma shape of a spatial variance given the realised pattern P and temporal part T."""
+    def _pattern_shape(P, T, nu, f2, rel_t=2.0):
+        """Gamma shape of a spatial variance given the realised pattern P and temporal part T, whose
+        sample variance has relative variance ``rel_t``/ν (2 for a normal)."""
         P = np.maximum(P, 0.0)
-        rel = (2.0 * T * T + 4.0 * P * T) / (nu * (P + T) ** 2)
+        rel = (rel_t * T * T + 4.0 * P * T) / (nu * (P + T) ** 2)
         return 1.0 / (rel + f2)
