@@ -237,6 +237,10 @@ def main(argv=None):
                 "converged": bool(d.get("diagnostics", {}).get("converged")),
             }
             if "parameters" in d:
+                emva_k = d.get("derived", {}).get("emva1288_gain_e_per_dn")
+                if emva_k is not None:
+                    # with the response term K is the small-signal gain; emva1288's is its straight line
+                    d = {**d, "parameters": {**d["parameters"], "conversion_gain_e_per_dn": emva_k}}
                 bas[f"score_{q}"] = score({p: (v, "reference", "emva1288 1.0.2") for p, v in ref.items()}, d)
         log.write(json.dumps(bas, default=float) + "\n")
     lines = report(rows, bas, t_gen, load, a)
@@ -298,7 +302,11 @@ def report(rows, bas, t_gen, load, a):
         "**L✗** a limit that "
         "excludes the truth; `(…)` a truth between identifiable and not (shown, not counted); `–` no such "
         "parameter in the fit; empty: not applicable (no spatial columns, one exposure time). "
-        "Which truths count as identifiable: `bayescap.validation.zoo.truths`.",
+        "Which truths count as identifiable: `bayescap.validation.zoo.truths`. The Basler row sets bayescap "
+        "against emva1288's reference values (`miss (Nw)`: N interval widths apart; not counted): its K is "
+        "`emva1288_gain_e_per_dn`, the standard's straight line through the fitted PTC, since the set's "
+        "non-linearity makes bayescap's K the small-signal gain; QE and PRNU keep bayescap's definitions "
+        "(QE over the small-signal gain, PRNU as the population value), which differ from the standard's.",
         "",
         "| sensor | regime | tags | "
         + " | ".join(SHORT[p] for p in PARAMETERS)
