@@ -352,6 +352,13 @@ def report(rows, bas, t_gen, load, a):
                     i, n = cov.get((reg, p), (0, 0))
                 cells.append(f"{i}/{n} ({100 * i / n:.0f} %)" if n else "")
             L.append(f"| {SHORT.get(p, p)} | " + " | ".join(cells) + " |")
+        # how far each regime's coverage is from 95 %, in binomial standard deviations of its count
+        zs = []
+        for reg in regimes:
+            i = sum(v[0] for (rg, _), v in cov.items() if rg == reg)
+            n = sum(v[1] for (rg, _), v in cov.items() if rg == reg)
+            zs.append(f"{(i / n - 0.95) / np.sqrt(0.95 * 0.05 / n):+.1f}" if n else "")
+        L.append("| all: (coverage − 95 %) / binomial sd | " + " | ".join(zs) + " |")
         li = sum(v[0] for (rg, _), v in lim.items() if rg == "all")
         ln = sum(v[1] for (rg, _), v in lim.items() if rg == "all")
         L += ["", f"Non-identifiable truths reported as limits that hold them ({label}): {li}/{ln}.", ""]
