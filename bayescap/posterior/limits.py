@@ -9,6 +9,8 @@ interval. Decided here:
   as its prior's (the data hardly narrowed it: :data:`PRIOR_DOMINATED_FRACTION`), is an upper limit;
 * the summaries :meth:`FitResult.parameter_summary` already marks (read noise below 0.4 DN,
   one exposure time, no row at saturation) get their ``limit``;
+* read noise, dark noise and DSNU measured on dark rows the ADC's zero clips (flagged
+  ``dark_floor_clipping``) are lower limits where the censoring's bias exceeds their precision;
 * a derived quantity that depends on a parameter known only as an upper limit (DR on the read
   noise; TR and capacity where the dark noise is above one grey level) is a lower limit: it
   follows when moving that parameter to a tenth of its value moves the quantity's median by more
@@ -58,7 +60,7 @@ def _limit(entry, kind, value, level=LIMIT_LEVEL):
 
 def clipped_variance_fraction(margin_sd):
     """Var(max(X, 0)) / Var(X) for X normal with its mean ``margin_sd`` sd above 0: how much the ADC's
-    zero shrinks a dark variance when it clips the low tail (0.998 at 2.5 sd, 0.99 at 2, 0.57 at 0.5)."""
+    zero shrinks a dark variance when it clips the low tail (0.989 at 2.5 sd, 0.960 at 2, 0.553 at 0.5)."""
     from scipy.stats import norm
 
     m = float(margin_sd)
