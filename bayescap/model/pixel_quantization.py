@@ -116,9 +116,9 @@ def _quantized_pixel_moments(delta, s, so, exact=False):
 
     Where its error bound holds (relative 1e-4 of V, E4 and H; :mod:`~bayescap.model.offset_fourier`)
     and ``exact`` is false, a Fourier series in δ whose coefficients are tabulated in s (3-8× faster
-    than the grid); for s ≤ 0.1 DN with the offsets far from every DN boundary (relative 1e-5 of
-    V, E4 and H; :mod:`~bayescap.model.offset_boundary`), Gauss–Hermite nodes at the boundaries
-    (the grid needs up to 1 024 points there). Elsewhere, or with ``exact``, the offsets' distribution modulo 1 DN is the
+    than the grid); else for s ≤ 0.1 DN, σ_o from 1e-4 DN and s² + σ_o² ≤ 0.16 DN², quadratures at
+    the DN boundaries (relative 1e-5 of V, E4 and H; :mod:`~bayescap.model.offset_boundary`; the
+    grid needs up to 1 024 points there). Elsewhere, or with ``exact``, the offsets' distribution modulo 1 DN is the
     wrapped normal, integrated on a periodic midpoint
     grid of 8-1 024 points chosen per element from s and σ_o (:func:`_grid_size`; uniform for
     σ_o > 0.7 DN, where its harmonics are < e^{−2π²·0.49} ≈ 6e-5, and then tabulated in s); for
@@ -142,8 +142,8 @@ def _quantized_pixel_moments(delta, s, so, exact=False):
         at = cand[got]
         series[at] = True
         V[at], E4[at], H[at] = vs[got], e4s[got], hs[got]
-    # small s with the offsets far from every DN boundary: Gauss–Hermite at the boundaries
-    # (:mod:`~bayescap.model.offset_boundary`), where its bound holds
+    # small s: quadratures at the DN boundaries (:mod:`~bayescap.model.offset_boundary`) where
+    # they hold
     cand = np.flatnonzero(~(point | wide | series)) if not exact else np.empty(0, np.intp)
     if cand.size:
         got, vb, e4b, hb = boundary_moments(delta[cand], s[cand], so[cand])
