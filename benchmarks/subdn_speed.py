@@ -125,6 +125,11 @@ def main(argv=None):
             grid = ", ".join(f"{m}: {n}" for m, n in sorted(tally.grid.items())) or "none"
             dg = d["diagnostics"]
             how = dg["method"] + ("" if dg.get("fast_path_accepted", True) else " (fast path rejected)")
+            how += "" if dg.get("converged") else ", NOT CONVERGED"
+            if dg.get("n_rounds"):
+                how += (
+                    f", {dg['n_ensembles']}×{dg['n_walkers']} walkers × {dg['n_steps']} steps, {dg['n_rounds']} rounds"
+                )
             rows.append(
                 f"| {z.name} | {quality} | {how} | {wall:.1f} | {tally.seconds:.1f} | {tally.calls} | {tally.elements} | "
                 f"{tally.boundary} | {grid} | " + " | ".join(_interval(d, q) for q in QUANTITIES) + " |"
