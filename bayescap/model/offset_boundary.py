@@ -1,6 +1,6 @@
 """The rounding moments of a population of pixels (:func:`~bayescap.model.pixel_quantization.\
-_quantized_pixel_moments`) for small temporal noise, by Gauss–Hermite quadrature at each DN
-boundary: the tier for pixels whose means sit far from every boundary.
+_quantized_pixel_moments`) for small temporal noise (s ≤ 0.1 DN), by quadratures at the DN
+boundaries, where the periodic grid needs up to 1 024 points an element.
 
 With s ≪ 1 DN, a pixel at offset o has a rounded value that differs from round(o) only near a DN
 boundary b (a half-integer): there it takes two values, the upper with probability p = Φ(u),
