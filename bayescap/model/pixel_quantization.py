@@ -14,6 +14,7 @@ from pathlib import Path
 
 import numpy as np
 
+from bayescap.model.offset_boundary import boundary_moments
 from bayescap.model.offset_fourier import offset_fourier_moments
 from bayescap.model.quantization import (
     _QG_GRIDS,
@@ -115,7 +116,9 @@ def _quantized_pixel_moments(delta, s, so, exact=False):
 
     Where its error bound holds (relative 1e-4 of V, E4 and H; :mod:`~bayescap.model.offset_fourier`)
     and ``exact`` is false, a Fourier series in δ whose coefficients are tabulated in s (3-8× faster
-    than the grid). Elsewhere, or with ``exact``, the offsets' distribution modulo 1 DN is the
+    than the grid); else for s ≤ 0.1 DN, σ_o from 1e-4 DN and s² + σ_o² ≤ 0.16 DN², quadratures at
+    the DN boundaries (relative 1e-5 of V, E4 and H; :mod:`~bayescap.model.offset_boundary`; the
+    grid needs up to 1 024 points there). Elsewhere, or with ``exact``, the offsets' distribution modulo 1 DN is the
     wrapped normal, integrated on a periodic midpoint
     grid of 8-1 024 points chosen per element from s and σ_o (:func:`_grid_size`; uniform for
     σ_o > 0.7 DN, where its harmonics are < e^{−2π²·0.49} ≈ 6e-5, and then tabulated in s); for
@@ -139,6 +142,14 @@ def _quantized_pixel_moments(delta, s, so, exact=False):
         at = cand[got]
         series[at] = True
         V[at], E4[at], H[at] = vs[got], e4s[got], hs[got]
+    # small s: quadratures at the DN boundaries (:mod:`~bayescap.model.offset_boundary`) where
+    # they hold
+    cand = np.flatnonzero(~(point | wide | series)) if not exact else np.empty(0, np.intp)
+    if cand.size:
+        got, vb, e4b, hb = boundary_moments(delta[cand], s[cand], so[cand])
+        at = cand[got]
+        series[at] = True
+        V[at], E4[at], H[at] = vb[got], e4b[got], hb[got]
     narrow = ~point & ~series & (so < 1.0 / _QG_M) & (so < _GH_SO_OVER_S * s)
     grid = ~(point | narrow | wide | series)
     if np.any(point):  # no pattern: the pixels share one offset
