@@ -72,7 +72,7 @@ def clipped_variance_fraction(margin_sd):
 
 def _floor_clipped_limits(result, out, draws):
     """Read noise, dark noise and DSNU measured on dark rows the ADC's zero clips are biased low by
-    the censoring (:meth:`ChecksMixin._check_dark_floor`): where that bias exceeds half of the
+    the censoring (:meth:`ChecksMixin._check_dark_floor`): where that bias exceeds 5 % or half of the
     parameter's 95 % half-width, the parameter is a lower limit (its 2.5 % point), never an interval."""
     margin = getattr(result, "dark_floor_margin_sd", None)
     if not result.flags.get("dark_floor_clipping") or margin is None:
@@ -83,8 +83,8 @@ def _floor_clipped_limits(result, out, draws):
         if s is None or name not in draws:
             continue
         lo, med, hi = np.quantile(draws[name], [0.025, 0.5, 0.975])
-        if shrink * med <= 0.25 * (hi - lo):
-            continue
+        if shrink <= 0.05 and shrink * med <= 0.25 * (hi - lo):
+            continue  # a bias under 5 % and small against the interval: the interval stands
         s.pop("upper_limit_95", None)
         s.pop("limit", None)
         s["constrained"] = False
