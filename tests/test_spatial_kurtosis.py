@@ -39,3 +39,16 @@ def test_spatial_variance_scatter_of_rounded_noise(n_frames):
     rel_model = 1.0 / np.sqrt(float(shape[0]))
     # the MC's relative sd has a sampling error of about sqrt((κ-1)/4n) ≲ 10 % for these heavy tails
     assert rel_model == pytest.approx(rel_mc, rel=0.15), (rel_model, rel_mc, np.sqrt(2.0 / nu))
+
+
+def test_floored_variance_has_the_normal_phi():
+    """Below the 1e-6 DN² floor (noise far below a DN at an integer offset: a dark row of an 8-bit
+    high-gain camera reads the black level on every pixel) the moments are the floor's. φ must not
+    follow E4/(2·floor²), which falls with the noise and made the gamma's normalisation reward an
+    ever smaller read noise (the zoo's draw25_8bit: read noise 0.005 DN for a truth of 0.05, K 0.25 %
+    low, 1 interval width off)."""
+    s = np.array([[0.02, 0.04, 0.08, 0.3]])
+    var, phi, _ = _PredictionMixin._quantized_var(None, s * s, np.zeros(4), np.zeros((1, 4)))
+    assert np.all(var[0, :3] == 1e-6)
+    assert np.all(phi[0, :3] == 2.0)
+    assert var[0, 3] > 1e-3 and phi[0, 3] > 2.0  # above the floor: the rounded noise's own φ

@@ -95,9 +95,12 @@ class _PredictionMixin:
         V, E4, H = _quantized_pixel_moments(delta, s, so)
         # the measured variances are floored at 1e-6 DN² (a sample with no differing pixel): so is
         # the model, which otherwise penalises a ratio 1e-6/1e-12 for identical "zero" data
+        # At the floor the moments are the floor's: φ is the normal's 2 there, as E4/(2·floor²) would
+        # fall with the noise and reward ever smaller noise through the gamma's normalisation
+        floored = V < 1e-6
         V = np.maximum(V, 1e-6)
         var[need] = V
-        phi[need] = E4 / (2.0 * V * V)
+        phi[need] = np.where(floored, 2.0, E4 / (2.0 * V * V))
         excess[need] = H
         return var, phi, excess
 
