@@ -288,9 +288,7 @@ class _PredictionMixin:
         measured s²_D the spatial variance has mean P + T + (1 − 1/φ)(s²_D − T) and variance
         ((2φ − 2) − (φ − 1)²/φ)·T²/ν + 4PT/ν (for a normal, P + T + (s²_D − T)/2 and (1.5 T² + 4PT)/ν)."""
         T = v1 / L
-        # φ ≥ 1 (a variance's variance ≥ 0); at the 1e-6 DN² floor of _quantized_var the moments are
-        # the floor's, not the noise's: the normal's φ = 2 there
-        phi = np.where(v1 > 1e-6 * (1.0 + 1e-9), np.maximum(np.broadcast_to(phi, np.shape(T)), 1.0), 2.0)
+        phi = np.maximum(np.broadcast_to(phi, np.shape(T)), 1.0)  # φ ≥ 1: a variance's variance ≥ 0
         shape = cls._pattern_shape(P, T, nu, f2, 2.0 + (2.0 * phi - 4.0) / L)
         one = L == 1
         if not np.any(one):
