@@ -100,10 +100,11 @@ class CFAAcquisition:
 
     @classmethod
     def spanning(cls, camera: CFACamera, n_rows: int = 14, lo_frac: float = 0.003, hi_frac: float = 1.15):
-        """Log-spaced exposures from ``lo_frac`` to ``hi_frac`` of the most sensitive channel's clip."""
-        qe = max(channel_qe(camera).values())
+        """Log-spaced exposures from ``lo_frac`` of the most sensitive channel's clip to ``hi_frac``
+        of the least sensitive one's, so that every channel reaches its clip."""
+        qe = channel_qe(camera).values()
         clip_e = min(camera.full_well_e, (camera.adc_max_dn - camera.black_level_dn) * camera.k_e_per_dn)
-        mu = np.geomspace(lo_frac, hi_frac, n_rows) * clip_e / qe
+        mu = np.geomspace(lo_frac * clip_e / max(qe), hi_frac * clip_e / min(qe), n_rows)
         return cls(photons_per_pixel=tuple(float(x) for x in mu))
 
 
