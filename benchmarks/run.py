@@ -88,6 +88,12 @@ BENCHMARKS = {
         "10-25 min",
         None,
     ),
+    "colour_coverage": (
+        "simulated Bayer cameras (frame by frame, from spectral sensitivities): per-channel K and QE and colour "
+        "sensitivity against the truth (95 % coverage), CS interval widths with the CCM exact and uncertain",
+        "4-8 min",
+        "1-2 min",
+    ),
     "quantization_regime": (
         "fit times (standard, fast) and log_prob cost of sensors with read noise below half a DN",
         "1-3 min",

@@ -69,7 +69,7 @@ def test_only_floor_clipping_and_domain_move_cs():
     assert np.all(clipped < mixed - 0.05)  # out-of-gamut colours are lost
     assert np.all(clipped < plain_clipped - 0.05)  # in a fixed output volume, amplified noise costs
     assert np.all(in_cone < mixed - 0.05)  # a reflectance set spans less than the cube
-    assert np.all(mixed <= 3 * 8 + 1e-9)
+    assert np.all(clipped <= 3 * 8 + 1e-9)  # the output volume [0, 256]³ bounds it
 
 
 def test_quadrature_converged():

@@ -23,6 +23,19 @@ NOTEBOOKS = Path(__file__).resolve().parent.parent / "notebooks"
 #: notebook -> (execution timeout per cell in s, fragments its printed output must contain,
 #: number of figures it shows)
 EXPECTED = {
+    "colour_depth.ipynb": (
+        120,
+        [
+            "noise gain R, G, B",
+            "colour depth",
+            "at an 8-Mpixel print",
+            "clipped after M",
+            "superpixel",
+            "cs_luminance_mtf",
+        ],
+        # CCM noise gains, CS histograms (cube and clipped), capacities by definition
+        3,
+    ),
     "paper_reproduction.ipynb": (
         90,
         [

@@ -179,6 +179,8 @@ def ccm_from_spectral(
     ill_sd = colour.SDS_ILLUMINANTS[illuminant].copy().align(shape)
     training, train_name = _training(reflectances, shape)
     rgb, rgb_w = training_data_sds_to_RGB(training, sens, ill_sd)
+    white = (np.asarray(ill_sd.values, float) @ np.asarray(sens.values, float)) * rgb_w  # equal in R, G, B
+    rgb = rgb / white[1]  # a perfect white → (1, 1, 1), as the target's white
     cmfs = colour.MSDS_CMFS["CIE 1931 2 Degree Standard Observer"].copy().align(shape)
     xyz = colour.msds_to_XYZ(training, cmfs, ill_sd, method="Integration", shape=shape) / 100.0
     xy_ill = colour.XYZ_to_xy(colour.sd_to_XYZ(ill_sd, cmfs, method="Integration") / 100.0)

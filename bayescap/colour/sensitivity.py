@@ -10,7 +10,10 @@ Gb, so ``σ_G² = (σ_Gr² + σ_Gb²)/4`` at a common signal), ``W = diag(wb_gai
 in ``2^out_bits`` levels from 0 to its white, the image under ``A`` of the brightest neutral no raw
 channel clips (``L_w = min_c w_c·clip_c``), so that ``D = diag(2^out_bits / (L_w·(M·1)_i))``. This
 is the monochrome convention of :mod:`bayescap.physics.capacity` (``S_max/256`` per grey level)
-applied to each output channel; like ``b′ ≤ 8``, CS is at most ``3·out_bits`` with the floor.
+applied to each output channel. CS is at most log₂ of the domain's output volume in levels:
+``3·out_bits`` when the colours are clipped to ``[0, white]`` after M (``clip_output=True``); over
+the raw cube it can exceed that, since the white-balanced raw channels reach beyond white (every
+channel but the first to clip) and M enlarges the volume by |det M|.
 
 How it is evaluated (exactly, no Monte Carlo). Integrate in raw coordinates ``s`` (DN above
 black): ``dc = |det A| ds`` and ``σ̄³ = |det A|·σ_R σ_G σ_B``. Substituting each raw axis by its
@@ -283,7 +286,7 @@ def colour_sensitivity(
         "ccm_uncertain": bool(np.ndim(ccm) == 3),
         "wb_uncertain": bool(np.ndim(wb_gains) == 2),
         "n_grid": int(n_grid),
-        "max_bits": 3 * out_bits if floor else None,
+        "max_bits": 3 * out_bits if (floor and clip_output) else None,
     }
     return ColourSensitivity(bits=bits, choices=choices)
 
