@@ -142,7 +142,7 @@ Truth inside the 95 % intervals (target ≥ 92 %):
 CS 95 % interval width: median {np.median(widths):.3f} bits (min {np.min(widths):.3f}); with the CCM's
 bootstrap draws: median {np.median(widths_unc):.3f} bits (over the raw cube the CCM enters only through
 the floor: its Jacobian cancels); with clipping after M (output volume fixed): median
-{np.median(widths_clip):.3f} bits. CS costs {np.median(t_cs):.2f} s per 1000 draws (n_grid 48, median).
+{np.median(widths_clip):.3f} bits. CS costs {np.median(t_cs):.2f} s per 1000 draws (default n_grid, median over the cameras; machine shared).
 
 Spectral CCMs (ColorChecker N Ohta → linear sRGB):
 {chr(10).join(ccm_lines)}

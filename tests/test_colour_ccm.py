@@ -138,3 +138,38 @@ def test_low_light_iso_interpolates_in_log_iso_and_reports_limits():
     assert r2["summary"]["limit"].startswith("> ISO 800")
     with pytest.raises(ValueError, match="increasing"):
         low_light_iso(iso[::-1], m, 30.0)
+
+
+def test_low_light_iso_from_a_simulated_gain_series():
+    """Three gains of one simulated sensor: SNR at 18 % grey and DR fall with gain; the ISO where
+    they cross their thresholds lies between the settings whose medians bracket them."""
+    from bayescap.colour.scores import gain_series_scores
+    from bayescap.simulate import SensorTruth
+    from bayescap.studies.gain_series import fit_gain_series, simulate_gain_series
+
+    truth = SensorTruth(conversion_gain_e_per_dn=4.0, read_noise_e=3.0, full_well_e=12000.0, prnu_frac=0.01)
+    md = {"pixel_pitch_um": 2.0, "adc_bits": 12, "black_level_dn": 64.0}
+    datas, _ = simulate_gain_series(
+        truth,
+        [1.0, 4.0, 16.0],
+        read_noise_pre_e=2.5,
+        read_noise_post_dn=1.5,
+        seed=3,
+        metadata=md,
+        n_levels=14,
+        shape=(60, 60),
+        spatial_frames=4,
+        spatial_every=4,
+    )
+    series = fit_gain_series(datas, seed=0)
+    out = gain_series_scores(series, n_draws=400)
+    assert out["iso"] == [100.0, 400.0, 1600.0] and "assumed" in out["iso_note"]
+    for name in ("snr_18_db", "dynamic_range_ev"):
+        med = out[name]["per_setting_median"]
+        assert med[0] > med[1] > med[2]
+        if out[name]["median"] is not None:
+            th = out[name]["threshold"]
+            i = next(k for k in range(2) if med[k] > th >= med[k + 1])
+            assert out["iso"][i] <= out[name]["median"] <= out["iso"][i + 1]
+        else:
+            assert "limit" in out[name]

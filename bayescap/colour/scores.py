@@ -27,6 +27,7 @@ __all__ = [
     "snr_18_db",
     "low_light_iso",
     "var_coeffs_from_fit",
+    "gain_series_scores",
 ]
 
 PRINT_PIXELS = 8e6
@@ -127,3 +128,40 @@ def var_coeffs_from_fit(result, idx=None):
     a = np.broadcast_to(coeffs.a, k.shape) / k**2
     c = np.broadcast_to(coeffs.c, k.shape)
     return np.stack([a, np.broadcast_to(coeffs.b, k.shape) / k, c], axis=1), np.asarray(s_max_e) / k, bool(lower)
+
+
+def gain_series_scores(
+    series, iso=None, *, iso_per_unit_gain: float = 100.0, cs_draws=None, n_draws: int = 1000
+) -> dict:
+    """Low-light ISO from a gain series: one fit per ISO setting.
+
+    ``series``: a :class:`bayescap.studies.gain_series.GainSeries` (``.gains``, ``.results``) or a
+    list of fits sorted by gain (then give ``iso``). ``iso``: the ISO of each setting; default
+    ``iso_per_unit_gain × analog gain`` (stated in the result: an ISO is a camera's exposure scale,
+    which photon-transfer data do not carry). ``cs_draws``: optional (n_settings, n) CS draws per
+    setting (e.g. from the CFA channels' fits at each ISO) for the CS-to-18-bits criterion.
+    Returns per criterion :func:`low_light_iso`'s summary plus the per-setting medians."""
+    results = list(getattr(series, "results", series))
+    if iso is None:
+        gains = getattr(series, "gains", None)
+        if gains is None:
+            raise ValueError("give iso=[...] for a list of fits (a GainSeries carries its gains)")
+        iso = iso_per_unit_gain * np.asarray(gains, float)
+        iso_note = f"ISO = {iso_per_unit_gain:g} × analog gain (assumed)"
+    else:
+        iso_note = "ISO as given"
+    iso = np.asarray(iso, float)
+    snr, dr = [], []
+    for r in results:
+        co, clip, _ = var_coeffs_from_fit(r, r.thin_index(n_draws))
+        snr.append(snr_18_db(co, clip)[:n_draws])
+        dr.append(dynamic_range_ev(co, clip)[:n_draws])
+    n = min(len(x) for x in snr)
+    metrics = {"snr_18_db": np.array([x[:n] for x in snr]), "dynamic_range_ev": np.array([x[:n] for x in dr])}
+    if cs_draws is not None:
+        metrics["colour_depth_bits"] = np.asarray(cs_draws, float)
+    out = {"iso": iso.tolist(), "iso_note": iso_note, "definition": SCORE_DEFINITIONS["low_light_iso"]}
+    for name, m in metrics.items():
+        res = low_light_iso(iso, m, LOW_LIGHT_THRESHOLDS[name])
+        out[name] = {**res["summary"], "per_setting_median": np.median(m, axis=1).tolist()}
+    return out

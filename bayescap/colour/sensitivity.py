@@ -57,7 +57,7 @@ CS_DEFINITION = (
     "log2 ∫ dc / max(1, det(Σ_out)^(1/6))^3 over the reachable colours, Σ_out = D M W Σ_raw W M' D' "
     "(G = mean of Gr and Gb; D: each output channel in 2^out_bits levels from 0 to white)"
 )
-_DRAW_CHUNK = 64
+_DRAW_CHUNK = 256
 
 
 @dataclass(frozen=True)
@@ -170,14 +170,14 @@ def _interval_b(coef_r, coef_g, coef_b, rhs, s_r, s_g, lo, hi):
     return lo, np.maximum(hi, lo)
 
 
-def _cs_chunk(rgb, clip3, ccm, wb, floor, n_levels, clip_output, cone, n_grid, lower):
+def _cs_chunk(rgb, clip3, ccm, wb, floor, n_levels, clip_output, cone, nodes, lower):
     n = rgb.shape[0]
     a, b, c = rgb[..., 0], rgb[..., 1], rgb[..., 2]  # (n, 3)
     lo = np.sqrt(a) if lower == "dark_noise" else np.zeros_like(a)
     lo = np.minimum(lo, clip3)
     t_max = integral_inv_sqrt_quadratic(a, b, c, lo, clip3)  # (n, 3): each channel's TR, no floor
-    x, w = np.polynomial.legendre.leggauss(n_grid)
-    u, wu = 0.5 * (x + 1.0), 0.5 * w
+    u, wu = nodes
+    n_grid = u.size
     # nodes per draw on the R and G axes
     tr = t_max[:, 0, None] * u  # (n, p)
     tg = t_max[:, 1, None] * u
@@ -228,7 +228,7 @@ def colour_sensitivity(
     domain="cube",
     floor: bool = True,
     out_bits: int = 8,
-    n_grid: int = 48,
+    n_grid: int = 32,
     clip_output: bool = False,
     lower: str = "dark_noise",
     colour_space: str = "as given by the CCM",
@@ -269,10 +269,12 @@ def colour_sensitivity(
         cone = _cone_halfspaces(domain)
         domain_desc = f"the raw cube ∩ the cone of {np.shape(domain)[0]} reflectance responses"
     n_levels = float(2**out_bits)
+    x, w = np.polynomial.legendre.leggauss(int(n_grid))
+    nodes = (0.5 * (x + 1.0), 0.5 * w)  # on [0, 1]
     bits = np.empty(n)
     for i in range(0, n, _DRAW_CHUNK):
         sl = slice(i, i + _DRAW_CHUNK)
-        bits[sl] = _cs_chunk(rgb[sl], clip3[sl], ccm_d[sl], wb_d[sl], floor, n_levels, clip_output, cone, n_grid, lower)
+        bits[sl] = _cs_chunk(rgb[sl], clip3[sl], ccm_d[sl], wb_d[sl], floor, n_levels, clip_output, cone, nodes, lower)
     choices = {
         "definition": CS_DEFINITION,
         "colour_space": colour_space,
@@ -292,7 +294,7 @@ def colour_sensitivity(
 
 
 def colour_sensitivity_bits(
-    var_coeffs_dn2, clip_dn, ccm, wb_gains, *, domain="cube", floor=True, out_bits=8, n_grid=48, **kw
+    var_coeffs_dn2, clip_dn, ccm, wb_gains, *, domain="cube", floor=True, out_bits=8, n_grid=32, **kw
 ):
     """CS draws (bits), shape (n_draws,): :func:`colour_sensitivity`'s ``.bits`` (its ``.choices``
     state the definition, domain, floor and grid)."""
