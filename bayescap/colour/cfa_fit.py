@@ -193,7 +193,12 @@ class CFAFit:
             "seconds": self.seconds,
             "shared": shared,
             "joint": block(self.draws),
-            "separate": block(self.separate),
+            "separate": {
+                c: {n: v for n, v in self.results[c].parameter_summary().items() if n in _PARAMETER_UNITS}
+                for c in self.channels
+            }
+            if self.results
+            else block(self.separate),
             "separate_converged": {c: bool(r.diag.get("converged")) for c, r in self.results.items()},
             "k_check": dict(self.k_check),
             "consistency": dict(self.consistency),
@@ -325,7 +330,19 @@ def fit_cfa(tables: dict[str, PTCData], *, seed: int = 0, quality: str = "fast",
             "channel scaling in the RAW, crosstalk or a wrong black level; the shared K describes none of them, "
             "read the separate fits"
         )
+    summaries = {c: results[c].parameter_summary() for c in channels}
     every = [c for c in SHARED_COORDS if all(c in m.idx for m in models)]
+    # a coordinate some channel's data leave unconstrained (an upper limit) is not combined: the
+    # product of prior-dominated marginals would pass for a measurement
+    loose = [
+        c for c in every if any(not summaries[ch].get(SHARED_NAMES[c], {}).get("constrained", True) for ch in channels)
+    ]
+    for c in loose:
+        notes.append(
+            f"{SHARED_NAMES[c]} is not combined across the channels: the data leave it unconstrained "
+            "(an upper limit) in at least one channel; each channel keeps its own"
+        )
+    every = [c for c in every if c not in loose]
     some_clip = "clip_dn" not in every and any("clip_dn" in m.idx for m in models)
     shared = every + (["clip_dn"] if some_clip else [])
     consistency = {}
@@ -370,3 +387,65 @@ def fit_cfa(tables: dict[str, PTCData], *, seed: int = 0, quality: str = "fast",
         results=results,
         notes=notes,
     )
+
+
+#: the scores' and capacities' definitions, printed with them
+DEFINITIONS = {
+    "colour_depth_bits": "colour depth: CS at this gain (DxOMark's Portrait score is its maximum at base ISO)",
+    "colour_depth_8mp_bits": "colour depth normalised to an 8-Mpixel print: CS + 3 x 0.5 x log2(N / 8e6) "
+    "(+0.5 bit per channel per doubling of the pixel count N, as DxOMark does)",
+    "dynamic_range_ev": "dynamic range of the green channel in EV: log2(clip / dark noise), "
+    "both in DN above black (Eq. 2 in stops)",
+    "capacity_superpixel_bits": "colour capacity of the super-pixels: CS x N/4 (N pixels, one RGGB quad per colour sample)",
+}
+
+
+def colour_summary(
+    fit: CFAFit,
+    ccm,
+    wb_gains,
+    *,
+    exposure_time_s: float,
+    n_pixels_sensor: float | None,
+    domain="cube",
+    floor: bool = True,
+    out_bits: int = 8,
+) -> dict:
+    """CS per joint draw and what follows from it, as the ``colour`` JSON block's numbers.
+
+    ``ccm``: a :class:`bayescap.colour.ccm.CCM` (its draws carry the matrix's stated
+    uncertainty); ``wb_gains``: (3,) R, G, B; ``n_pixels_sensor``: the sensor's pixel count N
+    (``None``: no capacity, no print normalisation).
+    """
+    from bayescap.colour.sensitivity import colour_sensitivity
+
+    n = fit.n_draws
+    coeffs = fit.var_coeffs_dn2(exposure_time_s)
+    clip = fit.clip_signal_dn()
+    cs = colour_sensitivity(
+        coeffs, clip, ccm.as_draws(n, seed=fit.seed), wb_gains, domain=domain, floor=floor, out_bits=out_bits
+    )
+    cs_nofloor = colour_sensitivity(coeffs, clip, ccm.matrix, wb_gains, domain=domain, floor=False, out_bits=out_bits)
+    g = fit.channels.index("Gr")
+    dr_ev = np.log2(clip[:, g] / np.sqrt(coeffs[:, g, 0]))
+    out = {
+        "cs_bits": summarize(cs.bits, "bits"),
+        "cs_no_floor_bits": summarize(cs_nofloor.bits, "bits"),
+        "choices": {
+            **cs.choices,
+            "exposure_time_s": float(exposure_time_s),
+            "wb_gains": np.asarray(wb_gains, float).tolist(),
+        },
+        "scores": {
+            "colour_depth_bits": summarize(cs.bits, "bits"),
+            "dynamic_range_ev": summarize(dr_ev, "EV"),
+        },
+        "capacity": {},
+        "definitions": dict(DEFINITIONS),
+    }
+    if n_pixels_sensor:
+        npx = float(n_pixels_sensor)
+        out["scores"]["colour_depth_8mp_bits"] = summarize(cs.bits + 1.5 * np.log2(npx / 8e6), "bits")
+        out["capacity"]["capacity_superpixel_bits"] = summarize(cs.bits * npx / 4.0, "bits")
+        out["n_pixels_sensor"] = npx
+    return out
