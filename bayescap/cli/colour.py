@@ -133,20 +133,21 @@ def _colour_inputs(args):
     from bayescap.colour.raw_metadata import parse_ccm, read_raw_colour
     from bayescap.io.cfa import load_cfa
 
+    if not (0.0 <= args.ccm_rel_sd < 1.0):
+        raise InputError(f"--ccm-rel-sd must be in [0, 1), got {args.ccm_rel_sd:g}")
+    given = parse_ccm(args.ccm) if args.ccm is not None else None  # before the frames are read
     cfa = load_cfa(args.inputs, roi=args.roi, fmt=args.format)
     raw_colour = None
     if cfa.first_frame is not None and cfa.first_frame.suffix.lower() not in (".png", ".tif", ".tiff", ".npy"):
         raw_colour = read_raw_colour(cfa.first_frame)
-    if args.ccm is not None:
-        matrix, source, rc = parse_ccm(args.ccm)
+    if given is not None:
+        matrix, source, rc = given
         raw_colour = rc or raw_colour
     elif raw_colour is not None and raw_colour.ccm is not None:
         matrix, source = raw_colour.ccm, raw_colour.ccm_source
     else:
         where = raw_colour.path if raw_colour is not None else cfa.source
         raise InputError(f"{where}: no colour-correction matrix in the metadata; give --ccm FILE or 9 numbers")
-    if not (0.0 <= args.ccm_rel_sd < 1.0):
-        raise InputError(f"--ccm-rel-sd must be in [0, 1), got {args.ccm_rel_sd:g}")
     try:
         ccm = ccm_from_matrix(
             matrix, source=source, rel_sd=args.ccm_rel_sd, n_draws=4000 if args.ccm_rel_sd else None, seed=args.seed
