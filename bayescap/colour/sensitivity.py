@@ -1,0 +1,298 @@
+"""Colour sensitivity (CS): the log₂ of the number of colours a camera distinguishes up to its noise.
+
+DxOMark's definition, written in the paper's Eq. 7 form: over the reachable colour volume V,
+
+    CS = log₂ ∫_V dc / max(1, σ̄(c))³,    σ̄ = (det Σ_out)^{1/6},    Σ_out = A Σ_raw Aᵀ,  A = D M W,
+
+with ``Σ_raw = diag(σ_R², σ_G², σ_B²)`` the raw noise (independent pixels; G the average of Gr and
+Gb, so ``σ_G² = (σ_Gr² + σ_Gb²)/4`` at a common signal), ``W = diag(wb_gains)`` the white balance,
+``M`` the colour-correction matrix and ``D`` the 8-bit-equivalent grid: output channel i is counted
+in ``2^out_bits`` levels from 0 to its white, the image under ``A`` of the brightest neutral no raw
+channel clips (``L_w = min_c w_c·clip_c``), so that ``D = diag(2^out_bits / (L_w·(M·1)_i))``. This
+is the monochrome convention of :mod:`bayescap.physics.capacity` (``S_max/256`` per grey level)
+applied to each output channel; like ``b′ ≤ 8``, CS is at most ``3·out_bits`` with the floor.
+
+How it is evaluated (exactly, no Monte Carlo). Integrate in raw coordinates ``s`` (DN above
+black): ``dc = |det A| ds`` and ``σ̄³ = |det A|·σ_R σ_G σ_B``. Substituting each raw axis by its
+noise-equalised coordinate ``t_c = ∫ ds_c / σ_c`` (the tonal range integral of Eq. 7 without the
+floor) the integrand becomes ``min(1, σ̄³)``, and along the B axis the integral is Eq. 7's closed
+form with a floor ``1/k``, ``k = |det A|·σ_R·σ_G``:
+
+    ∫ ds_B |det A| / max(1, k σ_B) = ∫ ds_B / max(σ_B, 1/k)
+
+(:func:`bayescap.physics.capacity.integral_inv_sqrt_quadratic`). The remaining (t_R, t_G) plane is
+integrated by Gauss-Legendre quadrature (``n_grid`` nodes per axis). Consequences, which the tests
+hold the code to: without the floor and over the full cube the integrand is 1 and CS is exactly
+``Σ_c log₂ TR_c`` (the three channels' tonal ranges without the floor); an invertible M or W then
+changes nothing (the Jacobian cancels); only the floor, clipping after M and the domain move CS.
+
+Domains. ``"cube"``: every raw triple in ``[σ_c(0), clip_c]`` (the dark noise floor to the clip, the
+dynamic range of Eq. 2 per channel). A reflectance set: an ``(n, 3)`` array of raw R, G, B responses
+(e.g. :func:`bayescap.colour.spectral.reflectance_domain`); the domain is the cube ∩ the convex cone
+they span (every exposure of every mixture of those colours). ``clip_output=True`` also drops the
+colours that leave ``[0, white]`` after M (out of gamut / clipped in the output).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from bayescap.physics.capacity import integral_inv_sqrt_quadratic
+
+__all__ = [
+    "ColourSensitivity",
+    "colour_sensitivity",
+    "colour_sensitivity_bits",
+    "raw_rgb_coefficients",
+    "CS_DEFINITION",
+]
+
+CS_DEFINITION = (
+    "colour sensitivity CS = log2 of the number of colours distinguishable up to noise, "
+    "log2 ∫ dc / max(1, det(Σ_out)^(1/6))^3 over the reachable colours, Σ_out = D M W Σ_raw W M' D' "
+    "(G = mean of Gr and Gb; D: each output channel in 2^out_bits levels from 0 to white)"
+)
+_DRAW_CHUNK = 64
+
+
+@dataclass(frozen=True)
+class ColourSensitivity:
+    """CS per draw (bits) and the choices it was computed with."""
+
+    bits: np.ndarray
+    choices: dict = field(default_factory=dict)
+
+    def __array__(self, dtype=None, copy=None):
+        return np.asarray(self.bits, dtype=dtype)
+
+    def __len__(self):
+        return len(self.bits)
+
+
+def raw_rgb_coefficients(var_coeffs_dn2, clip_dn):
+    """R, G, B noise coefficients (n, 3, 3) and clip levels (n, 3) from R, Gr, Gb, B ones.
+
+    G is the average of Gr and Gb at a common signal: its variance is ``(σ_Gr² + σ_Gb²)/4``
+    (independent pixels) and it clips where the first of the two clips."""
+    v = np.asarray(var_coeffs_dn2, float)
+    if v.ndim == 2:
+        v = v[None]
+    if v.ndim != 3 or v.shape[1:] != (4, 3):
+        raise ValueError(f"var_coeffs_dn2 must have shape (n_draws, 4, 3) (R, Gr, Gb, B × c0, c1, c2), got {v.shape}")
+    n = v.shape[0]
+    clip = np.asarray(clip_dn, float)
+    if clip.ndim == 0:
+        clip = np.full((n, 4), float(clip))
+    elif clip.ndim == 1:
+        if clip.shape[0] != n:
+            raise ValueError(f"clip_dn must have shape (n_draws, 4) or (n_draws,), got {clip.shape}")
+        clip = np.repeat(clip[:, None], 4, axis=1)
+    if clip.shape != (n, 4):
+        raise ValueError(f"clip_dn must have shape (n_draws, 4) or (n_draws,), got {np.shape(clip_dn)}")
+    if not (np.all(np.isfinite(v)) and np.all(np.isfinite(clip))):
+        raise ValueError("var_coeffs_dn2 and clip_dn must be finite")
+    if np.any(v[..., 0] <= 0) or np.any(v[..., 1:] < 0) or np.any(clip <= 0):
+        raise ValueError("need c0 > 0, c1 ≥ 0, c2 ≥ 0 and clip_dn > 0 in every draw and channel")
+    rgb = np.stack([v[:, 0], (v[:, 1] + v[:, 2]) / 4.0, v[:, 3]], axis=1)
+    clip3 = np.stack([clip[:, 0], np.minimum(clip[:, 1], clip[:, 2]), clip[:, 3]], axis=1)
+    return rgb, clip3
+
+
+def _per_draw(x, n, shape, name):
+    x = np.asarray(x, float)
+    if x.shape == shape:
+        x = np.broadcast_to(x, (n, *shape))
+    if x.shape != (n, *shape):
+        raise ValueError(f"{name} must have shape {shape} or (n_draws, *{shape}), got {np.shape(x)}")
+    if not np.all(np.isfinite(x)):
+        raise ValueError(f"{name} must be finite")
+    return x
+
+
+def _inverse_tonal(a, b, c, lo, t):
+    """s ≥ lo with ∫_lo^s dS/√(a + bS + cS²) = t (vectorised; t ≥ 0). Newton from the c = 0
+    solution, which lies left of the root (F is concave and c only slows it), so the iteration
+    increases monotonically to the root."""
+    q_lo = a + b * lo + c * lo * lo
+    r_lo = np.sqrt(q_lo)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        s0 = np.where(b > 0, lo + (r_lo * t + b * t * t / 4.0), lo + r_lo * t)
+    s = s0
+    for _ in range(60):
+        f = integral_inv_sqrt_quadratic(a, b, c, lo, s)
+        step = (t - f) * np.sqrt(a + b * s + c * s * s)
+        s = s + np.maximum(step, 0.0)
+        if np.all(np.abs(step) <= 1e-13 * np.maximum(s, 1.0)):
+            break
+    return s
+
+
+def _cone_halfspaces(directions):
+    """Normals n_k (m, 3) with n_k·s ≥ 0 exactly on the convex cone spanned by ``directions``."""
+    from scipy.spatial import ConvexHull
+
+    d = np.asarray(directions, float)
+    if d.ndim != 2 or d.shape[1] != 3 or d.shape[0] < 3 or not np.all(np.isfinite(d)):
+        raise ValueError("a reflectance domain needs (n ≥ 3, 3) finite raw R, G, B responses")
+    if np.any(d < 0) or np.any(d.sum(axis=1) <= 0):
+        raise ValueError("raw responses must be ≥ 0 and not all zero")
+    chroma = d / d.sum(axis=1, keepdims=True)
+    hull = ConvexHull(chroma[:, :2])
+    centre = d[hull.vertices].mean(axis=0)
+    normals = []
+    for i, j in hull.simplices:
+        nvec = np.cross(d[i], d[j])
+        if nvec @ centre < 0:
+            nvec = -nvec
+        normals.append(nvec / np.linalg.norm(nvec))
+    return np.array(normals)
+
+
+def _interval_b(coef_r, coef_g, coef_b, rhs, s_r, s_g, lo, hi):
+    """Tighten [lo, hi] on s_B by the constraints coef_r·s_R + coef_g·s_G + coef_b·s_B ≥ rhs.
+
+    coef_*: (n, m); rhs: (n, m); s_r, s_g: (n, p, p); lo, hi: (n, p, p)."""
+    for j in range(coef_r.shape[1]):
+        cr = coef_r[:, j, None, None]
+        cg = coef_g[:, j, None, None]
+        cb = coef_b[:, j, None, None]
+        rest = rhs[:, j, None, None] - cr * s_r - cg * s_g
+        with np.errstate(divide="ignore", invalid="ignore"):
+            bound = rest / cb
+        lo = np.where(cb > 0, np.maximum(lo, bound), lo)
+        hi = np.where(cb < 0, np.minimum(hi, bound), hi)
+        hi = np.where((cb == 0) & (rest > 0), lo, hi)  # violated whatever s_B is: empty
+    return lo, np.maximum(hi, lo)
+
+
+def _cs_chunk(rgb, clip3, ccm, wb, floor, n_levels, clip_output, cone, n_grid, lower):
+    n = rgb.shape[0]
+    a, b, c = rgb[..., 0], rgb[..., 1], rgb[..., 2]  # (n, 3)
+    lo = np.sqrt(a) if lower == "dark_noise" else np.zeros_like(a)
+    lo = np.minimum(lo, clip3)
+    t_max = integral_inv_sqrt_quadratic(a, b, c, lo, clip3)  # (n, 3): each channel's TR, no floor
+    x, w = np.polynomial.legendre.leggauss(n_grid)
+    u, wu = 0.5 * (x + 1.0), 0.5 * w
+    # nodes per draw on the R and G axes
+    tr = t_max[:, 0, None] * u  # (n, p)
+    tg = t_max[:, 1, None] * u
+    s_r = _inverse_tonal(a[:, :1], b[:, :1], c[:, :1], lo[:, :1], tr)
+    s_g = _inverse_tonal(a[:, 1:2], b[:, 1:2], c[:, 1:2], lo[:, 1:2], tg)
+    sig_r = np.sqrt(a[:, :1] + b[:, :1] * s_r + c[:, :1] * s_r**2)
+    sig_g = np.sqrt(a[:, 1:2] + b[:, 1:2] * s_g + c[:, 1:2] * s_g**2)
+    # output scale: white = L_w · (M·1), L_w = min_c w_c clip_c
+    l_w = np.min(wb * clip3, axis=1)  # (n,)
+    m1 = ccm.sum(axis=2)  # (n, 3)
+    d = n_levels / (l_w[:, None] * m1)  # (n, 3)
+    amat = d[:, :, None] * ccm * wb[:, None, :]  # A = D M W
+    det_a = np.abs(np.linalg.det(amat))  # (n,)
+    SR = s_r[:, :, None]
+    SG = s_g[:, None, :]
+    lo_b = np.broadcast_to(lo[:, 2, None, None], (n, n_grid, n_grid))
+    hi_b = np.broadcast_to(clip3[:, 2, None, None], (n, n_grid, n_grid))
+    if clip_output:
+        # 0 ≤ (A s)_i ≤ n_levels  ⇔  A_i·s ≥ 0 and −A_i·s ≥ −n_levels
+        cr = np.concatenate([amat[:, :, 0], -amat[:, :, 0]], axis=1)
+        cg = np.concatenate([amat[:, :, 1], -amat[:, :, 1]], axis=1)
+        cb = np.concatenate([amat[:, :, 2], -amat[:, :, 2]], axis=1)
+        rhs = np.concatenate([np.zeros((n, 3)), -n_levels * np.ones((n, 3))], axis=1)
+        lo_b, hi_b = _interval_b(cr, cg, cb, rhs, SR, SG, lo_b, hi_b)
+    if cone is not None:
+        m = cone.shape[0]
+        cn = np.broadcast_to(cone, (n, m, 3))
+        lo_b, hi_b = _interval_b(cn[..., 0], cn[..., 1], cn[..., 2], np.zeros((n, m)), SR, SG, lo_b, hi_b)
+    if floor:
+        k = det_a[:, None, None] * sig_r[:, :, None] * sig_g[:, None, :]
+        fl = 1.0 / k
+    else:
+        fl = 0.0
+    inner = integral_inv_sqrt_quadratic(
+        a[:, 2, None, None], b[:, 2, None, None], c[:, 2, None, None], lo_b, hi_b, floor=fl
+    )  # (n, p, p)
+    total = np.einsum("npq,p,q->n", inner, wu, wu) * t_max[:, 0] * t_max[:, 1]
+    with np.errstate(divide="ignore"):
+        return np.log2(total)
+
+
+def colour_sensitivity(
+    var_coeffs_dn2,
+    clip_dn,
+    ccm,
+    wb_gains,
+    *,
+    domain="cube",
+    floor: bool = True,
+    out_bits: int = 8,
+    n_grid: int = 48,
+    clip_output: bool = False,
+    lower: str = "dark_noise",
+    colour_space: str = "as given by the CCM",
+) -> ColourSensitivity:
+    """Colour sensitivity per draw, with the choices it was computed with.
+
+    Parameters
+    ----------
+    var_coeffs_dn2 : (n_draws, 4, 3): per channel R, Gr, Gb, B the raw variance
+        ``σ²(S) = c0 + c1·S + c2·S²`` (DN²) at raw signal S (DN above black).
+    clip_dn : (n_draws, 4) or (n_draws,): the raw clip level (DN above black).
+    ccm : (3, 3) raw white-balanced RGB → output colour space, or (n_draws, 3, 3).
+    wb_gains : (3,) or (n_draws, 3): white-balance gains of R, G, B.
+    domain : ``"cube"`` (the raw cube from each channel's dark noise floor to its clip) or an
+        ``(n, 3)`` array of raw R, G, B responses of a reflectance set (the cube ∩ their cone).
+    floor : Eq. 7's ``max(σ̄, 1)`` on the ``2^out_bits``-level grid (False: no floor).
+    clip_output : drop the colours that leave ``[0, white]`` in the output after M.
+    lower : ``"dark_noise"`` (each raw axis starts at σ_c(0), as Eq. 2/7) or ``"zero"``.
+    n_grid : Gauss-Legendre nodes per axis on the (t_R, t_G) plane (the B axis is exact).
+    """
+    rgb, clip3 = raw_rgb_coefficients(var_coeffs_dn2, clip_dn)
+    n = rgb.shape[0]
+    ccm_d = _per_draw(ccm, n, (3, 3), "ccm")
+    wb_d = _per_draw(wb_gains, n, (3,), "wb_gains")
+    if np.any(wb_d <= 0):
+        raise ValueError("wb_gains must be positive")
+    if np.any(np.abs(np.linalg.det(ccm_d)) <= 1e-12 * np.max(np.abs(ccm_d), axis=(1, 2)) ** 3):
+        raise ValueError("the colour-correction matrix is singular (or nearly) in some draw")
+    if np.any(ccm_d.sum(axis=2) <= 0):
+        raise ValueError("the colour-correction matrix maps white to a non-positive output (a row sum ≤ 0)")
+    if lower not in ("dark_noise", "zero"):
+        raise ValueError(f"lower must be 'dark_noise' or 'zero', got {lower!r}")
+    if isinstance(domain, str):
+        if domain != "cube":
+            raise ValueError(f"domain must be 'cube' or an (n, 3) array of raw responses, got {domain!r}")
+        cone, domain_desc = None, "the full raw cube (each channel from its dark noise floor to its clip)"
+    else:
+        cone = _cone_halfspaces(domain)
+        domain_desc = f"the raw cube ∩ the cone of {np.shape(domain)[0]} reflectance responses"
+    n_levels = float(2**out_bits)
+    bits = np.empty(n)
+    for i in range(0, n, _DRAW_CHUNK):
+        sl = slice(i, i + _DRAW_CHUNK)
+        bits[sl] = _cs_chunk(rgb[sl], clip3[sl], ccm_d[sl], wb_d[sl], floor, n_levels, clip_output, cone, n_grid, lower)
+    choices = {
+        "definition": CS_DEFINITION,
+        "colour_space": colour_space,
+        "domain": domain_desc,
+        "lower_end": "dark noise floor σ(0)" if lower == "dark_noise" else "zero signal",
+        "floor": f"max(σ̄, 1) on a {int(n_levels)}-level ({out_bits}-bit-equivalent) grid per output channel"
+        if floor
+        else "none",
+        "clip_output": bool(clip_output),
+        "green": "G = mean of Gr and Gb at a common signal (variance (σ_Gr² + σ_Gb²)/4)",
+        "ccm_uncertain": bool(np.ndim(ccm) == 3),
+        "wb_uncertain": bool(np.ndim(wb_gains) == 2),
+        "n_grid": int(n_grid),
+        "max_bits": 3 * out_bits if floor else None,
+    }
+    return ColourSensitivity(bits=bits, choices=choices)
+
+
+def colour_sensitivity_bits(
+    var_coeffs_dn2, clip_dn, ccm, wb_gains, *, domain="cube", floor=True, out_bits=8, n_grid=48, **kw
+):
+    """CS draws (bits), shape (n_draws,): :func:`colour_sensitivity`'s ``.bits`` (its ``.choices``
+    state the definition, domain, floor and grid)."""
+    return colour_sensitivity(
+        var_coeffs_dn2, clip_dn, ccm, wb_gains, domain=domain, floor=floor, out_bits=out_bits, n_grid=n_grid, **kw
+    ).bits
