@@ -228,9 +228,9 @@ def test_colour_command_json_and_files(colour_json):
         assert key in c["cs_bits"]
     lo, hi = c["cs_bits"]["ci95"]
     assert 0 < hi - lo and lo < c["cs_bits"]["median"] < hi <= 24  # at most 3 x 8 bits with the floor
-    assert set(c["scores"]) >= {"colour_depth_bits", "dynamic_range_ev", "colour_depth_8mp_bits"}
-    assert "capacity_superpixel_bits" in c["capacity"]
-    assert c["capacity"]["capacity_superpixel_bits"]["median"] == pytest.approx(
+    assert set(c["scores"]) >= {"colour_depth_bits", "colour_depth_print_bits", "dynamic_range_ev_Gr", "snr_18_db_B"}
+    assert set(c["capacity"]) == {"superpixel", "per_channel", "cs_luminance_mtf"}
+    assert c["capacity"]["superpixel"]["median"] == pytest.approx(
         c["cs_bits"]["median"] * 48 * 48 / 4, rel=1e-3
     )
     # the matrix rows and the white balance read back from the DNGs, to 1e-4

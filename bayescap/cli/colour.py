@@ -18,7 +18,7 @@ from pathlib import Path
 
 import numpy as np
 
-from bayescap.cli.common import EXIT_FAILURE, EXIT_INPUT, seed_arg
+from bayescap.cli.common import _OVERRIDE_KEYS, EXIT_FAILURE, EXIT_INPUT, _add_metadata_overrides, seed_arg
 from bayescap.exceptions import InputError
 
 __all__ = ["add_colour_arguments", "run_colour", "register", "colour_text"]
@@ -75,12 +75,9 @@ def add_colour_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument(
         "--exposure-s", type=float, default=None, help="exposure time of the scene (default: the median unclipped one)"
     )
-    p.add_argument(
-        "--width-px", type=int, default=None, help="sensor width in pixels (for the capacity; default the frames')"
-    )
-    p.add_argument("--height-px", type=int, default=None, help="sensor height in pixels")
     p.add_argument("--json", action="store_true", help="print the result as JSON (a 'colour' block)")
     p.add_argument("--out", metavar="DIR", default=None, help="also write colour.json and colour.txt into DIR")
+    _add_metadata_overrides(p)  # the sensor's size and optics: the capacities and the print normalisation
 
 
 def _wb_from_flats(tables) -> np.ndarray:
@@ -170,11 +167,17 @@ def colour_text(doc: dict) -> str:
     lines = [f"bayescap colour: {doc['input']}  (medians, 95 % credible intervals)", ""]
     lines.append(f"Colour sensitivity CS      {iv(c['cs_bits'])}")
     lines.append(f"  without the floor        {iv(c['cs_no_floor_bits'])}")
+    per_channel: dict = {}
     for k, v in c["scores"].items():
-        if k != "colour_depth_bits":
+        base, _, ch = k.rpartition("_")
+        if ch in ("R", "Gr", "Gb", "B"):
+            per_channel.setdefault(base, []).append(f"{ch} {iv(v)}")
+        elif k != "colour_depth_bits":
             lines.append(f"  {k:<24} {iv(v)}")
+    for base, items in per_channel.items():
+        lines.append(f"  {base:<24} " + ";  ".join(items))
     for k, v in c["capacity"].items():
-        lines.append(f"  {k:<24} {iv(v, '{:.5g}')}")
+        lines.append(f"  capacity {k:<15} {iv(v, '{:.5g}')}")
     ccm = c["ccm"]
     lines += ["", f"CCM ({ccm['source']}; uncertainty {ccm['uncertainty']})"]
     for row, gain in zip(ccm["matrix"], ccm["noise_gain"]):
@@ -228,19 +231,23 @@ def run_colour(args) -> int:
         return refuse(e)
     fit = fit_cfa(cfa.tables, seed=args.seed, quality=args.quality)
     md = dict(cfa.tables["Gr"].metadata)
-    width = args.width_px or md.get("width_px")
-    height = args.height_px or md.get("height_px")
+    md.update({k: getattr(args, k) for k in _OVERRIDE_KEYS if getattr(args, k, None) is not None})
+    width, height = md.get("width_px"), md.get("height_px")
     n_sensor = float(width) * float(height) if width and height else None
     t = args.exposure_s if args.exposure_s is not None else default_scene(cfa.tables["Gr"]).exposure_time_s
     summary = colour_summary(
-        fit, ccm, wb, exposure_time_s=t, n_pixels_sensor=n_sensor, floor=not args.no_floor, out_bits=args.out_bits
+        fit,
+        ccm,
+        wb,
+        exposure_time_s=t,
+        n_pixels_sensor=n_sensor,
+        metadata=md,
+        floor=not args.no_floor,
+        out_bits=args.out_bits,
     )
     summary["ccm"] = ccm.to_dict()
     summary["white_balance"] = {"gains": np.asarray(wb, float).tolist(), "source": wb_source}
     summary["cfa_fit"] = fit.to_dict()
-    summary["notes"] = (
-        [] if n_sensor else ["the sensor's pixel count is unknown: no capacity (give --width-px, --height-px)"]
-    )
     doc = {
         "bayescap_version": __version__,
         "input": " ".join(str(p) for p in args.inputs),

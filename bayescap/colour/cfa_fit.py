@@ -389,17 +389,6 @@ def fit_cfa(tables: dict[str, PTCData], *, seed: int = 0, quality: str = "fast",
     )
 
 
-#: the scores' and capacities' definitions, printed with them
-DEFINITIONS = {
-    "colour_depth_bits": "colour depth: CS at this gain (DxOMark's Portrait score is its maximum at base ISO)",
-    "colour_depth_8mp_bits": "colour depth normalised to an 8-Mpixel print: CS + 3 x 0.5 x log2(N / 8e6) "
-    "(+0.5 bit per channel per doubling of the pixel count N, as DxOMark does)",
-    "dynamic_range_ev": "dynamic range of the green channel in EV: log2(clip / dark noise), "
-    "both in DN above black (Eq. 2 in stops)",
-    "capacity_superpixel_bits": "colour capacity of the super-pixels: CS x N/4 (N pixels, one RGGB quad per colour sample)",
-}
-
-
 def colour_summary(
     fit: CFAFit,
     ccm,
@@ -407,17 +396,26 @@ def colour_summary(
     *,
     exposure_time_s: float,
     n_pixels_sensor: float | None,
+    metadata: dict | None = None,
     domain="cube",
     floor: bool = True,
     out_bits: int = 8,
 ) -> dict:
-    """CS per joint draw and what follows from it, as the ``colour`` JSON block's numbers.
+    """CS per joint draw and what follows from it: the numbers of the ``colour`` JSON block.
 
-    ``ccm``: a :class:`bayescap.colour.ccm.CCM` (its draws carry the matrix's stated
-    uncertainty); ``wb_gains``: (3,) R, G, B; ``n_pixels_sensor``: the sensor's pixel count N
-    (``None``: no capacity, no print normalisation).
+    ``ccm``: a :class:`bayescap.colour.ccm.CCM` (its draws carry the matrix's stated uncertainty);
+    ``wb_gains``: (3,) R, G, B; ``n_pixels_sensor``: the sensor's photosite count N (``None``: no
+    capacity and no print normalisation); ``metadata``: the sensor's (pixel pitch, f-number, ...),
+    for the MTF loss Δs of the capacities (:func:`bayescap.api.mtf_from_metadata`).
+    Capacities: :func:`bayescap.colour.capacity.colour_capacities`; scores:
+    :mod:`bayescap.colour.scores`. Every value is summarised over the draws (median, 68 %, 95 %).
     """
+    from bayescap.api import mtf_from_metadata
+    from bayescap.colour.capacity import colour_capacities
+    from bayescap.colour.scores import SCORE_DEFINITIONS, colour_depth, dynamic_range_ev, snr_18_db
     from bayescap.colour.sensitivity import colour_sensitivity
+    from bayescap.physics.capacity import mtf_loss_bits, tonal_range, tonal_range_bits
+    from bayescap.physics.noise import NoiseCoefficients
 
     n = fit.n_draws
     coeffs = fit.var_coeffs_dn2(exposure_time_s)
@@ -426,8 +424,7 @@ def colour_summary(
         coeffs, clip, ccm.as_draws(n, seed=fit.seed), wb_gains, domain=domain, floor=floor, out_bits=out_bits
     )
     cs_nofloor = colour_sensitivity(coeffs, clip, ccm.matrix, wb_gains, domain=domain, floor=False, out_bits=out_bits)
-    g = fit.channels.index("Gr")
-    dr_ev = np.log2(clip[:, g] / np.sqrt(coeffs[:, g, 0]))
+    notes: list = []
     out = {
         "cs_bits": summarize(cs.bits, "bits"),
         "cs_no_floor_bits": summarize(cs_nofloor.bits, "bits"),
@@ -436,16 +433,44 @@ def colour_summary(
             "exposure_time_s": float(exposure_time_s),
             "wb_gains": np.asarray(wb_gains, float).tolist(),
         },
-        "scores": {
-            "colour_depth_bits": summarize(cs.bits, "bits"),
-            "dynamic_range_ev": summarize(dr_ev, "EV"),
-        },
+        "scores": {},
         "capacity": {},
-        "definitions": dict(DEFINITIONS),
+        "definitions": dict(SCORE_DEFINITIONS),
+        "notes": notes,
     }
+    sc = out["scores"]
+    dr = dynamic_range_ev(coeffs, clip)
+    snr = snr_18_db(coeffs, clip)
+    channel_bits = tonal_range_bits(
+        tonal_range(NoiseCoefficients(a=coeffs[..., 0], b=coeffs[..., 1], c=coeffs[..., 2]), clip)
+    )
     if n_pixels_sensor:
         npx = float(n_pixels_sensor)
-        out["scores"]["colour_depth_8mp_bits"] = summarize(cs.bits + 1.5 * np.log2(npx / 8e6), "bits")
-        out["capacity"]["capacity_superpixel_bits"] = summarize(cs.bits * npx / 4.0, "bits")
+        for k, v in colour_depth(cs.bits, npx).items():
+            sc[k] = summarize(v, "bits")
+        md = dict(metadata or {})
+        mtf_notes: list = []
+        ds = float(np.median(mtf_loss_bits(mtf_from_metadata(md, notes=mtf_notes)).delta_s_bits))
+        notes += mtf_notes
+        caps = colour_capacities(cs.bits, npx, channel_bits, delta_s_channel_bits=ds, delta_s_lum_bits=ds)
+        for k, v in caps.items():
+            out["capacity"][k] = summarize(v["bits"], "bits")
+            out["definitions"][f"capacity {k}"] = v["definition"]
+        out["choices"]["delta_s_bits"] = ds
+        out["choices"]["delta_s_source"] = (
+            "the metadata's MTF (pixel aperture x diffraction lens), the same Δs for every channel and luminance"
+        )
         out["n_pixels_sensor"] = npx
+    else:
+        sc["colour_depth_bits"] = summarize(cs.bits, "bits")
+        notes.append("the sensor's pixel count is unknown: no capacity and no print normalisation")
+    for j, c in enumerate(fit.channels):
+        sc[f"dynamic_range_ev_{c}"] = summarize(dr[:, j], "EV")
+        sc[f"snr_18_db_{c}"] = summarize(snr[:, j], "dB")
+        sc[f"tonal_range_bits_{c}"] = summarize(channel_bits[:, j], "bits")
+    out["definitions"]["tonal_range_bits"] = "b' = log2 TR of each CFA channel (Eq. 7, the floor on its own 256 levels)"
+    notes.append(
+        "low-light ISO needs a gain series (one frame set per ISO; bayescap.colour.scores.low_light_iso): "
+        "not computed from one frame set"
+    )
     return out
