@@ -157,8 +157,11 @@ def _colour_inputs(args):
 
 def colour_text(doc: dict) -> str:
     """The human-readable result (what ``bayescap colour`` prints)."""
+    from bayescap.report.colour_section import limit_text
 
     def iv(s, fmt="{:.4g}"):
+        if not isinstance(s, dict) or s.get("median") is None or None in (s.get("ci95") or [None]):
+            return limit_text(s, fmt)
         lo, hi = s["ci95"]
         return f"{fmt.format(s['median'])} [{fmt.format(lo)}, {fmt.format(hi)}] {s.get('unit', '')}".rstrip()
 
@@ -281,3 +284,22 @@ def register(sub, epilog=None) -> None:
     )
     add_colour_arguments(p)
     p.set_defaults(func=run_colour)
+
+
+def add_colour_result_argument(p: argparse.ArgumentParser) -> None:
+    """``--colour FILE`` (``report``, ``datasheet``): add the colour section of a ``bayescap colour`` result."""
+    p.add_argument(
+        "--colour",
+        metavar="FILE",
+        default=None,
+        help="add a colour section: the colour.json of 'bayescap colour --out DIR' (or its --json output)",
+    )
+
+
+def colour_result_from_args(args) -> dict | None:
+    """The ``--colour`` JSON (None without it); :class:`InputError` naming the file when it is not one."""
+    if getattr(args, "colour", None) is None:
+        return None
+    from bayescap.report.colour_section import load_colour_result
+
+    return load_colour_result(args.colour)
