@@ -313,3 +313,19 @@ def test_report_refuses_a_colour_file_that_is_not_one(frame_set, tmp_path, capsy
         capsys, ["report", str(frame_set), "--colour", str(bad), "-o", str(out)], must=("bad.json", "bayescap colour")
     )
     assert not out.exists()
+
+
+def test_cs_without_floor_closed_form_matches_the_general_integral():
+    from bayescap.colour.cfa_fit import cs_without_floor
+    from bayescap.colour.sensitivity import colour_sensitivity
+
+    rng = np.random.default_rng(4)
+    n = 6
+    k = rng.uniform(0.5, 4.0, n)
+    coeffs = np.stack(
+        [np.stack([rng.uniform(1, 20, n) / k**2 + 1 / 12, 1 / k, rng.uniform(0, 1e-4, n)], axis=1)] * 4, axis=1
+    )
+    clip = rng.uniform(1000, 4000, (n, 4))
+    ccm = [[1.6, -0.5, -0.1], [-0.2, 1.5, -0.3], [0.0, -0.6, 1.6]]
+    general = colour_sensitivity(coeffs, clip, ccm, [2.0, 1.0, 1.5], floor=False).bits
+    np.testing.assert_allclose(cs_without_floor(coeffs, clip), general, atol=1e-6)
