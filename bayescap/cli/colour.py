@@ -232,6 +232,8 @@ def run_colour(args) -> int:
         cfa, ccm, wb, wb_source = _colour_inputs(args)
     except InputError as e:
         return refuse(e)
+    for kind, text in cfa.notices:  # what the ingest assumed, and what looks implausible in the tables
+        print(f"bayescap colour: {kind}: {text}", file=sys.stderr)
     fit = fit_cfa(cfa.tables, seed=args.seed, quality=args.quality)
     md = dict(cfa.tables["Gr"].metadata)
     md.update({k: getattr(args, k) for k in _OVERRIDE_KEYS if getattr(args, k, None) is not None})

@@ -41,13 +41,15 @@ class CFATables:
     """The four channels' tables of one sensor and where they came from.
 
     ``tables``: channel -> PTCData; ``source``: what was given; ``first_frame``: the first frame
-    file of a frame set (its RAW metadata hold the camera's colour matrix), ``None`` for CSVs.
+    file of a frame set (its RAW metadata hold the camera's colour matrix), ``None`` for CSVs;
+    ``notices``: the ingest's ``(kind, text)`` notes and plausibility warnings.
     """
 
     tables: dict
     source: Path
     cfa_pattern: str | None
     first_frame: Path | None = None
+    notices: tuple = ()
 
     @property
     def n_pixels(self) -> int:
@@ -71,7 +73,8 @@ def ingest_cfa(source: os.PathLike | str, *, roi=None, fmt: str = "auto") -> CFA
     frameset = load_frame_set(source, fmt=fmt)
     first = frameset.entries[0].path if frameset.entries else source
     with tempfile.TemporaryDirectory(prefix="bayescap-cfa-") as tmp:
-        paths = ingest(source, out=Path(tmp) / "ptc.csv", roi=roi, channel="all", fmt=fmt)
+        notices: list = []
+        paths = ingest(source, out=Path(tmp) / "ptc.csv", roi=roi, channel="all", fmt=fmt, notices=notices)
         if len(paths) == 1:  # a monochrome frame: ingest wrote one '# channel: mono' table
             raise IngestError(
                 "the frame has no colour filter array (a monochrome sensor): colour needs a Bayer RAW/DNG "
@@ -81,7 +84,7 @@ def ingest_cfa(source: os.PathLike | str, *, roi=None, fmt: str = "auto") -> CFA
         tables = {c: read_ptc_csv(p) for c, p in zip(CFA_CHANNELS, paths)}
     tables = {c: _named(t, f"{source.name} [{c}]") for c, t in tables.items()}
     pattern = tables["R"].metadata.get("cfa_pattern")
-    return CFATables(tables=tables, source=source, cfa_pattern=pattern, first_frame=first)
+    return CFATables(tables=tables, source=source, cfa_pattern=pattern, first_frame=first, notices=tuple(notices))
 
 
 def _named(data: PTCData, name: str) -> PTCData:
