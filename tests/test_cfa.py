@@ -329,3 +329,12 @@ def test_cs_without_floor_closed_form_matches_the_general_integral():
     ccm = [[1.6, -0.5, -0.1], [-0.2, 1.5, -0.3], [0.0, -0.6, 1.6]]
     general = colour_sensitivity(coeffs, clip, ccm, [2.0, 1.0, 1.5], floor=False).bits
     np.testing.assert_allclose(cs_without_floor(coeffs, clip), general, atol=1e-6)
+
+
+def test_channel_csvs_without_a_ccm_or_with_a_bad_wb_are_refused(frame_set, tmp_path, capsys):
+    from bayescap.io import ingest
+
+    paths = [str(p) for p in ingest(frame_set, out=tmp_path / "ptc.csv", channel="all", roi=1.0)]
+    _one_line_error(capsys, ["colour", *paths], must=("ptc_R.csv", "no colour-correction matrix", "--ccm"))
+    _one_line_error(capsys, ["colour", *paths, "--ccm", "1,0,0,0,1,0,0,0,1", "--wb", "1,2"], must=("--wb",))
+    _one_line_error(capsys, ["colour", *paths[:3], "--ccm", "1,0,0,0,1,0,0,0,1"], must=("four Bayer channels",))
