@@ -180,10 +180,15 @@ def _tables(seed, k_r=2.5):
     return out
 
 
-def test_joint_fit_holds_the_truth_and_narrows_k():
+@pytest.fixture(scope="module")
+def joint_fit():
     from bayescap.colour.cfa_fit import fit_cfa
 
-    f = fit_cfa(_tables(3), seed=5)
+    return fit_cfa(_tables(3), seed=5)
+
+
+def test_joint_fit_holds_the_truth_and_narrows_k(joint_fit):
+    f = joint_fit
     d = f.to_dict()
     assert f.converged and d["k_check"]["passed"]
     assert "conversion_gain_e_per_dn" in d["shared"] and "read_noise_e" in d["shared"]
@@ -199,6 +204,43 @@ def test_joint_fit_holds_the_truth_and_narrows_k():
     coeffs = f.var_coeffs_dn2(0.01)
     assert coeffs.shape == (f.n_draws, 4, 3)
     np.testing.assert_allclose(np.median(coeffs[:, :, 1], axis=0), 1 / 2.5, rtol=0.01)
+
+
+def test_consensus_agrees_with_the_mode_of_the_exact_joint_density(joint_fit):
+    """The four models' densities with K and read noise tied (JointCFAModel), maximised from the
+    channels' medians: its shared coordinates land within half a consensus sd of the consensus."""
+    from scipy.optimize import minimize
+
+    from bayescap.colour.cfa_fit import JointCFAModel
+
+    f = joint_fit
+    models = [f.results[c].model for c in f.channels]
+    jm = JointCFAModel(models)
+    x0 = np.empty(jm.ndim)
+    for i, c in enumerate(f.channels):
+        x0[jm.columns(i)] = np.median(f.results[c].chains.chain.reshape(-1, models[i].ndim), axis=0)
+    consensus = {
+        "log_k": np.log(f.draws["R"]["conversion_gain_e_per_dn"]),
+        "log_read": np.log(f.draws["R"]["read_noise_e"]),
+    }
+    for j, name in enumerate(jm.shared):
+        if name in consensus:
+            x0[j] = np.median(consensus[name])
+    jm.ref_shared = x0[: len(jm.shared)].copy()
+    h = np.eye(jm.ndim) * 1e-5
+
+    def neg(z):
+        return -float(jm.log_prob(x0 + 0.01 * z)[0])
+
+    def grad(z):
+        lp = jm.log_prob(x0 + 0.01 * np.concatenate([z + h, z - h]))
+        return np.where(np.isfinite(lp[: jm.ndim] - lp[jm.ndim :]), -(lp[: jm.ndim] - lp[jm.ndim :]) / 2e-5, 0.0)
+
+    res = minimize(neg, np.zeros(jm.ndim), jac=grad, method="BFGS", options={"maxiter": 300, "gtol": 1e-3})
+    x_map = x0 + 0.01 * res.x
+    for name, draws in consensus.items():
+        z = (x_map[jm.shared.index(name)] - np.median(draws)) / np.std(draws)
+        assert abs(z) < 0.5, (name, z)
 
 
 def test_k_check_catches_a_digitally_scaled_channel():
