@@ -69,7 +69,7 @@ def add_colour_arguments(p: argparse.ArgumentParser) -> None:
         "--quality",
         choices=("fast", "standard", "accurate"),
         default="fast",
-        help="each channel's fit preset (default fast: the four are vectorised in one batch)",
+        help="each channel's fit preset (default fast: the checked Laplace-IS path, MCMC where its check fails)",
     )
     p.add_argument("--seed", type=seed_arg, default=0, help="random seed (default 0)")
     p.add_argument(
@@ -130,6 +130,8 @@ def _colour_inputs(args):
     from bayescap.colour.raw_metadata import parse_ccm, read_raw_colour
     from bayescap.io.cfa import load_cfa
 
+    if not 1 <= args.out_bits <= 16:
+        raise InputError(f"--out-bits must be a whole number of bits from 1 to 16, got {args.out_bits}")
     if not (0.0 <= args.ccm_rel_sd < 1.0):
         raise InputError(f"--ccm-rel-sd must be in [0, 1), got {args.ccm_rel_sd:g}")
     given = parse_ccm(args.ccm) if args.ccm is not None else None  # before the frames are read
@@ -279,7 +281,7 @@ def register(sub, epilog=None) -> None:
         "colour",
         help="colour sensitivity (CS), colour capacity and scores of a Bayer sensor, with intervals",
         description="Fit the four CFA channels of RAW/DNG flats as one readout chain and report colour "
-        "sensitivity (DxOMark's colour depth), colour capacity and camera scores with 95 %% credible "
+        "sensitivity (DxOMark's colour depth), colour capacity and camera scores with 95 % credible "
         "intervals (docs/colour_cli.md).",
         epilog=epilog,
         formatter_class=argparse.RawDescriptionHelpFormatter,
