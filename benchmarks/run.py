@@ -112,6 +112,12 @@ BENCHMARKS = {
         "15-25 min",
         None,
     ),
+    "colour_cfa_speed": (
+        "one CFA camera's colour fit (four channels, K check, consensus, CS) against its monochrome fit: wall "
+        "time (target ≤ 3x), K check, true K in the joint interval, on cfasim cameras",
+        "3-6 min",
+        "1 min",
+    ),
     "subdn_speed": (
         "fit times of two 8-bit sensors with read noise far below a DN (zoo draw20, draw25), fast and "
         "standard, and which tier of the rounding moments served how many elements",

@@ -13,6 +13,7 @@ import sys
 import warnings
 
 from bayescap._heap import retain_freed_memory
+from bayescap.cli.colour import register as _register_colour
 from bayescap.cli.common import (
     EXIT_BROKEN_PIPE,
     EXIT_INPUT,
@@ -226,6 +227,7 @@ def build_parser() -> argparse.ArgumentParser:
     add_sweep_arguments(p)
     p.set_defaults(func=run_sweep)
     _register_datasheet(sub, epilog=EXIT_STATUS_HELP)  # bayescap datasheet (cli/datasheet.py)
+    _register_colour(sub, epilog=EXIT_STATUS_HELP)  # bayescap colour (cli/colour.py)
     return parser
 
 

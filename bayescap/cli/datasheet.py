@@ -10,6 +10,7 @@ from pathlib import Path
 
 
 def add_datasheet_arguments(p: argparse.ArgumentParser) -> None:
+    from bayescap.cli.colour import add_colour_result_argument
     from bayescap.cli.common import _add_metadata_overrides, add_fast_arguments, add_strict_argument, seed_arg
 
     p.add_argument("csv", help="photon-transfer CSV (with photons_per_pixel for η, μp.min, μp.sat and LE)")
@@ -44,11 +45,13 @@ def add_datasheet_arguments(p: argparse.ArgumentParser) -> None:
     add_fast_arguments(p)
     add_strict_argument(p)
     _add_metadata_overrides(p)
+    add_colour_result_argument(p)
 
 
 def run_datasheet(args) -> int:
     """``bayescap datasheet``: returns the exit status (2 with one line on bad input)."""
     from bayescap.api import fit, load
+    from bayescap.cli.colour import colour_result_from_args
     from bayescap.cli.common import _OVERRIDE_KEYS, fast_settings_from_args, strict_status
     from bayescap.exceptions import InputError, PTCInputError
     from bayescap.io.atomic import atomic_write_text, output_problem
@@ -69,6 +72,7 @@ def run_datasheet(args) -> int:
     overrides = {k: getattr(args, k) for k in _OVERRIDE_KEYS if getattr(args, k, None) is not None}
     try:
         fs = fast_settings_from_args(args)
+        colour = colour_result_from_args(args)  # bayescap colour's result, for a colour section
         data = load(args.csv, **overrides)
         kw = {} if fs is None else {"fast_settings": fs}
         result = fit(data, seed=args.seed, quality=args.quality, **kw)
@@ -79,7 +83,7 @@ def run_datasheet(args) -> int:
     written = []
     try:
         if html_out is not None:
-            atomic_write_text(html_out, datasheet_html(result, view=view, title=args.title))
+            atomic_write_text(html_out, datasheet_html(result, view=view, title=args.title, colour=colour))
             written.append(str(html_out))
         if pdf is not None:
             write_datasheet_pdf(result, pdf, view=view, title=args.title)

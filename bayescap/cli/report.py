@@ -14,6 +14,7 @@ from bayescap.studies.compare import (
 
 
 def add_report_arguments(p: argparse.ArgumentParser) -> None:
+    from bayescap.cli.colour import add_colour_result_argument
     from bayescap.cli.common import add_comparison_arguments, add_strict_argument
 
     p.add_argument("csv", nargs="+", help="photon-transfer CSVs, one per sensor")
@@ -21,15 +22,18 @@ def add_report_arguments(p: argparse.ArgumentParser) -> None:
     add_comparison_arguments(p)
     p.add_argument("--title", default="bayescap sensor comparison")
     add_strict_argument(p)
+    add_colour_result_argument(p)
 
 
 def run_report(args) -> int:
     """``bayescap report``: returns the exit status (2 with one line on bad input)."""
+    from bayescap.cli.colour import colour_result_from_args
     from bayescap.cli.common import fast_settings_from_args, strict_status
     from bayescap.exceptions import ConvergenceWarning, InputError, PTCInputError
 
     try:
         fs = fast_settings_from_args(args)
+        colour = colour_result_from_args(args)
     except InputError as e:
         print(f"bayescap: error: {e}", file=sys.stderr)
         return 2
@@ -59,7 +63,7 @@ def run_report(args) -> int:
     try:
         with warnings.catch_warnings():
             warnings.filterwarnings("ignore", category=FutureWarning)
-            out = write_report(cmp, args.output, title=args.title)
+            out = write_report(cmp, args.output, title=args.title, colour=colour)
     except OSError as e:
         print(f"bayescap: error: cannot write {args.output} ({e.strerror or e}); nothing was written", file=sys.stderr)
         return 1

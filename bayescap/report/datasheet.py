@@ -20,6 +20,7 @@ import numpy as np
 from bayescap._version import __version__
 from bayescap.io.atomic import atomic_write_text
 from bayescap.posterior.emva import S2Q, _Sweep, emva1288_view
+from bayescap.report.colour_section import colour_section_html
 
 __all__ = ["datasheet_html", "write_datasheet", "ptc_figure", "snr_figure", "emva_limits"]
 
@@ -245,7 +246,7 @@ td.note{color:#555;font-size:9px;max-width:300px} .grid{display:flex;gap:10px;al
 """
 
 
-def datasheet_html(result, *, view=None, title=None) -> str:
+def datasheet_html(result, *, view=None, title=None, colour=None) -> str:
     """The one-page datasheet of ``result`` as a self-contained HTML string."""
     view = emva1288_view(result) if view is None else view
     q = view["quantities"]
@@ -312,8 +313,11 @@ def datasheet_html(result, *, view=None, title=None) -> str:
         f"<img alt='SNR curve' src='data:image/png;base64,{snr}'>"
         f"<table class=meta>{meta_rows}</table>"
         "</div></div>"
-        "<ul>" + "".join(f"<li>{e(f)}</li>" for f in facts) + "</ul>"
-        "</body></html>"
+        "<ul>"
+        + "".join(f"<li>{e(f)}</li>" for f in facts)
+        + "</ul>"
+        + (colour_section_html(colour, heading="Colour (beyond EMVA 1288)") if colour else "")
+        + "</body></html>"
     )
 
 

@@ -23,6 +23,7 @@ from matplotlib.figure import Figure
 from bayescap.io.ptc_csv import atomic_write_text
 from bayescap.physics.capacity import tonal_range_bits
 from bayescap.physics.noise import snr_db
+from bayescap.report.colour_section import colour_section_html
 from bayescap.report.plots import plain_text, plot_corner, plot_ptc, png_bytes
 from bayescap.report.text import format_or_na
 from bayescap.studies.compare import Comparison
@@ -127,8 +128,7 @@ def _band(ax, x, draws, color, label):
 
 
 def plot_capacity(cmp: Comparison):
-    """Fig. 8(b): capacity (Mbit) per sensor, medians with 95 % intervals, at full resolution and
-    at the fixed area."""
+    """Fig. 8(b): capacity (Mbit) per sensor, medians with 95 % intervals, at full resolution and the fixed area."""
     d = cmp.to_dict()
     names = [plain_text(s["name"]) for s in d["sensors"]]
     x = np.arange(len(names))
@@ -381,7 +381,7 @@ def _convention(key, v) -> str:
     return str(v)
 
 
-def render_html(cmp: Comparison, *, title: str = "bayescap sensor comparison") -> str:
+def render_html(cmp: Comparison, *, title: str = "bayescap sensor comparison", colour: dict | None = None) -> str:
     """The report page as a string (figures rendered now, embedded as base64 PNG)."""
     d = cmp.to_dict()
     c = d["conventions"]
@@ -588,12 +588,13 @@ def render_html(cmp: Comparison, *, title: str = "bayescap sensor comparison") -
         + "<p class=small>See docs/compare.md: optical formats, H0 placement at mid-grey, exposure "
         "calibration, the probability of superiority.</p></section>"
     )
+    parts.append(colour_section_html(colour) if colour is not None else "")  # bayescap colour's result
     parts.append("</body></html>\n")
     return "\n".join(parts)
 
 
-def write_report(cmp: Comparison, path, *, title: str = "bayescap sensor comparison") -> Path:
+def write_report(cmp: Comparison, path, *, title: str = "bayescap sensor comparison", **kw) -> Path:
     """Render and write the page atomically (temp file in the same folder, then rename)."""
     path = Path(path)
-    atomic_write_text(path, render_html(cmp, title=title))
+    atomic_write_text(path, render_html(cmp, title=title, **kw))
     return path

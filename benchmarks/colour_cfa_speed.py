@@ -1,0 +1,138 @@
+"""One CFA sensor's full colour fit against its monochrome fit: wall time (target: ≤ 3×).
+
+Each simulated camera (``bayescap.validation.cfasim``: a frame-level RGGB simulator from
+colour-science's spectral sensitivities, written independently of the model) gives four channel
+tables. Timed, per camera and preset, after one warm-up fit:
+
+* monochrome: ``bayescap.fit`` of the Gr table (one channel, as ``bayescap fit`` runs it);
+* colour: ``fit_cfa`` of the four tables (the separate fits, the K check, the consensus) plus
+  ``colour_summary`` (CS per draw with the CCM's stated uncertainty, scores and capacities): what
+  ``bayescap colour`` computes after reading the tables.
+
+Also recorded: whether the K check passed and whether the true K lies in the joint 95 % interval.
+
+    python benchmarks/colour_cfa_speed.py [--quick] [--seeds N]
+
+Writes ``benchmarks/results/colour_cfa_speed.md``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+
+os.environ.setdefault("OMP_NUM_THREADS", "1")
+
+HERE = Path(__file__).resolve().parent
+sys.path.insert(0, str(HERE))
+
+from _machine import describe_machine, emit  # noqa: E402
+
+import bayescap  # noqa: E402
+from bayescap.colour.ccm import ccm_from_matrix  # noqa: E402
+from bayescap.colour.cfa_fit import colour_summary, fit_cfa  # noqa: E402
+from bayescap.io.ptc_csv import read_ptc_csv, write_ptc_csv  # noqa: E402
+from bayescap.validation.cfasim import CHANNELS, simulate_cfa_ptc  # noqa: E402
+
+#: a white-preserving camera -> sRGB matrix of ordinary noise cost (Nikon D850's, from its DNG)
+CCM = [[1.4009, -0.3130, -0.0879], [-0.1249, 1.4125, -0.2876], [0.0080, -0.4077, 1.3997]]
+
+
+def tables(seed: int, tmp: Path) -> tuple[dict, dict]:
+    sim = simulate_cfa_ptc(seed)
+    out = {}
+    for c in CHANNELS:
+        path = tmp / f"s{seed}_{c}.csv"
+        write_ptc_csv(sim[c]["rows"], path, metadata=sim[c]["metadata"])
+        out[c] = read_ptc_csv(path)
+    return out, sim["truth"]
+
+
+def colour_run(tb, seed, quality):
+    f = fit_cfa(tb, seed=seed, quality=quality)
+    ccm = ccm_from_matrix(CCM, source="D850 DNG", rel_sd=0.02, n_draws=f.n_draws, seed=seed)
+    t = float(np.median(tb["Gr"].exposure_time_s))
+    md = tb["Gr"].metadata
+    s = colour_summary(
+        f, ccm, [2.2, 1.0, 1.25], exposure_time_s=t, n_pixels_sensor=md["width_px"] * md["height_px"] * 4, metadata=md
+    )
+    return f, s
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--quick", action="store_true", help="2 cameras, the fast preset only")
+    ap.add_argument("--seeds", type=int, default=None)
+    args = ap.parse_args(argv)
+    n = args.seeds or (2 if args.quick else 5)
+    presets = ("fast",) if args.quick else ("fast", "standard")
+    rows = []
+    with tempfile.TemporaryDirectory() as tmp:
+        tmp = Path(tmp)
+        warm, _ = tables(999, tmp)
+        bayescap.fit(warm["Gr"], seed=0, quality="fast")
+        colour_run(warm, 0, "fast")
+        for seed in range(n):
+            tb, truth = tables(seed, tmp)
+            row = {"seed": seed}
+            for q in presets:
+                t0 = time.perf_counter()
+                bayescap.fit(tb["Gr"], seed=seed, quality=q)
+                row[f"mono_{q}"] = time.perf_counter() - t0
+                t0 = time.perf_counter()
+                f, s = colour_run(tb, seed, q)
+                row[f"colour_{q}"] = time.perf_counter() - t0
+                k = f.to_dict()["shared"]["conversion_gain_e_per_dn"]["ci95"]
+                row[f"ok_{q}"] = (f.k_check["passed"], bool(k[0] <= truth["k_e_per_dn"] <= k[1]), f.converged)
+                row[f"cs_{q}"] = s["cs_bits"]["median"]
+            rows.append(row)
+            print(row, flush=True)
+    lines = [
+        "# One CFA sensor's colour fit against its monochrome fit",
+        "",
+        f"`python benchmarks/colour_cfa_speed.py{' --quick' if args.quick else ''}`; {describe_machine()}",
+        "",
+        "Cameras: `bayescap.validation.cfasim.simulate_cfa_ptc(seed)` (Nikon 5100 sensitivities under D65, "
+        "K 2 e-/DN, read 3 e-, well 12 000 e-, 80x80 px per channel, 14 levels). Monochrome: `bayescap.fit` of "
+        "the Gr table. Colour: `fit_cfa` of the four tables + `colour_summary` (CS per draw with a CCM of "
+        "2 % stated element uncertainty, scores, capacities). Times after one warm-up fit.",
+        "",
+        "| seed | preset | monochrome (s) | colour (s) | ratio | K check | true K in joint 95 % | converged | CS (bits) |",
+        "|---|---|---|---|---|---|---|---|---|",
+    ]
+    for r in rows:
+        for q in presets:
+            kc, kin, conv = r[f"ok_{q}"]
+            lines.append(
+                f"| {r['seed']} | {q} | {r[f'mono_{q}']:.2f} | {r[f'colour_{q}']:.2f} | "
+                f"{r[f'colour_{q}'] / r[f'mono_{q}']:.2f} | {'pass' if kc else 'FAIL'} | {'yes' if kin else 'no'} | "
+                f"{conv} | {r[f'cs_{q}']:.3f} |"
+            )
+    lines.append("")
+
+    def total(num, den):
+        return sum(r[num] for r in rows) / sum(r[den] for r in rows)
+
+    pairs = [(f"colour_{q}", f"mono_{q}", f"colour ({q}) / monochrome ({q})") for q in presets]
+    if "standard" in presets:
+        pairs.append(("colour_fast", "mono_standard", "colour (fast) / monochrome (standard, bayescap fit's default)"))
+    for num, den, label in pairs:
+        rr = [r[num] / r[den] for r in rows]
+        tot = total(num, den)
+        lines.append(
+            f"- {label}: median {np.median(rr):.2f}x (range {min(rr):.2f}-{max(rr):.2f}x), total time "
+            f"{tot:.2f}x: {'meets' if tot <= 3.0 else 'MISSES'} the 3x target."
+        )
+    lines.append("")
+    emit(lines, HERE / "results" / "colour_cfa_speed.md")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
