@@ -237,7 +237,7 @@ class DerivedMixin:
             "unit": "DN",
             "error_dn": 0.5 * (nxt - float(s[i])),
             "definition": definition,
-            "rows_past": [int(d.row_label(k)) for k in rows_past],
+            "rows_past": sorted(int(d.row_label(k)) for k in rows_past),
             "rows_past_use": (
                 "fitted by the clip model: they inform full_well_e"
                 if clip
@@ -250,7 +250,7 @@ class DerivedMixin:
         i, rows_past = ptc_turnoff(d.signal_dn, d.temporal_var_dn2)
         if i is None or not rows_past.size:
             return
-        labels = [str(int(d.row_label(k))) for k in rows_past]
+        labels = [str(r) for r in sorted(int(d.row_label(k)) for k in rows_past)]
         use = (
             "the clip model fits them, so they inform the full well"
             if self.model.terms.clip != "none"
