@@ -99,6 +99,12 @@ def plot_ptc(result: FitResult, path=None):
     if "dark_var" in pp:
         dobs, dmodel, drep = pp["dark_var"]
         ax.plot(np.zeros_like(dobs) + max(S.min() * 0.5, 1e-3), dobs, "g.", ms=3, label="dark pairs")
+    if not d.has_dark_rows:  # a mean/variance table: mark the PTC turnoff (derived.ptc_turnoff_dn)
+        from bayescap.posterior.derived import ptc_turnoff
+
+        i_t, _ = ptc_turnoff(d.signal_dn, d.temporal_var_dn2)
+        if i_t is not None:
+            ax.axvline(d.signal_dn[i_t], color="0.4", ls="--", lw=1, label="PTC turnoff")
     ax.set_ylabel("temporal variance (DN²)")
     ax.set_title(plain_text(f"photon transfer: {Path(str(d.source)).name}"))
     ax.legend(fontsize=8)
