@@ -38,6 +38,8 @@ def default_scene(data: PTCData) -> Scene:
     are not clipped (dark-current charge and shot noise are evaluated there)."""
     full, _ = saturation_flags(data)
     t = data.exposure_time_s[~full] if np.any(~full) else data.exposure_time_s
+    if not np.all(np.isfinite(t)):  # a mean/variance table without exposure times
+        return Scene(exposure_time_s=0.0, source="no exposure times in the table; no dark current is modelled")
     return Scene(exposure_time_s=float(np.median(t)), source="median exposure time of the unclipped rows")
 
 

@@ -63,7 +63,7 @@ def build_parser() -> argparse.ArgumentParser:
         nargs="+",
         help="photon-transfer CSV (format: README, 'Photon-transfer CSV'); several "
         "CSVs are fitted as a batch (bayescap.batch.fit_many: the fast "
-        "preset is vectorised across sensors)",
+        "preset is vectorised across sensors); a folder stands for its *.csv files, in name order",
     )
     p.add_argument(
         "--json",

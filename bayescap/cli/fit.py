@@ -21,6 +21,7 @@ def _cmd_fit(args) -> int:
 
     overrides = {k: getattr(args, k) for k in _OVERRIDE_KEYS if getattr(args, k, None) is not None}
     fast_settings = fast_settings_from_args(args)
+    args.csv = _expand_folders(args.csv)
     if args.out:  # before any fitting: an output over an input, or one that cannot be written
         from bayescap.io.atomic import output_problem
         from bayescap.report.text import OUTPUT_NAMES
@@ -92,6 +93,23 @@ def _cmd_fit(args) -> int:
             print(f"bayescap: error: {write_error(args.out, e)}", file=sys.stderr)
             return EXIT_FAILURE
     return _strict_status(args, [result])
+
+
+def _expand_folders(paths) -> list:
+    """The inputs with each folder replaced by its ``*.csv`` files in name order (a focal plane's
+    amplifier tables as one batch); a folder without one is refused."""
+    from pathlib import Path
+
+    out = []
+    for p in paths:
+        if Path(p).is_dir():
+            found = sorted(str(f) for f in Path(p).glob("*.csv") if f.is_file())
+            if not found:
+                raise InputError(f"{p}: a folder without any *.csv file (give photon-transfer CSVs or their folder)")
+            out += found
+        else:
+            out.append(p)
+    return out
 
 
 def _strict_status(args, results) -> int:

@@ -8,6 +8,18 @@ frac_saturated``. Spreadsheet exports are read too: ``;``-separated tables (then
 allowed, ``1,5``), tab-separated ones, Excel's first line ``sep=;``, trailing empty columns and
 separators padding the metadata lines; control characters (ANSI escapes) are removed from metadata
 values. Every refusal raises :class:`PTCInputError` naming file, row and column.
+
+**Mean/variance tables** (the astronomy photon-transfer table of LSST cp_pipe, eotest or a lab
+notebook: one row per flat pair, means with the bias already removed, pair-difference variance / 2)
+have no dark column: then only ``mean_dn`` and ``temporal_var_dn2`` are required
+(:data:`MEAN_VARIANCE_REQUIRED`). ``exposure_time_s`` and ``n_pixels`` are optional there; the
+dark columns are filled as "not measured": ``dark_mean_dn`` is the means' offset (``#
+black_level_dn:``, else 0), ``dark_temporal_var_dn2`` is NaN on every row
+(:attr:`PTCData.has_dark_rows` is False), an absent ``exposure_time_s`` is NaN and an absent
+``n_pixels`` is +inf (:attr:`PTCData.n_pixels_known` is False: no sampling error is assumed, the
+fit's variance discrepancy carries the whole scatter). cp_pipe's names ``rawMeans``, ``rawVars``
+and ``rawExpTimes`` are read as ``mean_dn``, ``temporal_var_dn2`` and ``exposure_time_s``
+(:data:`COLUMN_ALIASES`) when the contract's name is not in the header.
 """
 
 from __future__ import annotations
@@ -31,6 +43,9 @@ __all__ = [
     "write_ptc_csv",
     "REQUIRED_COLUMNS",
     "OPTIONAL_COLUMNS",
+    "MEAN_VARIANCE_REQUIRED",
+    "DARK_COLUMNS",
+    "COLUMN_ALIASES",
     "METADATA_TYPES",
 ]
 
@@ -50,6 +65,13 @@ OPTIONAL_COLUMNS = (
     "n_frames",
     "frac_saturated",
 )
+
+#: a table without any of these columns is a mean/variance table (module docstring)
+DARK_COLUMNS = ("dark_mean_dn", "dark_temporal_var_dn2", "dark_spatial_var_dn2")
+#: the only required columns of a mean/variance table
+MEAN_VARIANCE_REQUIRED = ("mean_dn", "temporal_var_dn2")
+#: other names of contract columns (LSST cp_pipe's PTC dataset), used when the contract's name is absent
+COLUMN_ALIASES = {"rawMeans": "mean_dn", "rawVars": "temporal_var_dn2", "rawExpTimes": "exposure_time_s"}
 
 #: optional columns that may be left empty on rows where they were not measured
 SPARSE_COLUMNS = ("spatial_var_dn2", "dark_spatial_var_dn2", "n_frames")
@@ -135,6 +157,20 @@ class PTCData:
             v = getattr(self, name)
             kw[name] = None if v is None else _readonly(np.asarray(v)[mask])
         return PTCData(**kw, metadata=dict(self.metadata), source=self.source)
+
+    @property
+    def has_dark_rows(self) -> bool:
+        """False for a mean/variance table (no dark pairs: ``dark_temporal_var_dn2`` is NaN throughout)."""
+        return bool(np.any(np.isfinite(self.dark_temporal_var_dn2)))
+
+    @property
+    def n_pixels_known(self) -> bool:
+        """False when the table gave no ``n_pixels`` (filled with +inf: the variances' scatter is fitted)."""
+        return bool(np.all(np.isfinite(self.n_pixels)))
+
+    @property
+    def has_exposure_times(self) -> bool:
+        return bool(np.all(np.isfinite(self.exposure_time_s)))
 
     def row_label(self, i) -> int:
         return int(self.row_numbers[i]) if self.row_numbers is not None else int(i) + 1
@@ -292,10 +328,19 @@ def read_ptc_csv(path, *, overrides: dict | None = None) -> PTCData:
     if len(set(header)) != len(header):
         dup = sorted({h for h in header if header.count(h) > 1})
         raise PTCInputError(f"duplicate column(s) {', '.join(dup)} in the header", path=path_str, row="header")
-    missing = [c for c in REQUIRED_COLUMNS if c not in header]
+    header, label = _apply_aliases(header)
+    mean_variance = not any(c in header for c in DARK_COLUMNS)
+    required = MEAN_VARIANCE_REQUIRED if mean_variance else REQUIRED_COLUMNS
+    missing = [c for c in required if c not in header]
     if missing:
+        what = (
+            f"required: {', '.join(MEAN_VARIANCE_REQUIRED)} for a mean/variance table; a table with dark "
+            f"pairs needs {', '.join(REQUIRED_COLUMNS)}"
+            if mean_variance
+            else f"required: {', '.join(REQUIRED_COLUMNS)}"
+        )
         raise PTCInputError(
-            f"missing required column(s): {', '.join(missing)} (required: {', '.join(REQUIRED_COLUMNS)})",
+            f"missing required column(s): {', '.join(missing)} ({what})",
             path=path_str,
             row="header",
             column=missing[0],
@@ -324,7 +369,7 @@ def read_ptc_csv(path, *, overrides: dict | None = None) -> PTCData:
                     "empty value in an optional column (leave the column out or give every row a value)",
                     path=path_str,
                     row=rowno,
-                    column=c,
+                    column=label[c],
                 )
             try:
                 v = _number(s, delimiter)
@@ -333,17 +378,41 @@ def read_ptc_csv(path, *, overrides: dict | None = None) -> PTCData:
                     f"expected a number, got '{s}'" if s else "missing value", path=path_str, row=rowno, column=c
                 ) from None
             if not math.isfinite(v):
-                raise PTCInputError(f"expected a finite number, got '{s}'", path=path_str, row=rowno, column=c)
-            _check_value(c, v, path_str, rowno)
+                raise PTCInputError(f"expected a finite number, got '{s}'", path=path_str, row=rowno, column=label[c])
+            _check_value(c, v, path_str, rowno, label[c])
             cols[c].append(v)
         rownums.append(rowno)
     if rowno < 2:
         raise PTCInputError(f"needs at least 2 data rows (exposure levels), found {rowno}", path=path_str)
+    if mean_variance:
+        _fill_mean_variance(cols, rowno, md)
     order = np.argsort(np.asarray(cols["mean_dn"]) - np.asarray(cols["dark_mean_dn"]), kind="stable")
     kw = {c: _readonly(np.asarray(v)[order]) for c, v in cols.items()}
     data = PTCData(**kw, metadata=md, source=path_str, row_numbers=_readonly(np.asarray(rownums)[order]))
     _check_consistency(data, path_str)
     return data
+
+
+def _apply_aliases(header):
+    """The header with :data:`COLUMN_ALIASES` read as the contract's names (where the contract's
+    name is absent), and each contract column's name as the file spells it (for messages)."""
+    out = list(header)
+    for i, h in enumerate(header):
+        c = COLUMN_ALIASES.get(h)
+        if c is not None and c not in header:
+            out[i] = c
+    label = {c: (c if c == h else f"{h} (read as {c})") for c, h in zip(out, header)}
+    return out, label
+
+
+def _fill_mean_variance(cols: dict, n: int, md: dict) -> None:
+    """A mean/variance table's columns that were not measured (module docstring), in place: the
+    dark mean is the means' offset (``black_level_dn``, else 0 DN: bias already removed), the dark
+    variance NaN, an absent exposure time NaN, an absent ``n_pixels`` +inf."""
+    cols["dark_mean_dn"] = [float(md.get("black_level_dn", 0.0))] * n
+    cols["dark_temporal_var_dn2"] = [math.nan] * n
+    cols.setdefault("exposure_time_s", [math.nan] * n)
+    cols.setdefault("n_pixels", [math.inf] * n)
 
 
 #: no column of a photon-transfer table comes near this (a variance of 32-bit DN values is below 2e19);
@@ -353,13 +422,15 @@ _MAX_ABS_VALUE = 1e30
 _ABSOLUTE_ZERO_C = -273.15
 
 
-def _check_value(col, v, path, row):
+def _check_value(col, v, path, row, label=None):
+    """Refuse a value no photon-transfer table can hold (``label``: the column as the file names it)."""
+    label = label or col
     if abs(v) > _MAX_ABS_VALUE:
         raise PTCInputError(
             f"{v:g} is implausibly large (above {_MAX_ABS_VALUE:g}): check the column's units",
             path=path,
             row=row,
-            column=col,
+            column=label,
         )
     nonneg = (
         "exposure_time_s",
@@ -372,13 +443,13 @@ def _check_value(col, v, path, row):
     )
     if col in nonneg and v < 0:
         what = "variance" if "var" in col else "value"
-        raise PTCInputError(f"negative {what} {v:g} is physically impossible", path=path, row=row, column=col)
+        raise PTCInputError(f"negative {what} {v:g} is physically impossible", path=path, row=row, column=label)
     if col == "n_pixels" and (v < 2 or v != int(v)):
-        raise PTCInputError(f"n_pixels must be a whole number >= 2, got {v:g}", path=path, row=row, column=col)
+        raise PTCInputError(f"n_pixels must be a whole number >= 2, got {v:g}", path=path, row=row, column=label)
     if col == "n_frames" and (v < 1 or v != int(v)):
-        raise PTCInputError(f"n_frames must be a whole number >= 1, got {v:g}", path=path, row=row, column=col)
+        raise PTCInputError(f"n_frames must be a whole number >= 1, got {v:g}", path=path, row=row, column=label)
     if col == "frac_saturated" and not 0 <= v <= 1:
-        raise PTCInputError(f"frac_saturated must be in [0, 1], got {v:g}", path=path, row=row, column=col)
+        raise PTCInputError(f"frac_saturated must be in [0, 1], got {v:g}", path=path, row=row, column=label)
 
 
 def _check_consistency(d: PTCData, path):
@@ -472,6 +543,13 @@ def write_ptc_csv(data_or_rows, path, *, metadata: dict | None = None, columns=N
     if isinstance(data_or_rows, PTCData):
         d = data_or_rows
         cols = {c: getattr(d, c) for c in REQUIRED_COLUMNS + OPTIONAL_COLUMNS if getattr(d, c) is not None}
+        if not d.has_dark_rows:  # a mean/variance table: what was not measured stays out
+            for c in ("dark_mean_dn", "dark_temporal_var_dn2"):
+                cols.pop(c)
+            if not d.n_pixels_known:
+                cols.pop("n_pixels")
+            if not d.has_exposure_times:
+                cols.pop("exposure_time_s")
         md = dict(d.metadata) if metadata is None else metadata
     else:
         cols = {k: np.asarray(v) for k, v in data_or_rows.items()}

@@ -128,8 +128,9 @@ class _PredictionMixin:
         # (fitted when no spatial column tells it, see select_terms)
         so2 = p["pixel_offset_spread_dn"][:, None] ** 2 if "pixel_offset_spread_dn" in p else 0.0
         # dark temporal variances (all rows); rounding at the measured offset below 1 DN
-        vdm, phi_d, hd = self._quantized_var(rd2_all / (K * K), self.dark_frac_dn, pb / (K * K) + so2)
-        out["dark_var"] = (self.vd, vdm, 1.0 / (phi_d / self.nu_d + f2), "gamma")
+        if getattr(self, "dark_rows", True):  # (a mean/variance table has no dark pairs)
+            vdm, phi_d, hd = self._quantized_var(rd2_all / (K * K), self.dark_frac_dn, pb / (K * K) + so2)
+            out["dark_var"] = (self.vd, vdm, 1.0 / (phi_d / self.nu_d + f2), "gamma")
         # bright temporal variances, unclipped rows: S from the measured mean
         S = np.broadcast_to(self.s_obs, rd2_ok.shape).copy()
         if "response_nonlinearity" in p:

@@ -55,7 +55,7 @@ from bayescap.model.clipping import _ClipMixin
 from bayescap.model.likelihood import _LikelihoodMixin
 from bayescap.model.parameters import _ParametersMixin
 from bayescap.model.prediction import _PredictionMixin
-from bayescap.model.terms import ModelTerms, saturation_flags, select_terms
+from bayescap.model.terms import ModelTerms, intercept_variance_dn2, saturation_flags, select_terms
 from bayescap.model.threads import SPLIT_MIN_ELEMENTS, _split_rows
 
 __all__ = ["PTCModel", "CHUNK_ELEMENTS", "CHUNK_MIN_DRAWS"]
@@ -166,7 +166,10 @@ class PTCModel(_ParametersMixin, _PredictionMixin, _ClipMixin, _LikelihoodMixin)
         # data arrays (non-fully-clipped rows)
         self.m = d.mean_dn[ok]
         self.v = np.maximum(d.temporal_var_dn2[ok], 1e-6)
-        self.vd = np.maximum(d.dark_temporal_var_dn2, 1e-6)
+        # without dark pairs (a mean/variance table) there is no dark block: the PTC's intercept
+        # stands in for the dark variance where a start point or a mean's error needs one
+        self.dark_rows = d.has_dark_rows
+        self.vd = np.maximum(d.dark_temporal_var_dn2, 1e-6) if self.dark_rows else intercept_variance_dn2(d)
         self.dm = d.dark_mean_dn[ok]
         self.tt = self.t[ok]
         self.nu = d.n_pixels[ok] - 1.0

@@ -102,6 +102,7 @@ class PTCModelStack:
             tm.dsnu,
             tm.robust,
             tm.discrepancy,
+            getattr(model, "dark_rows", True),
         )
         shapes = tuple((a, np.shape(getattr(model, a))) for a in PTCModelStack.ROW_ARRAYS if hasattr(model, a))
         rows = tuple(

@@ -120,7 +120,7 @@ def _clip_mechanism(d: PTCData, full, reached):
                 f"the fully clipped rows sit at the ADC maximum {adc:g} DN: the clip level "
                 "is the ADC's, and the photodiode's own well may be deeper"
             )
-        dark_v = float(np.median(d.dark_temporal_var_dn2))
+        dark_v = _dark_variance_dn2(d)
         if np.median(plateau_v) >= 0.3 * dark_v:
             return "well", (
                 "the plateau keeps the read noise: the full well clips before the read-out; "
@@ -177,9 +177,99 @@ def select_terms(d: PTCData, *, force: dict | None = None) -> ModelTerms:
         nonlinearity=nonlin,
         offset_spread=offsets,
     )
+    if not d.has_dark_rows:
+        terms.update(_mean_variance_terms(d, reasons, how))
     if force:
         terms.update(force)
     return ModelTerms(**terms, reasons=reasons, how=how)
+
+
+# ---------------------------------------------------------------- mean/variance tables (no dark rows)
+
+
+def _mean_variance_terms(d: PTCData, reasons, how) -> dict:
+    """The terms of a mean/variance table (no dark pairs; :mod:`bayescap.io.ptc_csv`): the read noise
+    is the photon-transfer curve's intercept, and what only dark pairs, exposure times or spatial
+    columns inform is left out, each with its reason. Without ``n_pixels`` the variances' scatter is
+    the fitted discrepancy alone (the variance discrepancy term is always in)."""
+    reasons.pop("dark_current", None)
+    reasons["dark_current"] = (
+        "a mean/variance table (no dark pairs): dark current is not measured; the read noise is the "
+        "photon-transfer curve's intercept, which also holds any dark-current shot noise of the flats"
+    )
+    for term in ("prnu", "dsnu"):
+        reasons[term] = (
+            "a mean/variance table: pair differences cancel fixed-pattern noise, and without dark pairs "
+            "the spatial variances cannot be split into PRNU and DSNU"
+        )
+    how["read_noise"] = (
+        "no dark pairs: the read noise is the intercept of the photon-transfer curve, "
+        "variance = read²/K² + 1/12 + S/K at S → 0 (the means taken with the bias removed, "
+        f"offset {float(d.dark_mean_dn[0]):g} DN)"
+    )
+    if not d.n_pixels_known:
+        how["variance_discrepancy"] = (
+            "no n_pixels column: the variances' sampling error is not known, so their whole scatter is "
+            "the fitted fractional discrepancy f (no Gamma sampling term)"
+        )
+    return dict(dark_current=False, prnu=False, dsnu=False, discrepancy=True)
+
+
+def _dark_variance_dn2(d: PTCData) -> float:
+    """The dark (read-noise) variance (DN²): the median dark pair's, or, without dark pairs, the
+    photon-transfer curve's intercept from a straight line through the lower half of the
+    unclipped rows (at least the rounding's 1/12 DN²)."""
+    if d.has_dark_rows:
+        return float(np.median(d.dark_temporal_var_dn2))
+    return float(np.median(intercept_variance_dn2(d)))
+
+
+def intercept_variance_dn2(d: PTCData) -> np.ndarray:
+    """Per row, the PTC's intercept (DN²) for a table without dark pairs (:func:`_dark_variance_dn2`):
+    a least-squares line of the variance against the signal over the rows up to half the signal of
+    the largest variance; a start point and a scale, never data of the likelihood."""
+    s, v = d.signal_dn, d.temporal_var_dn2
+    i_peak = int(np.argmax(v))
+    rows = (s <= 0.5 * s[i_peak]) & (s >= 0)
+    if rows.sum() < 3:
+        rows = np.argsort(s)[: max(2, min(5, s.size))]
+    x, y = s[rows], v[rows]
+    if np.ptp(x) > 0:
+        c = np.polyfit(x, y, 1)[1]
+    else:
+        c = float(np.min(y))
+    return np.full(s.size, max(float(c), 1.0 / 12.0))
+
+
+def _mean_variance_curvature_evidence(sig, var, n_pixels, rows):
+    """The PTC's bend without dark pairs (the counterpart of
+    :func:`~bayescap.model.response.variance_curvature_evidence`): fit ``V = c₀ + c₁ S + c₂ S²``
+    over ``rows`` with relative weights (a pair variance's sampling error is proportional to it) and
+    return ``(bend, se)``, the relative bend c₂ S_top / c₁ of the shot-noise part and its standard
+    error. The error comes from the residual scatter (never below the sampling error when
+    ``n_pixels`` is known). ``None`` with fewer than six rows or a non-increasing PTC."""
+    S, V = np.asarray(sig, float), np.asarray(var, float)
+    r = np.asarray(rows, bool) & np.isfinite(S) & np.isfinite(V) & (S > 0) & (V > 0)
+    if r.sum() < 6:
+        return None
+    S, V, nu = S[r], V[r], np.asarray(n_pixels, float)[r] - 1.0
+    u = S / float(S.max())
+    sd = V * (np.sqrt(2.0 / nu) if np.all(np.isfinite(nu)) else 1.0)
+    A = np.vstack([np.ones_like(u), u, u * u]).T / sd[:, None]
+    b = V / sd
+    coef, *_ = np.linalg.lstsq(A, b, rcond=None)
+    resid = b - A @ coef
+    chi2_dof = float(resid @ resid) / max(S.size - 3, 1)
+    scale = max(chi2_dof, 1.0) if np.all(np.isfinite(nu)) else chi2_dof
+    try:
+        cov = scale * np.linalg.inv(A.T @ A)
+    except np.linalg.LinAlgError:
+        return None
+    _, c1, c2 = coef
+    if not c1 > 0:
+        return None
+    g = np.array([0.0, -c2 / c1**2, 1.0 / c1])
+    return float(c2 / c1), float(np.sqrt(max(g @ cov @ g, 0.0)))
 
 
 def _unclipped_rows(d: PTCData, full):
@@ -235,7 +325,10 @@ def _select_ptc_curvature(d: PTCData, sig, rows, reasons, how) -> bool:
     rows, ``VARIANCE_EVIDENCE_SIGMA`` standard errors (its sampling error) from zero. The variances fix the
     bend (≈ 3a) and the small-signal gain; whether the response or the variance bends (a
     brighter-fatter-like loss) needs the means against the photons."""
-    ev = variance_curvature_evidence(sig, d.temporal_var_dn2, d.dark_temporal_var_dn2, d.n_pixels, rows)
+    if d.has_dark_rows:
+        ev = variance_curvature_evidence(sig, d.temporal_var_dn2, d.dark_temporal_var_dn2, d.n_pixels, rows)
+    else:
+        ev = _mean_variance_curvature_evidence(sig, d.temporal_var_dn2, d.n_pixels, rows)
     if ev is None:
         reasons["response_nonlinearity"] = (
             "no photons_per_pixel column and fewer than five unclipped rows: the PTC's curvature is not measured"

@@ -56,6 +56,9 @@ class ChecksMixin:
         """Flag dark rows whose pixel distribution reaches the ADC's zero (black level too low for
         the read noise and DSNU): read noise and DSNU are then biased low, silently otherwise."""
         d = self.model.data
+        if not d.has_dark_rows:  # a mean/variance table: no dark pairs to check
+            self.dark_floor_margin_sd = float("inf")
+            return
         var = np.asarray(d.dark_temporal_var_dn2, float).copy()
         if d.dark_spatial_var_dn2 is not None:
             sp = np.asarray(d.dark_spatial_var_dn2, float)

@@ -29,6 +29,7 @@ _DERIVED_NOTE_PREFIXES = (
     "noise stays below one",
     "the MTF exceeds 1",
     "the posterior presses against",
+    "rows past the PTC turnoff",
 )
 #: the flags it sets, dropped likewise
 _DERIVED_FLAGS = ("capacity_lower_bound", "mtf_band_cut", "mtf_above_one")
@@ -125,6 +126,8 @@ class DerivedMixin:
                 "Eq. 9 assumes a low-pass MTF (Δs ≤ 0), so the effective pixels exceed the pixel "
                 "count; use an MTF measured without sharpening"
             )
+        if not self.model.data.has_dark_rows:
+            self._note_turnoff()
         if np.any(tr >= 0.999 * N_GREY_LEVELS * (1 - 1e-9)):
             self.notes.append(
                 "noise stays below one 8-bit grey level over part of the range: TR is "
@@ -190,4 +193,98 @@ class DerivedMixin:
             if k_emva is not None:
                 out["emva1288_gain_e_per_dn"] = summarize(k_emva, "e-/DN")
                 out["emva1288_gain_e_per_dn"].pop("constrained")
-        return apply_derived_limits(self, self.parameter_summary() if params is None else params, out)
+        out = apply_derived_limits(self, self.parameter_summary() if params is None else params, out)
+        if not self.model.data.has_dark_rows:
+            out["ptc_turnoff_dn"] = self.ptc_turnoff_summary()
+        return out
+
+    # ------------------------------------------------------------------ PTC turnoff (mean/variance tables)
+    def ptc_turnoff_summary(self) -> dict:
+        """``derived.ptc_turnoff_dn``: the mean (DN above the offset) above which the temporal
+        variance stops rising (:func:`ptc_turnoff`, LSST cp_pipe's PTC turnoff). A rule on the
+        measured rows, not a posterior: ``median`` is the last row before the fall, ``ci68`` and
+        ``ci95`` bracket the turnoff between that row and the next, ``error_dn`` is half that gap
+        (cp_pipe's sampling error). Without a fall in the data, a lower limit (the largest mean)."""
+        d = self.model.data
+        i, rows_past = ptc_turnoff(d.signal_dn, d.temporal_var_dn2)
+        s = np.asarray(d.signal_dn, float)
+        order = np.argsort(s, kind="stable")
+        definition = (
+            "the mean above which the variance stops rising (LSST cp_pipe's PTC turnoff): the last row whose "
+            f"variance exceeds that of each of the next {TURNOFF_CONSECUTIVE_DECREASES} rows, searched above a "
+            "tenth of the largest variance"
+        )
+        if i is None:
+            top = float(s[order[-1]])
+            return {
+                "median": None,
+                "ci68": [top, None],
+                "ci95": [top, None],
+                "unit": "DN",
+                "lower_bound": top,
+                "limit": {"kind": "lower", "value": top, "level": 1.0},
+                "definition": definition,
+                "rows_past": [],
+                "note": "the variance rises up to the largest mean: the turnoff lies above it",
+            }
+        j = int(np.searchsorted(s[order], s[i], side="right"))
+        nxt = float(s[order[j]]) if j < s.size else float(s[i])
+        clip = self.model.terms.clip != "none"
+        return {
+            "median": float(s[i]),
+            "ci68": [float(s[i]), nxt],
+            "ci95": [float(s[i]), nxt],
+            "unit": "DN",
+            "error_dn": 0.5 * (nxt - float(s[i])),
+            "definition": definition,
+            "rows_past": sorted(int(d.row_label(k)) for k in rows_past),
+            "rows_past_use": (
+                "fitted by the clip model: they inform full_well_e"
+                if clip
+                else "no clip term describes them (see the notes)"
+            ),
+        }
+
+    def _note_turnoff(self):
+        d = self.model.data
+        i, rows_past = ptc_turnoff(d.signal_dn, d.temporal_var_dn2)
+        if i is None or not rows_past.size:
+            return
+        labels = [str(r) for r in sorted(int(d.row_label(k)) for k in rows_past)]
+        use = (
+            "the clip model fits them, so they inform the full well"
+            if self.model.terms.clip != "none"
+            else "no clip term describes them: treat the full well and the top of the range with caution"
+        )
+        self.notes.append(
+            f"rows past the PTC turnoff ({float(d.signal_dn[i]):.6g} DN): "
+            + ", ".join(labels[:12])
+            + (" …" if len(labels) > 12 else "")
+            + f"; {use}"
+        )
+
+
+#: cp_pipe's ``consecutivePointsVarDecreases``: the variance must stay below the pivot's this many rows
+TURNOFF_CONSECUTIVE_DECREASES = 2
+#: the fall is searched above this fraction of the largest variance (cp_pipe: above
+#: ``minVarPivotSearch`` = 10 000 ADU², an absolute level for LSST's sensors)
+TURNOFF_MIN_VAR_FRACTION = 0.1
+
+
+def ptc_turnoff(mean_dn, var_dn2, consecutive=TURNOFF_CONSECUTIVE_DECREASES):
+    """The PTC turnoff on measured rows, as LSST cp_pipe defines it: the mean above which the
+    variance stops rising. With the rows in order of increasing mean, the pivot is the first row
+    whose variance exceeds :data:`TURNOFF_MIN_VAR_FRACTION` of the largest and stays above the
+    variance of each of the next ``consecutive`` rows (cp_pipe's ``consecutivePointsVarDecreases``;
+    all the rows left when fewer remain), so one low row on a rising curve is not a turnoff, while a
+    variance that collapses at once (a clip) is. Returns ``(pivot row index or None, indices of the
+    rows with a larger mean)``."""
+    m = np.asarray(mean_dn, float)
+    v = np.asarray(var_dn2, float)
+    order = np.argsort(m, kind="stable")
+    vs = v[order]
+    thr = TURNOFF_MIN_VAR_FRACTION * np.max(vs)
+    for p in range(vs.size - 1):
+        if vs[p] > thr and np.all(vs[p + 1 : p + 1 + consecutive] < vs[p]):
+            return int(order[p]), order[p + 1 :]
+    return None, np.zeros(0, int)

@@ -50,7 +50,8 @@ def short_repr(result) -> str:
     parts.append(f"K={_median_ci(p['conversion_gain_e_per_dn'])} e-/DN")
     rn = "read_noise_e" if "read_noise_e" in p else "dark_noise_e" if "dark_noise_e" in p else None
     if rn:
-        parts.append(f"{rn.removesuffix('_e')}={value(ps[rn], p[rn])} e-")
+        key = rn if rn in ps else "read_noise_e"  # (without dark pairs the intercept is reported as read noise)
+        parts.append(f"{key.removesuffix('_e')}={value(ps[key], p[rn])} e-")
     for cap, unit in (("capacity_bits", "bits"), ("capacity_bits_per_pixel", "bits/pixel")):
         if cap in ds:
             parts.append(f"capacity={value(ds[cap], result.summary_derived()[cap])} {unit} (95 %)")

@@ -149,9 +149,11 @@ def _followers(result, params: dict, names) -> dict:
     base = _derived_of(result, p)
     out = {}
     for c in causes:
-        if c not in p:
+        # (without dark pairs the intercept's dark_noise_e draws are reported as read_noise_e)
+        src = "dark_noise_e" if c == "read_noise_e" and c not in p and "dark_noise_e" in p else c
+        if src not in p:
             continue
-        moved = _derived_of(result, {**p, c: 0.1 * p[c]})
+        moved = _derived_of(result, {**p, src: 0.1 * p[src]})
         for name in names:
             if name not in base or name not in moved:
                 continue

@@ -273,6 +273,8 @@ class FitResult(DerivedMixin, DiagnoseMixin, ChecksMixin, InputsMixin):
                 )
             nonneg("read_noise_e", rn, "e-", floor)
             nonneg("dark_current_e_per_s", p["dark_current_e_per_s"], "e-/s")
+        elif not getattr(m, "dark_rows", True):
+            self._intercept_read_noise(out, p["dark_noise_e"], k, floor_limit)
         else:
             dn = p["dark_noise_e"]
             t = float(np.unique(m.t[m.t > 0])[0]) if np.any(m.t > 0) else 0.0
@@ -353,6 +355,23 @@ class FitResult(DerivedMixin, DiagnoseMixin, ChecksMixin, InputsMixin):
             nonneg("pixel_offset_spread_dn", p["pixel_offset_spread_dn"], "DN")
         return apply_parameter_limits(self, out)
 
+    def _intercept_read_noise(self, out, rn, k, floor_limit):
+        """``read_noise_e`` of a table without dark pairs (a mean/variance table): the PTC's intercept,
+        in electrons (it also holds any dark-current shot noise the flats collected)."""
+        note = "the photon-transfer curve's intercept (no dark pairs): read noise, plus any dark-current shot noise of the flats"
+        if np.median(rn / k) < QUANTIZATION_FLOOR_DN:
+            out["read_noise_e"] = summarize(
+                rn,
+                "e-",
+                constrained=False,
+                upper_limit_95=floor_limit(rn),
+                note=note + "; below 0.4 DN it is masked by quantization (EMVA 1288): an upper limit only, "
+                "the larger of the posterior's 95 % point and 0.4 DN",
+            )
+        else:
+            out["read_noise_e"] = summarize(rn, "e-", note=note)
+            _prior_dominated_intercept(out["read_noise_e"], rn, self.model.PRIOR["read_scale_e"])
+
     def emva1288(self) -> dict:
         """The fit in EMVA 1288 (Release 4.0) terms, with intervals (:func:`bayescap.posterior.emva.emva1288_view`)."""
         from bayescap.posterior.emva import emva1288_view
@@ -383,4 +402,20 @@ class FitResult(DerivedMixin, DiagnoseMixin, ChecksMixin, InputsMixin):
                 "flags": dict(self.flags),
                 "diagnostics": diag,
             }
+        )
+
+
+def _prior_dominated_intercept(s, rn, scale_e):
+    """The intercept's read noise as an upper limit when its 95 % interval is as wide as the prior's
+    (the rule :func:`~bayescap.posterior.limits.apply_parameter_limits` applies to ``read_noise_e``)."""
+    from bayescap.posterior.limits import PRIOR_DOMINATED_FRACTION
+
+    prior_width = (2.2414 - 0.03134) * scale_e
+    lo, hi = np.quantile(rn, [0.025, 0.975])
+    if hi - lo > PRIOR_DOMINATED_FRACTION * prior_width:
+        s["constrained"] = False
+        s["upper_limit_95"] = float(np.quantile(rn, 0.95))
+        s["note"] = (
+            f"the intercept hardly constrains it: its 95 % interval is {(hi - lo) / prior_width:.0%} as wide "
+            f"as the prior's (half-normal, scale {scale_e:g} e-)"
         )

@@ -59,6 +59,8 @@ def _posterior_predictive(result: FitResult, n_draws=300):
     rng = np.random.default_rng(np.random.SeedSequence(result.seed).spawn(3)[2])
     out = {}
     for name in ("bright_var", "dark_var"):
+        if name not in pred:  # a mean/variance table has no dark pairs
+            continue
         obs, model, k, _ = pred[name]
         k = np.broadcast_to(k, model.shape)
         rep = rng.gamma(k, model / k)
@@ -94,8 +96,15 @@ def plot_ptc(result: FitResult, path=None):
             ms=5,
             label="fully clipped rows (locate the clip only)",
         )
-    dobs, dmodel, drep = pp["dark_var"]
-    ax.plot(np.zeros_like(dobs) + max(S.min() * 0.5, 1e-3), dobs, "g.", ms=3, label="dark pairs")
+    if "dark_var" in pp:
+        dobs, dmodel, drep = pp["dark_var"]
+        ax.plot(np.zeros_like(dobs) + max(S.min() * 0.5, 1e-3), dobs, "g.", ms=3, label="dark pairs")
+    if not d.has_dark_rows:  # a mean/variance table: mark the PTC turnoff (derived.ptc_turnoff_dn)
+        from bayescap.posterior.derived import ptc_turnoff
+
+        i_t, _ = ptc_turnoff(d.signal_dn, d.temporal_var_dn2)
+        if i_t is not None:
+            ax.axvline(d.signal_dn[i_t], color="0.4", ls="--", lw=1, label="PTC turnoff")
     ax.set_ylabel("temporal variance (DN²)")
     ax.set_title(plain_text(f"photon transfer: {Path(str(d.source)).name}"))
     ax.legend(fontsize=8)
