@@ -13,7 +13,6 @@ from pathlib import Path
 import pytest
 
 import bayescap
-from bayescap.cli import main
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -132,3 +131,72 @@ def test_load_refuses_a_crafted_chain_shape_before_allocating(saved_result, tmp_
     p = _crafted(saved_result, tmp_path, edit)
     with pytest.raises(ValueError, match="shape"):
         bayescap.FitResult.load(p)
+
+
+# ------------------------------------------------------------------ an output folder's twins
+
+
+def _dead_pid():
+    p = subprocess.Popen([sys.executable, "-c", "pass"])
+    p.wait()
+    return p.pid
+
+
+def test_twins_of_a_dead_run_are_cleaned_and_its_set_aside_restored(tmp_path):
+    """Was: ``kill -9`` during ``--out`` left ``.DIR.*.tmp`` folders that nothing removed."""
+    from bayescap.io.atomic import write_dir_atomically
+
+    dead, target = _dead_pid(), tmp_path / "o"
+    (tmp_path / f".o.{dead}.abcd1234.tmp").mkdir()  # killed while filling
+    old = tmp_path / f".o.{dead}.ef.old"  # killed between setting the set aside and the swap
+    old.mkdir()
+    (old / "a").write_text("last good")
+    alive = tmp_path / f".o.{os.getpid()}.99.tmp"  # a running process's: not touched
+    alive.mkdir()
+
+    def fill(d):
+        (d / "a").write_text("new")
+
+    write_dir_atomically(target, fill)
+    assert sorted(os.listdir(tmp_path)) == sorted(["o", alive.name])
+    assert (target / "a").read_text() == "new"
+
+
+def test_a_dead_runs_set_aside_is_the_last_good_result(tmp_path):
+    from bayescap.io.atomic import clean_stale_twins
+
+    dead = _dead_pid()
+    old = tmp_path / f".o.{dead}.ef.old"
+    old.mkdir()
+    (old / "a").write_text("last good")
+    clean_stale_twins(tmp_path / "o")
+    assert os.listdir(tmp_path) == ["o"] and (tmp_path / "o" / "a").read_text() == "last good"
+
+
+def _swap_many(target, tag, n):
+    from bayescap.io.atomic import write_dir_atomically
+
+    for k in range(n):
+
+        def fill(d, k=k):
+            for f in ("a", "b", "c"):
+                (d / f).write_text(f"{tag}{k}")
+
+        write_dir_atomically(target, fill)
+
+
+def test_concurrent_swaps_leave_one_whole_set_and_no_twin(tmp_path):
+    """Was: two runs swapping one folder could leave a whole ``.DIR.*.old`` set (ENOTEMPTY on the
+    way back)."""
+    import multiprocessing as mp
+
+    target = tmp_path / "o"
+    ctx = mp.get_context("fork")
+    ps = [ctx.Process(target=_swap_many, args=(target, t, 40)) for t in "XYZ"]
+    for p in ps:
+        p.start()
+    for p in ps:
+        p.join(60)
+    assert [p.exitcode for p in ps] == [0, 0, 0]
+    assert os.listdir(tmp_path) == ["o"]
+    assert len({(target / f).read_text() for f in ("a", "b", "c")}) == 1  # one run's set

@@ -18,8 +18,8 @@ from pathlib import Path
 import numpy as np
 
 from bayescap.inference import presets
-from bayescap.io.atomic import atomic_write_bytes
 from bayescap.inference.chains import ChainResult
+from bayescap.io.atomic import atomic_write_bytes
 from bayescap.io.ptc_csv import PTCData
 from bayescap.model.ptc_model import PTCModel
 from bayescap.model.terms import ModelTerms
