@@ -209,10 +209,15 @@ def _fit_many_to_folder(args, datas, kw, scheduler, n_dask) -> int:
             client.close()
         if cluster is not None:
             cluster.close()
-    docs = [
-        read_result(args.out, r["name"]) if r["status"] != "error" else {"input": p, "error": r["error"]}
-        for p, r in zip(args.csv, report)
-    ]
+    docs = []
+    for p, r in zip(args.csv, report):
+        if r["status"] != "error":
+            try:
+                docs.append(read_result(args.out, r["name"]))
+                continue
+            except (OSError, ValueError) as e:  # gone or spoilt since: this sensor's error
+                r.update(status="error", error=f"cannot read {args.out}/{r['name']}/result.json back ({e})")
+        docs.append({"input": p, "error": r["error"]})
     if args.json:
         sys.stdout.write(json.dumps(docs, indent=2, ensure_ascii=False, allow_nan=False) + "\n")
     else:
