@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import math
 import sys
 
 from bayescap.cli.common import (
@@ -12,6 +13,10 @@ from bayescap.cli.common import (
     strict_status,
 )
 from bayescap.exceptions import InputError
+
+#: a scene temperature above it (°C) is refused before fitting: no sensor works there, and the dark
+#: current's 2^(ΔT/6 °C) of a much larger ΔT overflows
+_MAX_SCENE_TEMPERATURE_C = 200.0
 
 
 def _cmd_fit(args) -> int:
@@ -309,6 +314,12 @@ def _scene_from_args(args, data):
         spec["exposure_s"] = args.scene_exposure_s
     if args.temperature_c is not None:
         spec["temperature_c"] = args.temperature_c
+    t_c = spec.get("temperature_c")
+    if t_c is not None and not (math.isfinite(t_c) and t_c <= _MAX_SCENE_TEMPERATURE_C):
+        # before the fit: 2^(ΔT/6 °C) of an absurd temperature overflows after it
+        raise InputError(
+            f"scene temperature {t_c:g} °C is implausible for a working sensor (above {_MAX_SCENE_TEMPERATURE_C:g} °C)"
+        )
     if not spec:
         return None
     base = default_scene(data)

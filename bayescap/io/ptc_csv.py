@@ -16,6 +16,7 @@ import csv
 import io
 import math
 import re
+import sys
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -175,7 +176,7 @@ def _number(s: str, delimiter: str) -> float:
 
 
 def _parse_metadata(lines, path, delimiter=","):
-    md = {}
+    md, seen = {}, {}
     for lineno, line in lines:
         # a spreadsheet pads every line to the table's width with separators
         body = _clean(line.lstrip("#").strip().rstrip(delimiter + " ").strip())
@@ -184,6 +185,7 @@ def _parse_metadata(lines, path, delimiter=","):
         if ":" not in body:
             continue  # a plain comment
         key, value = (s.strip() for s in body.split(":", 1))
+        _check_repeated_key(seen, key, value, lineno, path)
         typ = METADATA_TYPES.get(key)
         if typ is None:
             md[key] = value
@@ -204,6 +206,56 @@ def _parse_metadata(lines, path, delimiter=","):
         md[key] = v
     _check_metadata(md, path)
     return md
+
+
+def _check_repeated_key(seen: dict, key: str, value: str, lineno: int, path) -> None:
+    """A metadata key given twice with different values is refused, naming both lines (which one
+    holds is not for the reader to guess); the same value twice is harmless."""
+    if key in seen and seen[key][1] != value:
+        first, v0 = seen[key]
+        raise PTCInputError(
+            f"metadata '{key}' is given twice: '{v0}' on line {first} and '{value}' on line {lineno}; keep one",
+            path=path,
+            row=f"metadata line {lineno}",
+        )
+    seen.setdefault(key, (lineno, value))
+
+
+def _records(reader, path):
+    """The CSV reader's records; a record the csv module cannot read (a field over its size limit,
+    a NUL byte) is an input error naming its line."""
+    while True:
+        try:
+            rec = next(reader)
+        except StopIteration:
+            return
+        except csv.Error as e:
+            raise PTCInputError(
+                f"cannot read the table ({e}) near line {reader.line_num} of the table", path=path
+            ) from None
+        yield rec
+
+
+def check_repeated_rows(cols: dict, rownums, path) -> None:
+    """Refuse a table in which a data row repeats another exactly (every column): a copy-paste
+    error, or rows that are not independent measurements. Taken as independent, such rows shrink
+    every interval (a table repeated 10 times gives intervals ~3x narrower) around the same
+    values, so the fit would report a precision the data do not have."""
+    from collections import Counter
+
+    keys = [tuple("nan" if math.isnan(x) else float(x) for x in rec) for rec in zip(*cols.values())]
+    counts = Counter(keys)
+    first = {}
+    for k, key in enumerate(keys):
+        if key in first:
+            raise PTCInputError(
+                f"row {rownums[k]} repeats row {rownums[first[key]]} exactly (every column; {counts[key]} copies): "
+                "a copy-paste error, or rows that are not independent measurements; remove the repeats "
+                "(repeated rows would narrow every interval as if they were new data)",
+                path=path,
+                row=rownums[k],
+            )
+        first[key] = k
 
 
 def _typed_overrides(overrides: dict, path) -> dict:
@@ -233,6 +285,9 @@ def _check_metadata(md, path):
     for k in positive:
         if k in md and not md[k] > 0:
             raise PTCInputError(f"metadata '{k}' must be positive, got {md[k]}", path=path)
+    for k, top in (("width_px", _MAX_SIDE_PX), ("height_px", _MAX_SIDE_PX), ("pixel_pitch_um", _MAX_PITCH_UM)):
+        if k in md and md[k] > top:
+            raise PTCInputError(f"metadata '{k}' {md[k]:g} is implausible (above {top:g})", path=path)
     if "adc_bits" in md and not 1 <= md["adc_bits"] <= 32:
         raise PTCInputError(f"metadata 'adc_bits' must be between 1 and 32, got {md['adc_bits']}", path=path)
     if "crosstalk_sigma_px" in md and not md["crosstalk_sigma_px"] >= 0:
@@ -285,7 +340,7 @@ def read_ptc_csv(path, *, overrides: dict | None = None) -> PTCData:
     if overrides:
         md.update(_typed_overrides(overrides, path_str))
         _check_metadata(md, path_str)
-    reader = csv.reader(io.StringIO("\n".join(lines[body_start:])), delimiter=delimiter)
+    reader = _records(csv.reader(io.StringIO("\n".join(lines[body_start:])), delimiter=delimiter), path_str)
     header = [h.strip() for h in next(reader)]
     while header and header[-1] == "":  # a spreadsheet's trailing empty columns
         header.pop()
@@ -341,6 +396,7 @@ def read_ptc_csv(path, *, overrides: dict | None = None) -> PTCData:
         raise PTCInputError(f"needs at least 2 data rows (exposure levels), found {rowno}", path=path_str)
     order = np.argsort(np.asarray(cols["mean_dn"]) - np.asarray(cols["dark_mean_dn"]), kind="stable")
     kw = {c: _readonly(np.asarray(v)[order]) for c, v in cols.items()}
+    check_repeated_rows(cols, rownums, path_str)
     data = PTCData(**kw, metadata=md, source=path_str, row_numbers=_readonly(np.asarray(rownums)[order]))
     _check_consistency(data, path_str)
     return data
@@ -349,11 +405,31 @@ def read_ptc_csv(path, *, overrides: dict | None = None) -> PTCData:
 #: no column of a photon-transfer table comes near this (a variance of 32-bit DN values is below 2e19);
 #: a larger value is a unit or export error, and the model's products of it would overflow
 _MAX_ABS_VALUE = 1e30
+#: exposure times (s) above 0 and below it are refused: no sensor integrates for less than a picosecond
+_MIN_EXPOSURE_S = 1e-12
+#: metadata a sensor cannot have: more pixels a side, a larger pixel (µm)
+_MAX_SIDE_PX = 1_000_000
+_MAX_PITCH_UM = 1000.0
 #: temperatures below it (°C) are refused (metadata ``temperature_c``, a scene's temperature)
 _ABSOLUTE_ZERO_C = -273.15
 
 
 def _check_value(col, v, path, row):
+    if v != 0 and abs(v) < sys.float_info.min:
+        # a subnormal float is no measured value, and LAPACK fails on it (printing to stdout)
+        raise PTCInputError(
+            f"{v:g} is a subnormal number (below {sys.float_info.min:g}): not a measured value",
+            path=path,
+            row=row,
+            column=col,
+        )
+    if col == "exposure_time_s" and 0 < v < _MIN_EXPOSURE_S:
+        raise PTCInputError(
+            f"exposure time {v:g} s is implausibly short (below {_MIN_EXPOSURE_S:g} s): check the column's units (seconds)",
+            path=path,
+            row=row,
+            column=col,
+        )
     if abs(v) > _MAX_ABS_VALUE:
         raise PTCInputError(
             f"{v:g} is implausibly large (above {_MAX_ABS_VALUE:g}): check the column's units",
