@@ -143,9 +143,10 @@ def select_terms(d: PTCData, *, force: dict | None = None) -> ModelTerms:
     with np.errstate(over="ignore"):  # a subnormal exposure time: the ratio is inf, still ≥ 1.5
         multi_t = t_pos.size >= 2 and (t_pos.max() / t_pos.min() >= 1.5)
     if not multi_t:
+        n_t = np.unique(t_pos).size
         reasons["dark_current"] = (
-            "all rows share one exposure time: only read² + D·t is identifiable (reported as dark_noise_e)"
-        )
+            "all rows share one exposure time" if n_t < 2 else f"the {n_t} exposure times span less than 1.5×"
+        ) + ": only read² + D·t is identifiable (reported as dark_noise_e)"
     full, reached = saturation_flags(d)
     clip, why = _clip_mechanism(d, full, reached)
     if clip == "none":
