@@ -1,6 +1,6 @@
 """The bundled Basler CSV corrupted many ways, each run through ``bayescap fit --quality fast``.
 
-    python benchmarks/corrupt_inputs.py [--seed 0] [--cells 60] [--include-slow]
+    python benchmarks/corrupt_inputs.py [--seed 0] [--cells 60] [--include-slow] [--no-faults]
 
 Every variant must either fit (exit 0) or be refused with one line naming the file (exit 2); a
 traceback (an exception through ``bayescap.cli.main``), a RuntimeWarning, more than one line of error
@@ -9,6 +9,15 @@ random single cells (a bad token, or the value scaled by 10⁻¹²…10¹², neg
 them), each column dropped / zero / empty, structural ones (BOM, CRLF, tabs, rows cut or doubled, ...)
 and metadata out of range. ``--include-slow`` adds the two that fit correctly but take ~2 minutes
 each (dark variance 0 on every row: the exact rounding terms at read noise 10⁻⁴ e⁻).
+
+Issue 48's families: subnormal and implausibly small values, cells past the csv module's limit,
+metadata given twice or implausible, repeated rows, and the bundled simulated phone sensor cut to
+its mostly saturated rows; in the subnormal, repeated-row and saturated families
+(:data:`MUST_REFUSE`) a fit is a defect, since those tables give tight, wrong intervals. The fault family (:func:`fault_checks`, subprocesses; skip it
+with ``--no-faults``) writes under ``ulimit -f``, kills a run during ``--out`` and runs again, runs
+two batches on one folder, kills a ``--jobs 2`` parent, makes batch results unwritable and
+outputs land on inputs: a crash, a leftover temporary file or worker, an input overwritten or more
+than one line of error is a defect.
 
 In-process (``cli.main``), so a variant costs what its fit costs. Writes
 ``benchmarks/results/corrupt_inputs.md``: how many variants fitted, how many were refused, and every
