@@ -84,8 +84,12 @@ def saturation_flags(d: PTCData):
         full = full & (v <= 1.1 * v_pl + 0.01)
     partial = np.zeros_like(full)
     if d.frac_saturated is not None:
-        full = full | (d.frac_saturated >= 0.999)
-        partial = (d.frac_saturated > 0) & ~full
+        fs = d.frac_saturated
+        # within 2 DN of the ADC maximum with some but not all pixels there: partly clipped by the
+        # ADC, not a well's plateau, however low its variance (an 8-bit sensor at K 0.5: K 7 % low)
+        adc_part = (fs > 0) & (fs < 0.999) & (m >= d.adc_max_dn - 2.0) if d.adc_max_dn is not None else False
+        full = (full & ~adc_part) | (fs >= 0.999)
+        partial = (fs > 0) & ~full
     if np.all(full):
         raise PTCInputError(
             "every row is saturated (at the plateau's mean and variance): no row lies on "
