@@ -204,8 +204,9 @@ def _pillow_limit():
 
     before = Image.MAX_IMAGE_PIXELS
     limit = image_pixel_limit()
-    # Pillow refuses at twice its limit and warns above it: its limit is half of bayescap's
-    Image.MAX_IMAGE_PIXELS = None if not limit else max(1, limit // 2)
+    # Pillow warns above its limit and refuses at twice it, when it opens the file: never below
+    # bayescap's (an image just above bayescap's limit gets bayescap's message, checked before decoding)
+    Image.MAX_IMAGE_PIXELS = None if not limit else max(limit, before or 0)
     try:
         yield
     finally:
