@@ -10,9 +10,14 @@ from __future__ import annotations
 
 import os
 
-__all__ = ["MAX_IMAGE_PIXELS", "image_pixels_problem"]
+__all__ = ["MAX_IMAGE_PIXELS", "image_pixels_problem", "image_pixel_limit"]
 
 MAX_IMAGE_PIXELS = 2**28
+
+
+def image_pixel_limit() -> int:
+    """The limit in force (``BAYESCAP_MAX_IMAGE_PIXELS``, else :data:`MAX_IMAGE_PIXELS`); 0 = none."""
+    return _limit()
 
 
 def _limit() -> int:

@@ -60,9 +60,9 @@ BENCHMARKS = {
         "1 min",
     ),
     "corrupt_inputs": (
-        "the bundled Basler CSV corrupted ~150 ways through `bayescap fit --quality fast`: every "
-        "variant fits or is refused in one line",
-        "1-3 min",
+        "the bundled CSVs corrupted ~300 ways through `bayescap fit --quality fast` (every variant fits "
+        "or is refused in one line; degenerate tables refused), and faults while writing in subprocesses",
+        "5-10 min",
         None,
     ),
     "basler_vs_emva1288": (

@@ -9,6 +9,8 @@ import contextlib
 import io
 import warnings
 
+import pytest
+
 from bayescap import cli
 
 
@@ -79,3 +81,70 @@ def test_every_corruption_fits_or_is_refused_in_one_line(tmp_path, basler_csv):
             failures.append((name, code, lines[:2], runtime[:2]))
     assert not failures, failures
     assert len(variants) > 100
+
+
+def _table(basler_csv):
+    lines = basler_csv.read_text().splitlines()
+    k = next(i for i, ln in enumerate(lines) if not ln.startswith("#"))
+    return lines[:k], lines[k].split(","), [ln.split(",") for ln in lines[k + 1 :] if ln.strip()]
+
+
+def hostile_variants(text):
+    """{name: (CSV text, what the one-line error must hold)} of issue 48's hostile inputs: each
+    refused in one line naming the file (and its row and column where there is one)."""
+    lines = text.splitlines()
+    k = next(i for i, ln in enumerate(lines) if not ln.startswith("#"))
+    meta, header = lines[:k], lines[k].split(",")
+    rows = [ln.split(",") for ln in lines[k + 1 :] if ln.strip()]
+    t = header.index("exposure_time_s")
+
+    def build(rs, m=meta):
+        return "\n".join(m + [",".join(header)] + [",".join(r) for r in rs]) + "\n"
+
+    def scaled(f):
+        return [r[:t] + [repr(float(r[t]) * f)] + r[t + 1 :] for r in rows]
+
+    big = [list(r) for r in rows]
+    big[3][1] = "1" * 10_000_000  # a 10 MB cell
+    return {
+        "subnormal exposure times": (build(scaled(1e-310)), ("row 1", "exposure_time_s", "subnormal")),
+        "exposure times of 1e-300 s": (build(scaled(1e-300)), ("row 1", "exposure_time_s", "implausibly short")),
+        "a 10 MB cell": (build(big), ("cannot read the table",)),
+        "adc_bits 10 then 16": (build(rows, meta + ["# adc_bits: 10", "# adc_bits: 16"]), ("given twice", "line")),
+        "width_px 1e30": (
+            build(rows, [m for m in meta if not m.startswith("# width_px")] + ["# width_px: 1e30"]),
+            ("width_px", "implausible"),
+        ),
+        "one row repeated 300 times": (build(rows + [rows[5]] * 300), ("repeats row 6", "301 copies")),
+        "the table repeated 10 times": (build(rows * 10), ("repeats row 1", "10 copies")),
+    }
+
+
+def test_hostile_tables_are_refused_in_one_line(tmp_path, basler_csv, capfd):
+    """Was: LAPACK's DLASCL text on stdout and a LinAlgError traceback (subnormal times); a
+    ``_csv.Error`` traceback (10 MB cell); the last of two adc_bits taken silently; a capacity of
+    5e33 bits (width 1e30); repeated rows taken as independent (K's interval ~3x too narrow)."""
+    failures = []
+    for i, (name, (text, needles)) in enumerate(hostile_variants(basler_csv.read_text()).items()):
+        p = tmp_path / f"h{i}.csv"
+        p.write_text(text)
+        capfd.readouterr()
+        code, lines, runtime = _run_fit(p)
+        ok = code == 2 and len(lines) == 1 and lines[0].startswith(f"bayescap: error: {p}")
+        # nothing on the process's standard output (LAPACK writes to file descriptor 1 directly)
+        ok = ok and all(n in lines[0] for n in needles) and not runtime and capfd.readouterr().out == ""
+        if not ok:
+            failures.append((name, code, [ln[:200] for ln in lines[:2]]))
+    assert not failures, failures
+
+
+def test_an_absurd_scene_temperature_is_refused_before_fitting(basler_csv, monkeypatch, capsys):
+    """Was: OverflowError (2^(ΔT/6)) after the whole fit."""
+    import bayescap.api
+
+    monkeypatch.setattr(bayescap.api, "fit", lambda *a, **k: pytest.fail("fitted"))
+    p = basler_csv
+    code = cli.main(["fit", str(p), "--temperature-c", "1e6", "--seed", "1"])
+    assert code == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "implausible" in err[0]

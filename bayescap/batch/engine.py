@@ -212,7 +212,9 @@ def fit_in_memory(
             (models, seeds, [ix for g in parts for ix in g], settings, fallback, summary_only, stack_size, False)
         )
     else:
-        from concurrent.futures import ProcessPoolExecutor, as_completed
+        from concurrent.futures import as_completed
+
+        from bayescap.batch.workers import process_pool
 
         # process w gets part w of every group, and only those models
         shares = [[g[w] for g in parts if w < len(g)] for w in range(n_jobs)]
@@ -222,7 +224,7 @@ def fit_in_memory(
             sub = [models[i] if i in ids else None for i in range(len(models))]
             jobs.append((sub, seeds, share, settings, fallback, summary_only, stack_size, True))
         done = {}
-        with ProcessPoolExecutor(max_workers=n_jobs) as ex:
+        with process_pool(n_jobs) as ex:  # workers end with this process
             # each fallback is a task of its own, submitted as soon as the process that rejected it
             # returns: whichever process is free takes it (the fast paths' rejections fall unevenly
             # between the processes' shares, and the first process done would otherwise idle)

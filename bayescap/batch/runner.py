@@ -21,11 +21,12 @@ batch stops with the error; rerun it to resume).
 from __future__ import annotations
 
 import math
-from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, ThreadPoolExecutor, wait
+from concurrent.futures import FIRST_COMPLETED, ThreadPoolExecutor, wait
 
 import bayescap.batch.store as store
 from bayescap._blas import one_blas_thread
 from bayescap.batch.engine import _Deferred, _fallback_fit, _fit_groups, sensor_seeds
+from bayescap.batch.workers import folder_lock, process_pool, stop_pool
 from bayescap.inference import FastSettings
 
 __all__ = ["fit_to_folder", "run_chunk", "run_fallback"]
@@ -100,7 +101,7 @@ class _Pool:
     """Tasks on a local process pool (``n_jobs > 1``)."""
 
     def __init__(self, n_jobs):
-        self.ex = ProcessPoolExecutor(max_workers=n_jobs)
+        self.ex = process_pool(n_jobs)  # workers end with this process (batch.workers)
         self.pending = set()
 
     def submit(self, fn, arg):
@@ -115,7 +116,10 @@ class _Pool:
                 yield f.result()
 
     def close(self, cancel=False):
-        self.ex.shutdown(wait=True, cancel_futures=cancel)
+        if cancel:  # an error or an interrupt: nobody reads the running chunks
+            stop_pool(self.ex)
+        else:
+            self.ex.shutdown(wait=True)
 
 
 def _chunks(groups, chunk_size, n_workers):
@@ -149,6 +153,37 @@ def fit_to_folder(
     """:func:`bayescap.batch.fit_many` with ``out``: see there and the module docstring. Returns one
     dict per input, in order: ``{"name", "status"}`` with status ``"fitted"`` (this run),
     ``"resumed"`` (found done in ``out``) or ``"error"`` (with ``"error"``: the message)."""
+    with folder_lock(out):  # one batch per folder at a time (batch.workers)
+        return _fit_to_folder(
+            datas,
+            out=out,
+            quality=quality,
+            seed=seed,
+            n_jobs=n_jobs,
+            fallback=fallback,
+            settings=settings,
+            stack_size=stack_size,
+            chunk_size=chunk_size,
+            client=client,
+            progress=progress,
+            on_chunk=on_chunk,
+        )
+
+
+def _write(args):
+    """Write one sensor's result; its error message (one line) instead of raising."""
+    out, name = args[0], args[1]
+    try:
+        store.write_result(*args)
+        return None
+    except (OSError, ValueError) as e:
+        what = getattr(e, "strerror", None) or str(e)
+        return f"cannot write {store.result_path(out, name)} ({what}); the other sensors go on"
+
+
+def _fit_to_folder(
+    datas, *, out, quality, seed, n_jobs, fallback, settings, stack_size, chunk_size, client, progress, on_chunk
+):
     from bayescap.api import load
     from bayescap.inference.lockstep import stack_groups
     from bayescap.io.ptc_csv import PTCData
@@ -208,15 +243,18 @@ def fit_to_folder(
                     tasks.submit(run_fallback, (i, models[i], seeds[i], value, settings))
                     continue
                 if kind == "doc":
-                    docs.append((out, names[i], value, entries[i]))
+                    docs.append((i, (out, names[i], value, entries[i])))
                     report[i] = {"status": "fitted"}
                 else:
                     report[i] = {"status": "error", "error": value}
                 models[i] = None  # done: its memory can go
                 n_done += 1
             # the chunk's files on a few threads: each is fsync'd, which waits on the disk, not the CPU
-            for _ in writers.map(lambda a: store.write_result(*a), docs):
-                pass
+            # a result that cannot be written (a full disk, a name the file system refuses, a
+            # folder in the way) is that sensor's error: the batch goes on
+            for (i, _), err in zip(docs, writers.map(_write, [a for _, a in docs])):
+                if err is not None:
+                    report[i] = {"status": "error", "error": err}
             if bar is not None:
                 bar.update(n_done)
             if on_chunk is not None:

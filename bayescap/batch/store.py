@@ -35,6 +35,8 @@ __all__ = ["RESULT_FILE", "batch_entry", "config_digest", "data_digest", "is_don
 RESULT_FILE = "result.json"
 
 _UNSAFE = re.compile(r"[^A-Za-z0-9._+-]+")
+#: the longest folder name taken from a file name (a repeat's "_<k>" and a temporary twin fit in 255 bytes)
+MAX_NAME = 200
 
 
 def sensor_names(sources) -> list[str]:
@@ -44,7 +46,8 @@ def sensor_names(sources) -> list[str]:
     for i, src in enumerate(sources):
         stem = None if src is None or str(src).startswith("<") else Path(str(src)).stem
         stem = _UNSAFE.sub("_", stem).lstrip(".") if stem else ""
-        stem = stem or f"sensor{i}"
+        # a folder name has at most 255 bytes: room kept for a "_<k>" suffix (names are ASCII here)
+        stem = stem[:MAX_NAME] or f"sensor{i}"
         name, k = stem, 1
         while name in used:
             k += 1
@@ -94,7 +97,14 @@ def is_done(out, name, entry) -> bool:
         doc = json.loads(p.read_text(encoding="utf-8"))
     except (OSError, ValueError):
         return False
-    return isinstance(doc, dict) and doc.get("batch") == entry
+    # a fit JSON, not a stub that only carries the key (it would be reported as a result)
+    return (
+        isinstance(doc, dict)
+        and doc.get("batch") == entry
+        and isinstance(doc.get("parameters"), dict)
+        and "conversion_gain_e_per_dn" in doc["parameters"]
+        and isinstance(doc.get("diagnostics"), dict)
+    )
 
 
 def write_result(out, name, doc, entry) -> Path:

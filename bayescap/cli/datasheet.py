@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import os
 import sys
 from pathlib import Path
 
@@ -64,6 +65,14 @@ def run_datasheet(args) -> int:
     html_out = None if out.suffix.lower() == ".pdf" else out
     pdf = out if html_out is None else pdf
     targets = [(html_out, "-o"), (pdf, "--pdf" if html_out is not None else "-o"), (args.json, "--json")]
+    given = [(Path(t), o) for t, o in targets if t]
+    for k, (t, o) in enumerate(given):  # two outputs on one file: one would replace the other
+        for t2, o2 in given[:k]:
+            if os.path.abspath(t) == os.path.abspath(t2):
+                print(
+                    f"bayescap: error: {o} {t} is also the {o2} output: give each output its own file", file=sys.stderr
+                )
+                return 2
     for target, option in targets:  # before any fitting
         problem = target and output_problem(target, [args.csv], option=option)
         if problem:

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import math
 import sys
 
 from bayescap.cli.common import (
@@ -12,6 +13,10 @@ from bayescap.cli.common import (
     strict_status,
 )
 from bayescap.exceptions import InputError
+
+#: a scene temperature above it (°C) is refused before fitting: no sensor works there, and the dark
+#: current's 2^(ΔT/6 °C) of a much larger ΔT overflows
+_MAX_SCENE_TEMPERATURE_C = 200.0
 
 
 def _cmd_fit(args) -> int:
@@ -227,10 +232,15 @@ def _fit_many_to_folder(args, datas, kw, scheduler, n_dask) -> int:
             client.close()
         if cluster is not None:
             cluster.close()
-    docs = [
-        read_result(args.out, r["name"]) if r["status"] != "error" else {"input": p, "error": r["error"]}
-        for p, r in zip(args.csv, report)
-    ]
+    docs = []
+    for p, r in zip(args.csv, report):
+        if r["status"] != "error":
+            try:
+                docs.append(read_result(args.out, r["name"]))
+                continue
+            except (OSError, ValueError) as e:  # gone or spoilt since: this sensor's error
+                r.update(status="error", error=f"cannot read {args.out}/{r['name']}/result.json back ({e})")
+        docs.append({"input": p, "error": r["error"]})
     if args.json:
         sys.stdout.write(json.dumps(docs, indent=2, ensure_ascii=False, allow_nan=False) + "\n")
     else:
@@ -322,6 +332,12 @@ def _scene_from_args(args, data):
         spec["exposure_s"] = args.scene_exposure_s
     if args.temperature_c is not None:
         spec["temperature_c"] = args.temperature_c
+    t_c = spec.get("temperature_c")
+    if t_c is not None and not (math.isfinite(t_c) and t_c <= _MAX_SCENE_TEMPERATURE_C):
+        # before the fit: 2^(ΔT/6 °C) of an absurd temperature overflows after it
+        raise InputError(
+            f"scene temperature {t_c:g} °C is implausible for a working sensor (above {_MAX_SCENE_TEMPERATURE_C:g} °C)"
+        )
     if not spec:
         return None
     base = default_scene(data)

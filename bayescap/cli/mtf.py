@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import math
 import sys
 import warnings
 
@@ -39,6 +40,25 @@ def detector_summary_text(det) -> str:
     return "\n".join(lines) + "\n"
 
 
+#: bootstrap draws: at least enough for a 95 % interval's ends, at most what fits in memory beside the image
+_N_BOOT_RANGE = (20, 100_000)
+
+
+def _check_numbers(args) -> None:
+    """The numeric options, before any work: one line each."""
+    lo, hi = _N_BOOT_RANGE
+    if not lo <= args.n_boot <= hi:
+        raise InputError(
+            f"--n-boot must be between {lo} and {hi:,} (a 95 % interval needs its draws), got {args.n_boot}"
+        )
+    pitch = getattr(args, "pixel_pitch_um", None)
+    if pitch is not None and not (math.isfinite(pitch) and 0 < pitch <= 1000):
+        raise InputError(f"--pixel-pitch-um must be a pixel pitch in (0, 1000] µm, got {pitch:g}")
+    h = getattr(args, "height_px", None)
+    if h is not None and not 0 < h <= 1_000_000:
+        raise InputError(f"--height-px must be a positive number of pixels, got {h}")
+
+
 def _cmd_mtf(args) -> int:
     import json
 
@@ -47,10 +67,11 @@ def _cmd_mtf(args) -> int:
     from bayescap.measure import measure_sfr, read_image
     from bayescap.measure.table import mtf_table_text
 
-    if args.out:  # before any work: never over the image, and a place that can be written
-        problem = output_problem(args.out, [args.image])
+    if args.out:  # before any work: never over an input (the image, the lens table), and a place that can be written
+        problem = output_problem(args.out, [args.image] + ([args.lens_mtf] if getattr(args, "lens_mtf", None) else []))
         if problem:
             raise InputError(problem)
+    _check_numbers(args)
     roi = None
     if args.roi:
         try:
@@ -83,8 +104,9 @@ def _cmd_mtf(args) -> int:
                 seed=args.seed,
                 correct_bin_width=args.correct_bin_width,
             )
-    except MTFInputError as e:
-        raise InputError(str(e)) from None
+    except MTFInputError as e:  # the edge analysis' own messages do not know the file: name it
+        msg = str(e)
+        raise InputError(msg if msg.startswith(str(args.image)) else f"{args.image}: {msg}") from None
     for w in r.warnings:
         print(f"bayescap mtf: warning: {w}", file=sys.stderr)
     det = None

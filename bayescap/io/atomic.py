@@ -17,6 +17,7 @@ __all__ = [
     "write_files_atomically",
     "write_dir_atomically",
     "output_problem",
+    "clean_stale_twins",
 ]
 
 
@@ -128,17 +129,70 @@ def _umask() -> int:
     return mask
 
 
+def _twin_prefix(name: str) -> str:
+    """The start of a temporary or set-aside twin's name: ``.<name>.`` with ``name`` cut to 120
+    bytes of UTF-8, so that the twin's name stays within the 255 bytes a folder name may have."""
+    b = name.encode("utf-8", "surrogateescape")[:120]
+    return f".{b.decode('utf-8', 'ignore')}."
+
+
+def _alive(pid: int) -> bool:
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except PermissionError:  # someone else's process
+        return True
+    return True
+
+
+def clean_stale_twins(target: os.PathLike | str) -> list[Path]:
+    """Remove the temporary (``.<name>.<pid>.<x>.tmp``) and set-aside (``.<name>.<pid>.<x>.old``)
+    twins of ``target`` that a process, since dead (``kill -9``, a power cut), left beside it;
+    a set-aside twin whose target is missing is the last complete set and is renamed back instead.
+    Twins of living processes are left alone. Returns what was removed or restored."""
+    target = Path(target)
+    parent = Path(os.path.abspath(target)).parent
+    prefix = _twin_prefix(target.name)
+    done = []
+    try:
+        entries = os.listdir(parent)
+    except OSError:
+        return done
+    for e in sorted(entries):
+        if not e.startswith(prefix) or not e.endswith((".tmp", ".old")):
+            continue
+        pid = e[len(prefix) :].split(".", 1)[0]
+        if not pid.isdigit() or _alive(int(pid)):
+            continue
+        path = parent / e
+        if e.endswith(".old") and not target.exists():
+            try:
+                os.rename(path, target)
+                done.append(path)
+                continue
+            except OSError:
+                pass
+        shutil.rmtree(path, ignore_errors=True)
+        done.append(path)
+    return done
+
+
 def write_dir_atomically(target: os.PathLike | str, fill: Callable[[Path], object]) -> None:
     """Make the directory ``target`` as a whole: ``fill(tmp)`` writes every file into a fresh
     temporary directory beside ``target``, which is then renamed into place (an existing
     ``target`` is renamed aside first and removed after), so a reader finds the previous set or
     the new one, never a mix of two runs. On any error the temporary directory is removed and
-    ``target`` is left as it was. Raises :class:`OSError`; ``fill``'s own errors pass through.
+    ``target`` is left as it was (or holds another run's complete set that came in between).
+    Twins a dead process left beside ``target`` are cleaned first (:func:`clean_stale_twins`).
+    Raises :class:`OSError`; ``fill``'s own errors pass through.
     """
     target = Path(target)
     parent = Path(os.path.abspath(target)).parent
     parent.mkdir(parents=True, exist_ok=True)
-    tmp = Path(tempfile.mkdtemp(prefix=f".{target.name}.", suffix=".tmp", dir=parent))
+    clean_stale_twins(target)
+    prefix = f"{_twin_prefix(target.name)}{os.getpid()}."
+    tmp = Path(tempfile.mkdtemp(prefix=prefix, suffix=".tmp", dir=parent))
     try:
         fill(tmp)
         os.chmod(tmp, 0o777 & ~_umask())  # mkdtemp's 0o700 -> the ordinary mode of a new folder
@@ -153,18 +207,21 @@ def write_dir_atomically(target: os.PathLike | str, fill: Callable[[Path], objec
                     continue
             if not target.is_dir() or target.is_symlink():
                 raise FileExistsError(errno.EEXIST, "exists and is not a directory", str(target))
-            old = parent / f".{target.name}.{secrets.token_hex(4)}.old"
+            old = parent / f"{prefix}{secrets.token_hex(4)}.old"
             try:
                 os.rename(target, old)
             except FileNotFoundError:
                 continue
             try:
                 os.rename(tmp, target)
-            except OSError:
+            except OSError as e:
                 try:
                     os.rename(old, target)
                 except OSError:
-                    pass
+                    # another run's complete set is in place: the set aside is not needed
+                    shutil.rmtree(old, ignore_errors=True)
+                if e.errno in (errno.EEXIST, errno.ENOTEMPTY):
+                    continue
                 raise
             shutil.rmtree(old, ignore_errors=True)
             return

@@ -13,6 +13,7 @@ import io
 import logging
 import math
 import os
+import re
 import warnings
 from dataclasses import dataclass
 from pathlib import Path
@@ -128,12 +129,28 @@ def _tiff_tags(path: Path) -> dict[int, object]:
         return {}
 
 
+_BYTES_REPR = re.compile(r"b'(?:[^'\\]|\\.)*'" + r'|b"(?:[^"\\]|\\.)*"')
+
+
+def _reason(exc: BaseException) -> str:
+    """A reader's exception in one line for a message: its type and text, without the bytes of
+    the file it quotes (a manifest can point at any file: its content is never echoed) and
+    without control characters."""
+    from bayescap.io.ptc_csv import _clean
+
+    text = _BYTES_REPR.sub("<bytes not shown>", str(exc))
+    return _clean(f"{type(exc).__name__}: {text}")
+
+
 def _tag_text(value: object) -> str | None:
     if value is None:
         return None
     if isinstance(value, bytes):
         value = value.decode("latin-1")
-    text = str(value).strip().strip("\x00").strip()
+    # a control character (NUL, ESC's terminal sequences) never reaches a message or a CSV
+    from bayescap.io.ptc_csv import _clean
+
+    text = _clean(str(value)).strip()
     return text or None
 
 
@@ -188,8 +205,7 @@ def _read_rawpy(path: Path) -> Frame:
         raise
     except (rawpy.LibRawError, OSError, ValueError) as exc:
         raise IngestError(
-            f"cannot read the frame as camera RAW/DNG ({type(exc).__name__}: "
-            f"{exc}); is the file complete and a supported format?",
+            f"cannot read the frame as camera RAW/DNG ({_reason(exc)}); is the file complete and a supported format?",
             path=path,
         ) from exc
     if pixels.ndim != 2:
@@ -262,7 +278,7 @@ def _read_pillow(path: Path) -> Frame:
     except IngestError:
         raise
     except Exception as exc:  # Pillow raises OSError, SyntaxError, ValueError, ...
-        raise IngestError(f"cannot decode the image ({type(exc).__name__}: {exc})", path=path) from exc
+        raise IngestError(f"cannot decode the image ({_reason(exc)})", path=path) from exc
     if mode not in ("L", "I", "I;16", "I;16B", "I;16L"):
         raise IngestError(
             f"image mode {mode!r} is not a single-channel 8/16-bit grey image; save raw frames as greyscale PNG",
@@ -307,7 +323,7 @@ def _read_tiff(path: Path) -> Frame:
     except IngestError:
         raise
     except Exception as exc:
-        raise IngestError(f"cannot read the TIFF image ({type(exc).__name__}: {exc})", path=path) from exc
+        raise IngestError(f"cannot read the TIFF image ({_reason(exc)})", path=path) from exc
     _check_integer_image(pixels, path)
     tags = _tiff_tags(path)
     return Frame(
@@ -334,7 +350,7 @@ def _read_npy(path: Path) -> Frame:
     except IngestError:
         raise
     except Exception as exc:
-        raise IngestError(f"cannot read the .npy array ({type(exc).__name__}: {exc})", path=path) from exc
+        raise IngestError(f"cannot read the .npy array ({_reason(exc)})", path=path) from exc
     bits = _check_integer_image(np.asarray(pixels), path)
     return Frame(
         pixels=np.asarray(pixels),
@@ -403,5 +419,5 @@ def _exposure_time_from_file(path: Path) -> float | None:
     except IngestError:
         raise
     except (rawpy.LibRawError, OSError, ValueError) as exc:
-        raise IngestError(f"cannot read the frame as camera RAW/DNG ({type(exc).__name__}: {exc})", path=path) from exc
+        raise IngestError(f"cannot read the frame as camera RAW/DNG ({_reason(exc)})", path=path) from exc
     return _round_float32_seconds(shutter) if shutter > 0 else None

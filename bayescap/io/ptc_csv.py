@@ -28,6 +28,7 @@ import csv
 import io
 import math
 import re
+import sys
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -35,6 +36,12 @@ import numpy as np
 
 from bayescap.exceptions import PTCInputError
 from bayescap.io.atomic import atomic_write_text
+from bayescap.io.table_checks import (
+    _check_repeated_key,
+    _records,
+    check_repeated_rows,
+    check_some_row_mostly_unclipped,
+)
 
 __all__ = [
     "PTCData",
@@ -211,7 +218,7 @@ def _number(s: str, delimiter: str) -> float:
 
 
 def _parse_metadata(lines, path, delimiter=","):
-    md = {}
+    md, seen = {}, {}
     for lineno, line in lines:
         # a spreadsheet pads every line to the table's width with separators
         body = _clean(line.lstrip("#").strip().rstrip(delimiter + " ").strip())
@@ -220,6 +227,7 @@ def _parse_metadata(lines, path, delimiter=","):
         if ":" not in body:
             continue  # a plain comment
         key, value = (s.strip() for s in body.split(":", 1))
+        _check_repeated_key(seen, key, value, lineno, path)
         typ = METADATA_TYPES.get(key)
         if typ is None:
             md[key] = value
@@ -269,6 +277,9 @@ def _check_metadata(md, path):
     for k in positive:
         if k in md and not md[k] > 0:
             raise PTCInputError(f"metadata '{k}' must be positive, got {md[k]}", path=path)
+    for k, top in (("width_px", _MAX_SIDE_PX), ("height_px", _MAX_SIDE_PX), ("pixel_pitch_um", _MAX_PITCH_UM)):
+        if k in md and md[k] > top:
+            raise PTCInputError(f"metadata '{k}' {md[k]:g} is implausible (above {top:g})", path=path)
     if "adc_bits" in md and not 1 <= md["adc_bits"] <= 32:
         raise PTCInputError(f"metadata 'adc_bits' must be between 1 and 32, got {md['adc_bits']}", path=path)
     if "crosstalk_sigma_px" in md and not md["crosstalk_sigma_px"] >= 0:
@@ -321,7 +332,7 @@ def read_ptc_csv(path, *, overrides: dict | None = None) -> PTCData:
     if overrides:
         md.update(_typed_overrides(overrides, path_str))
         _check_metadata(md, path_str)
-    reader = csv.reader(io.StringIO("\n".join(lines[body_start:])), delimiter=delimiter)
+    reader = _records(csv.reader(io.StringIO("\n".join(lines[body_start:])), delimiter=delimiter), path_str)
     header = [h.strip() for h in next(reader)]
     while header and header[-1] == "":  # a spreadsheet's trailing empty columns
         header.pop()
@@ -388,8 +399,10 @@ def read_ptc_csv(path, *, overrides: dict | None = None) -> PTCData:
         _fill_mean_variance(cols, rowno, md)
     order = np.argsort(np.asarray(cols["mean_dn"]) - np.asarray(cols["dark_mean_dn"]), kind="stable")
     kw = {c: _readonly(np.asarray(v)[order]) for c, v in cols.items()}
+    check_repeated_rows(cols, rownums, path_str)
     data = PTCData(**kw, metadata=md, source=path_str, row_numbers=_readonly(np.asarray(rownums)[order]))
     _check_consistency(data, path_str)
+    check_some_row_mostly_unclipped(data, path_str)
     return data
 
 
@@ -418,6 +431,11 @@ def _fill_mean_variance(cols: dict, n: int, md: dict) -> None:
 #: no column of a photon-transfer table comes near this (a variance of 32-bit DN values is below 2e19);
 #: a larger value is a unit or export error, and the model's products of it would overflow
 _MAX_ABS_VALUE = 1e30
+#: exposure times (s) above 0 and below it are refused: no sensor integrates for less than a picosecond
+_MIN_EXPOSURE_S = 1e-12
+#: metadata a sensor cannot have: more pixels a side, a larger pixel (µm)
+_MAX_SIDE_PX = 1_000_000
+_MAX_PITCH_UM = 1000.0
 #: temperatures below it (°C) are refused (metadata ``temperature_c``, a scene's temperature)
 _ABSOLUTE_ZERO_C = -273.15
 
@@ -425,6 +443,21 @@ _ABSOLUTE_ZERO_C = -273.15
 def _check_value(col, v, path, row, label=None):
     """Refuse a value no photon-transfer table can hold (``label``: the column as the file names it)."""
     label = label or col
+    if v != 0 and abs(v) < sys.float_info.min:
+        # a subnormal float is no measured value, and LAPACK fails on it (printing to stdout)
+        raise PTCInputError(
+            f"{v:g} is a subnormal number (below {sys.float_info.min:g}): not a measured value",
+            path=path,
+            row=row,
+            column=label,
+        )
+    if col == "exposure_time_s" and 0 < v < _MIN_EXPOSURE_S:
+        raise PTCInputError(
+            f"exposure time {v:g} s is implausibly short (below {_MIN_EXPOSURE_S:g} s): check the column's units (seconds)",
+            path=path,
+            row=row,
+            column=label,
+        )
     if abs(v) > _MAX_ABS_VALUE:
         raise PTCInputError(
             f"{v:g} is implausibly large (above {_MAX_ABS_VALUE:g}): check the column's units",

@@ -33,7 +33,13 @@ from bayescap.measure.result import SFRResult
 
 __all__ = ["LensMTF", "DetectorMTF", "read_lens_mtf_table", "detector_mtf", "detector_table_text"]
 
-FREQ_COLUMNS = {"frequency_lp_per_mm": "lp/mm", "frequency_cy_per_px": "cy/px"}
+FREQ_COLUMNS = {
+    "frequency_lp_per_mm": "lp/mm",
+    "frequency_cy_per_px": "cy/px",
+    # the names of the system MTF table (``freq_cy_per_px``, measure.table): one convention, both read
+    "freq_lp_per_mm": "lp/mm",
+    "freq_cy_per_px": "cy/px",
+}
 
 
 @dataclass(frozen=True)

@@ -7,8 +7,10 @@
 
 from __future__ import annotations
 
+import contextlib
 import csv
 import math
+import re
 import warnings
 from pathlib import Path
 
@@ -26,6 +28,8 @@ __all__ = [
 
 
 _FREQ_COL = "freq_cy_per_px"
+#: other names of the frequency column read as it (the lens MTF table's)
+_FREQ_ALIASES = ("frequency_cy_per_px",)
 _CI_COLS = ("mtf_ci95_low", "mtf_ci95_high")
 
 
@@ -67,6 +71,8 @@ def read_mtf_table(path: str | Path, channel: str | None = None) -> SFRResult:
     expected = (
         "expected header 'freq_cy_per_px,mtf' or 'freq_cy_per_px,sfr' (or 'freq_cy_per_px,sfr_R,sfr_G,sfr_B,sfr_Lum')"
     )
+    if header[0] in _FREQ_ALIASES:  # the lens table's name of the column (measure.detector): one convention, both read
+        header[0] = _FREQ_COL
     if header[0] != _FREQ_COL:
         raise MTFInputError(f"{path}: row {hline}, column 1: found {header[0]!r}; {expected}")
     data_cols: list[tuple[int, str]] = []
@@ -178,6 +184,35 @@ def write_mtf_table(result: SFRResult, path: str | Path) -> None:
         fh.write(mtf_table_text(result))
 
 
+#: terminal escape sequences and control characters (C0, DEL, C1)
+_CONTROL = re.compile("\x1b\\[[0-9;?]*[ -/]*[@-~]|[\x00-\x1f\x7f-\x9f]")
+
+
+def printable(text: str) -> str:
+    """``text`` without control characters: what a file holds (a TIFF tag, a library's message
+    quoting it) is never echoed raw into a terminal or a CSV."""
+    return _CONTROL.sub("", text.replace("\t", " "))
+
+
+@contextlib.contextmanager
+def _pillow_limit():
+    """Pillow's own decompression-bomb limit set to bayescap's (``BAYESCAP_MAX_IMAGE_PIXELS``; 0 =
+    none), so that the one limit the docs name is the one that holds."""
+    from PIL import Image
+
+    from bayescap._limits import image_pixel_limit
+
+    before = Image.MAX_IMAGE_PIXELS
+    limit = image_pixel_limit()
+    # Pillow warns above its limit and refuses at twice it, when it opens the file: never below
+    # bayescap's (an image just above bayescap's limit gets bayescap's message, checked before decoding)
+    Image.MAX_IMAGE_PIXELS = None if not limit else max(limit, before or 0)
+    try:
+        yield
+    finally:
+        Image.MAX_IMAGE_PIXELS = before
+
+
 def read_image(path: str | Path) -> np.ndarray:
     """Read an edge image (TIFF, PNG, JPEG, ``.npy``) as a float array, (H, W) or (H, W, 3).
 
@@ -207,7 +242,7 @@ def read_image(path: str | Path) -> np.ndarray:
             with warnings.catch_warnings():
                 warnings.simplefilter("ignore", UserWarning)
                 warnings.simplefilter("ignore", Image.DecompressionBombWarning)
-                with Image.open(p) as im:
+                with _pillow_limit(), Image.open(p) as im:
                     problem = image_pixels_problem((im.size[1], im.size[0]) + ((3,) if im.mode != "L" else ()))
                     if problem:
                         raise MTFInputError(f"{p}: {problem}")
@@ -218,11 +253,11 @@ def read_image(path: str | Path) -> np.ndarray:
         except FileNotFoundError:
             raise MTFInputError(f"{p}: file not found") from None
         except Image.DecompressionBombError as e:  # Pillow's own limit, checked when it opens
-            raise MTFInputError(f"{p}: {e}") from None
+            raise MTFInputError(f"{p}: {printable(str(e))}") from None
         except (UnidentifiedImageError, OSError, ValueError) as e:
             if isinstance(e, MTFInputError):
                 raise
-            raise MTFInputError(f"{p}: cannot read the image ({e})") from None
+            raise MTFInputError(f"{p}: cannot read the image ({printable(str(e))})") from None
     arr = np.asarray(arr, dtype=float)
     if arr.ndim == 3 and arr.shape[2] == 1:
         arr = arr[..., 0]

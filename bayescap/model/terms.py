@@ -84,8 +84,12 @@ def saturation_flags(d: PTCData):
         full = full & (v <= 1.1 * v_pl + 0.01)
     partial = np.zeros_like(full)
     if d.frac_saturated is not None:
-        full = full | (d.frac_saturated >= 0.999)
-        partial = (d.frac_saturated > 0) & ~full
+        fs = d.frac_saturated
+        # within 2 DN of the ADC maximum with some but not all pixels there: partly clipped by the
+        # ADC, not a well's plateau, however low its variance (an 8-bit sensor at K 0.5: K 7 % low)
+        adc_part = (fs > 0) & (fs < 0.999) & (m >= d.adc_max_dn - 2.0) if d.adc_max_dn is not None else False
+        full = (full & ~adc_part) | (fs >= 0.999)
+        partial = (fs > 0) & ~full
     if np.all(full):
         raise PTCInputError(
             "every row is saturated (at the plateau's mean and variance): no row lies on "
@@ -143,9 +147,10 @@ def select_terms(d: PTCData, *, force: dict | None = None) -> ModelTerms:
     with np.errstate(over="ignore"):  # a subnormal exposure time: the ratio is inf, still ≥ 1.5
         multi_t = t_pos.size >= 2 and (t_pos.max() / t_pos.min() >= 1.5)
     if not multi_t:
+        n_t = np.unique(t_pos).size
         reasons["dark_current"] = (
-            "all rows share one exposure time: only read² + D·t is identifiable (reported as dark_noise_e)"
-        )
+            "all rows share one exposure time" if n_t < 2 else f"the {n_t} exposure times span less than 1.5×"
+        ) + ": only read² + D·t is identifiable (reported as dark_noise_e)"
     full, reached = saturation_flags(d)
     clip, why = _clip_mechanism(d, full, reached)
     if clip == "none":

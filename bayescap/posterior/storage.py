@@ -13,13 +13,13 @@ from __future__ import annotations
 
 import dataclasses
 import json
-import os
 from pathlib import Path
 
 import numpy as np
 
 from bayescap.inference import presets
 from bayescap.inference.chains import ChainResult
+from bayescap.io.atomic import atomic_write_bytes
 from bayescap.io.ptc_csv import PTCData
 from bayescap.model.ptc_model import PTCModel
 from bayescap.model.terms import ModelTerms
@@ -27,7 +27,7 @@ from bayescap.physics import optics
 from bayescap.posterior.inference_data import INPUT_COLUMNS, _plain, draw_order, to_inference_data
 from bayescap.posterior.scene import Scene
 
-__all__ = ["save_result", "load_result", "FORMAT_VERSION"]
+__all__ = ["save_result", "load_result", "netcdf_bytes", "FORMAT_VERSION"]
 
 #: the layout of the ``bayescap_result`` attribute
 FORMAT_VERSION = 1
@@ -52,9 +52,18 @@ def _mtf_state(mtf):
     return None
 
 
+#: the MTF classes a result file may name ("mtf.class"): the ones :func:`_mtf_state` writes
+_MTF_CLASSES = frozenset(
+    n for n in dir(optics) if isinstance(getattr(optics, n), type) and dataclasses.is_dataclass(getattr(optics, n))
+)
+
+
 def _mtf_from_state(state):
     if state is None:
         return None
+    cls = state.get("class") if isinstance(state, dict) else None
+    if cls not in _MTF_CLASSES:  # never a class the file names freely (any module attribute)
+        raise ValueError(f"not a bayescap MTF class: {cls!r}")
     kw = {}
     for k, v in state.items():
         if k == "class":
@@ -64,7 +73,7 @@ def _mtf_from_state(state):
         elif isinstance(v, dict) and "array" in v:
             v = np.asarray(v["array"], float)
         kw[k] = v
-    return getattr(optics, state["class"])(**kw)
+    return getattr(optics, cls)(**kw)
 
 
 def _result_state(result) -> dict:
@@ -123,14 +132,37 @@ def save_result(result, path) -> Path:
                 )
             }
         )
-    tmp = path.parent / f".{path.name}.tmp-{os.getpid()}"
-    try:
-        idata.to_netcdf(str(tmp), engine="h5netcdf")
-        os.replace(tmp, path)
-    finally:
-        if tmp.exists():
-            tmp.unlink()
+    # built in memory, then written by Python: h5py writing a file itself crashes the process
+    # (SIGSEGV) when a write fails (a full disk, a quota, ``ulimit -f``); an OSError here instead
+    atomic_write_bytes(path, netcdf_bytes(idata))
     return path
+
+
+def netcdf_bytes(idata) -> bytes:
+    """The netCDF-4 file (h5netcdf) of an InferenceData, as bytes: the same groups, attributes and
+    compression as ``idata.to_netcdf``, built in memory so that no file write happens inside h5py."""
+    import xarray as xr
+
+    groups = {f"/{g}": idata[g] for g in idata.groups()}
+    tree = xr.DataTree.from_dict({"/": xr.Dataset(attrs=dict(idata.attrs)), **groups})
+    encoding = {
+        g: {v: {"zlib": True} for v, x in ds.variables.items() if x.dtype.kind in "biufc"} for g, ds in groups.items()
+    }
+    return bytes(tree.to_netcdf(None, engine="h5netcdf", encoding=encoding))
+
+
+def _checked_shape(path, shape, groups, n_params):
+    """The chain's (E, S, W, D) as the file states it, checked against the draws the file holds
+    before anything of that size is allocated (a crafted shape must not ask for gigabytes)."""
+    ok = isinstance(shape, list) and len(shape) == 4 and all(type(x) is int and x > 0 for x in shape)
+    if ok:
+        E, S, W, D = shape
+        unc = groups.get("unconstrained_posterior")
+        sizes = {int(unc[n].size) for n in unc.data_vars} if unc is not None and unc.data_vars else set()
+        ok = D == n_params and sizes == {E * S * W}
+    if not ok:
+        raise ValueError(f"{path}: not a bayescap result file (the chain's shape {shape!r} does not match its draws)")
+    return E, S, W, D
 
 
 def _tuples(v):
@@ -159,7 +191,7 @@ def load_result(path, result_cls):
     model = PTCModel(data, terms=terms, prior={k: _tuples(v) for k, v in prior.items()} if prior else None)
 
     ch = state["chains"]
-    E, S, W, D = ch["shape"]
+    E, S, W, D = _checked_shape(path, ch.get("shape"), groups, len(model.names))
     order, _, _ = draw_order(S, W)
 
     def esw(values):
@@ -173,7 +205,10 @@ def load_result(path, result_cls):
     log_prob = esw(groups["sample_stats"]["lp"].values).reshape(E, S, W)
     settings = ch["settings"]
     if settings is not None:
-        settings = getattr(presets, ch["settings_class"])(**{k: _tuples(v) for k, v in settings.items()})
+        cls = getattr(presets, str(ch.get("settings_class")), None)
+        if not (isinstance(cls, type) and dataclasses.is_dataclass(cls)):
+            raise ValueError(f"{path}: not a bayescap result file (sampler settings {ch.get('settings_class')!r})")
+        settings = cls(**{k: _tuples(v) for k, v in settings.items()})
     extra = dict(ch["extra"])
     if "bayescap_weighted_draws" in groups:
         g = groups["bayescap_weighted_draws"]
@@ -194,6 +229,10 @@ def load_result(path, result_cls):
         n_rounds=ch["n_rounds"],
         extra=extra,
     )
+    try:
+        mtf = _mtf_from_state(state["mtf"])
+    except ValueError as e:
+        raise ValueError(f"{path}: {e}") from None
     post = groups["posterior"]
     derived_names = state["derived_names"]
     r = result_cls(
@@ -201,7 +240,7 @@ def load_result(path, result_cls):
         chains=chains,
         metadata=state["metadata"],
         scene=Scene(**state["scene"]),
-        mtf=_mtf_from_state(state["mtf"]),
+        mtf=mtf,
         seed=state["seed"],
         quality=state["quality"],
         draws={n: esw(post[n].values) for n in post.data_vars if n not in derived_names},

@@ -12,6 +12,7 @@ from pathlib import Path
 
 from bayescap.posterior import FitResult
 from bayescap.posterior.inference_data import to_inference_data as _to_inference_data
+from bayescap.posterior.storage import netcdf_bytes
 from bayescap.posterior.summary import DERIVED_ORDER, PARAMETER_ORDER
 from bayescap.report.plots import plot_corner, plot_ptc
 
@@ -216,7 +217,8 @@ def write_outputs(result: FitResult, out_dir) -> list[Path]:
         (tmp / "report.txt").write_text(format_text(result), encoding="utf-8")
         idata = to_inference_data(result)
         _check_space(tmp, idata)
-        idata.to_netcdf(str(tmp / "posterior.nc"), engine="h5netcdf")
+        # built in memory and written by Python: h5py crashes the process when its own write fails
+        (tmp / "posterior.nc").write_bytes(netcdf_bytes(idata))
         plot_ptc(result, tmp / "ptc.png")
         plot_corner(result, tmp / "corner.png")
 

@@ -1,0 +1,76 @@
+"""Degenerate photon-transfer tables (issue 48) built frame by frame
+(:mod:`bayescap.validation.framesim`, independent of the model): a table that cannot give an
+honest answer is refused in one line, never fitted to a tight interval that excludes the truth."""
+
+import numpy as np
+
+from bayescap.cli import main
+from bayescap.validation.framesim import Acquisition, FrameSensor, simulate_rows, write_csv
+
+#: the bundled simulated phone sensor's design: K 4.0 e⁻/DN, 10 bit, clip 3 836 e⁻ (the ADC), η 0.5
+PHONE = FrameSensor(
+    k_e_per_dn=4.0,
+    read_noise_e=3.5,
+    full_well_e=8000.0,
+    quantum_efficiency=0.5,
+    dark_current_e_per_s=25.0,
+    adc_bits=10,
+    black_level_dn=64.0,
+)
+
+
+def _table(tmp_path, photons, times, seed=11):
+    rows = simulate_rows(PHONE, Acquisition(exposure_time_s=tuple(times), photons_per_pixel=tuple(photons)), seed)
+    p = tmp_path / "t.csv"
+    write_csv(p, rows, {"adc_bits": 10, "pixel_pitch_um": 1.75})
+    return p, rows
+
+
+def test_a_table_whose_every_row_is_mostly_saturated_is_refused(tmp_path, capsys):
+    """7 rows, each with more than half its pixels clipped (3 partly, 4 fully). Was: K 3.73
+    [3.61, 3.86] (truth 4.0 outside), converged, no warning."""
+    photons = np.linspace(7750, 8800, 7)  # η·μ_p from ~3 880 e⁻: at and above the 3 836 e⁻ clip
+    p, rows = _table(tmp_path, photons, photons / 440_000)
+    fs = [r["frac_saturated"] for r in rows]
+    assert min(fs) > 0.5 and sum(f < 1 for f in fs) >= 2  # partly clipped rows, none below half
+    assert main(["fit", str(p), "--quality", "fast", "--seed", "1"]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and err[0].startswith(f"bayescap: error: {p}") and "mostly saturated" in err[0]
+    assert "frac_saturated" in err[0]
+
+
+def test_the_left_out_dark_current_says_why_when_times_differ(tmp_path):
+    """7 distinct exposure times within 1.5×. Was: "all rows share one exposure time"."""
+    from bayescap.io.ptc_csv import read_ptc_csv
+    from bayescap.model import select_terms
+
+    photons = np.linspace(500, 6000, 7)
+    p, _ = _table(tmp_path, photons, np.linspace(0.0176, 0.02, 7))
+    why = select_terms(read_ptc_csv(p)).reasons["dark_current"]
+    assert "share one exposure time" not in why and "7 exposure times span less than 1.5×" in why
+
+
+def test_rows_partly_clipped_by_the_adc_are_not_taken_for_a_wells_plateau():
+    """An 8-bit sensor at K 0.5 e⁻/DN whose top rows are partly ADC-clipped (the top row 91 % of
+    its pixels at 255 DN, variance collapsed to 15 DN²). Was: that row taken for a full well's
+    plateau ("the plateau keeps the read noise"), the clip modelled as the well's, and K 7 % low
+    (0.466 [0.447, 0.499], truth 0.5) with a 42 % variance discrepancy; without the clipped rows K
+    was right. A row with some but not all pixels at the ADC maximum is partly clipped."""
+    from bayescap.model import saturation_flags, select_terms
+    from bayescap.simulate import SensorTruth, simulate_ptc
+
+    t = SensorTruth(
+        conversion_gain_e_per_dn=0.5,
+        read_noise_e=3.0,
+        full_well_e=2e4,
+        quantum_efficiency=0.6,
+        prnu_frac=0.01,
+        dsnu_e=0.5,
+        adc_bits=8,
+    )
+    for seed in (1, 2, 3):
+        d = simulate_ptc(t, seed=seed, n_levels=50, shape=(100, 100))
+        fs = d.frac_saturated
+        full, _ = saturation_flags(d)
+        assert not np.any(full & (fs < 0.999)), seed
+        assert select_terms(d).clip == "adc", seed  # the ADC clips first (well 2e4 e⁻ ≫ 95.5 e⁻)
