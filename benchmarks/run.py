@@ -106,6 +106,13 @@ BENCHMARKS = {
         "15-25 min",
         None,
     ),
+    "zoo_nonlinear": (
+        "the non-linear zoo (42 frame-simulated sensors: quadratic, cubic, quartic, S-shaped, soft-knee, "
+        "two-slope responses and brighter-fatter, with and without photon counts): coverage of K, noise, η, "
+        "full well per shape, K from all rows against rows below 70 %, tight misses, outlier labels, times",
+        "20-40 min",
+        "8-15 min",
+    ),
     "subdn_speed": (
         "fit times of two 8-bit sensors with read noise far below a DN (zoo draw20, draw25), fast and "
         "standard, and which tier of the rounding moments served how many elements",
