@@ -89,7 +89,13 @@ def summary_of(d, truths):
         mw = rec.get("miss_widths")
         rec["miss_half_widths"] = 2 * mw if mw is not None and mw == mw else None
     k = d["parameters"].get("conversion_gain_e_per_dn", {})
+    pars = {
+        p: {x: d["parameters"][p].get(x) for x in ("median", "ci95", "constrained")}
+        for p in SHORT
+        if p in d["parameters"]
+    }
     return {
+        "params": pars,
         "wall_s": d["wall_s"],
         "sampling_s": diag.get("wall_s"),
         "converged": bool(diag.get("converged")),
@@ -102,7 +108,7 @@ def summary_of(d, truths):
 
 
 def run_sensor(z, paths, no_fast):
-    from bayescap.validation.zoo_nonlinear import has_photons, scored_truths, shape_of
+    from bayescap.validation.zoo_nonlinear import has_photons, output_clip_e, scored_truths, shape_of
 
     tr = scored_truths(z)
     row = {
@@ -112,6 +118,7 @@ def run_sensor(z, paths, no_fast):
         "photons": has_photons(z),
         "notes": z.notes,
         "truths": {p: v[:2] for p, v in tr.items()},
+        "output_clip_e": output_clip_e(z),
         "load": _loadavg(),
     }
     p_all, p_low = paths
@@ -144,7 +151,21 @@ def _verdict_cell(rec):
     if rec["status"] != "identifiable":
         return f"({v})"
     h = rec.get("miss_half_widths")
-    return f"**{v} {h:.1f}h**" if h is not None and h > 3 else f"{v} {h:.1f}h" if h is not None else v
+    if h is None:
+        return v
+    return f"**miss {h:.1f}h**" if h > 3 else f"miss {h:.1f}h"
+
+
+def _fw_cell(r):
+    """The full-well verdict, and whether the interval holds the output-referred clip instead."""
+    rec = r["standard"].get("score", {}).get("full_well_e")
+    c = _verdict_cell(rec)
+    fw = r["standard"].get("params", {}).get("full_well_e")
+    if rec and rec["verdict"] != "ok" and fw and fw.get("ci95") and None not in fw["ci95"]:
+        lo, hi = fw["ci95"]
+        if lo <= r["output_clip_e"] <= hi:
+            c += " (holds (max−black)·K)"
+    return c
 
 
 def shape_stats(rows, key="standard"):
@@ -213,7 +234,10 @@ def report(rows, note, gen_s):
         "Scored (all rows, `standard`): K, read noise (dark noise with one exposure time), η (only with photon "
         "counts) and full well, truth inside the 95 % interval; truths in the fit's conventions "
         "(`bayescap.validation.zoo_nonlinear`: K the small-signal gain, full well the charge at which the mean "
-        "pixel's output clips). *K overlap*: K's 95 % intervals from all rows and from the rows whose signal is "
+        "pixel's output clips, CONTRACT.md's definition; through a compressive response that is more charge than "
+        "(ADC max − black)·K, the output-referred clip the model reports as `full_well_e` on main: a full-well "
+        "miss whose interval holds that instead is marked `(holds (max−black)·K)`, a convention rather than a "
+        "wrong measurement, still counted as a miss). *K overlap*: K's 95 % intervals from all rows and from the rows whose signal is "
         "below 70 % of the largest overlap. *Tight miss*: a truth more than 3 half-widths outside its interval. "
         "*Outlier labels*: sensors with at least one row named an outlier (all these sensors are smooth).",
         "",
@@ -310,7 +334,7 @@ def report(rows, note, gen_s):
             f"| {r['name']} | {r['notes'].split(', ')[0]}, {r['notes'].split(', ')[1]} | {kcell(s)} | {kcell(lo)} | "
             f"{'yes' if ov else ('**no**' if ov is False else '–')} | "
             f"{_verdict_cell(sc.get('conversion_gain_e_per_dn'))} | {_verdict_cell(noise)} | "
-            f"{_verdict_cell(sc.get('quantum_efficiency'))} | {_verdict_cell(sc.get('full_well_e'))} | {fast_cells} | "
+            f"{_verdict_cell(sc.get('quantum_efficiency'))} | {_fw_cell(r)} | {fast_cells} | "
             f"{len(s.get('outliers', []))} | {s.get('sampling_s') or float('nan'):.2f} | "
             f"{f.get('sampling_s') or float('nan'):.2f} | {flags} |"
         )

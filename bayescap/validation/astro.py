@@ -64,9 +64,13 @@ class AmpTruth:
         )
 
     def charges_e(self) -> np.ndarray:
-        """Mean charge per pixel of each flat pair: geometric from 50 e⁻ to ``top_frac`` of the well
-        (the top rows past the PTC turnoff, as a PTC run that goes to saturation has them)."""
-        return np.geomspace(50.0, self.top_frac * self.full_well_e, self.n_points)
+        """Mean charge per pixel of each flat pair: half the pairs geometric from 50 e⁻ to 30 % of
+        the top, half evenly spaced from there to ``top_frac`` of the well (the low rows fix the read
+        noise; the top rows pass the PTC turnoff, as a PTC run that goes to saturation has them)."""
+        top = self.top_frac * self.full_well_e
+        n_geo = self.n_points // 2
+        geo = np.geomspace(50.0, 0.3 * top, n_geo, endpoint=False)
+        return np.concatenate([geo, np.linspace(0.3 * top, top, self.n_points - n_geo)])
 
 
 def draw_amplifier(rng: np.random.Generator, *, strong_bf: bool = True) -> AmpTruth:

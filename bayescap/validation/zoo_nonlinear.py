@@ -27,7 +27,17 @@ from bayescap.validation.framesim import Acquisition, FrameSensor, clip_charge_e
 from bayescap.validation.responses import Response
 from bayescap.validation.zoo import ZooSensor, truths
 
-__all__ = ["FAMILY", "CAMERAS", "SCORED", "nonlinear_zoo", "scored_truths", "ensure_csvs", "shape_of", "has_photons"]
+__all__ = [
+    "FAMILY",
+    "CAMERAS",
+    "SCORED",
+    "nonlinear_zoo",
+    "scored_truths",
+    "output_clip_e",
+    "ensure_csvs",
+    "shape_of",
+    "has_photons",
+]
 
 FAMILY = ("quadratic", "cubic", "quartic", "s_shape", "soft_knee", "two_slope", "brighter_fatter")
 
@@ -129,6 +139,14 @@ def scored_truths(zs: ZooSensor) -> dict:
     if not has_photons(zs):
         out.pop("quantum_efficiency", None)
     return out
+
+
+def output_clip_e(zs: ZooSensor) -> float:
+    """The clip in output terms: (ADC max − black) · K, the charge-equivalent signal at which the
+    output clips (the charge itself only for a linear response). Not a truth of the contract's
+    ``full_well_e`` (a charge); the benchmark shows it beside, to tell a convention from a miss."""
+    s = zs.sensor
+    return (s.adc_max_dn - s.black_level_dn) * s.k_e_per_dn
 
 
 def _columns(zs: ZooSensor, rows) -> list:
