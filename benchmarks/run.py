@@ -113,6 +113,20 @@ BENCHMARKS = {
         "20-40 min",
         "8-15 min",
     ),
+    "astro_tables": (
+        "mean/variance-only PTC tables of 60 frame-simulated astronomy amplifiers (gain 0.6-1.8, 40-400 flat "
+        "pairs, strong brighter-fatter): K inside its 95 % interval, read noise within 10 %; stops (exit 2, "
+        "nothing written) on a bayescap without mean/variance tables",
+        "15-30 min",
+        None,
+    ),
+    "focal_plane": (
+        "3024 amplifier tables (189 CCDs x 16) through `bayescap fit --out DIR --dask 2` and `--jobs 2`, fast: "
+        "wall time (target 5 min), identical numbers, truths per CCD (--n-tables N for a small run; simulating "
+        "the tables once takes 10-25 min)",
+        "30-90 min",
+        None,
+    ),
     "subdn_speed": (
         "fit times of two 8-bit sensors with read noise far below a DN (zoo draw20, draw25), fast and "
         "standard, and which tier of the rounding moments served how many elements",

@@ -134,6 +134,23 @@ def write_astro_csv(path, rows: list[dict], metadata: dict | None = None) -> Non
     tmp.replace(path)
 
 
+def ensure_astro_csv(folder, name: str, truth: AmpTruth, seed: int, *, n_pixels: bool = True):
+    """The table's CSV in ``folder``, simulated once: the file name carries a hash of the definition
+    (truth, seed, columns), so a changed definition is simulated again."""
+    import hashlib
+    import json
+    from pathlib import Path
+
+    blob = json.dumps([asdict(truth), seed, n_pixels], sort_keys=True)
+    folder = Path(folder)
+    folder.mkdir(parents=True, exist_ok=True)
+    path = folder / f"{name}-{hashlib.sha1(blob.encode()).hexdigest()[:10]}.csv"
+    if not path.exists():
+        rows = astronomy_table(truth, seed, n_pixels=n_pixels)
+        write_astro_csv(path, rows, {"sensor": f"simulated astronomy amplifier {name}"})
+    return path
+
+
 def focal_plane(n_ccds: int = 189, n_amps: int = 16, seed: int = 46) -> list[tuple[str, AmpTruth, int]]:
     """(name, truth, seed) for every amplifier of a focal plane (LSST: 189 science CCDs × 16
     amplifiers = 3 024), drawn with :func:`draw_amplifier` (strong brighter-fatter)."""
@@ -150,4 +167,54 @@ def truth_dict(truth: AmpTruth) -> dict:
     return asdict(truth)
 
 
-__all__ += ["truth_dict"]
+__all__ += ["truth_dict", "ensure_astro_csv"]
+
+
+def noise_parameter(result: dict) -> str | None:
+    """The fit's read-noise entry: ``read_noise_e``, or ``dark_noise_e`` where the table cannot
+    separate read noise from dark current (no exposure times: the same thing for a bias-dominated
+    astronomy CCD)."""
+    pars = result.get("parameters", {})
+    for name in ("read_noise_e", "dark_noise_e"):
+        if (pars.get(name) or {}).get("median") is not None:
+            return name
+    return None
+
+
+def score_astro(truth: AmpTruth, result: dict) -> dict:
+    """A fit (``FitResult.to_dict()``) against the amplifier's truth: K inside its 95 % interval
+    (and by how many half-widths it misses), the read noise's relative error and whether its 95 %
+    interval holds it."""
+    out = {"k_truth": truth.gain_e_per_adu, "read_truth": truth.read_noise_e}
+    k = result.get("parameters", {}).get("conversion_gain_e_per_dn") or {}
+    lo, hi = (k.get("ci95") or [None, None])[:2]
+    out["k_median"] = k.get("median")
+    if lo is None or hi is None:
+        out["k_inside"], out["k_miss_half_widths"] = False, float("nan")
+    else:
+        t = truth.gain_e_per_adu
+        out["k_inside"] = bool(lo <= t <= hi)
+        dist = 0.0 if out["k_inside"] else min(abs(t - lo), abs(t - hi))
+        out["k_miss_half_widths"] = dist / ((hi - lo) / 2) if hi > lo else float("inf")
+    name = noise_parameter(result)
+    if name is None:
+        out["read_rel_err"], out["read_inside"], out["read_name"] = float("nan"), False, None
+    else:
+        p = result["parameters"][name]
+        out["read_name"] = name
+        out["read_rel_err"] = p["median"] / truth.read_noise_e - 1.0
+        rlo, rhi = p.get("ci95") or [None, None]
+        out["read_inside"] = bool(rlo is not None and rhi is not None and rlo <= truth.read_noise_e <= rhi)
+    turn = (result.get("derived", {}) or {}).get("ptc_turnoff_dn") or {}
+    out["ptc_turnoff_dn"] = turn.get("median") if isinstance(turn, dict) else turn
+    return out
+
+
+def refuses_mean_variance_tables(message: str) -> bool:
+    """Whether an input error says the table lacks the columns a mean/variance-only table omits
+    (bayescap before CONTRACT.md section 1b was implemented)."""
+    m = message.lower()
+    return "missing required column" in m and ("exposure_time_s" in m or "dark_mean_dn" in m)
+
+
+__all__ += ["noise_parameter", "score_astro", "refuses_mean_variance_tables"]
