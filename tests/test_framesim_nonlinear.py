@@ -259,3 +259,26 @@ def test_focal_plane_draws():
     assert np.all((a00 <= -1e-6) & (a00 >= -3e-6))
     weak = draw_amplifier(np.random.default_rng(0), strong_bf=False)
     assert -1e-6 <= weak.a00_per_e <= -2e-7
+
+
+def test_score_astro_reads_the_fit_json():
+    from bayescap.validation.astro import refuses_mean_variance_tables, score_astro
+
+    t = AmpTruth(1.2, 6.0, -2e-6, 100_000.0, 50)
+    res = {
+        "parameters": {
+            "conversion_gain_e_per_dn": {"median": 1.21, "ci95": [1.19, 1.23]},
+            "dark_noise_e": {"median": 6.3, "ci95": [5.9, 6.7]},
+        },
+        "derived": {"ptc_turnoff_dn": {"median": 80_000.0}},
+    }
+    sc = score_astro(t, res)
+    assert sc["k_inside"] and sc["k_miss_half_widths"] == 0.0
+    assert sc["read_name"] == "dark_noise_e" and sc["read_rel_err"] == pytest.approx(0.05)
+    assert sc["read_inside"] and sc["ptc_turnoff_dn"] == 80_000.0
+    res["parameters"]["conversion_gain_e_per_dn"] = {"median": 1.28, "ci95": [1.26, 1.30]}
+    sc = score_astro(t, res)
+    assert not sc["k_inside"] and sc["k_miss_half_widths"] == pytest.approx(3.0)
+    msg = "f.csv, row header, column 'exposure_time_s': missing required column(s): exposure_time_s, dark_mean_dn"
+    assert refuses_mean_variance_tables(msg)
+    assert not refuses_mean_variance_tables("f.csv, row 3, column 'mean_dn': not a number")
