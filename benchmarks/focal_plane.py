@@ -9,7 +9,7 @@ The tables come from :func:`bayescap.validation.astro.focal_plane` (gain 0.6–1
 3–10 e⁻, brighter-fatter a₀₀ −(1–3)·10⁻⁶ per e⁻, 40–400 flat pairs, 32 × 32 pixels per amplifier,
 bias removed by an overscan), simulated frame by frame by :mod:`bayescap.validation.framesim` and
 written as ``mean_dn,temporal_var_dn2,n_pixels`` CSVs (cached in ``benchmarks/.zoo_cache/focal_plane/``;
-simulating all 3 024 takes 10–25 min on 2 cores, once). Both runs are the command line a user types,
+simulating all 3 024 takes 15–30 min on 2 cores, once). Both runs are the command line a user types,
 timed from start to exit (the Dask run includes starting its 2-worker LocalCluster), seed 1, into
 fresh temporary folders; then every ``result.json`` is compared between the two (wall times and the
 ``batch`` entry aside) and scored against the truths (:func:`bayescap.validation.astro.score_astro`).

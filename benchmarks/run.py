@@ -117,7 +117,7 @@ BENCHMARKS = {
     "focal_plane": (
         "3024 amplifier tables (189 CCDs x 16) through `bayescap fit --out DIR --dask 2` and `--jobs 2`, fast: "
         "wall time (target 5 min), identical numbers, truths per CCD (--n-tables N for a small run; simulating "
-        "the tables once takes 10-25 min)",
+        "the tables once takes 15-30 min)",
         "30-90 min",
         None,
     ),
