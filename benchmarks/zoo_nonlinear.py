@@ -2,7 +2,7 @@
 and times on sensors whose response is not the model's (issue 46, item 6).
 
     python benchmarks/run.py zoo_nonlinear          # writes benchmarks/results/zoo_nonlinear.md
-    python benchmarks/zoo_nonlinear.py --quick      # the 12-bit/14-bit camera of each shape (14 sensors)
+    python benchmarks/zoo_nonlinear.py --quick      # the 12-bit cameras (brighter-fatter: 12 and 14-bit), 16 sensors
     python benchmarks/zoo_nonlinear.py --only s_shape,knee   # names containing a text, printed only
 
 The 42 sensors of :func:`bayescap.validation.zoo_nonlinear.nonlinear_zoo` (seven shapes × three
@@ -217,7 +217,7 @@ def report(rows, note, gen_s):
         "# Non-linear zoo: response shapes and brighter-fatter",
         "",
         "`python benchmarks/run.py zoo_nonlinear` (this file; `python benchmarks/zoo_nonlinear.py --quick` for the "
-        f"12/14-bit camera of each shape). {len(rows)} simulated sensors "
+        f"12-bit cameras, brighter-fatter also 14-bit). {len(rows)} simulated sensors "
         "(`bayescap.validation.zoo_nonlinear`: frames from `bayescap.validation.framesim`, which shares no code "
         "with the likelihood), code at commit {commit}. Seed 1, each fit alone; times are the fit's own "
         "sampling time (`diagnostics.wall_s`). Machine: ".replace("{commit}", commit)
@@ -346,7 +346,9 @@ def main(argv=None):
     ap.add_argument(
         "--only", default=None, help="sensors whose name contains one of these comma-separated texts; printed only"
     )
-    ap.add_argument("--quick", action="store_true", help="the 12-bit (brighter-fatter: 14-bit) camera of each shape")
+    ap.add_argument(
+        "--quick", action="store_true", help="the 12-bit cameras (brighter-fatter: 12 and 14-bit), 16 sensors"
+    )
     ap.add_argument("--no-fast", action="store_true", help="skip the fast fits")
     ap.add_argument("--jsonl", default=str(CACHE / "last_run.jsonl"), help="every sensor's record, as it runs")
     ap.add_argument("--from-log", default=None, help="write the results file from a run's --jsonl log")
