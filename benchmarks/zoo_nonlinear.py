@@ -119,6 +119,7 @@ def run_sensor(z, paths, no_fast):
         "notes": z.notes,
         "truths": {p: v[:2] for p, v in tr.items()},
         "output_clip_e": output_clip_e(z),
+        "commit": _commit(),
         "load": _loadavg(),
     }
     p_all, p_low = paths
@@ -201,17 +202,21 @@ def shape_stats(rows, key="standard"):
     return st, extra
 
 
+def _commit():
+    try:
+        return subprocess.run(
+            ["git", "rev-parse", "--short", "HEAD"], cwd=ROOT, capture_output=True, text=True, check=True
+        ).stdout.strip()
+    except (OSError, subprocess.CalledProcessError):
+        return "unknown"
+
+
 def report(rows, note, gen_s):
     from _machine import describe_machine
 
     from bayescap.validation.zoo_nonlinear import FAMILY
 
-    try:
-        commit = subprocess.run(
-            ["git", "rev-parse", "--short", "HEAD"], cwd=ROOT, capture_output=True, text=True, check=True
-        ).stdout.strip()
-    except (OSError, subprocess.CalledProcessError):
-        commit = "unknown"
+    commit = next((r["commit"] for r in rows if r.get("commit")), None) or _commit()
     load = [r["load"] for r in rows if r.get("load") == r.get("load")]
     L = [
         "# Non-linear zoo: response shapes and brighter-fatter",
