@@ -106,6 +106,27 @@ BENCHMARKS = {
         "2-4 min",
         "1 min",
     ),
+    "zoo_nonlinear": (
+        "the non-linear zoo (42 frame-simulated sensors: quadratic, cubic, quartic, S-shaped, soft-knee, "
+        "two-slope responses and brighter-fatter, with and without photon counts): coverage of K, noise, η, "
+        "full well per shape, K from all rows against rows below 70 %, tight misses, outlier labels, times",
+        "20-40 min",
+        "8-15 min",
+    ),
+    "astro_tables": (
+        "mean/variance-only PTC tables of 60 frame-simulated astronomy amplifiers (gain 0.6-1.8, 40-400 flat "
+        "pairs, strong brighter-fatter): K inside its 95 % interval, read noise within 10 %; stops (exit 2, "
+        "nothing written) on a bayescap without mean/variance tables",
+        "15-30 min",
+        None,
+    ),
+    "focal_plane": (
+        "3024 amplifier tables (189 CCDs x 16) through `bayescap fit --out DIR --dask 2` and `--jobs 2`, fast: "
+        "wall time (target 5 min), identical numbers, truths per CCD (--n-tables N for a small run; simulating "
+        "the tables once takes 15-30 min)",
+        "30-90 min",
+        None,
+    ),
     "zoo": (
         "the sensor zoo (68 frame-simulated sensors nobody tuned to + the Basler set): truth in the 95 % "
         "interval per parameter and regime, standard and fast times, convergence, flags",

@@ -9,7 +9,12 @@ The pixel chain, per frame and pixel i:
 
 * photo-electrons ~ Poisson(μ_p · QE · (1 + PRNU_i)) and dark electrons ~ Poisson(D · t);
 * the charge clips at the pixel's own well W_i = W · (1 + s · N_i) (full-well spread s);
-* an optional non-linear response q → q · (1 − a · q / W) (a = ``nonlinearity``);
+* with ``bf_a00_per_e`` < 0 the photo-electrons are collected with the brighter-fatter area change
+  (:func:`.responses.collect_brighter_fatter`: Astier 2019's a₀₀, nearest neighbours gaining what
+  a full pixel loses);
+* an optional non-linear response q → q · (1 − a · q / W) (a = ``nonlinearity``), or any shape of
+  :class:`.responses.Response` (``response``: quadratic, cubic, quartic, S-shaped, soft knee,
+  two-slope ADC; unit slope at zero, so K stays the small-signal gain);
 * the read-out adds the pixel's fixed offset DSNU_i (e⁻) and Gaussian read noise (e⁻);
 * the analog value in DN is black + (charge + DSNU_i + read) / K; the ADC rounds it to the nearest
   integer or truncates it (floor), and clips to [0, 2^bits − 1].
@@ -32,6 +37,8 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 
 import numpy as np
+
+from bayescap.validation.responses import Response, collect_brighter_fatter
 
 __all__ = ["FrameSensor", "Acquisition", "simulate_rows", "write_csv", "CSV_COLUMNS"]
 
@@ -69,6 +76,9 @@ class FrameSensor:
     nonlinearity: float = 0.0
     width_px: int = 100
     height_px: int = 100
+    response: Response | None = None
+    bf_a00_per_e: float = 0.0
+    bf_steps: int = 16
 
     @property
     def adc_max_dn(self) -> int:
@@ -108,15 +118,22 @@ class _Pixels:
         self.well_e = sensor.full_well_e * (1.0 + sensor.well_spread_frac * rng.standard_normal(shape))
         np.clip(self.well_e, 0.0, None, out=self.well_e)
 
-    def frame(self, rng: np.random.Generator, photons: float, t: float) -> np.ndarray:
-        """One frame in DN (float64 holding integers)."""
+    def frame(self, rng: np.random.Generator, photons, t: float) -> np.ndarray:
+        """One frame in DN (float64 holding integers); ``photons`` an array of shape (L,) gives L
+        frames at once, shape (L, H, W) (the brighter-fatter slices then run on all of them)."""
         s = self.s
-        q = rng.poisson(photons * s.quantum_efficiency * self.gain_map).astype(np.float64)
+        rate = np.asarray(photons, float)[..., None, None] * s.quantum_efficiency * self.gain_map
+        if s.bf_a00_per_e:
+            q = collect_brighter_fatter(rng, rate, s.bf_a00_per_e, s.bf_steps)
+        else:
+            q = rng.poisson(rate).astype(np.float64)
         if s.dark_current_e_per_s > 0 and t > 0:
             q += rng.poisson(s.dark_current_e_per_s * t, size=q.shape)
         np.minimum(q, self.well_e, out=q)
         if s.nonlinearity:
             q *= 1.0 - s.nonlinearity * q / s.full_well_e
+        if s.response is not None:
+            q = s.response.apply(q)
         q += self.offset_e
         q += s.read_noise_e * rng.standard_normal(q.shape)
         x = s.black_level_dn + q / s.k_e_per_dn
@@ -187,11 +204,14 @@ def _fmt(v) -> str:
     return repr(float(v))
 
 
-def write_csv(path, rows: list[dict], metadata: dict) -> None:
+def write_csv(path, rows: list[dict], metadata: dict, columns=None) -> None:
     """Write a contract CSV: ``# key: value`` lines, the header, one line per row (sparse spatial
-    columns empty where a row has none)."""
+    columns empty where a row has none). ``columns``: write only these (in this order), e.g.
+    without ``photons_per_pixel``; default every contract column the rows have."""
     has_spatial = any("spatial_var_dn2" in r for r in rows)
     cols = [c for c in CSV_COLUMNS if has_spatial or c not in ("spatial_var_dn2", "dark_spatial_var_dn2", "n_frames")]
+    if columns is not None:
+        cols = [c for c in columns if c in cols or any(c in r for r in rows)]
     lines = [f"# {k}: {v}" for k, v in metadata.items()]
     lines.append(",".join(cols))
     for r in rows:
@@ -216,9 +236,13 @@ def adc_offset_dn(sensor: FrameSensor) -> float:
 
 def clip_charge_e(sensor: FrameSensor) -> tuple[float, str]:
     """Charge (e⁻) at which the output clips for the mean pixel, and which mechanism clips first:
-    the ADC maximum (in the rounding-equivalent analog scale) or the well."""
+    the ADC maximum (in the rounding-equivalent analog scale; through the inverse of ``response``
+    where there is one) or the well."""
     black_eff = sensor.black_level_dn + adc_offset_dn(sensor)
     adc_e = (sensor.adc_max_dn - black_eff) * sensor.k_e_per_dn
+    if sensor.response is not None:
+        r = sensor.response
+        adc_e = r.inverse(adc_e) if adc_e <= float(r.apply(r.x_max * r.ref_e)) else float("inf")
     if sensor.full_well_e < adc_e:
         return float(sensor.full_well_e), "well"
     return float(adc_e), "adc"
