@@ -1,6 +1,6 @@
 """Command line: a thin layer over the Python API.
 
-    bayescap fit sensor.csv [--json] [--seed N] [--out DIR] [--quality fast|standard|accurate]
+    bayescap fit sensor.csv|- [--json] [--seed N] [--out DIR] [--quality fast|standard|accurate]
                             [--fast-tolerance FRAC] [--fast-confidence P|none]   (--quality fast)
 
 Bad input prints one line naming file, row and column, and exits with status 2.
@@ -18,6 +18,7 @@ from bayescap.cli.common import (
     EXIT_INPUT,
     _add_metadata_overrides,
     add_fast_arguments,
+    add_progress_arguments,
     add_strict_argument,
     seed_arg,
 )
@@ -60,7 +61,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument(
         "csv",
         nargs="+",
-        help="photon-transfer CSV (format: README, 'Photon-transfer CSV'); several "
+        help="photon-transfer CSV (format: README, 'Photon-transfer CSV'; '-' reads it from standard input); several "
         "CSVs are fitted as a batch (bayescap.batch.fit_many: the fast "
         "preset is vectorised across sensors)",
     )
@@ -145,14 +146,7 @@ def build_parser() -> argparse.ArgumentParser:
         help="fit the nested likelihood variants (plain χ², + discrepancy, + outlier mixture) "
         "and keep the one PSIS-LOO prefers (README, 'Model selection')",
     )
-    p.add_argument(
-        "--progress",
-        dest="progress",
-        action="store_true",
-        default=None,
-        help="show a progress bar (default: when stderr is a terminal)",
-    )
-    p.add_argument("--no-progress", dest="progress", action="store_false")
+    add_progress_arguments(p)
     _add_metadata_overrides(p)
     p.set_defaults(func=_cmd_fit)
 

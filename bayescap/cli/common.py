@@ -40,6 +40,53 @@ def strict_status(args, results) -> int:
     return 0
 
 
+def add_progress_arguments(p) -> None:
+    """``--progress``/``--no-progress`` and ``-q``/``--quiet`` (every command that fits), read back by
+    :func:`progress_enabled` and :func:`quiet`."""
+    p.add_argument(
+        "--progress",
+        dest="progress",
+        action="store_true",
+        default=None,
+        help="show progress bars on standard error (default: when standard error is a terminal)",
+    )
+    p.add_argument(
+        "--no-progress",
+        dest="progress",
+        action="store_false",
+        help="no progress bars, even on a terminal (logs, CI)",
+    )
+    p.add_argument(
+        "-q",
+        "--quiet",
+        action="store_true",
+        help="print only errors and what was asked for: no progress bars, no 'wrote ...' lines; with "
+        "--out, fit prints no report (it is in DIR/report.txt) unless --json",
+    )
+
+
+def progress_enabled(args) -> bool:
+    """Progress bars for ``args``: never with ``--quiet``; else ``--progress``/``--no-progress``, or
+    whether standard error is a terminal."""
+    import sys
+
+    if getattr(args, "quiet", False):
+        return False
+    chosen = getattr(args, "progress", None)
+    return sys.stderr.isatty() if chosen is None else bool(chosen)
+
+
+def quiet(args) -> bool:
+    """``--quiet`` was given."""
+    return bool(getattr(args, "quiet", False))
+
+
+def say(args, text: str) -> None:
+    """A status line (``wrote ...``) on standard output, unless ``--quiet``."""
+    if not quiet(args):
+        print(text)
+
+
 def seed_arg(text: str) -> int:
     """argparse type of ``--seed``: a whole number >= 0 (numpy's SeedSequence refuses negative
     seeds, with a traceback)."""
@@ -173,3 +220,4 @@ def add_comparison_arguments(p: argparse.ArgumentParser) -> None:
         "use standard or accurate for final numbers)",
     )
     add_fast_arguments(p)
+    add_progress_arguments(p)

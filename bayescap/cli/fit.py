@@ -9,13 +9,29 @@ from bayescap.cli.common import (
     EXIT_FAILURE,
     EXIT_NOT_CONVERGED,
     fast_settings_from_args,
+    progress_enabled,
+    quiet,
     strict_status,
 )
 from bayescap.exceptions import InputError
 
+#: the CSV argument that reads the photon-transfer table from standard input
+STDIN = "-"
+
+
+def load_input(path, overrides):
+    """:func:`bayescap.api.load` of ``path``, or of standard input for ``-`` (named ``<stdin>``)."""
+    from bayescap.api import load
+
+    if path != STDIN:
+        return load(path, **overrides)
+    from bayescap.io.ptc_csv import read_ptc_csv
+
+    return read_ptc_csv("<stdin>", overrides=overrides or None, content=sys.stdin.buffer.read())
+
 
 def _cmd_fit(args) -> int:
-    from bayescap.api import fit, load
+    from bayescap.api import fit
     from bayescap.exceptions import PTCInputError
     from bayescap.report.text import format_text, to_json, write_outputs
 
@@ -25,7 +41,7 @@ def _cmd_fit(args) -> int:
         from bayescap.io.atomic import output_problem
         from bayescap.report.text import OUTPUT_NAMES
 
-        inputs = list(args.csv) + ([args.mtf] if args.mtf else [])
+        inputs = [p for p in args.csv if p != STDIN] + ([args.mtf] if args.mtf else [])
         problem = output_problem(args.out, inputs, directory=True, names=OUTPUT_NAMES if len(args.csv) == 1 else None)
         if problem:
             raise InputError(problem)
@@ -35,10 +51,12 @@ def _cmd_fit(args) -> int:
 
         args.seed = draw_seed()
     args.seed_drawn = seed_drawn
+    if args.csv.count(STDIN) > 1:
+        raise InputError("standard input ('-') can be read once: give it at most once")
     if len(args.csv) > 1:
         return _cmd_fit_many(args, overrides, fast_settings)
     try:
-        data = load(args.csv[0], **overrides)
+        data = load_input(args.csv[0], overrides)
     except PTCInputError as e:
         raise InputError(str(e)) from None
     scene = _scene_from_args(args, data)
@@ -51,7 +69,7 @@ def _cmd_fit(args) -> int:
             mtf = measured_mtf(args.mtf, seed=args.seed or 0)
         except MTFInputError as e:
             raise InputError(str(e)) from None
-    progress = sys.stderr.isatty() if args.progress is None else args.progress
+    progress = progress_enabled(args)
     try:
         # a value the reader accepts but no parameter can explain
         # (bayescap.inference.starts._no_finite_start) is refused
@@ -83,7 +101,10 @@ def _cmd_fit(args) -> int:
     if seed_drawn:
         result.diag["seed_drawn"] = True
     # the result first: a write error below does not lose it
-    sys.stdout.write(to_json(result) if args.json else format_text(result))
+    if args.json:
+        sys.stdout.write(to_json(result))
+    elif not (quiet(args) and args.out):
+        sys.stdout.write(format_text(result))
     sys.stdout.flush()
     if args.out:
         try:
@@ -116,7 +137,6 @@ def _failure(path, err) -> str:
 def _cmd_fit_many(args, overrides, fast_settings=None) -> int:
     """``bayescap fit a.csv b.csv ...``: every CSV checked first (a bad one stops the run before
     anything is fitted or written), then :func:`bayescap.batch.fit_many`."""
-    from bayescap.api import load
     from bayescap.batch import fit_many
     from bayescap.exceptions import PTCInputError
     from bayescap.report.text import format_text
@@ -147,7 +167,7 @@ def _cmd_fit_many(args, overrides, fast_settings=None) -> int:
     datas = []
     for path in args.csv:
         try:
-            datas.append(load(path, **overrides))
+            datas.append(load_input(path, overrides))
         except PTCInputError as e:
             raise InputError(str(e)) from None
     kw = {} if fast_settings is None else {"settings": fast_settings}
@@ -191,8 +211,9 @@ def _fit_many_to_folder(args, datas, kw, scheduler, n_dask) -> int:
         from bayescap.batch.cluster import start_client
 
         client, cluster = start_client(scheduler, n_dask)
-        print(f"bayescap: Dask dashboard: {client.dashboard_link}", file=sys.stderr)
-    progress = sys.stderr.isatty() if args.progress is None else args.progress
+        if not quiet(args):
+            print(f"bayescap: Dask dashboard: {client.dashboard_link}", file=sys.stderr)
+    progress = progress_enabled(args)
     try:
         report = fit_many(
             datas,
