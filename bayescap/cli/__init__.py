@@ -220,6 +220,9 @@ def build_parser() -> argparse.ArgumentParser:
     add_sweep_arguments(p)
     p.set_defaults(func=run_sweep)
     _register_datasheet(sub, epilog=EXIT_STATUS_HELP)  # bayescap datasheet (cli/datasheet.py)
+    from bayescap.cli.summary import register as _register_summary
+
+    _register_summary(sub)  # bayescap summary DIR (cli/summary.py)
     return parser
 
 

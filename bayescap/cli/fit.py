@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import sys
+from pathlib import Path
 
 from bayescap.cli.common import (
     _OVERRIDE_KEYS,
@@ -192,6 +193,7 @@ def _cmd_fit_many(args, overrides, fast_settings=None) -> int:
                 f"bayescap: error: {_failure(p, r)}\n\n" if isinstance(r, BaseException) else format_text(r) + "\n"
             )
         sys.stdout.write(_batch_table(args.csv, results))
+        print("table: with --out DIR the batch also writes DIR/summary.csv (pandas.read_csv)")
     for p, r in failed:
         print(f"bayescap: error: {_failure(p, r)}", file=sys.stderr)
     return 1 if failed else _strict_status(args, results)
@@ -236,8 +238,9 @@ def _fit_many_to_folder(args, datas, kw, scheduler, n_dask) -> int:
     ]
     if args.json:
         sys.stdout.write(json.dumps(docs, indent=2, ensure_ascii=False, allow_nan=False) + "\n")
-    else:
+    elif not quiet(args):
         sys.stdout.write(_folder_table(args.csv, report, docs))
+        print(f"table: {Path(args.out) / 'summary.csv'} (pandas.read_csv; 'bayescap summary DIR' rebuilds it)")
     failed = [(p, r) for p, r in zip(args.csv, report) if r["status"] == "error"]
     for p, r in failed:
         print(f"bayescap: error: {p}: {r['error']}", file=sys.stderr)
