@@ -186,7 +186,7 @@ def fast_settings_from_args(args):
 
 def add_comparison_arguments(p: argparse.ArgumentParser) -> None:
     """The options ``compare`` and ``report`` share: the imaging area, H0, mid-grey, seed, preset."""
-    from bayescap.studies.compare import DEFAULT_AREA, DEFAULT_H0_LUX_S, DEFAULT_QUALITY
+    from bayescap.studies.compare import DEFAULT_AREA, DEFAULT_H0_LUX_S, DEFAULT_PRACTICAL_DIFFERENCE, DEFAULT_QUALITY
     from bayescap.studies.exposure import DEFAULT_MID_GREY
 
     p.add_argument(
@@ -218,6 +218,17 @@ def add_comparison_arguments(p: argparse.ArgumentParser) -> None:
         default=DEFAULT_QUALITY,
         help="sampler preset for every fit (default fast: several sensors are fitted; "
         "use standard or accurate for final numbers)",
+    )
+    p.add_argument(
+        "--practical-difference",
+        "--rope",
+        dest="practical_difference",
+        type=float,
+        default=DEFAULT_PRACTICAL_DIFFERENCE,
+        metavar="FRAC",
+        help="the capacity difference that matters, as a fraction: P(C_A > (1+FRAC)·C_B) is printed "
+        "beside P(C_A > C_B), and the ratio inside [1/(1+FRAC), 1+FRAC] counts as practically "
+        "equivalent (the region of practical equivalence; default 0.01 = 1 %%)",
     )
     add_fast_arguments(p)
     add_progress_arguments(p)

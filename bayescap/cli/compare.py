@@ -57,6 +57,7 @@ def run_compare(args) -> int:
                 quality=args.quality,
                 progress=progress_enabled(args),
                 fit_kwargs=None if fs is None else {"fast_settings": fs},
+                practical_difference=args.practical_difference,
             )
     except (PTCInputError, CompareInputError) as e:
         print(f"bayescap: error: {e}", file=sys.stderr)

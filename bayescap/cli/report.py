@@ -53,6 +53,7 @@ def run_report(args) -> int:
                 quality=args.quality,
                 progress=progress_enabled(args),
                 fit_kwargs=None if fs is None else {"fast_settings": fs},
+                practical_difference=args.practical_difference,
             )
     except (PTCInputError, CompareInputError, OSError) as e:
         print(f"bayescap: error: {e}", file=sys.stderr)
