@@ -49,14 +49,17 @@ def _lsq_origin(x, y):
 
 
 class _Sweep:
-    """The standard's reading of the measured rows: the irradiation sweep (the rows of the most
-    pixels: a spatial-stack crop is left out), its saturation point (the row of largest temporal
-    variance), the sensitivity rows (up to 70 % of the saturation signal), the linearity rows
-    (5–95 %), the dark regression over exposure time, and the spatial-stack row nearest 50 %."""
+    """The standard's reading of the measured rows: the irradiation sweep (the pair rows of the most
+    pixels: a spatial stack, or its crop, is left out), its saturation point (the row of largest
+    temporal variance), the sensitivity rows (up to 70 % of the saturation signal), the linearity
+    rows (5–95 %), the dark regression over exposure time, and the spatial row: of the rows of
+    the most frames (the stack), the one nearest 50 %."""
 
     def __init__(self, data):
         d = data
-        sweep = d.n_pixels == np.max(d.n_pixels)
+        # a spatial stack (more than two frames) is not a sweep row, where pair rows exist beside it
+        stack = np.asarray(d.n_frames, float) > 2 if d.n_frames is not None else np.zeros(d.n_levels, bool)
+        sweep = (d.n_pixels == np.max(d.n_pixels)) & (~stack if np.any(~stack) else True)
         order = np.argsort(d.exposure_time_s[sweep], kind="stable")
         pick = lambda a: None if a is None else np.asarray(a, float)[sweep][order]
         self.data_rows = np.flatnonzero(sweep)[order]  # the CSV row index of each sweep row
@@ -93,7 +96,7 @@ class _Sweep:
             if spd is not None:
                 ok &= np.isfinite(spd)
             if ok.any():
-                rows = np.flatnonzero(ok)
+                rows = np.flatnonzero(ok & (L == np.max(L[ok])))  # the largest stack: the standard's
                 sig = d.mean_dn[rows] - d.dark_mean_dn[rows]
                 r = rows[np.argmin(np.abs(sig - 0.5 * y_sat))]
                 s2y = sp[r] - d.temporal_var_dn2[r] / L[r]
@@ -224,12 +227,8 @@ def emva1288_view(result) -> dict:
     K = 1.0 / k  # DN/e⁻, the standard's system gain
     k_med = float(np.median(k))
     eta = np.asarray(p["quantum_efficiency"], float) if "quantum_efficiency" in p else None
-    if m.terms.dark_current:
-        sigma_d = np.asarray(p["read_noise_e"], float)
-        sigma_d_from = "read_noise_e"
-    else:
-        sigma_d = np.asarray(p["dark_noise_e"], float)
-        sigma_d_from = "dark_noise_e"
+    sigma_d_from = "read_noise_e" if m.terms.dark_current else "dark_noise_e"
+    sigma_d = np.asarray(p[sigma_d_from], float)
     s2_ydark = np.maximum(sigma_d**2 * K**2 + S2Q, S2_YDARK_FLOOR)
     sigma_ydark = np.sqrt(s2_ydark)
     u_e_min = sigma_ydark / K + 0.5
