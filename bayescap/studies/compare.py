@@ -380,8 +380,8 @@ def compare_results(
         "n_draws_per_sensor": n_draws,
         "probability": "P(C_A > C_B) over all pairs of draws of independent posteriors (ties 1/2)",
         "practical_difference": practical_difference,
-        "practical_probability": "P(C_A > (1+δ)·C_B), δ = practical_difference; p_equivalent = P(ratio within "
-        "[1/(1+δ), 1+δ])",
+        "practical_probability": "P(C_A > (1+δ)·C_B), δ the practical difference; practical equivalence: the "
+        "ratio within [1/(1+δ), 1+δ]",
         "intervals": "equal-tailed posterior quantiles: ci68 = 16-84 %, ci95 = 2.5-97.5 %",
     }
     return Comparison(sensors=sensors, pairs=pairs, conventions=conv)
