@@ -206,7 +206,7 @@ def snr_figure(result, view=None, limits=None, ax=None):
     ax.plot(xs[0], med, "-", color="C1", lw=1, label="linear model (posterior)")
     ax.plot(xs[0], np.sqrt(np.median(eta) * xs[0]), ":", color="0.3", lw=1, label="ideal sqrt(η μ_p)")
     ax.plot(xdata[good], snr_data[good], "o", ms=3, color="C0", label="rows")
-    limits = emva_limits(view, result.to_dict()["parameters"]) if limits is None else limits
+    limits = emva_limits(view) if limits is None else limits
     for key, label, style in (("u_p_min", "μp.min", "-."), ("u_p_sat", "μp.sat", "--")):
         lim = limits.get(key)
         if photons and lim and lim.get("value"):  # a limit is drawn as its limit, never as a median
@@ -263,7 +263,7 @@ def datasheet_html(result, *, view=None, title=None) -> str:
     meta = dict(result.metadata)
     name = title or meta.get("sensor") or Path(str(result.model.data.source)).stem
     e = html.escape
-    limits = emva_limits(view, result.to_dict()["parameters"])
+    limits = emva_limits(view)
     rows = []
     for key in TABLE_ORDER:
         if key not in q:

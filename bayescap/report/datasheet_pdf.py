@@ -59,7 +59,7 @@ def datasheet_pdf(result, *, view=None, title=None) -> bytes:
     from matplotlib.figure import Figure
 
     view = emva1288_view(result) if view is None else view
-    limits = emva_limits(view, result.to_dict()["parameters"])
+    limits = emva_limits(view)
     meta = dict(result.metadata)
     name = str(title or meta.get("sensor") or Path(str(result.model.data.source)).stem)
     fig = Figure(figsize=PAGE_IN)
