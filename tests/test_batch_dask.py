@@ -141,7 +141,8 @@ def test_cli_runs_the_batch_on_a_scheduler_and_resumes(client, tmp_path):
     assert r.returncode == 0, r.stderr
     assert "Dask dashboard: http" in r.stderr
     docs = json.loads(r.stdout)
-    assert sorted(x.name for x in (tmp_path / "d").iterdir()) == ["roi0", "roi1", "roi2"]
+    assert sorted(x.name for x in (tmp_path / "d").iterdir() if x.is_dir()) == ["roi0", "roi1", "roi2"]
+    assert (tmp_path / "d" / "summary.csv").is_file()  # the batch's table, beside the sensors' folders
     assert json.loads((tmp_path / "d" / "roi1" / "result.json").read_text()) == docs[1]
     r = run("--out", tmp_path / "l", "--json")
     assert r.returncode == 0, r.stderr

@@ -87,7 +87,8 @@ def test_fit_many_csvs_as_a_batch(tmp_path):
     assert r.returncode == 0, r.stderr
     docs = json.loads(r.stdout)
     assert [Path(d["input"]).name for d in docs] == [p.name for p in paths]
-    assert sorted(x.name for x in out.iterdir()) == ["roi0", "roi1", "roi2"]
+    assert sorted(x.name for x in out.iterdir() if x.is_dir()) == ["roi0", "roi1", "roi2"]
+    assert {x.name for x in out.iterdir() if x.is_file()} <= {"summary.csv", "summary.parquet"}
     assert json.loads((out / "roi1" / "result.json").read_text()) == docs[1]
     # a missing file: exit 2, one line naming it, nothing written
     out2 = tmp_path / "out2"

@@ -208,11 +208,19 @@ def test_cli_benchmark_runtime_and_json_equals_text(tmp_path):
         line = next(ln for ln in text.splitlines() if ln.strip().startswith(s["name"] + " "))
         assert f"{s['capacity_area_bits']['median'] / 1e6:.4g} [" in line
         assert f"{s['tonal_range_bits_h0']['median']:.3f} [" in line
+    # each pair's line, once for full resolution and once at the area: the ratio with its interval,
+    # P(A>B), P(A>B+δ), P(B>A+δ), P(within δ)
     for p in d["pairs"]:
-        line = next(ln for ln in text.splitlines() if f"{p['a']} vs {p['b']}" in ln)
-        nums = re.findall(r"\d+\.\d+", line.split(f"{p['a']} vs {p['b']}", 1)[1])
-        assert nums[0] == f"{p['p_a_greater_full']:.3f}" and nums[1] == f"{p['ratio_full']['median']:.4f}"
-        assert f"{p['p_a_greater_area']:.3f}" in nums
+        lines = [ln for ln in text.splitlines() if f"{p['a']} vs {p['b']}" in ln]
+        assert len(lines) == 2
+        for line, q in zip(lines, ("full", "area")):
+            nums = re.findall(r"\d+\.\d+", line.split(f"{p['a']} vs {p['b']}", 1)[1])
+            want = [f"{p[f'ratio_{q}']['median']:.4f}", *(f"{x:.4f}" for x in p[f"ratio_{q}"]["ci95"])]
+            want += [
+                f"{p[k + '_' + q]:.3f}"
+                for k in ("p_a_greater", "p_a_practically_greater", "p_b_practically_greater", "p_equivalent")
+            ]
+            assert nums == want, (line, want)
 
 
 @pytest.mark.parametrize(

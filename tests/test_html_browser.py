@@ -165,3 +165,31 @@ def test_the_browser_check_sees_a_broken_image(tmp_path):
     dom, console = _open(browser, page, tmp_path)
     assert 'data-images-decoded="0"' in dom
     assert any("images not decoded: broken" in ln for ln in console), console
+
+
+def _pdf_pages(pdf: bytes) -> int:
+    """Pages of a PDF chromium printed (its page objects are not compressed)."""
+    return len(re.findall(rb"/Type\s*/Page(?!s)", pdf))
+
+
+def test_datasheet_prints_on_one_a4_page(tmp_path):
+    """The datasheet printed from the browser (chromium's print to PDF, A4 landscape by the page's
+    @page rule) is one page, as bayescap's own PDF is; on screen the notes column stays."""
+    browser = _chromium()
+    page = tmp_path / "sheet.html"
+    assert main(["datasheet", str(ROOT / "data" / "emva1288_basler_ccd12.csv"), "-o", str(page), "--pdf",
+                 "--quality", "fast", "--seed", "1", "-q"]) == 0  # fmt: skip
+    assert "class=note" in page.read_text(encoding="utf-8")
+    out = tmp_path / "printed.pdf"
+    proc = subprocess.run(
+        [browser, "--headless=new", "--disable-gpu", "--no-sandbox", "--no-first-run",
+         f"--user-data-dir={tmp_path / 'profile'}", "--no-pdf-header-footer", f"--print-to-pdf={out}",
+         page.resolve().as_uri()],
+        capture_output=True, text=True, timeout=120,
+    )  # fmt: skip
+    assert proc.returncode == 0 and out.exists(), proc.stderr[-2000:]
+    printed = out.read_bytes()
+    assert _pdf_pages(printed) == 1, f"the datasheet prints as {_pdf_pages(printed)} pages"
+    box = [float(x) for x in re.search(rb"/MediaBox\s*\[\s*([^\]]*)\]", printed).group(1).split()]
+    assert box[2:] == pytest.approx([841.9, 595.3], abs=1.0)  # A4 landscape, in points
+    assert _pdf_pages(page.with_suffix(".pdf").read_bytes()) == 1

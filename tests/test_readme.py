@@ -26,9 +26,7 @@ README = ROOT / "README.md"
 NOT_RUN = {
     "python3 -m venv .venv": "quick start: sets up the environment these tests run in (.ci/run)",
     '.venv/bin/pip install -q -e ".[test]"': "quick start: sets up the environment these tests run in (.ci/run)",
-    "(command -v chromium || apt-get install -y -qq chromium || { apt-get update -qq; apt-get install -y -qq chromium; } "
-    "|| true) >/dev/null 2>&1; .venv/bin/python -m pytest -n 2": "quick start: installs chromium where it can and runs "
-    "this test suite",
+    ".venv/bin/python -m pytest -n 2": "quick start: runs this test suite",
     "ruff check .": "run by tests/test_lint.py",
     "ruff format --check .": "run by tests/test_lint.py",
     "lint-imports": "run by tests/test_lint.py",
@@ -86,6 +84,29 @@ def test_readme_has_examples():
 def test_every_bash_command_is_accounted_for():
     unknown = [c for c in _bash_commands() if not _is_bayescap(c) and c not in NOT_RUN]
     assert unknown == [], f"README bash commands neither run by tests/test_readme.py nor listed in NOT_RUN: {unknown}"
+
+
+#: the one line .ci/run adds to the README's two commands: the browser the HTML test opens
+CI_BROWSER_INSTALL = (
+    "(command -v chromium || apt-get install -y -qq chromium || { apt-get update -qq; apt-get install -y -qq chromium; } "
+    "|| true) >/dev/null 2>&1"
+)
+
+
+def test_ci_runs_the_readme_commands_and_the_test_command_installs_nothing():
+    """The README's test command is pytest and nothing else (no system package installed as a side
+    effect); .ci/run runs the README's two quick-start commands verbatim, plus the browser install
+    before them."""
+    quick = [b.strip() for b in _blocks("bash")[:2]]
+    assert quick[1] == ".venv/bin/python -m pytest -n 2", quick[1]
+    assert "apt-get" not in quick[0] + quick[1]
+    lines = [
+        ln.strip()
+        for ln in (ROOT / ".ci" / "run").read_text(encoding="utf-8").splitlines()
+        if ln.strip() and not ln.lstrip().startswith("#")
+    ]
+    steps = [ln for ln in lines if not ln.startswith(("set -", "cd "))]
+    assert steps == [quick[0], CI_BROWSER_INSTALL, quick[1]], steps
 
 
 @pytest.mark.parametrize("cmd", BAYESCAP_COMMANDS)

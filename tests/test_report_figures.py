@@ -43,3 +43,27 @@ def test_corner_keeps_other_formats(basler_result, tmp_path):
     path = tmp_path / "corner.pdf"
     plot_corner(basler_result, path, n_max=2000)
     assert path.read_bytes()[:4] == b"%PDF"
+
+
+def _vertical_lines(ax):
+    return sorted(float(ln.get_xdata()[0]) for ln in ax.lines if len(set(ln.get_xdata())) == 1)
+
+
+def test_corner_draws_a_limit_as_a_limit(basler_result):
+    """The Basler's DSNU is an upper limit in the report and the JSON: its histogram's title gives
+    the limit alone and one line marks it; a detected quantity keeps its median and 95 % interval
+    (three lines), the report's numbers."""
+    r = basler_result
+    summary = r.parameter_summary()
+    assert summary["dsnu_e"]["limit"]["kind"] == "upper"
+    fig = plot_corner(r, n_max=4000)
+    physical = [n for n in CORNER_LABELS if n in r.draws]
+    k = len(physical)
+    diag = {n: fig.axes[i * k + i] for i, n in enumerate(physical)}
+    dsnu = diag["dsnu_e"]
+    assert dsnu.get_title().splitlines()[1].startswith("< ") and "95 % upper limit" in dsnu.get_title()
+    assert _vertical_lines(dsnu) == pytest.approx([summary["dsnu_e"]["limit"]["value"]])
+    k_ax = diag["conversion_gain_e_per_dn"]
+    s = summary["conversion_gain_e_per_dn"]
+    assert _vertical_lines(k_ax) == pytest.approx(sorted([s["ci95"][0], s["median"], s["ci95"][1]]))
+    assert "[" in k_ax.get_title() and "limit" not in k_ax.get_title()

@@ -2,6 +2,7 @@
 its ``posterior.nc`` is an ArviZ InferenceData whose diagnostics agree with the report's, it saves
 and loads, and its ``repr`` is short."""
 
+import json
 import pickle
 import warnings
 
@@ -113,24 +114,97 @@ def test_posterior_nc_chains_are_ensembles_and_arviz_is_the_report(standard_resu
 def test_posterior_nc_groups_units_attributes_and_loo(standard_result, written):
     import arviz as az
 
+    from bayescap.posterior.inference_data import ALL_OBSERVATIONS
+
     for g in ("posterior", "log_likelihood", "posterior_predictive", "observed_data", "sample_stats", "constant_data"):
         assert g in written.groups(), g
     post = written.posterior
-    assert set(standard_result.draws) | set(standard_result.derived) == set(post.data_vars)
+    constants = set(json.loads(written.attrs["constant_variables"]))
+    assert set(standard_result.draws) | set(standard_result.derived) == set(post.data_vars) | constants
+    assert constants <= set(written.constant_data.data_vars)
     assert post["conversion_gain_e_per_dn"].attrs["units"] == "e-/DN"
     assert post["capacity_bits"].attrs["units"] == "bits"
     assert written.attrs["quality"] == "standard" and written.attrs["seed"] == "1"
     assert written.attrs["bayescap_version"] == bayescap.__version__ and "units" in written.attrs
-    n_obs = written.observed_data.sizes["observation"]
-    assert written.log_likelihood["obs"].shape[-1] == n_obs == written.posterior_predictive["obs"].shape[-1]
+    blocks = set(written.observed_data.data_vars)
+    assert (
+        blocks
+        == set(written.posterior_predictive.data_vars)
+        == set(written.log_likelihood.data_vars) - {ALL_OBSERVATIONS}
+    )
+    n_obs = sum(written.observed_data[v].size for v in blocks)
+    assert written.log_likelihood[ALL_OBSERVATIONS].sizes["observation"] == n_obs
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
-        lo = az.loo(written)
+        lo = az.loo(written, var_name=ALL_OBSERVATIONS)
     assert np.isfinite(lo.elpd_loo) and lo.n_data_points == n_obs
-    # the replicated observations scatter around the observed ones
-    rep = written.posterior_predictive["obs"].median(("chain", "draw")).values
-    obs = written.observed_data["obs"].values
-    assert np.median(np.abs(rep / obs - 1)) < 0.1
+    # the pointwise total is the blocks' log-likelihoods side by side
+    ll = written.log_likelihood
+    parts = sum(float(ll[v].sum()) for v in blocks)
+    assert parts == pytest.approx(float(ll[ALL_OBSERVATIONS].sum()), rel=1e-12)
+    # the replicated observations scatter around the observed ones, block by block
+    for v in blocks:
+        rep = written.posterior_predictive[v].median(("chain", "draw")).values
+        obs = written.observed_data[v].values
+        assert np.median(np.abs(rep / obs - 1)) < 0.1, v
+
+
+def test_posterior_nc_one_variable_per_observation_kind_with_one_unit(written):
+    """Each observed_data/posterior_predictive variable is one kind of observation in one unit
+    (means in DN, variances in DN²), indexed by the CSV's file rows, so ``az.plot_ppc`` on one
+    variable compares like with like."""
+    from bayescap.posterior.inference_data import OBSERVATION_VARS
+
+    units = {name: unit for name, unit, _ in OBSERVATION_VARS.values()}
+    od, pp = written.observed_data, written.posterior_predictive
+    assert {"signal_mean_dn", "temporal_var_dn2", "dark_temporal_var_dn2"} <= set(od.data_vars)
+    for v in od.data_vars:
+        assert od[v].attrs["units"] == pp[v].attrs["units"] == units[v]
+        assert units[v] == ("DN" if v.endswith("_dn") else "DN²")
+        assert od[v].dims == (f"{v}_row",) and pp[v].dims == ("chain", "draw", f"{v}_row")
+        rows = od[v][f"{v}_row"].values
+        assert len(set(rows)) == rows.size and rows.min() >= 1  # file rows, each once
+
+
+def test_plot_ppc_per_observation_kind(written, tmp_path):
+    """``az.plot_ppc(idata, var_names=[...])`` draws one panel per kind of observation."""
+    import arviz as az
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    names = list(written.observed_data.data_vars)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", RuntimeWarning)
+        axes = az.plot_ppc(written, var_names=names, num_pp_samples=50, random_seed=1)
+    titles = {ax.get_xlabel() or ax.get_title() for ax in np.ravel(axes)}
+    assert all(any(n in t for t in titles) for n in names), titles
+    plt.close("all")
+
+
+def test_posterior_nc_constants_give_no_nan_rhat_and_units_are_uniform(standard_result, written):
+    """A variable that is the same in every draw (this sensor has no clipped row: clip_dn; its
+    MTF is fixed: mtf_loss_bits) is in constant_data, not in the posterior, so ``az.rhat`` and
+    ``az.ess`` on the file give no NaN and no RuntimeWarning; every variable of every group has a
+    ``units`` attribute, dimensionless ones all ``"dimensionless"``."""
+    import arviz as az
+
+    from bayescap.posterior.inference_data import DIMENSIONLESS
+
+    assert np.ptp(standard_result.draws["clip_dn"]) == 0 and np.ptp(standard_result.derived["mtf_loss_bits"]) == 0
+    assert {"clip_dn", "mtf_loss_bits"} <= set(json.loads(written.attrs["constant_variables"]))
+    assert float(written.constant_data["clip_dn"]) == standard_result.draws["clip_dn"][0]
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", RuntimeWarning)
+        rhat = az.rhat(written)
+        ess = az.ess(written)
+    assert all(np.isfinite(float(rhat[v])) and np.isfinite(float(ess[v])) for v in rhat.data_vars)
+    for g in written.groups():
+        for v, da in written[g].data_vars.items():
+            unit = da.attrs.get("units")
+            assert unit not in (None, "", "1"), (g, v, unit)
+    assert written.posterior["quantum_efficiency"].attrs["units"] == DIMENSIONLESS
 
 
 def test_fast_path_posterior_nc_has_one_chain_and_says_so(fast_result):
@@ -143,7 +217,7 @@ def test_fast_path_posterior_nc_has_one_chain_and_says_so(fast_result):
     assert "R-hat does not apply" in idata.attrs["chains"]
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
-        assert np.isfinite(az.loo(idata).elpd_loo)
+        assert np.isfinite(az.loo(idata, var_name="all_observations").elpd_loo)
 
 
 # ------------------------------------------------------------------------------ save / load

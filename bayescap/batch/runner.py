@@ -27,6 +27,7 @@ import bayescap.batch.store as store
 from bayescap._blas import one_blas_thread
 from bayescap.batch.engine import _Deferred, _fallback_fit, _fit_groups, sensor_seeds
 from bayescap.batch.workers import folder_lock, process_pool, stop_pool
+from bayescap.batch.summary import write_summary
 from bayescap.inference import FastSettings
 
 __all__ = ["fit_to_folder", "run_chunk", "run_fallback"]
@@ -265,4 +266,5 @@ def _fit_to_folder(
         writers.shutdown()
         if bar is not None:
             bar.close()
+    write_summary(out)  # DIR/summary.csv (+ .parquet): every result of the folder, one row each
     return [dict(name=n, **r) for n, r in zip(names, report)]

@@ -1,6 +1,6 @@
 """Command line: a thin layer over the Python API.
 
-    bayescap fit sensor.csv [--json] [--seed N] [--out DIR] [--quality fast|standard|accurate]
+    bayescap fit sensor.csv|- [--json] [--seed N] [--out DIR] [--quality fast|standard|accurate]
                             [--fast-tolerance FRAC] [--fast-confidence P|none]   (--quality fast)
 
 Bad input prints one line naming file, row and column, and exits with status 2.
@@ -19,6 +19,7 @@ from bayescap.cli.common import (
     EXIT_INPUT,
     _add_metadata_overrides,
     add_fast_arguments,
+    add_progress_arguments,
     add_strict_argument,
     seed_arg,
 )
@@ -61,7 +62,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument(
         "csv",
         nargs="+",
-        help="photon-transfer CSV (format: README, 'Photon-transfer CSV'); several "
+        help="photon-transfer CSV (format: README, 'Photon-transfer CSV'; '-' reads it from standard input); several "
         "CSVs are fitted as a batch (bayescap.batch.fit_many: the fast "
         "preset is vectorised across sensors); a folder stands for its *.csv files, in name order",
     )
@@ -146,14 +147,7 @@ def build_parser() -> argparse.ArgumentParser:
         help="fit the nested likelihood variants (plain χ², + discrepancy, + outlier mixture) "
         "and keep the one PSIS-LOO prefers (README, 'Model selection')",
     )
-    p.add_argument(
-        "--progress",
-        dest="progress",
-        action="store_true",
-        default=None,
-        help="show a progress bar (default: when stderr is a terminal)",
-    )
-    p.add_argument("--no-progress", dest="progress", action="store_false")
+    add_progress_arguments(p)
     _add_metadata_overrides(p)
     p.set_defaults(func=_cmd_fit)
 
@@ -228,6 +222,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.set_defaults(func=run_sweep)
     _register_datasheet(sub, epilog=EXIT_STATUS_HELP)  # bayescap datasheet (cli/datasheet.py)
     _register_colour(sub, epilog=EXIT_STATUS_HELP)  # bayescap colour (cli/colour.py)
+    from bayescap.cli.summary import register as _register_summary
+
+    _register_summary(sub)  # bayescap summary DIR (cli/summary.py)
     return parser
 
 

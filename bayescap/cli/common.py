@@ -40,6 +40,53 @@ def strict_status(args, results) -> int:
     return 0
 
 
+def add_progress_arguments(p) -> None:
+    """``--progress``/``--no-progress`` and ``-q``/``--quiet`` (every command that fits), read back by
+    :func:`progress_enabled` and :func:`quiet`."""
+    p.add_argument(
+        "--progress",
+        dest="progress",
+        action="store_true",
+        default=None,
+        help="show progress bars on standard error (default: when standard error is a terminal)",
+    )
+    p.add_argument(
+        "--no-progress",
+        dest="progress",
+        action="store_false",
+        help="no progress bars, even on a terminal (logs, CI)",
+    )
+    p.add_argument(
+        "-q",
+        "--quiet",
+        action="store_true",
+        help="print only errors and what was asked for: no progress bars, no 'wrote ...' lines; with "
+        "--out, fit prints no report (it is in DIR/report.txt) unless --json",
+    )
+
+
+def progress_enabled(args) -> bool:
+    """Progress bars for ``args``: never with ``--quiet``; else ``--progress``/``--no-progress``, or
+    whether standard error is a terminal."""
+    import sys
+
+    if getattr(args, "quiet", False):
+        return False
+    chosen = getattr(args, "progress", None)
+    return sys.stderr.isatty() if chosen is None else bool(chosen)
+
+
+def quiet(args) -> bool:
+    """``--quiet`` was given."""
+    return bool(getattr(args, "quiet", False))
+
+
+def say(args, text: str) -> None:
+    """A status line (``wrote ...``) on standard output, unless ``--quiet``."""
+    if not quiet(args):
+        print(text)
+
+
 def seed_arg(text: str) -> int:
     """argparse type of ``--seed``: a whole number >= 0 (numpy's SeedSequence refuses negative
     seeds, with a traceback)."""
@@ -139,7 +186,7 @@ def fast_settings_from_args(args):
 
 def add_comparison_arguments(p: argparse.ArgumentParser) -> None:
     """The options ``compare`` and ``report`` share: the imaging area, H0, mid-grey, seed, preset."""
-    from bayescap.studies.compare import DEFAULT_AREA, DEFAULT_H0_LUX_S, DEFAULT_QUALITY
+    from bayescap.studies.compare import DEFAULT_AREA, DEFAULT_H0_LUX_S, DEFAULT_PRACTICAL_DIFFERENCE, DEFAULT_QUALITY
     from bayescap.studies.exposure import DEFAULT_MID_GREY
 
     p.add_argument(
@@ -172,4 +219,16 @@ def add_comparison_arguments(p: argparse.ArgumentParser) -> None:
         help="sampler preset for every fit (default fast: several sensors are fitted; "
         "use standard or accurate for final numbers)",
     )
+    p.add_argument(
+        "--practical-difference",
+        "--rope",
+        dest="practical_difference",
+        type=float,
+        default=DEFAULT_PRACTICAL_DIFFERENCE,
+        metavar="FRAC",
+        help="the capacity difference that matters, as a fraction: P(C_A > (1+FRAC)·C_B) is printed "
+        "beside P(C_A > C_B), and the ratio inside [1/(1+FRAC), 1+FRAC] counts as practically "
+        "equivalent (the region of practical equivalence; default 0.01 = 1 %%)",
+    )
     add_fast_arguments(p)
+    add_progress_arguments(p)

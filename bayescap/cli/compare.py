@@ -26,7 +26,7 @@ def add_compare_arguments(p: argparse.ArgumentParser) -> None:
 
 def run_compare(args) -> int:
     """``bayescap compare``: returns the exit status (2 with one line on bad input)."""
-    from bayescap.cli.common import fast_settings_from_args
+    from bayescap.cli.common import fast_settings_from_args, progress_enabled
     from bayescap.exceptions import ConvergenceWarning, InputError, PTCInputError
     from bayescap.io.atomic import write_files_atomically
 
@@ -55,8 +55,9 @@ def run_compare(args) -> int:
                 mid_grey=args.mid_grey,
                 seed=args.seed,
                 quality=args.quality,
-                progress=sys.stderr.isatty(),
+                progress=progress_enabled(args),
                 fit_kwargs=None if fs is None else {"fast_settings": fs},
+                practical_difference=args.practical_difference,
             )
     except (PTCInputError, CompareInputError) as e:
         print(f"bayescap: error: {e}", file=sys.stderr)

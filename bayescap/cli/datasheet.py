@@ -12,7 +12,13 @@ from pathlib import Path
 
 def add_datasheet_arguments(p: argparse.ArgumentParser) -> None:
     from bayescap.cli.colour import add_colour_result_argument
-    from bayescap.cli.common import _add_metadata_overrides, add_fast_arguments, add_strict_argument, seed_arg
+    from bayescap.cli.common import (
+        _add_metadata_overrides,
+        add_fast_arguments,
+        add_progress_arguments,
+        add_strict_argument,
+        seed_arg,
+    )
 
     p.add_argument("csv", help="photon-transfer CSV (with photons_per_pixel for η, μp.min, μp.sat and LE)")
     p.add_argument(
@@ -44,6 +50,7 @@ def add_datasheet_arguments(p: argparse.ArgumentParser) -> None:
         help="also write the EMVA 1288 view (bayescap.posterior.emva.emva1288_view) as JSON",
     )
     add_fast_arguments(p)
+    add_progress_arguments(p)
     add_strict_argument(p)
     _add_metadata_overrides(p)
     add_colour_result_argument(p)
@@ -51,9 +58,10 @@ def add_datasheet_arguments(p: argparse.ArgumentParser) -> None:
 
 def run_datasheet(args) -> int:
     """``bayescap datasheet``: returns the exit status (2 with one line on bad input)."""
+    from bayescap._progress import bar
     from bayescap.api import fit, load
     from bayescap.cli.colour import colour_result_from_args
-    from bayescap.cli.common import _OVERRIDE_KEYS, fast_settings_from_args, strict_status
+    from bayescap.cli.common import _OVERRIDE_KEYS, fast_settings_from_args, progress_enabled, say, strict_status
     from bayescap.exceptions import InputError, PTCInputError
     from bayescap.io.atomic import atomic_write_text, output_problem
     from bayescap.posterior.emva import emva1288_view
@@ -84,27 +92,33 @@ def run_datasheet(args) -> int:
         colour = colour_result_from_args(args)  # bayescap colour's result, for a colour section
         data = load(args.csv, **overrides)
         kw = {} if fs is None else {"fast_settings": fs}
-        result = fit(data, seed=args.seed, quality=args.quality, **kw)
+        result = fit(data, seed=args.seed, quality=args.quality, progress=progress_enabled(args), **kw)
     except (PTCInputError, InputError, OSError) as e:
         print(f"bayescap: error: {e}", file=sys.stderr)
         return 2
-    view = emva1288_view(result)
+    n_steps = 1 + sum(x is not None and x is not False for x in (html_out, pdf, args.json))
     written = []
     try:
-        if html_out is not None:
-            atomic_write_text(html_out, datasheet_html(result, view=view, title=args.title, colour=colour))
-            written.append(str(html_out))
-        if pdf is not None:
-            write_datasheet_pdf(result, pdf, view=view, title=args.title)
-            written.append(str(pdf))
-        if args.json:
-            atomic_write_text(args.json, json.dumps(view, indent=2) + "\n")
-            written.append(str(args.json))
+        with bar(progress_enabled(args), total=n_steps, desc="datasheet: EMVA 1288 view, pages", unit="step") as steps:
+            view = emva1288_view(result)
+            steps.update()
+            if html_out is not None:
+                atomic_write_text(html_out, datasheet_html(result, view=view, title=args.title, colour=colour))
+                written.append(str(html_out))
+                steps.update()
+            if pdf is not None:
+                write_datasheet_pdf(result, pdf, view=view, title=args.title)
+                written.append(str(pdf))
+                steps.update()
+            if args.json:
+                atomic_write_text(args.json, json.dumps(view, indent=2) + "\n")
+                written.append(str(args.json))
+                steps.update()
     except OSError as e:
         done = f" ({', '.join(written)} written)" if written else ""
         print(f"bayescap: error: cannot write {e.filename or 'an output'} ({e.strerror or e}){done}", file=sys.stderr)
         return 1
-    print("wrote " + " and ".join(written))
+    say(args, "wrote " + " and ".join(written))
     return strict_status(args, [result])
 
 

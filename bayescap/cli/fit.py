@@ -4,12 +4,15 @@ from __future__ import annotations
 
 import math
 import sys
+from pathlib import Path
 
 from bayescap.cli.common import (
     _OVERRIDE_KEYS,
     EXIT_FAILURE,
     EXIT_NOT_CONVERGED,
     fast_settings_from_args,
+    progress_enabled,
+    quiet,
     strict_status,
 )
 from bayescap.exceptions import InputError
@@ -19,8 +22,23 @@ from bayescap.exceptions import InputError
 _MAX_SCENE_TEMPERATURE_C = 200.0
 
 
+#: the CSV argument that reads the photon-transfer table from standard input
+STDIN = "-"
+
+
+def load_input(path, overrides):
+    """:func:`bayescap.api.load` of ``path``, or of standard input for ``-`` (named ``<stdin>``)."""
+    from bayescap.api import load
+
+    if path != STDIN:
+        return load(path, **overrides)
+    from bayescap.io.ptc_csv import read_ptc_csv
+
+    return read_ptc_csv("<stdin>", overrides=overrides or None, content=sys.stdin.buffer.read())
+
+
 def _cmd_fit(args) -> int:
-    from bayescap.api import fit, load
+    from bayescap.api import fit
     from bayescap.exceptions import PTCInputError
     from bayescap.report.text import format_text, to_json, write_outputs
 
@@ -31,7 +49,7 @@ def _cmd_fit(args) -> int:
         from bayescap.io.atomic import output_problem
         from bayescap.report.text import OUTPUT_NAMES
 
-        inputs = list(args.csv) + ([args.mtf] if args.mtf else [])
+        inputs = [p for p in args.csv if p != STDIN] + ([args.mtf] if args.mtf else [])
         problem = output_problem(args.out, inputs, directory=True, names=OUTPUT_NAMES if len(args.csv) == 1 else None)
         if problem:
             raise InputError(problem)
@@ -41,10 +59,12 @@ def _cmd_fit(args) -> int:
 
         args.seed = draw_seed()
     args.seed_drawn = seed_drawn
+    if args.csv.count(STDIN) > 1:
+        raise InputError("standard input ('-') can be read once: give it at most once")
     if len(args.csv) > 1:
         return _cmd_fit_many(args, overrides, fast_settings)
     try:
-        data = load(args.csv[0], **overrides)
+        data = load_input(args.csv[0], overrides)
     except PTCInputError as e:
         raise InputError(str(e)) from None
     scene = _scene_from_args(args, data)
@@ -57,7 +77,7 @@ def _cmd_fit(args) -> int:
             mtf = measured_mtf(args.mtf, seed=args.seed or 0)
         except MTFInputError as e:
             raise InputError(str(e)) from None
-    progress = sys.stderr.isatty() if args.progress is None else args.progress
+    progress = progress_enabled(args)
     try:
         # a value the reader accepts but no parameter can explain
         # (bayescap.inference.starts._no_finite_start) is refused
@@ -89,7 +109,10 @@ def _cmd_fit(args) -> int:
     if seed_drawn:
         result.diag["seed_drawn"] = True
     # the result first: a write error below does not lose it
-    sys.stdout.write(to_json(result) if args.json else format_text(result))
+    if args.json:
+        sys.stdout.write(to_json(result))
+    elif not (quiet(args) and args.out):
+        sys.stdout.write(format_text(result))
     sys.stdout.flush()
     if args.out:
         try:
@@ -139,7 +162,6 @@ def _failure(path, err) -> str:
 def _cmd_fit_many(args, overrides, fast_settings=None) -> int:
     """``bayescap fit a.csv b.csv ...``: every CSV checked first (a bad one stops the run before
     anything is fitted or written), then :func:`bayescap.batch.fit_many`."""
-    from bayescap.api import load
     from bayescap.batch import fit_many
     from bayescap.exceptions import PTCInputError
     from bayescap.report.text import format_text
@@ -170,7 +192,7 @@ def _cmd_fit_many(args, overrides, fast_settings=None) -> int:
     datas = []
     for path in args.csv:
         try:
-            datas.append(load(path, **overrides))
+            datas.append(load_input(path, overrides))
         except PTCInputError as e:
             raise InputError(str(e)) from None
     kw = {} if fast_settings is None else {"settings": fast_settings}
@@ -195,6 +217,7 @@ def _cmd_fit_many(args, overrides, fast_settings=None) -> int:
                 f"bayescap: error: {_failure(p, r)}\n\n" if isinstance(r, BaseException) else format_text(r) + "\n"
             )
         sys.stdout.write(_batch_table(args.csv, results))
+        print("table: with --out DIR the batch also writes DIR/summary.csv (pandas.read_csv)")
     for p, r in failed:
         print(f"bayescap: error: {_failure(p, r)}", file=sys.stderr)
     return 1 if failed else _strict_status(args, results)
@@ -214,8 +237,9 @@ def _fit_many_to_folder(args, datas, kw, scheduler, n_dask) -> int:
         from bayescap.batch.cluster import start_client
 
         client, cluster = start_client(scheduler, n_dask)
-        print(f"bayescap: Dask dashboard: {client.dashboard_link}", file=sys.stderr)
-    progress = sys.stderr.isatty() if args.progress is None else args.progress
+        if not quiet(args):
+            print(f"bayescap: Dask dashboard: {client.dashboard_link}", file=sys.stderr)
+    progress = progress_enabled(args)
     try:
         report = fit_many(
             datas,
@@ -243,8 +267,9 @@ def _fit_many_to_folder(args, datas, kw, scheduler, n_dask) -> int:
         docs.append({"input": p, "error": r["error"]})
     if args.json:
         sys.stdout.write(json.dumps(docs, indent=2, ensure_ascii=False, allow_nan=False) + "\n")
-    else:
+    elif not quiet(args):
         sys.stdout.write(_folder_table(args.csv, report, docs))
+        print(f"table: {Path(args.out) / 'summary.csv'} (pandas.read_csv; 'bayescap summary DIR' rebuilds it)")
     failed = [(p, r) for p, r in zip(args.csv, report) if r["status"] == "error"]
     for p, r in failed:
         print(f"bayescap: error: {p}: {r['error']}", file=sys.stderr)

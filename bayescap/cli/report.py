@@ -6,6 +6,7 @@ import argparse
 import sys
 import warnings
 
+from bayescap._progress import bar
 from bayescap.exceptions import CompareInputError
 from bayescap.report.html import write_report
 from bayescap.studies.compare import (
@@ -28,7 +29,7 @@ def add_report_arguments(p: argparse.ArgumentParser) -> None:
 def run_report(args) -> int:
     """``bayescap report``: returns the exit status (2 with one line on bad input)."""
     from bayescap.cli.colour import colour_result_from_args
-    from bayescap.cli.common import fast_settings_from_args, strict_status
+    from bayescap.cli.common import fast_settings_from_args, progress_enabled, say, strict_status
     from bayescap.exceptions import ConvergenceWarning, InputError, PTCInputError
 
     try:
@@ -54,8 +55,9 @@ def run_report(args) -> int:
                 mid_grey=args.mid_grey,
                 seed=args.seed,
                 quality=args.quality,
-                progress=sys.stderr.isatty(),
+                progress=progress_enabled(args),
                 fit_kwargs=None if fs is None else {"fast_settings": fs},
+                practical_difference=args.practical_difference,
             )
     except (PTCInputError, CompareInputError, OSError) as e:
         print(f"bayescap: error: {e}", file=sys.stderr)
@@ -63,9 +65,11 @@ def run_report(args) -> int:
     try:
         with warnings.catch_warnings():
             warnings.filterwarnings("ignore", category=FutureWarning)
-            out = write_report(cmp, args.output, title=args.title, colour=colour)
+            with bar(progress_enabled(args), total=1, desc="report: plots and HTML", unit="page") as step:
+                out = write_report(cmp, args.output, title=args.title, colour=colour)
+                step.update()
     except OSError as e:
         print(f"bayescap: error: cannot write {args.output} ({e.strerror or e}); nothing was written", file=sys.stderr)
         return 1
-    print(f"wrote {out}")
+    say(args, f"wrote {out}")
     return strict_status(args, [sc.result for sc in cmp.sensors])

@@ -367,9 +367,35 @@ def load_frame_set(source: os.PathLike | str, *, fmt: str = "auto") -> FrameSet:
             fmt = "manifest"
         elif source.suffix.lower() == ".txt" or _looks_like_descriptor(source):
             fmt = "emva"
+        elif _looks_like_frame(source):
+            raise IngestError(
+                "this is one frame (an image or camera RAW file), not a measurement: a photon-transfer "
+                "table needs pairs of bright frames at each exposure level and a dark pair at each exposure "
+                "time, listed in a manifest CSV or an EMVA 1288 descriptor (docs/ingest.md)",
+                path=source,
+            )
         else:
             fmt = "manifest"
     return read_manifest(source) if fmt == "manifest" else read_emva_descriptor(source)
+
+
+#: file-name suffixes of single frames: images and the common camera RAW formats
+FRAME_SUFFIXES = frozenset(
+    ".png .tif .tiff .npy .dng .cr2 .cr3 .crw .nef .nrw .arw .srf .sr2 .raf .orf .rw2 .pef .srw .raw .rwl .3fr "
+    ".iiq .x3f .erf .mef .mos .kdc .dcr .jpg .jpeg".split()
+)
+
+
+def _looks_like_frame(path: Path) -> bool:
+    """A single frame rather than a frame list: an image/RAW suffix, or binary content (a NUL byte
+    in the first 4 kB, which no manifest or descriptor has)."""
+    if path.suffix.lower() in FRAME_SUFFIXES:
+        return True
+    try:
+        with open(path, "rb") as fh:
+            return b"\x00" in fh.read(4096)
+    except OSError:
+        return False
 
 
 @dataclass(frozen=True)

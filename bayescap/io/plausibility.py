@@ -5,6 +5,11 @@ together say that a unit or a file is wrong.
   absurd dark current (above :data:`MAX_DARK_CURRENT_E_PER_S`): the exposure times are too short by
   a factor of 10³ (µs written where ns were expected, as in an EMVA 1288 descriptor written in µs)
   or more.
+  When no ramp is that significant, the table as a whole is asked (:func:`table_unit_warning`):
+  the dark variance's implied dark current at the *lower* end of its 97.7 % one-sided bound
+  against :data:`MAX_DARK_CURRENT_E_PER_S`, and the photons per second the photon counts and the
+  times imply against :data:`MAX_PHOTON_FLUX_PER_PIXEL_S` (a weaker hint that decides only
+  together with a positive dark ramp).
 * ``photons_inconsistent``: the photon counts and the signal imply a quantum efficiency above 1 or
   below :data:`MIN_QE`.
 * ``zero_pair_variance``: a pair variance of exactly 0 below the clip level: the two frames of the
@@ -22,11 +27,24 @@ from __future__ import annotations
 
 import numpy as np
 
-__all__ = ["plausibility_warnings", "MAX_DARK_CURRENT_E_PER_S", "MIN_QE"]
+__all__ = [
+    "plausibility_warnings",
+    "table_unit_warning",
+    "MAX_DARK_CURRENT_E_PER_S",
+    "MAX_PHOTON_FLUX_PER_PIXEL_S",
+    "MIN_QE",
+]
 
 #: a dark current above this (e⁻/s per pixel) is not a sensor at room temperature: the hottest
 #: uncooled CMOS sensors reach 10³–10⁴ e⁻/s
 MAX_DARK_CURRENT_E_PER_S = 1e5
+
+#: photons per pixel per second above this are not a photon-transfer set-up (a 10 000 e⁻ well
+#: filled in a microsecond); a tenth of it is a bright laboratory source at the edge of plausible
+MAX_PHOTON_FLUX_PER_PIXEL_S = 1e10
+
+#: the one-sided bound (in standard errors) the dark ramp's lower end is taken at
+RAMP_LOWER_BOUND_SE = 2.0
 
 #: a quantum efficiency below this is a unit problem, not a sensor
 MIN_QE = 1e-4
@@ -132,6 +150,75 @@ def _photon_warning(data, k_e):
     }
 
 
+def _photon_flux(data):
+    """Photons per pixel per second of the rows below 70 % of the largest signal: the median of
+    photons_per_pixel / exposure_time_s, or None without photon counts."""
+    if data.photons_per_pixel is None:
+        return None
+    mu_p, t = np.asarray(data.photons_per_pixel, float), np.asarray(data.exposure_time_s, float)
+    s = np.asarray(data.mean_dn, float) - np.asarray(data.dark_mean_dn, float)
+    ok = np.isfinite(mu_p) & (mu_p > 0) & (t > 0) & (s > 0) & (s <= 0.7 * np.nanmax(s))
+    return float(np.median(mu_p[ok] / t[ok])) if ok.any() else None
+
+
+def table_unit_warning(data, k_e=None):
+    """``exposure_time_unit`` from the table as a whole, where no single ramp is significant enough
+    for :func:`_dark_ramp_warning` (an 8-bit camera's dark variance rises 3–4 standard errors over
+    the times, its dark mean falls as the camera corrects its offset):
+
+    * the dark variance's ramp, at the lower end of its one-sided bound (slope − 2 standard errors),
+      still implies a dark current above :data:`MAX_DARK_CURRENT_E_PER_S`: even the least the data
+      allow is no sensor's;
+    * or the ramp is positive by 2 standard errors, its central rate above that maximum, and the
+      photon counts over the times give more than a tenth of
+      :data:`MAX_PHOTON_FLUX_PER_PIXEL_S` photons per pixel per second: two independent signs;
+    * or the photons per second alone exceed :data:`MAX_PHOTON_FLUX_PER_PIXEL_S`.
+
+    None when the table says nothing against its times."""
+    k_e = _gain_e_per_dn(data) if k_e is None else k_e
+    t = np.asarray(data.exposure_time_s, float)
+    flux = _photon_flux(data)
+    why, rate = [], None
+    if np.unique(t).size >= 3 and k_e is not None:
+        vd = np.asarray(data.dark_temporal_var_dn2, float)
+        a, z = _ramp(t, vd)
+        if a > 0 and np.isfinite(z) and z > 0:
+            rate = a * k_e * k_e
+            low = rate * (1.0 - RAMP_LOWER_BOUND_SE / z)
+            if low > MAX_DARK_CURRENT_E_PER_S:
+                why.append(
+                    f"the dark variance grows over {t.min():.3g}–{t.max():.3g} s at {z:.1f} standard errors, so the "
+                    f"dark current is at least {low:.3g} e-/s (central {rate:.3g} e-/s, K ≈ {k_e:.3g} e-/DN), above "
+                    f"any sensor's {MAX_DARK_CURRENT_E_PER_S:.0e} e-/s"
+                )
+            elif (
+                z >= RAMP_LOWER_BOUND_SE
+                and rate > MAX_DARK_CURRENT_E_PER_S
+                and flux
+                and flux > 0.1 * MAX_PHOTON_FLUX_PER_PIXEL_S
+            ):
+                why.append(
+                    f"the dark variance's ramp ({z:.1f} standard errors) means a dark current of {rate:.3g} e-/s and "
+                    f"the photon counts {flux:.3g} photons per pixel per second: both far above what sensors and "
+                    "light sources give"
+                )
+    if not why and flux and flux > MAX_PHOTON_FLUX_PER_PIXEL_S:
+        why.append(
+            f"the photon counts over the exposure times are {flux:.3g} photons per pixel per second, above "
+            f"{MAX_PHOTON_FLUX_PER_PIXEL_S:.0e} (a 10 000 e- well filled in a microsecond)"
+        )
+    if not why:
+        return None
+    return {
+        "code": "exposure_time_unit",
+        "factor": 1e3,
+        "implied_dark_current_e_per_s": rate,
+        "photons_per_pixel_per_s": flux,
+        "message": "exposure times look 1 000 times too short: " + "; ".join(why) + f"; likely {_UNIT_HINTS[1e3]}. "
+        "exposure_time_s is in seconds",
+    }
+
+
 def plausibility_warnings(data) -> list[dict]:
     """The plausibility warnings of a :class:`~bayescap.io.ptc_csv.PTCData`: a list of dicts with
     ``code``, ``message`` (the rows and the likely cause) and the numbers behind them."""
@@ -170,7 +257,7 @@ def plausibility_warnings(data) -> list[dict]:
                 }
             )
     k_e = _gain_e_per_dn(data)
-    for w in (_dark_ramp_warning(data, k_e), _photon_warning(data, k_e)):
+    for w in (_dark_ramp_warning(data, k_e) or table_unit_warning(data, k_e), _photon_warning(data, k_e)):
         if w is not None:
             out.append(w)
     return out

@@ -293,15 +293,16 @@ def _check_metadata(md, path):
         raise PTCInputError(f"metadata 'fill_factor' must be in (0, 1], got {md['fill_factor']}", path=path)
 
 
-def read_ptc_csv(path, *, overrides: dict | None = None) -> PTCData:
+def read_ptc_csv(path, *, overrides: dict | None = None, content: bytes | None = None) -> PTCData:
     """Read and validate a photon-transfer CSV (see module docstring).
 
-    ``overrides`` (e.g. from the command line) replace metadata values. Raises
+    ``overrides`` (e.g. from the command line) replace metadata values. ``content``: the file's
+    bytes, already read (standard input), with ``path`` the name errors give. Raises
     :class:`PTCInputError` naming the file, the row (1 = first data row) and the column.
     """
     path_str = str(path)
     try:
-        raw = Path(path).read_bytes()
+        raw = Path(path).read_bytes() if content is None else content
     except FileNotFoundError:
         raise PTCInputError("file not found", path=path_str) from None
     except OSError as e:

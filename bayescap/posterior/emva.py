@@ -18,6 +18,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from bayescap.posterior.emva_limits import attach_limits
 from bayescap.posterior.summary import json_safe
 
 __all__ = ["emva1288_view", "emva1288_gain_draws", "EMVA_RELEASE"]
@@ -47,21 +48,18 @@ def _lsq_origin(x, y):
     return float(np.sum(x * y) / np.sum(x * x))
 
 
-def _lsq_line(x, y):
-    """Unweighted least-squares (slope, offset) of y = a·x + b."""
-    a, b = np.polyfit(np.asarray(x, float), np.asarray(y, float), 1)
-    return float(a), float(b)
-
-
 class _Sweep:
-    """The standard's reading of the measured rows: the irradiation sweep (the rows of the most
-    pixels: a spatial-stack crop is left out), its saturation point (the row of largest temporal
-    variance), the sensitivity rows (up to 70 % of the saturation signal), the linearity rows
-    (5–95 %), the dark regression over exposure time, and the spatial-stack row nearest 50 %."""
+    """The standard's reading of the measured rows: the irradiation sweep (the pair rows of the most
+    pixels: a spatial stack, or its crop, is left out), its saturation point (the row of largest
+    temporal variance), the sensitivity rows (up to 70 % of the saturation signal), the linearity
+    rows (5–95 %), the dark regression over exposure time, and the spatial row: of the rows of
+    the most frames (the stack), the one nearest 50 %."""
 
     def __init__(self, data):
         d = data
-        sweep = d.n_pixels == np.max(d.n_pixels)
+        # a spatial stack (more than two frames) is not a sweep row, where pair rows exist beside it
+        stack = np.asarray(d.n_frames, float) > 2 if d.n_frames is not None else np.zeros(d.n_levels, bool)
+        sweep = (d.n_pixels == np.max(d.n_pixels)) & (~stack if np.any(~stack) else True)
         order = np.argsort(d.exposure_time_s[sweep], kind="stable")
         pick = lambda a: None if a is None else np.asarray(a, float)[sweep][order]
         self.data_rows = np.flatnonzero(sweep)[order]  # the CSV row index of each sweep row
@@ -82,8 +80,9 @@ class _Sweep:
         self.saturated = self.i_sat < self.signal.size - 1
         self.n_texp = int(np.unique(self.t).size)
         if self.n_texp > 2:
-            self.dark_var_slope, self.s2_ydark0 = _lsq_line(self.t, self.s2_dark)
-            self.dark_mean_slope, _ = _lsq_line(self.t, self.mu_dark)
+            # unweighted least-squares lines a·t + b
+            self.dark_var_slope, self.s2_ydark0 = map(float, np.polyfit(self.t, self.s2_dark, 1))
+            self.dark_mean_slope = float(np.polyfit(self.t, self.mu_dark, 1)[0])
         else:
             self.dark_var_slope = self.dark_mean_slope = None
             self.s2_ydark0 = float(self.s2_dark[0])
@@ -97,7 +96,7 @@ class _Sweep:
             if spd is not None:
                 ok &= np.isfinite(spd)
             if ok.any():
-                rows = np.flatnonzero(ok)
+                rows = np.flatnonzero(ok & (L == np.max(L[ok])))  # the largest stack: the standard's
                 sig = d.mean_dn[rows] - d.dark_mean_dn[rows]
                 r = rows[np.argmin(np.abs(sig - 0.5 * y_sat))]
                 s2y = sp[r] - d.temporal_var_dn2[r] / L[r]
@@ -230,17 +229,12 @@ def emva1288_view(result) -> dict:
     K = 1.0 / k  # DN/e⁻, the standard's system gain
     k_med = float(np.median(k))
     eta = np.asarray(p["quantum_efficiency"], float) if "quantum_efficiency" in p else None
-    if m.terms.dark_current:
-        sigma_d = np.asarray(p["read_noise_e"], float)
-        sigma_d_from = "read_noise_e"
-    else:
-        sigma_d = np.asarray(p["dark_noise_e"], float)
-        sigma_d_from = "dark_noise_e"
+    sigma_d_from = "read_noise_e" if m.terms.dark_current else "dark_noise_e"
+    sigma_d = np.asarray(p[sigma_d_from], float)
     s2_ydark = np.maximum(sigma_d**2 * K**2 + S2Q, S2_YDARK_FLOOR)
     sigma_ydark = np.sqrt(s2_ydark)
     u_e_min = sigma_ydark / K + 0.5
-    notes = []
-    q = {}
+    notes, q = [], {}
     K_rec = sw.recipe_gain()
     idx = result.thin_index(N_PEAK_DRAWS)
     K_std = _model_gain(result, sw, idx)
@@ -485,24 +479,29 @@ def emva1288_view(result) -> dict:
     if lin is not None:
         dev = lin["deviation_percent"]
         lo_, hi_ = float(dev.min()), float(dev.max())
+        le_draws = getattr(result, "derived", {}).get("linearity_error_percent")
         lin_note = (
-            f"from the data only (no interval): the standard's fit a·μp + b over the {dev.size} rows between 5 % and "
-            "95 % of the saturation signal, minimising relative deviations; bayescap models non-linearity as the "
-            "scatter mean_discrepancy instead"
+            f"the measured rows only (no interval): deviations from the standard's line a·μp + b over the {dev.size} "
+            "rows between 5 % and 95 % of the saturation signal (relative deviations minimised); "
+            + (
+                "the fitted response's LE, with its interval, is the LE row"
+                if le_draws is not None
+                else "the fit has no response non-linearity term (the means are linear within their precision), so "
+                "LE is the rows' value; what the rows scatter beyond their noise is mean_discrepancy"
+            )
         )
         q["LE_min"] = _entry("Min linearity error", "LE_min", "%", value=lo_, recipe=lo_, note=lin_note)
         q["LE_max"] = _entry("Max linearity error", "LE_max", "%", value=hi_, recipe=hi_, note=lin_note)
-        q["LE"] = _entry(
-            "Linearity error",
-            "LE",
-            "%",
-            value=0.5 * (hi_ - lo_),
-            recipe=0.5 * (hi_ - lo_),
-            bayescap="mean_discrepancy (a scatter, not this)",
-            note="LE = (max δ_y − min δ_y)/2 over the same rows",
-        )
-        le_draws = getattr(result, "derived", {}).get("linearity_error_percent")
-        if le_draws is not None:
+        if le_draws is None:
+            q["LE"] = _entry(
+                "Linearity error",
+                "LE",
+                "%",
+                value=0.5 * (hi_ - lo_),
+                recipe=0.5 * (hi_ - lo_),
+                note="LE = (max δ_y − min δ_y)/2 over the same rows, from the data (no interval)",
+            )
+        else:
             q["LE"] = _entry(
                 "Linearity error",
                 "LE",
@@ -511,7 +510,7 @@ def emva1288_view(result) -> dict:
                 recipe=0.5 * (hi_ - lo_),
                 bayescap="derived.linearity_error_percent",
                 note="the fitted response's LE (the standard's line and δ over 5–95 % of the largest unclipped "
-                "signal), with its interval; recipe: the same from the measured rows",
+                "signal), with its interval; recipe: (max δ_y − min δ_y)/2 of the measured rows (LE_min, LE_max)",
             )
     sp = sw.spatial
     if "dsnu_e" in p:
@@ -581,9 +580,10 @@ def emva1288_view(result) -> dict:
             note="slope of the dark mean over exposure time (DN/s, from the data) divided by K per draw; bayescap "
             "does not fit the dark mean. Differs from μ_I.var where the camera corrects its offset",
         )
-    return json_safe(
+    view = json_safe(
         {
             "standard": EMVA_RELEASE,
+            "sigma_d_from": sigma_d_from,
             "quantities": q,
             "saturation": {
                 "row_index": sw.i_sat,
@@ -596,4 +596,6 @@ def emva1288_view(result) -> dict:
             "spatial_row": sp,
             "notes": notes,
         }
-    )
+    )  # limits in the fit JSON's form (bayescap.posterior.emva_limits)
+    t_one = float(sw.t[0]) if sw.n_texp == 1 else None
+    return attach_limits(view, result.to_dict()["parameters"], exposure_time_s=t_one)

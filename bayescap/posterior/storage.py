@@ -233,7 +233,15 @@ def load_result(path, result_cls):
         mtf = _mtf_from_state(state["mtf"])
     except ValueError as e:
         raise ValueError(f"{path}: {e}") from None
-    post = groups["posterior"]
+    n_draws = E * S * W
+    post = {n: esw(groups["posterior"][n].values) for n in groups["posterior"].data_vars}
+    for n in json.loads(idata.attrs.get("constant_variables", "[]")):
+        post[n] = np.full(n_draws, float(cd[n].values))
+    order_names = json.loads(idata.attrs.get("units", "{}"))  # every variable, in the result's order
+    post = {
+        n: post[n]
+        for n in sorted(post, key=lambda n: list(order_names).index(n) if n in order_names else len(order_names))
+    }
     derived_names = state["derived_names"]
     r = result_cls(
         model=model,
@@ -243,8 +251,8 @@ def load_result(path, result_cls):
         mtf=mtf,
         seed=state["seed"],
         quality=state["quality"],
-        draws={n: esw(post[n].values) for n in post.data_vars if n not in derived_names},
-        derived={n: esw(post[n].values) for n in derived_names},
+        draws={n: v for n, v in post.items() if n not in derived_names},
+        derived={n: post[n] for n in derived_names},
         notes=list(state["notes"]),
         flags=dict(state["flags"]),
         diag=state["diag"],

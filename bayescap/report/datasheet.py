@@ -56,53 +56,55 @@ TABLE_ORDER = (
 )
 N_CURVE_DRAWS = 400
 
-#: EMVA quantities that follow a bayescap parameter the data may determine only as a limit:
-#: key -> (the parameters, +1 where the quantity grows with them, -1 where it falls). The
-#: quantities equal to the parameter (σ_d, DSNU1288, PRNU1288, μ_I.var) print the parameter's own
-#: limit; the others the matching end of their own 95 % interval (a 97.5 % one-sided limit)
-_FOLLOWS = {
-    "sigma_d": (("read_noise_e", "dark_noise_e"), 1),
-    "sigma_d_DN": (("read_noise_e", "dark_noise_e"), 1),
-    "sigma_y_dark": (("read_noise_e", "dark_noise_e"), 1),
-    "u_e_min": (("read_noise_e", "dark_noise_e"), 1),
-    "u_p_min": (("read_noise_e", "dark_noise_e"), 1),
-    "u_p_min_area": (("read_noise_e", "dark_noise_e"), 1),
-    "DR": (("read_noise_e", "dark_noise_e"), -1),
-    "DR_dB": (("read_noise_e", "dark_noise_e"), -1),
-    "DR_bit": (("read_noise_e", "dark_noise_e"), -1),
-    "DSNU1288": (("dsnu_e",), 1),
-    "DSNU1288_DN": (("dsnu_e",), 1),
-    "PRNU1288": (("prnu_percent",), 1),
-    "u_I_var": (("dark_current_e_per_s",), 1),
-}
+
+def emva_limits(view, parameters=None) -> dict:
+    """{EMVA key: {kind, value, level, because}}: the limits the view carries
+    (:mod:`bayescap.posterior.emva_limits`, the same in ``--json``); the datasheet prints these as
+    limits alone, as the text report does. ``parameters`` is not needed (kept for callers)."""
+    return {
+        k: {**it["limit"], "because": it.get("limit_because", "")}
+        for k, it in view["quantities"].items()
+        if it.get("limit")
+    }
 
 
-def emva_limits(view, parameters) -> dict:
-    """{EMVA key: {kind, value, level, because}} for the quantities of ``view`` that follow a
-    parameter known only as an upper limit (``parameters``: ``result.to_dict()["parameters"]``,
-    whose limits :mod:`bayescap.posterior.limits` sets). The datasheet prints these as limits
-    alone, as the text report does."""
-    q = view["quantities"]
-    out = {}
-    for key, (names, sign) in _FOLLOWS.items():
-        it = q.get(key)
-        if it is None:
-            continue
-        causes = [n for n in names if (parameters.get(n) or {}).get("limit", {}).get("kind") == "upper"]
-        if not causes:
-            continue
-        own = parameters[causes[0]]["limit"]
-        if it.get("bayescap") == causes[0] and own.get("value") is not None:
-            out[key] = {"kind": "upper", "value": own["value"], "level": own["level"], "because": causes[0]}
-        elif it.get("ci95") is not None:
-            lo, hi = it["ci95"]
-            out[key] = {
-                "kind": "upper" if sign > 0 else "lower",
-                "value": hi if sign > 0 else lo,
-                "level": 0.975,
-                "because": ", ".join(causes),
-            }
+#: metadata an operating point is made of: (key, label, unit)
+OPERATING_POINT = (
+    ("analog_gain", "gain", ""),
+    ("black_level_dn", "offset (black level)", "DN"),
+    ("wavelength_nm", "wavelength", "nm"),
+    ("temperature_c", "temperature", "°C"),
+)
+
+
+def operating_point(result) -> list[tuple[str, str]]:
+    """(label, value) of the measurement's operating point: exposure time(s) from the rows, gain,
+    offset, wavelength and temperature from the metadata, ``not given`` where the CSV says nothing
+    (a default bayescap assumed, e.g. 555 nm, is named as such, not as the sensor's)."""
+    d, md = result.model.data, result.metadata
+    defaults = set((result.flags or {}).get("metadata_defaults") or [])
+    t = np.unique(np.asarray(d.exposure_time_s, float))
+    exp = f"{_fmt(t[0])} s (one exposure time)" if t.size == 1 else f"{_fmt(t[0])} – {_fmt(t[-1])} s ({t.size} times)"
+    out = [("exposure time", exp)]
+    for key, label, unit in OPERATING_POINT:
+        v = md.get(key)
+        if v is None:
+            out.append((label, "not given"))
+        elif key in defaults:
+            out.append((label, f"not given (bayescap assumes {v:g} {unit})".replace(" )", ")")))
+        else:
+            out.append((label, f"{v:g} {unit}".strip() if isinstance(v, (int, float)) else str(v)))
     return out
+
+
+def _meta_rows(result) -> list[tuple[str, str]]:
+    """The metadata table: the sensor's keys, each default marked as one."""
+    defaults = set((result.flags or {}).get("metadata_defaults") or [])
+    return [
+        (str(k), f"{v} (default, not from the CSV)" if k in defaults else str(v))
+        for k, v in result.metadata.items()
+        if v is not None
+    ]
 
 
 def _limit_text(lim, unit) -> str:
@@ -136,15 +138,16 @@ def _png(fig) -> str:
 
 def ptc_figure(result, view=None, ax=None):
     """The standard's photon-transfer plot: σ²_y − σ²_y.dark against μ_y − μ_y.dark (DN) for the
-    sweep rows, the sensitivity rows (≤ 70 % of saturation) apart, with the line of slope K
-    (posterior median, 95 % band) and the saturation point. ``ax``: draw into it (its figure is
+    sweep rows, the sensitivity rows (≤ 70 % of saturation) apart, with the line of slope K (the
+    view's, the table's: EMVA 1288's straight line, median and 95 % band), with a non-linear
+    response also the small-signal gain's line (named apart), and the saturation point. ``ax``: draw into it (its figure is
     returned) instead of a figure of its own."""
     from matplotlib.figure import Figure
 
     view = emva1288_view(result) if view is None else view
     sw = _Sweep(result.model.data)
     x, y = sw.signal, sw.s2_y - sw.s2_dark
-    K = 1.0 / np.asarray(result.draws["conversion_gain_e_per_dn"], float)
+    kq = view["quantities"]["K"]  # the table's K: EMVA 1288's straight line, with its interval
     own = ax is None  # a figure of its own, or an axes of the caller's (the PDF page)
     if own:
         ax = Figure(figsize=(4.6, 3.3), dpi=90).add_subplot(1, 1, 1)
@@ -152,9 +155,12 @@ def ptc_figure(result, view=None, ax=None):
     ax.plot(x[~sw.sens], y[~sw.sens], "o", ms=3, mfc="none", color="0.45", label="rows")
     ax.plot(x[sw.sens], y[sw.sens], "o", ms=3, color="C0", label="fit range of the standard (≤ 70 %)")
     xs = np.linspace(0.0, float(np.max(x)), 50)
-    lo, med, hi = np.quantile(K, [0.025, 0.5, 0.975])
+    med, (lo, hi) = kq["median"], kq["ci95"]
     ax.fill_between(xs, lo * xs, hi * xs, color="C1", alpha=0.3, lw=0)
-    ax.plot(xs, med * xs, "-", color="C1", lw=1, label=f"K = {med:.4g} DN/e⁻ (posterior)")
+    ax.plot(xs, med * xs, "-", color="C1", lw=1, label=f"K = {_fmt(med)} DN/e⁻ (EMVA 1288 line, as in the table)")
+    if "response_nonlinearity" in result.draws:  # the small-signal gain, named apart
+        k0 = 1.0 / float(np.median(result.draws["conversion_gain_e_per_dn"]))
+        ax.plot(xs, k0 * xs, ":", color="C2", lw=1, label=f"small-signal K₀ = {_fmt(k0)} DN/e⁻ (slope at zero)")
     if sw.saturated:
         ax.axvline(x[sw.i_sat], color="C3", lw=0.8, ls="--", label="saturation (variance maximum)")
     ax.set_xlabel("μ_y − μ_y.dark (DN)")
@@ -201,7 +207,7 @@ def snr_figure(result, view=None, limits=None, ax=None):
     ax.plot(xs[0], med, "-", color="C1", lw=1, label="linear model (posterior)")
     ax.plot(xs[0], np.sqrt(np.median(eta) * xs[0]), ":", color="0.3", lw=1, label="ideal sqrt(η μ_p)")
     ax.plot(xdata[good], snr_data[good], "o", ms=3, color="C0", label="rows")
-    limits = emva_limits(view, result.to_dict()["parameters"]) if limits is None else limits
+    limits = emva_limits(view) if limits is None else limits
     for key, label, style in (("u_p_min", "μp.min", "-."), ("u_p_sat", "μp.sat", "--")):
         lim = limits.get(key)
         if photons and lim and lim.get("value"):  # a limit is drawn as its limit, never as a median
@@ -235,14 +241,19 @@ def _convergence_line(result) -> str:
     return f"{head}: " + ", ".join(parts) + tail
 
 
+#: on screen the notes are a column of the table; printed (A4 landscape, one page) they are left out
+#: (the PDF has none either) and everything is set smaller
 _CSS = """
-body{font-family:Helvetica,Arial,sans-serif;font-size:11px;margin:14px;max-width:1000px}
-h1{font-size:16px;margin:0 0 2px 0} .sub{color:#555;margin-bottom:8px}
+body{font-family:Helvetica,Arial,sans-serif;font-size:11px;margin:14px;max-width:1100px}
+h1{font-size:16px;margin:0 0 2px 0} h2{font-size:11px;margin:6px 0 1px 0} .sub{color:#555;margin-bottom:6px}
 table{border-collapse:collapse} td,th{border-bottom:1px solid #ddd;padding:2px 5px;vertical-align:top}
 th{background:#eee;text-align:left} td.n{text-align:right;white-space:nowrap;font-variant-numeric:tabular-nums}
 td.note{color:#555;font-size:9px;max-width:300px} .grid{display:flex;gap:10px;align-items:flex-start}
 .meta td{border:none;padding:0 6px 0 0} .bad{color:#b00;font-weight:bold} img{max-width:100%}
-@media print{body{margin:0} @page{size:A4 landscape;margin:8mm}}
+@page{size:A4 landscape;margin:7mm}
+@media print{body{margin:0;font-size:8.5px;max-width:none} h1{font-size:13px} h2{font-size:9px;margin:3px 0 0 0}
+ .note{display:none} td,th{padding:0 3px} img{width:340px} ul{margin:2px 0;padding-left:12px}
+ .meta td{padding:0 4px 0 0} .sub{margin-bottom:2px} .grid>div:first-child{flex:0 0 64%} #emva-table{width:100%}}
 """
 
 
@@ -253,7 +264,7 @@ def datasheet_html(result, *, view=None, title=None, colour=None) -> str:
     meta = dict(result.metadata)
     name = title or meta.get("sensor") or Path(str(result.model.data.source)).stem
     e = html.escape
-    limits = emva_limits(view, result.to_dict()["parameters"])
+    limits = emva_limits(view)
     rows = []
     for key in TABLE_ORDER:
         if key not in q:
@@ -277,11 +288,15 @@ def datasheet_html(result, *, view=None, title=None, colour=None) -> str:
         )
     table = (
         "<table id=emva-table><tr><th>Quantity</th><th>Symbol</th><th>Unit</th><th>Median</th>"
-        "<th>95 % interval</th><th>Standard's recipe</th><th>bayescap</th><th>Note</th></tr>"
+        "<th>95 % interval</th><th>Standard's recipe</th><th>bayescap</th><th class=note>Note</th></tr>"
         + "".join(rows)
         + "</table>"
     )
-    meta_rows = "".join(f"<tr><td>{e(str(k))}</td><td>{e(str(v))}</td></tr>" for k, v in meta.items() if v is not None)
+    long = ("note", "source")  # long texts: on screen, not in print
+    meta_rows = "".join(
+        f"<tr{' class=note' if k in long else ''}><td>{e(k)}</td><td>{e(v)}</td></tr>" for k, v in _meta_rows(result)
+    )
+    op_rows = "".join(f"<tr><td>{e(k)}</td><td>{e(v)}</td></tr>" for k, v in operating_point(result))
     sat = view["saturation"]
     spatial = view.get("spatial_row")
     facts = [
@@ -293,6 +308,17 @@ def datasheet_html(result, *, view=None, title=None, colour=None) -> str:
         facts.append(
             f"spatial stack: row {spatial['row']}, {spatial['n_pixels']} pixels × {spatial['n_frames']} frames "
             "(DSNU1288 and PRNU1288 describe these pixels only)"
+        )
+    split = view.get("dark_noise_split")
+    if split:
+        parts = [
+            f"{label} {_limit_text(split[n], split[n].get('unit') or '')}"
+            for n, label in (("read_noise_e", "read noise"), ("dark_current_e_per_s", "dark current"))
+            if n in split
+        ]
+        facts.append(
+            "one exposure time: σ_d is read noise and dark-current shot noise combined (measured); "
+            + ("the split: " + "; ".join(parts) + " (each the whole dark noise attributed to it)" if parts else "")
         )
     facts += list(view.get("notes", []))
     conv = _convergence_line(result)
@@ -311,7 +337,8 @@ def datasheet_html(result, *, view=None, title=None, colour=None) -> str:
         "</div><div>"
         f"<img alt='photon transfer curve' src='data:image/png;base64,{ptc}'>"
         f"<img alt='SNR curve' src='data:image/png;base64,{snr}'>"
-        f"<table class=meta>{meta_rows}</table>"
+        f"<h2>Operating point</h2><table class=meta id=operating-point>{op_rows}</table>"
+        f"<h2>Sensor</h2><table class=meta id=metadata>{meta_rows}</table>"
         "</div></div>"
         "<ul>"
         + "".join(f"<li>{e(f)}</li>" for f in facts)

@@ -20,7 +20,9 @@ from bayescap.report.datasheet import (
     TABLE_ORDER,
     _convergence_line,
     _fmt,
+    _meta_rows,
     emva_limits,
+    operating_point,
     ptc_figure,
     snr_figure,
 )
@@ -57,7 +59,7 @@ def datasheet_pdf(result, *, view=None, title=None) -> bytes:
     from matplotlib.figure import Figure
 
     view = emva1288_view(result) if view is None else view
-    limits = emva_limits(view, result.to_dict()["parameters"])
+    limits = emva_limits(view)
     meta = dict(result.metadata)
     name = str(title or meta.get("sensor") or Path(str(result.model.data.source)).stem)
     fig = Figure(figsize=PAGE_IN)
@@ -79,7 +81,7 @@ def datasheet_pdf(result, *, view=None, title=None) -> bytes:
         0.03, 0.915, conv, fontsize=7.5, va="top", color="0" if ok else "#b00000", weight="normal" if ok else "bold",
         parse_math=False,
     )  # fmt: skip
-    tab_ax = fig.add_axes((0.03, 0.08, 0.58, 0.8))
+    tab_ax = fig.add_axes((0.03, 0.1, 0.58, 0.78))
     tab_ax.axis("off")
     rows = _rows(view, limits)
     header = ["Quantity", "Symbol", "Unit", "Median", "95 % interval", "Recipe"]
@@ -109,8 +111,10 @@ def datasheet_pdf(result, *, view=None, title=None) -> bytes:
             for t in leg.get_texts():
                 t.set_fontsize(5.5)
                 t.set_parse_math(False)
-    meta_txt = "; ".join(f"{k}: {v}" for k, v in meta.items() if v is not None)
-    fig.text(0.03, 0.045, textwrap.fill(meta_txt, 230), fontsize=6, color="0.3", va="top", parse_math=False)
+    op_txt = "Operating point: " + "; ".join(f"{k}: {v}" for k, v in operating_point(result))
+    meta_txt = "Sensor: " + "; ".join(f"{k}: {v}" for k, v in _meta_rows(result))
+    fig.text(0.03, 0.07, textwrap.fill(op_txt, 230), fontsize=6, va="top", parse_math=False)
+    fig.text(0.03, 0.05, textwrap.fill(meta_txt, 230), fontsize=6, color="0.3", va="top", parse_math=False)
     buf = io.BytesIO()
     FigureCanvasPdf(fig).print_pdf(buf)
     return buf.getvalue()

@@ -14,20 +14,27 @@ from __future__ import annotations
 
 import base64
 import html
-import warnings
 from pathlib import Path
 
 import numpy as np
 from matplotlib.figure import Figure
 
 from bayescap.io.ptc_csv import atomic_write_text
-from bayescap.physics.capacity import tonal_range_bits
 from bayescap.physics.noise import snr_db
 from bayescap.report.colour_section import colour_section_html
+from bayescap.report.compare_plots import (
+    _N_CURVE_DRAWS,
+    H0_GRID_LUX_S,
+    _band,
+    plot_capacity,
+    plot_probability_matrix,
+    plot_snr_exposure,
+    plot_tr_h0,
+)
 from bayescap.report.plots import plain_text, plot_corner, plot_ptc, png_bytes
 from bayescap.report.text import format_or_na
 from bayescap.studies.compare import Comparison
-from bayescap.studies.exposure import _coefficients, snr_at_exposure, tonal_range_at_exposure
+from bayescap.studies.exposure import _coefficients, snr_at_exposure
 
 __all__ = [
     "render_html",
@@ -42,15 +49,9 @@ __all__ = [
 ]
 
 
-#: exposures of the TR(H0) and SNR(H) curves (lux·s)
-H0_GRID_LUX_S = np.geomspace(1e-3, 10.0, 61)
-
-
 #: the cross-sensor sections every report has (per-sensor sections are ``sensor-<i>``)
 SECTION_IDS = ("summary", "capacity", "tonal-range", "snr", "probabilities", "conventions")
 
-
-_N_CURVE_DRAWS = 1000
 
 #: resolution of the embedded figures, and of the corner plots (shown at most 1000 px wide)
 _DPI = 90
@@ -95,6 +96,8 @@ CONVENTION_NAMES = {
     "quality": "quality preset",
     "n_draws_per_sensor": "posterior draws per sensor",
     "probability": "probability of superiority",
+    "practical_difference": "practical difference δ (fraction of capacity)",
+    "practical_probability": "practical-difference probability",
     "intervals": "intervals",
 }
 
@@ -117,139 +120,6 @@ def _quiet(fn, *args, **kwargs):
 def _png(fig, dpi=_DPI) -> str:
     """The figure as a base64 PNG (256-colour palette, see :func:`~bayescap.report.plots.png_bytes`)."""
     return base64.b64encode(png_bytes(fig, dpi)).decode("ascii")
-
-
-def _band(ax, x, draws, color, label):
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore", RuntimeWarning)  # all-NaN columns above the clip
-        lo, med, hi = np.nanquantile(draws, [0.025, 0.5, 0.975], axis=0)
-    ax.fill_between(x, lo, hi, color=color, alpha=0.25, lw=0)
-    ax.plot(x, med, color=color, lw=1.5, label=label)
-
-
-def plot_capacity(cmp: Comparison):
-    """Fig. 8(b): capacity (Mbit) per sensor, medians with 95 % intervals, at full resolution and the fixed area."""
-    d = cmp.to_dict()
-    names = [plain_text(s["name"]) for s in d["sensors"]]
-    x = np.arange(len(names))
-    fig = Figure(figsize=(8, 4.2))
-    ax = fig.subplots()
-    area = d["conventions"]["area"]
-    for off, key, lab, col in (
-        (-0.18, "capacity_full_bits", "full resolution", "C0"),
-        (0.18, "capacity_area_bits", plain_text(f"at {area['name']}") if area else None, "C1"),
-    ):
-        if lab is None:
-            continue
-        med = np.array([s[key]["median"] if s.get(key) else np.nan for s in d["sensors"]]) / 1e6
-        lo = np.array([s[key]["ci95"][0] if s.get(key) else np.nan for s in d["sensors"]]) / 1e6
-        hi = np.array([s[key]["ci95"][1] if s.get(key) else np.nan for s in d["sensors"]]) / 1e6
-        ax.bar(x + off, med, width=0.36, color=col, alpha=0.8, label=lab)
-        ax.errorbar(x + off, med, yerr=[med - lo, hi - med], fmt="none", ecolor="k", capsize=3, lw=1)
-    ax.set_xticks(x)
-    ax.set_xticklabels(names, rotation=20, ha="right", fontsize=8)
-    ax.set_ylabel("information capacity C (Mbit)")
-    ax.set_title(f"capacity, TR at H0 = {d['conventions']['h0_lux_s']:g} lux·s (95 % intervals)", fontsize=10)
-    ax.legend(fontsize=8)
-    ax.grid(axis="y", alpha=0.3)
-    fig.tight_layout()
-    return fig
-
-
-def plot_tr_h0(cmp: Comparison, h_grid=H0_GRID_LUX_S):
-    """Fig. 8(a): TR (bits, 8-bit-equivalent) against average exposure H₀ with 95 % bands."""
-    fig = Figure(figsize=(8, 4.2))
-    ax = fig.subplots()
-    c = cmp.conventions
-    drawn = 0
-    for i, s in enumerate(cmp.sensors):
-        if s.calibration is None:
-            continue
-        idx = s.result.thin_index(_N_CURVE_DRAWS)
-        tr, _ = tonal_range_at_exposure(
-            s.result, h_grid, calibration=s.calibration, mid_grey=c["mid_grey_fraction"], idx=idx
-        )
-        _band(ax, h_grid, tonal_range_bits(tr), f"C{i % 10}", plain_text(s.name))
-        drawn += 1
-    ax.axvline(c["h0_lux_s"], color="k", ls=":", lw=1, label=f"H0 = {c['h0_lux_s']:g} lux·s")
-    ax.set_xscale("log")
-    ax.set_xlabel("average photometric exposure H0 (lux·s)")
-    ax.set_ylabel("tonal range b' = log2 TR (bits)")
-    ax.set_title(f"TR vs H0 (mean scene at {100 * c['mid_grey_fraction']:g} % of the range; 95 % bands)", fontsize=10)
-    if not drawn:
-        ax.text(0.5, 0.5, "no sensor has an exposure calibration", transform=ax.transAxes, ha="center")
-    ax.legend(fontsize=8, loc="lower right")
-    ax.grid(alpha=0.3, which="both")
-    fig.tight_layout()
-    return fig
-
-
-def plot_snr_exposure(cmp: Comparison, h_grid=H0_GRID_LUX_S):
-    """Figs. 5-6: SNR (dB) against photometric exposure H (lux·s), 95 % bands, up to the clip."""
-    fig = Figure(figsize=(8, 4.2))
-    ax = fig.subplots()
-    drawn = 0
-    for i, s in enumerate(cmp.sensors):
-        if s.calibration is None:
-            continue
-        idx = s.result.thin_index(_N_CURVE_DRAWS)
-        _band(
-            ax,
-            h_grid,
-            snr_at_exposure(s.result, h_grid, calibration=s.calibration, idx=idx),
-            f"C{i % 10}",
-            plain_text(s.name),
-        )
-        drawn += 1
-    ax.set_xscale("log")
-    ax.set_xlabel("photometric exposure H (lux·s)")
-    ax.set_ylabel("SNR (dB)")
-    ax.set_title("SNR vs exposure (Eq. 1; 95 % bands, often thinner than a line; curves end at the clip)", fontsize=10)
-    if not drawn:
-        ax.text(0.5, 0.5, "no sensor has an exposure calibration", transform=ax.transAxes, ha="center")
-    else:
-        ax.legend(fontsize=8, loc="lower right")
-    ax.grid(alpha=0.3, which="both")
-    fig.tight_layout()
-    return fig
-
-
-def plot_probability_matrix(cmp: Comparison, quantity: str = "area"):
-    """Heat map of ``P(C_row > C_column)``."""
-    m = cmp.probability_matrix(quantity)
-    names = [plain_text(s.name) for s in cmp.sensors]
-    n = len(names)
-    # shown half-width on the page: a compact figure with large type stays readable
-    fig = Figure(figsize=(0.7 * n + 2.6, 0.6 * n + 2.0))
-    ax = fig.subplots()
-    im = ax.imshow(m, vmin=0, vmax=1, cmap="RdBu_r")
-    for i in range(n):
-        for j in range(n):
-            if np.isfinite(m[i, j]):
-                ax.text(
-                    j,
-                    i,
-                    f"{m[i, j]:.2f}",
-                    ha="center",
-                    va="center",
-                    fontsize=11,
-                    color="w" if abs(m[i, j] - 0.5) > 0.35 else "k",
-                )
-    ax.set_xticks(range(n))
-    ax.set_yticks(range(n))
-    ax.set_xticklabels(names, rotation=30, ha="right", fontsize=10)
-    ax.set_yticklabels(names, fontsize=10)
-    where = (
-        "at full resolution"
-        if quantity == "full"
-        else f"at {cmp.conventions['area']['name']}"
-        if cmp.conventions["area"]
-        else ""
-    )
-    ax.set_title(plain_text(f"P(C_row > C_column) {where}"), fontsize=11)
-    fig.colorbar(im, ax=ax, fraction=0.046)
-    fig.tight_layout()
-    return fig
 
 
 def plot_snr_sensor(s):
@@ -457,32 +327,56 @@ def render_html(cmp: Comparison, *, title: str = "bayescap sensor comparison", c
     )
 
     # pairwise
+    delta = cmp.conventions.get("practical_difference", 0.01)
+    dp = f"{100 * delta:g} %"
     prow = []
     for p in d["pairs"]:
-        prow.append(
-            [
-                _e(f"{p['a']} vs {p['b']}"),
-                _f(p["p_a_greater_full"], "{:.3f}"),
-                _iv(p["ratio_full"], fmt="{:.4f}"),
-                _f(p["p_a_greater_area"], "{:.3f}"),
-                _iv(p["ratio_area"], fmt="{:.4f}"),
-                "TR at H0" if p["basis"] == "tr_at_h0" else "TR full range",
+        row = [_e(f"{p['a']} vs {p['b']}")]
+        for q in ("full", "area"):
+            row += [
+                _iv(p[f"ratio_{q}"], fmt="{:.4f}"),
+                _f(p[f"p_a_greater_{q}"], "{:.3f}"),
+                _f(p.get(f"p_a_practically_greater_{q}"), "{:.3f}"),
+                _f(p.get(f"p_b_practically_greater_{q}"), "{:.3f}"),
             ]
-        )
+        row.append("TR at H0" if p["basis"] == "tr_at_h0" else "TR full range")
+        prow.append(row)
     psec = [
         '<section id="probabilities"><h2>Pairwise probabilities</h2>',
-        "<p>P(A captures more information than B) from the independent posteriors (all pairs of draws), "
-        "and the capacity ratio C_A/C_B with its 95 % interval.</p>",
+        "<p>The capacity ratio C_A/C_B with its 95 % interval; P(A captures more information than B) "
+        "from the independent posteriors (all pairs of draws); and what matters in practice: "
+        f"P(C_A &gt; (1+δ)·C_B), the probability that A is larger by more than the practical difference "
+        f"δ = {_e(dp)} (<code>--practical-difference</code>), and the same for B. A probability P(A&gt;B) "
+        "near 1 with both practical probabilities near 0 means: A is larger, by less than δ. The "
+        "matrices are coloured by the practical probability.</p>",
     ]
     if len(cmp.sensors) > 1:
         psec.append(
             "<div class=grid>"
-            + _img(_png(plot_probability_matrix(cmp, "full")), "P(C_row > C_column) at full resolution")
+            + _img(_png(plot_probability_matrix(cmp, "full")), f"P(C_row > (1+δ)·C_column), δ = {dp}, full resolution")
         )
         if area:
-            psec.append(_img(_png(plot_probability_matrix(cmp, "area")), f"P(C_row > C_column) at {an}"))
+            psec.append(
+                _img(_png(plot_probability_matrix(cmp, "area")), f"P(C_row > (1+δ)·C_column), δ = {dp}, at {an}")
+            )
         psec.append("</div>")
-        psec.append(_table(["pair", "P(A>B) full", "C_A/C_B full", f"P(A>B) @{an}", f"C_A/C_B @{an}", "basis"], prow))
+        psec.append(
+            _table(
+                [
+                    "pair",
+                    "C_A/C_B full",
+                    "P(A>B) full",
+                    f"P(A>B+{dp}) full",
+                    f"P(B>A+{dp}) full",
+                    f"C_A/C_B @{an}",
+                    f"P(A>B) @{an}",
+                    f"P(A>B+{dp}) @{an}",
+                    f"P(B>A+{dp}) @{an}",
+                    "basis",
+                ],
+                prow,
+            )
+        )
     else:
         psec.append("<p>Only one sensor: no pairs.</p>")
     parts.append("".join(psec) + "</section>")

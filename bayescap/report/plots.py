@@ -125,9 +125,12 @@ def plot_ptc(result: FitResult, path=None):
 
 
 def plot_corner(result: FitResult, path=None, n_max=20000):
-    """Corner plot of the physical parameters (corner.py): labels with units, medians and 95 %
-    intervals above the histograms. The histograms and contours use up to ``n_max`` thinned
-    draws; outside the outer contour a thinner subset is scattered, which keeps the PNG small."""
+    """Corner plot of the physical parameters (corner.py): labels with units; above each
+    histogram the report's median and 95 % interval (dashed lines), or for a quantity the report
+    gives as a limit (DSNU the data do not detect, ...) the limit alone ("< 0.22 (95 % upper
+    limit)", one solid line, the excluded side shaded). The histograms and contours use up to
+    ``n_max`` thinned draws; outside the outer contour a thinner subset is scattered, which keeps
+    the PNG small."""
     import corner
     from matplotlib.figure import Figure
 
@@ -142,7 +145,6 @@ def plot_corner(result: FitResult, path=None, n_max=20000):
         bins=40,
         fig=fig,
         labels=[CORNER_LABELS[n][0] for n in names],
-        quantiles=[0.025, 0.5, 0.975],
         label_kwargs={"fontsize": 11},
         max_n_ticks=3,
         smooth=0.7,
@@ -157,9 +159,9 @@ def plot_corner(result: FitResult, path=None, n_max=20000):
     for i in range(1, k):
         for j in range(i):
             axes[i, j].plot(sub[:, j], sub[:, i], ".", ms=1.5, color="0.4", alpha=0.6, zorder=-1)
+    summary = result.parameter_summary()
     for i, n in enumerate(names):
-        lo, med, hi = np.quantile(X[:, i], [0.025, 0.5, 0.975])
-        axes[i, i].set_title(f"{CORNER_LABELS[n][1]}\n{_g(med)} [{_g(lo)}, {_g(hi)}]", fontsize=8.5)
+        _mark_diagonal(axes[i, i], CORNER_LABELS[n][1], summary.get(n), X[:, i])
     for ax in fig.axes:
         ax.tick_params(labelsize=8)
     # room for the titles above the first histogram and beside the last
@@ -167,6 +169,29 @@ def plot_corner(result: FitResult, path=None, n_max=20000):
     if path is not None:
         _savefig(fig, path, dpi=_CORNER_DPI)
     return fig
+
+
+def _mark_diagonal(ax, label, s, x):
+    """Title and lines of a histogram: the summary ``s``'s median and 95 % interval, or its limit
+    alone (:func:`bayescap.posterior.limits.apply_parameter_limits`)."""
+    lim = (s or {}).get("limit")
+    if lim:
+        v, upper = lim["value"], lim["kind"] == "upper"
+        ax.axvline(v, color="C3", lw=1.2)
+        lo, hi = ax.get_xlim()
+        span = (v, max(hi, v)) if upper else (min(lo, v), v)  # the side the limit excludes
+        ax.axvspan(*span, color="0.85", zorder=-2)
+        ax.set_xlim(lo, hi)
+        sign = "<" if upper else ">"
+        ax.set_title(f"{label}\n{sign} {_g(v)} ({100 * lim['level']:g} % {lim['kind']} limit)", fontsize=8.5)
+        return
+    if s is not None and s.get("median") is not None:
+        med, (lo, hi) = s["median"], s["ci95"]
+    else:
+        lo, med, hi = np.quantile(x, [0.025, 0.5, 0.975])
+    for v in (lo, med, hi):
+        ax.axvline(v, color="k", ls="--", lw=0.8)
+    ax.set_title(f"{label}\n{_g(med)} [{_g(lo)}, {_g(hi)}]", fontsize=8.5)
 
 
 def _g(x) -> str:

@@ -29,6 +29,12 @@ Conventions (docs/compare.md):
 * **Pairs.** The posteriors of different sensors are independent, so ``P(C_A > C_B)`` is the mean
   over *all* pairs of draws (ties count one half): exact, without random pairing. The ratio
   ``C_A/C_B`` pairs the thinned draws by a seeded random permutation.
+* **Practical difference.** ``P(C_A > C_B)`` says which is larger, not whether it matters: two
+  sensors 0.2 % apart can give 0.99. Beside it, with a practical difference ``δ``
+  (``practical_difference``, ``--practical-difference``; default :data:`DEFAULT_PRACTICAL_DIFFERENCE`),
+  ``P(C_A > (1+δ)·C_B)``, ``P(C_B > (1+δ)·C_A)`` and their complement, the probability that the two
+  are practically equivalent (the ratio inside ``[1/(1+δ), 1+δ]``: the region of practical
+  equivalence), all over all pairs of draws.
 """
 
 from __future__ import annotations
@@ -61,6 +67,8 @@ __all__ = [
     "Comparison",
     "sensor_seed",
     "prob_greater",
+    "prob_practically_greater",
+    "DEFAULT_PRACTICAL_DIFFERENCE",
     "compare",
     "compare_results",
     "format_compare_text",
@@ -71,6 +79,10 @@ DEFAULT_H0_LUX_S = 0.4
 
 
 DEFAULT_AREA = "1/4in"
+
+
+#: the practical difference δ of capacities: A is practically larger than B when C_A > (1+δ)·C_B
+DEFAULT_PRACTICAL_DIFFERENCE = 0.01
 
 
 #: posterior draws kept per sensor for the comparison (thinned evenly)
@@ -102,6 +114,12 @@ def prob_greater(x, y) -> float:
     lo = np.searchsorted(ys, x, side="left")
     hi = np.searchsorted(ys, x, side="right")
     return float(np.sum(lo + 0.5 * (hi - lo)) / (x.size * ys.size))
+
+
+def prob_practically_greater(x, y, delta: float) -> float:
+    """P(X > (1+δ)·Y) for independent positive X, Y given by draws (all pairs, ties ½): the
+    probability that X exceeds Y by more than the practical difference ``delta``."""
+    return prob_greater(x, (1.0 + float(delta)) * np.asarray(y, float))
 
 
 @dataclass
@@ -146,14 +164,35 @@ class Comparison:
 
     def probability_matrix(self, quantity: str = "area"):
         """``M[i, j] = P(C_i > C_j)`` (NaN on the diagonal and where undefined)."""
+        return self._matrix(f"p_a_greater_{quantity}", lambda v: 1.0 - v)
+
+    def practical_matrix(self, quantity: str = "area"):
+        """``M[i, j] = P(C_i > (1+δ)·C_j)``, δ the practical difference (NaN on the diagonal and
+        where undefined)."""
+        m = self._matrix(f"p_a_practically_greater_{quantity}", None)
+        low = self._matrix(f"p_b_practically_greater_{quantity}", None).T
+        return np.where(np.isfinite(m), m, low)
+
+    def ratio_matrix(self, quantity: str = "area"):
+        """``M[i, j]`` = the median of ``C_i/C_j`` (NaN on the diagonal and where undefined)."""
         n = len(self.sensors)
         m = np.full((n, n), np.nan)
-        key = f"p_a_greater_{quantity}"
+        for pr in self.pairs:
+            i, j = pr["index"]
+            r = pr.get(f"ratio_{quantity}")
+            if r is not None:
+                m[i, j], m[j, i] = r["median"], 1.0 / r["median"]
+        return m
+
+    def _matrix(self, key, mirror):
+        n = len(self.sensors)
+        m = np.full((n, n), np.nan)
         for pr in self.pairs:
             i, j = pr["index"]
             if pr.get(key) is not None:
                 m[i, j] = pr[key]
-                m[j, i] = 1.0 - pr[key]
+                if mirror is not None:
+                    m[j, i] = mirror(pr[key])
         return m
 
 
@@ -262,7 +301,7 @@ def _sensor(name, path, result: FitResult, seed, *, area, h0_lux_s, mid_grey, n_
     )
 
 
-def _pair(i, j, A: SensorComparison, B: SensorComparison, rng) -> dict:
+def _pair(i, j, A: SensorComparison, B: SensorComparison, rng, delta=DEFAULT_PRACTICAL_DIFFERENCE) -> dict:
     same = A.basis == B.basis
     basis = A.basis if same else "full_range"
     out = {"a": A.name, "b": B.name, "index": [i, j], "basis": basis}
@@ -277,10 +316,14 @@ def _pair(i, j, A: SensorComparison, B: SensorComparison, rng) -> dict:
             key_a = key_b = key
         x, y = A.draws.get(key_a), B.draws.get(key_b)
         if x is None or y is None:
-            out[f"p_a_greater_{q}"] = None
-            out[f"ratio_{q}"] = None
+            for k in ("p_a_greater", "ratio", "p_a_practically_greater", "p_b_practically_greater", "p_equivalent"):
+                out[f"{k}_{q}"] = None
             continue
         out[f"p_a_greater_{q}"] = prob_greater(x, y)
+        pa, pb = prob_practically_greater(x, y, delta), prob_practically_greater(y, x, delta)
+        out[f"p_a_practically_greater_{q}"] = pa
+        out[f"p_b_practically_greater_{q}"] = pb
+        out[f"p_equivalent_{q}"] = max(0.0, 1.0 - pa - pb)
         n = min(x.size, y.size)
         ratio = x[rng.permutation(x.size)[:n]] / y[rng.permutation(y.size)[:n]]
         out[f"ratio_{q}"] = summarize(ratio, "")
@@ -299,8 +342,14 @@ def compare_results(
     seed: int = 0,
     n_draws: int = DEFAULT_N_DRAWS,
     quality: str | None = None,
+    practical_difference: float = DEFAULT_PRACTICAL_DIFFERENCE,
 ) -> Comparison:
-    """Compare already-fitted sensors (a list of :class:`FitResult`)."""
+    """Compare already-fitted sensors (a list of :class:`FitResult`); ``practical_difference``:
+    the δ of ``P(C_A > (1+δ)·C_B)`` (module docstring)."""
+    if not (0 <= practical_difference < 1):
+        raise CompareInputError(
+            f"--practical-difference must be a fraction in [0, 1) (0.01 = 1 %), got {practical_difference}"
+        )
     if not (h0_lux_s > 0 and math.isfinite(h0_lux_s)):
         raise CompareInputError(f"--h0 must be a positive exposure in lux·s, got {h0_lux_s}")
     if not (0 < mid_grey <= 1):
@@ -314,7 +363,11 @@ def compare_results(
         for n, p, r, s in zip(names, inputs, results, seeds)
     ]
     rng = np.random.default_rng(np.random.SeedSequence([int(seed), 7]))
-    pairs = [_pair(i, j, sensors[i], sensors[j], rng) for i in range(len(sensors)) for j in range(i + 1, len(sensors))]
+    pairs = [
+        _pair(i, j, sensors[i], sensors[j], rng, practical_difference)
+        for i in range(len(sensors))
+        for j in range(i + 1, len(sensors))
+    ]
     conv = {
         "area": ar.to_dict() if ar else None,
         "area_tolerance": AREA_TOLERANCE,
@@ -326,6 +379,9 @@ def compare_results(
         "quality": quality or (results[0].quality if results else None),
         "n_draws_per_sensor": n_draws,
         "probability": "P(C_A > C_B) over all pairs of draws of independent posteriors (ties 1/2)",
+        "practical_difference": practical_difference,
+        "practical_probability": "P(C_A > (1+δ)·C_B), δ the practical difference; practical equivalence: the "
+        "ratio within [1/(1+δ), 1+δ]",
         "intervals": "equal-tailed posterior quantiles: ci68 = 16-84 %, ci95 = 2.5-97.5 %",
     }
     return Comparison(sensors=sensors, pairs=pairs, conventions=conv)
@@ -350,6 +406,7 @@ def compare(
     n_draws: int = DEFAULT_N_DRAWS,
     progress: bool = False,
     fit_kwargs: dict | None = None,
+    practical_difference: float = DEFAULT_PRACTICAL_DIFFERENCE,
 ) -> Comparison:
     """Fit each photon-transfer CSV (seeded, :func:`sensor_seed`) and compare them.
 
@@ -363,6 +420,10 @@ def compare(
     ar = parse_area(area) if (area is None or isinstance(area, str)) else area
     if not (h0_lux_s > 0 and math.isfinite(h0_lux_s)):
         raise CompareInputError(f"--h0 must be a positive exposure in lux·s, got {h0_lux_s}")
+    if not (0 <= practical_difference < 1):
+        raise CompareInputError(
+            f"--practical-difference must be a fraction in [0, 1) (0.01 = 1 %), got {practical_difference}"
+        )
     datas = [load(p) for p in paths]  # refuse bad input before any fit runs
     results, seeds = [], []
     with bar(progress, total=len(paths), desc="compare: sensors fitted", unit="sensor") as done:
@@ -381,6 +442,7 @@ def compare(
         seed=seed,
         n_draws=n_draws,
         quality=quality,
+        practical_difference=practical_difference,
     )
 
 
@@ -432,18 +494,27 @@ def format_compare_text(d: dict) -> str:
     if any(s.get("area") and s["area"]["smaller_than_area"] for s in d["sensors"]):
         L.append("  * smaller than the area: keeps its own size")
     if d["pairs"]:
+        delta = c.get("practical_difference", DEFAULT_PRACTICAL_DIFFERENCE)
+        dp = f"{100 * delta:g}%"
         L.append("")
         L.append(
-            f"  {'pair (A vs B)':<44} {'P(A>B) full':>11} {'C_A/C_B full':<24} {'P(A>B) @' + an:>12} "
-            f"{'C_A/C_B @' + an:<24}"
+            f"  pairs: C_A/C_B with its 95 % interval; P(A>B); and with the practical difference δ = {dp} "
+            f"(--practical-difference): P(A>B+δ) = P(C_A > (1+δ)·C_B), P(B>A+δ), P(≈) = P(within δ)"
         )
-        for p in d["pairs"]:
+        for q, where in (("full", "full"), ("area", "@" + an)):
+            if all(p[f"ratio_{q}"] is None for p in d["pairs"]):
+                continue
             L.append(
-                f"  {p['a'] + ' vs ' + p['b']:<44} {_num(p['p_a_greater_full'], '.3f'):>11} "
-                f"{_iv(p['ratio_full'], lambda x: f'{x:.4f}'):<24} {_num(p['p_a_greater_area'], '.3f'):>12} "
-                f"{_iv(p['ratio_area'], lambda x: f'{x:.4f}'):<24}"
-                + ("  (TR full range)" if p["basis"] == "full_range" else "")
+                f"  {'pair (A vs B), ' + where:<44} {'C_A/C_B':<26} {'P(A>B)':>7} {'P(A>B+' + dp + ')':>12} "
+                f"{'P(B>A+' + dp + ')':>12} {'P(≈)':>6}"
             )
+            for p in d["pairs"]:
+                L.append(
+                    f"  {p['a'] + ' vs ' + p['b']:<44} {_iv(p[f'ratio_{q}'], lambda x: f'{x:.4f}'):<26} "
+                    f"{_num(p[f'p_a_greater_{q}'], '.3f'):>7} {_num(p.get(f'p_a_practically_greater_{q}'), '.3f'):>12} "
+                    f"{_num(p.get(f'p_b_practically_greater_{q}'), '.3f'):>12} {_num(p.get(f'p_equivalent_{q}'), '.3f'):>6}"
+                    + ("  (TR full range)" if p["basis"] == "full_range" else "")
+                )
     notes = [(s["name"], n) for s in d["sensors"] for n in s.get("notes", [])]
     if notes:
         L.append("")
