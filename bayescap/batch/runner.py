@@ -26,8 +26,8 @@ from concurrent.futures import FIRST_COMPLETED, ThreadPoolExecutor, wait
 import bayescap.batch.store as store
 from bayescap._blas import one_blas_thread
 from bayescap.batch.engine import _Deferred, _fallback_fit, _fit_groups, sensor_seeds
-from bayescap.batch.workers import folder_lock, process_pool, stop_pool
 from bayescap.batch.summary import write_summary
+from bayescap.batch.workers import folder_lock, process_pool, stop_pool
 from bayescap.inference import FastSettings
 
 __all__ = ["fit_to_folder", "run_chunk", "run_fallback"]
