@@ -128,6 +128,12 @@ def _dark_current_limit(result, out, draws):
     s["constrained"] = False
     s["upper_limit_95"] = float(np.quantile(draws["dark_current_e_per_s"], LIMIT_LEVEL))
     s["note"] = "an upper limit, not a detection: " + ev["why"]
+    if ev["mean_d_e_per_s"] is not None:
+        s["note"] += (
+            f"; the dark means rise by {ev['mean_d_e_per_s']:.3g} ± {ev['mean_d_sd_e_per_s']:.2g} e-/s "
+            "(EMVA 1288's dark current from the means; a black level that drifts with the exposure time moves "
+            "them too)"
+        )
 
 
 #: the parameters measured on the dark rows' spread, biased low when the ADC's zero clips it
