@@ -13,8 +13,8 @@ A dark current ``D`` has two witnesses (EMVA 1288 reports both): the dark *varia
    variances against the exposure time is at least :data:`RAMP_Z` standard errors above zero, each
    row's error the one the fitted model predicts for it (its Gamma shape, with the rounding's φ and
    the fitted discrepancy), i.e. ``D = 0`` would give so steep a ramp once in 700 sensors;
-3. **the dark means do not contradict it**: where the means can see a shift (the rounding lets it
-   through: :func:`mean_ramp`), a dark current above the means' 97.5 % bound is not a detection
+3. **the dark means do not contradict it**: where the means follow a shift one for one (the pixels
+   spread over ≥ 0.5 DN about the DN grid: :func:`mean_ramp`), a dark current above the means' 97.5 % bound is not a detection
    (the means are flat where the variances rise: a clamped black level, or variances that rise for
    another reason). Means that rise faster than the variances allow (a drifting black level, a light
    leak) never make a detection: they are noted only.
@@ -54,9 +54,9 @@ RAMP_Z = 3.0
 #: interval (or their 2.5 % bound above it)
 MEAN_Z = 1.959963984540054
 
-#: the dark means witness a shift only where the rounding lets at least this fraction of it through
-#: (the derivative of the rounded mean with respect to the analog mean, pixel-averaged)
-MEAN_GAIN_MIN = 0.2
+#: the dark means witness a shift one for one where the pixels spread over at least this much (DN)
+#: about the DN grid: the rounded mean's derivative is then 1 within 2·exp(−2π²s²) = 1.4 %
+MEAN_SPREAD_MIN_DN = 0.5
 
 #: draws the density is estimated from (evenly thinned; the bandwidth's sample size is capped at
 #: this, as MCMC draws are autocorrelated)
@@ -125,96 +125,34 @@ def variance_ramp(model, theta):
     return _weighted_slope(model.t, obs, sd)
 
 
-#: the rounded normal's moments on a grid of analog offsets δ (DN from the nearest integer) and
-#: spreads s (DN), computed once: :func:`_rounded_grid`
-_GRID = {}
-
-
-def _rounded_grid():
-    """(δ (nδ,), s (ns,), E[round(X)] (nδ, ns), Var[round(X)] (nδ, ns), dE/dδ (nδ, ns)) for X ~ N(δ, s²)."""
-    if not _GRID:
-        from scipy.special import ndtr
-
-        delta = np.linspace(-0.5, 0.5, 401)[:, None]
-        sg = np.geomspace(0.01, 3.0, 240)[None, :]
-        e = e2 = g = 0.0
-        for k in range(-12, 13):
-            pk = ndtr((k + 0.5 - delta) / sg) - ndtr((k - 0.5 - delta) / sg)
-            e = e + k * pk
-            e2 = e2 + k * k * pk
-            z = (k + 0.5 - delta) / sg
-            g = g + np.exp(-0.5 * z * z) / (sg * math.sqrt(2.0 * math.pi))
-        _GRID.update(delta=delta[:, 0], s=sg[0], e=e, v=e2 - e * e, g=g)
-    return _GRID["delta"], _GRID["s"], _GRID["e"], _GRID["v"], _GRID["g"]
-
-
-def _rounding_gain(frac, var):
-    """d E[round(X)] / dμ for pixel values X ~ N(μ, s²) whose rounded values have the mean offset
-    ``frac`` (DN from the nearest integer) and the variance ``var`` (DN², over the ROI's pixels):
-    (μ, s) solved from the two on the rounded normal's grid, as rounding moves both (at s ≈ 0.3 DN the
-    rounded mean differs from μ by up to 0.1 DN and the derivative swings from 0.66 to 1.33 with μ).
-    The fraction of a shift of the analog mean that the rounded mean follows (1 for s ≳ 0.5 DN); NaN
-    where it is not determined (a mean offset beyond 0.3 DN with a spread below 0.5 DN)."""
-    delta, sg, e, v, g = _rounded_grid()
-    out = []
-    for f, w in zip(np.atleast_1d(frac), np.atleast_1d(var)):
-        # for every spread, the offset that gives the rounded mean; then the spread that gives its variance
-        j = np.arange(sg.size)
-        i = np.array([np.clip(np.searchsorted(e[:, c], f), 0, delta.size - 1) for c in j])
-        vv = v[i, j]
-        c = int(np.argmin(np.abs(vv - w)))
-        if sg[c] >= 0.5:
-            out.append(1.0 if sg[c] >= 1.0 else float(g[i[c], c]))
-        elif abs(f) > 0.3:
-            # a rounded mean near a half-integer with little spread: the variance is ~¼ DN² whatever
-            # the spread, which (and with it the gain, ~0.4/s) is then not determined
-            out.append(float("nan"))
-        else:
-            out.append(float(g[i[c], c]))
-    return np.array(out)
-
-
 def mean_ramp(data):
-    """The dark means' witness: their slope against the exposure time divided by the rounding's gain
-    (DN/s of analog mean, = D/K), its standard error (each row's mean of a pair over n pixels:
-    √(var/(2n))), and the gain; None with fewer than three exposure times, or where the rounding's gain
-    is unknown or small. The gain (:func:`_rounding_gain`) needs the spread of the pixels about the DN
-    grid: the temporal sd where it is ≥ 0.5 DN (the gain is then 1 within 1e-2), else the dark spatial
-    variance (fixed pattern with the temporal part, as the rounded values spread); without it, or where
-    it leaves the gain undetermined, the witness stands down. It stands down too where the gain is below :data:`MEAN_GAIN_MIN` (the
-    rounded means stand still whatever the dark current)."""
+    """The dark means' witness: their slope against the exposure time (DN/s, = D/K) and its standard
+    error (each row's mean of a pair over n pixels: √(var/(2n))), or None with fewer than three
+    exposure times or where the rounding bends the means: the rounded mean follows a shift of the
+    analog mean one for one (within 1.5 %, wherever it falls within a DN) only when the pixels spread
+    over at least :data:`MEAN_SPREAD_MIN_DN` about the DN grid, by temporal noise or by a fixed pattern
+    (the dark spatial variance); below, its gain swings between ~0 and ~1/s with the mean's offset, and
+    the witness stands down."""
     t = np.asarray(data.exposure_time_s, float)
     if np.unique(t).size < 3:
         return None
     vd = np.maximum(np.asarray(data.dark_temporal_var_dn2, float), 0.0)
+    spread2 = float(np.median(vd))
+    if data.dark_spatial_var_dn2 is not None:
+        sp = np.asarray(data.dark_spatial_var_dn2, float)
+        if np.any(np.isfinite(sp)):
+            spread2 = max(spread2, float(np.nanmedian(sp)))
+    if spread2 - 1.0 / 12.0 < MEAN_SPREAD_MIN_DN**2:  # Sheppard: the rounded values' variance less 1/12
+        return None
     m = np.asarray(data.dark_mean_dn, float)
     n = np.asarray(data.n_pixels, float)
-    if float(np.median(vd)) >= 0.25:
-        g = 1.0
-    else:
-        if data.dark_spatial_var_dn2 is None:
-            return None
-        sp = np.asarray(data.dark_spatial_var_dn2, float)
-        rows = np.isfinite(sp)
-        if not np.any(rows):
-            return None
-        gains = _rounding_gain((m - np.round(m))[rows], sp[rows])
-        if not np.all(np.isfinite(gains)):
-            return None
-        g = float(np.median(gains))
-    if g < MEAN_GAIN_MIN:
-        return None
-    sd = np.sqrt(np.maximum(vd, 1e-6) / (2.0 * n))
-    fit = _weighted_slope(t, m, sd)
-    if fit is None:
-        return None
-    return fit[0] / g, fit[1] / g, g
+    return _weighted_slope(t, m, np.sqrt(np.maximum(vd, 1e-6) / (2.0 * n)))
 
 
 def dark_current_evidence(result) -> dict | None:
     """The three tests of the module docstring for ``result``'s dark current (None when the model
     has no dark-current term): ``{"zero_likelihood_ratio", "ramp_z", "mean_d_e_per_s",
-    "mean_d_sd_e_per_s", "mean_gain", "interval_e_per_s", "detected", "why"}``; the dark means' D is
+    "mean_d_sd_e_per_s", "interval_e_per_s", "detected", "why"}``; the dark means' D is
     in e⁻/s (K at its posterior median)."""
     m = result.model
     if not m.terms.dark_current:
@@ -234,7 +172,6 @@ def dark_current_evidence(result) -> dict | None:
         "ramp_z": ramp_z,
         "mean_d_e_per_s": None if mr is None else mr[0] * k,
         "mean_d_sd_e_per_s": None if mr is None else mr[1] * k,
-        "mean_gain": None if mr is None else mr[2],
         "interval_e_per_s": [lo, hi],
     }
     why = []
