@@ -116,25 +116,25 @@ def _weighted_slope(t, y, sd):
 def variance_ramp(model, theta):
     """The dark variances' slope against the exposure time (DN²/s) and its standard error, each row's
     error the fitted model's (its Gamma shape k at the draw ``theta``: sd = model variance / √k),
-    or None with fewer than three exposure times."""
+    or None with fewer than three rows or two exposure times."""
     with np.errstate(all="ignore"):
         obs, pred, shape, _ = model.predict(np.atleast_2d(theta))["dark_var"]
     sd = np.asarray(pred, float)[0] / np.sqrt(np.broadcast_to(shape, np.shape(pred))[0])
-    if np.unique(model.t).size < 3:
+    if np.unique(model.t).size < 2:
         return None
-    return _weighted_slope(model.t, obs, sd)
+    return _weighted_slope(model.t, obs, sd)  # (None with fewer than three rows)
 
 
 def mean_ramp(data):
     """The dark means' witness: their slope against the exposure time (DN/s, = D/K) and its standard
-    error (each row's mean of a pair over n pixels: √(var/(2n))), or None with fewer than three
-    exposure times or where the rounding bends the means: the rounded mean follows a shift of the
+    error (each row's mean of a pair over n pixels: √(var/(2n))), or None with fewer than three rows
+    or two exposure times, or where the rounding bends the means: the rounded mean follows a shift of the
     analog mean one for one (within 1.5 %, wherever it falls within a DN) only when the pixels spread
     over at least :data:`MEAN_SPREAD_MIN_DN` about the DN grid, by temporal noise or by a fixed pattern
     (the dark spatial variance); below, its gain swings between ~0 and ~1/s with the mean's offset, and
     the witness stands down."""
     t = np.asarray(data.exposure_time_s, float)
-    if np.unique(t).size < 3:
+    if np.unique(t).size < 2:
         return None
     vd = np.maximum(np.asarray(data.dark_temporal_var_dn2, float), 0.0)
     spread2 = float(np.median(vd))
@@ -187,7 +187,7 @@ def dark_current_evidence(result) -> dict | None:
             f"the dark variances rise with the exposure time by only {ramp_z:.2f} standard errors "
             f"(a detection needs {RAMP_Z:.2f})"
             if np.isfinite(ramp_z)
-            else "the dark variances' ramp is not measured (fewer than three exposure times)"
+            else "the dark variances' ramp is not measured (fewer than three dark rows)"
         )
     if mr is not None and not why:
         bound = out["mean_d_e_per_s"] + MEAN_Z * out["mean_d_sd_e_per_s"]
