@@ -60,6 +60,7 @@ def _fmt(x, digits=3):
 def report(rows, quality):
     from _machine import describe_machine
 
+    from bayescap.posterior.dark_current import RAMP_Z, ZERO_LIKELIHOOD_RATIO
     from bayescap.validation.zoo_dark import INVISIBLE_RATIO
 
     fitted = [r for r in rows if "dark" in r]
@@ -88,8 +89,9 @@ def report(rows, quality):
         "## Per sensor",
         "",
         "Columns: D·t_max / σ_read²; the dark current's truth and what the fit prints (a limit `< x`, or "
-        "median [95 %]); the detection tests (likelihood at D = 0 over its maximum, a detection needs < 0.147; "
-        "the dark variances' ramp in standard errors, needs ≥ 1.96; the dark means' own D ± sd, e⁻/s); the "
+        "median [95 %]); the detection tests (likelihood at D = 0 over its maximum, a detection needs "
+        f"< {ZERO_LIKELIHOOD_RATIO:.3f}; the dark variances' ramp in standard errors, needs ≥ {RAMP_Z:g}; the dark "
+        "means' own D ± sd, e⁻/s, — where the rounding bends them); the "
         "verdict; the main zoo's cells for K, read noise and DSNU (`ok`, `L` limit holding the truth, …).",
         "",
         "| sensor | tags | D·t/σ² | D truth | printed | L(0)/L̂ | ramp z | means' D | verdict | K | read | DSNU | s | flags |",
