@@ -153,7 +153,8 @@ def dark_current_evidence(result) -> dict | None:
     """The three tests of the module docstring for ``result``'s dark current (None when the model
     has no dark-current term): ``{"zero_likelihood_ratio", "ramp_z", "mean_d_e_per_s",
     "mean_d_sd_e_per_s", "interval_e_per_s", "detected", "why"}``; the dark means' D is
-    in e⁻/s (K at its posterior median)."""
+    in e⁻/s (K at its posterior median). ``detected`` is None under a log-uniform prior on bounds
+    (``dark_current_log_bounds``), which excludes zero by itself: the generic rule then decides."""
     m = result.model
     if not m.terms.dark_current:
         return None
@@ -174,13 +175,17 @@ def dark_current_evidence(result) -> dict | None:
         "mean_d_sd_e_per_s": None if mr is None else mr[1] * k,
         "interval_e_per_s": [lo, hi],
     }
+    if bounds is not None:
+        # a log-uniform prior on [lo, hi] (a user's, or simulation-based calibration's) has declared
+        # D ≥ lo > 0: whether D is distinguishable from zero is not a question it lets the data answer
+        out["detected"] = None
+        out["why"] = "a log-uniform prior on bounds: no zero to test"
+        return out
     why = []
     if not (lr < ZERO_LIKELIHOOD_RATIO):
         why.append(
             f"the posterior does not exclude zero (the likelihood at D = 0 is {lr:.2f} of its maximum, "
             f"above {ZERO_LIKELIHOOD_RATIO:.3f})"
-            if np.isfinite(lr)
-            else "the prior has no zero to test (log-uniform bounds)"
         )
     if not (ramp_z >= RAMP_Z):
         why.append(

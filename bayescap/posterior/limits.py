@@ -120,6 +120,8 @@ def _dark_current_limit(result, out, draws):
         "mean_ramp_e_per_s": ev["mean_d_e_per_s"],
         "mean_ramp_sd_e_per_s": ev["mean_d_sd_e_per_s"],
     }
+    if ev["detected"] is None:
+        return  # a log-uniform prior on bounds: the generic rule of parameter_summary stands
     if ev["detected"]:
         s["constrained"] = True
         s.pop("upper_limit_95", None)
