@@ -145,6 +145,18 @@ BENCHMARKS = {
         "2-3 min",
         None,
     ),
+    "zoo_dark": (
+        "the zoo's weak-dark-ramp family (24 frame-simulated sensors, D·t 1e-3 to 1 of the read variance, "
+        "8-16 bit): the dark current held by its interval or printed limit, no detection the data cannot make",
+        "6-12 min",
+        None,
+    ),
+    "photon_counting": (
+        "photon-counting sensors (K 0.1-0.5 e-/DN, 48 frame-simulated seeds): the conversion gain's 95 % "
+        "coverage, bias and interval calibration",
+        "10-20 min",
+        None,
+    ),
 }
 
 

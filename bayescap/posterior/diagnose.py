@@ -57,6 +57,20 @@ class DiagnoseMixin:
                 "the model or the measurements are inadequate (check linearity, lamp "
                 "stability, outlier rows)"
             )
+        self._check_dark_witnesses()
+
+    def _check_dark_witnesses(self):
+        """Flag and note a disagreement of the dark current's two witnesses, the dark means and
+        the dark variances (:func:`~bayescap.posterior.dark_current.dark_witness_notes`)."""
+        from bayescap.posterior.dark_current import dark_current_evidence, dark_witness_notes
+
+        if not self.model.terms.dark_current:
+            return
+        self._dark_evidence = dark_current_evidence(self)
+        flag, note = dark_witness_notes(self._dark_evidence)
+        if flag:
+            self.flags[flag] = True
+            self.notes.append(note)
 
     def _diagnose_importance(self):
         """Draws resampled from Laplace–IS (:mod:`bayescap.inference.fast`): independent draws, so R-hat,

@@ -7,6 +7,10 @@ interval. Decided here:
 
 * a scale parameter whose posterior reaches down to zero, or whose 95 % interval is nearly as wide
   as its prior's (the data hardly narrowed it: :data:`PRIOR_DOMINATED_FRACTION`), is an upper limit;
+* the dark current is a detection only when the data's own tests pass
+  (:mod:`bayescap.posterior.dark_current`: the posterior excludes zero at 95 %, the dark variances'
+  ramp is significant in a predictive check, and the dark means do not contradict it); otherwise
+  it is an upper limit, with the test that decided in its note;
 * the summaries :meth:`FitResult.parameter_summary` already marks (read noise below 0.4 DN,
   one exposure time, no row at saturation) get their ``limit``;
 * read noise, dark noise and DSNU measured on dark rows the ADC's zero clips (flagged
@@ -96,6 +100,44 @@ def _floor_clipped_limits(result, out, draws):
         )
 
 
+def _dark_current_limit(result, out, draws):
+    """Decide the dark current's detection by :func:`~bayescap.posterior.dark_current.dark_current_evidence`
+    (in place of the generic rule of :meth:`FitResult.parameter_summary`, both ways)."""
+    from bayescap.posterior.dark_current import dark_current_evidence
+
+    s = out.get("dark_current_e_per_s")
+    if s is None or "dark_current_e_per_s" not in draws or not result.model.terms.dark_current:
+        return
+    ev = getattr(result, "_dark_evidence", None)
+    if ev is None:
+        ev = dark_current_evidence(result)
+        result._dark_evidence = ev
+    if ev is None:
+        return
+    s["detection"] = {
+        "zero_likelihood_ratio": ev["zero_likelihood_ratio"],
+        "ramp_z": ev["ramp_z"],
+        "mean_ramp_e_per_s": ev["mean_d_e_per_s"],
+        "mean_ramp_sd_e_per_s": ev["mean_d_sd_e_per_s"],
+    }
+    if ev["detected"] is None:
+        return  # a log-uniform prior on bounds: the generic rule of parameter_summary stands
+    if ev["detected"]:
+        s["constrained"] = True
+        s.pop("upper_limit_95", None)
+        s.pop("note", None)
+        return
+    s["constrained"] = False
+    s["upper_limit_95"] = float(np.quantile(draws["dark_current_e_per_s"], LIMIT_LEVEL))
+    s["note"] = "an upper limit, not a detection: " + ev["why"]
+    if ev["mean_d_e_per_s"] is not None:
+        s["note"] += (
+            f"; the dark means rise by {ev['mean_d_e_per_s']:.3g} ± {ev['mean_d_sd_e_per_s']:.2g} e-/s "
+            "(EMVA 1288's dark current from the means; a black level that drifts with the exposure time moves "
+            "them too)"
+        )
+
+
 #: the parameters measured on the dark rows' spread, biased low when the ADC's zero clips it
 _FLOOR_BIASED = ("read_noise_e", "dark_noise_e", "dsnu_e")
 
@@ -106,6 +148,7 @@ def apply_parameter_limits(result, out: dict) -> dict:
     m = result.model
     draws = result.summary_draws()
     _floor_clipped_limits(result, out, draws)
+    _dark_current_limit(result, out, draws)
     for name, (key, factor, bounds_key) in _PRIOR_SCALES.items():
         s = out.get(name)
         if s is None or name not in draws or s.get("constrained", True) is not True:
