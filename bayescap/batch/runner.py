@@ -21,6 +21,7 @@ batch stops with the error; rerun it to resume).
 from __future__ import annotations
 
 import math
+import warnings
 from concurrent.futures import FIRST_COMPLETED, ThreadPoolExecutor, wait
 
 import bayescap.batch.store as store
@@ -266,5 +267,10 @@ def _fit_to_folder(
         writers.shutdown()
         if bar is not None:
             bar.close()
-    write_summary(out)  # DIR/summary.csv (+ .parquet): every result of the folder, one row each
+    try:
+        write_summary(out)  # DIR/summary.csv (+ .parquet): every result of the folder, one row each
+    except OSError as e:  # a full disk after the results: they stand; the table can be rebuilt
+        warnings.warn(
+            f"{out}/summary.csv not written ({e.strerror or e}); 'bayescap summary {out}' rebuilds it", stacklevel=2
+        )
     return [dict(name=n, **r) for n, r in zip(names, report)]

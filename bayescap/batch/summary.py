@@ -111,7 +111,11 @@ def summary_rows(out) -> tuple[list[str], list[dict]]:
     out = Path(out)
     rows, quantities = [], []
     for p in sorted(out.glob(f"*/{RESULT_FILE}")):
-        doc = json.loads(p.read_text(encoding="utf-8"))
+        try:
+            doc = json.loads(p.read_text(encoding="utf-8"))
+        except (OSError, ValueError) as e:  # a folder in its place, a spoilt file: named, not fatal
+            rows.append({"name": p.parent.name, "warnings": f"{RESULT_FILE} unreadable ({type(e).__name__})"})
+            continue
         row, names = _row(p.parent.name, doc)
         rows.append(row)
         quantities += [n for n in names if n not in quantities]
