@@ -102,6 +102,8 @@ class PTCModelStack:
             tm.dsnu,
             tm.robust,
             tm.discrepancy,
+            # the response's reference signal is the model's own (one per sensor)
+            model.response_ref_dn if (tm.nonlinearity or tm.brighter_fatter) else None,
         )
         shapes = tuple((a, np.shape(getattr(model, a))) for a in PTCModelStack.ROW_ARRAYS if hasattr(model, a))
         rows = tuple(
