@@ -246,9 +246,8 @@ def _select_nonlinearity(d: PTCData, full, reasons, how) -> tuple[bool, bool]:
             "variances only; the means against the photons decide how much of the bend is the response's"
         )
     else:
-        reasons["brighter_fatter"] = (
-            "the temporal PTC is straight within its sampling error"
-            + ("" if bend is None else f": {100 * bend[0]:+.2g} ± {100 * bend[1]:.2g} % at the top of the unclipped rows")
+        reasons["brighter_fatter"] = "the temporal PTC is straight within its sampling error" + (
+            "" if bend is None else f": {100 * bend[0]:+.2g} ± {100 * bend[1]:.2g} % at the top of the unclipped rows"
         )
     if quad or cubic:
         dev = a if quad else shape[0]
