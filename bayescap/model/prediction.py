@@ -210,7 +210,7 @@ class _PredictionMixin:
                 # at hand: exact to second order in the residual (a relative error of ~ the residual
                 # times the response's relative curvature, far below the means' scatter)
                 s_model = S + (s_model - x_lin) / hp
-            m_err2 = (self.v + self.vd_ok) / (self.nu + 1.0)
+            m_err2 = (self.v + self.vd_ok) / (self.nu + 1.0) + self.mean_rounding_var
             sd = np.sqrt(g2 * s_model**2 + m_err2 / np.maximum(slope, 1e-6) ** 2)
             out["mean"] = (S, s_model, sd, "normal")
         if self.terms.clip == "well" and self.full_means.size:

@@ -57,6 +57,7 @@ class PTCModelStack:
         "full_frac_dn",
         "t_full",
         "vd_ok",
+        "mean_rounding_var",
     )
 
     def __init__(self, models):

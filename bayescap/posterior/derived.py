@@ -178,7 +178,7 @@ class DerivedMixin:
                 extra["lower_bound"] = True
             out[name] = summarize(x, unit, **extra)
             out[name].pop("constrained")
-        if "response_nonlinearity" in self.draws:
+        if "response_nonlinearity" in self.draws or "brighter_fatter_a00_per_e" in self.draws:
             # K is the small-signal gain here; beside it, the gain a straight-line EMVA 1288 fit reports
             from bayescap.posterior.emva import emva1288_gain_draws
 
