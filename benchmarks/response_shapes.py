@@ -107,7 +107,9 @@ def main():
                     tr.pop("quantum_efficiency")
                 s = d.mean_dn - d.dark_mean_dn
                 full = _fit(d, a.quality, tr)
-                low = _fit(d.select(s < 0.7 * s.max()), a.quality, {"conversion_gain_e_per_dn": tr["conversion_gain_e_per_dn"]})
+                low = _fit(
+                    d.select(s < 0.7 * s.max()), a.quality, {"conversion_gain_e_per_dn": tr["conversion_gain_e_per_dn"]}
+                )
                 (k1, k2), (l1, l2) = full["k_ci"], low["k_ci"]
                 walls += [full["wall"], low["wall"]]
                 col = []

@@ -916,7 +916,7 @@ def test_gate_top_up_covers_the_derived_quantities(monkeypatch, basler_csv):
 
     # the linear response: the Basler set's parameters' interval-end errors then stay below the gate
     data = bayescap.load(basler_csv)
-    model = PTCModel(data, terms=select_terms(data, force={"nonlinearity": False}))
+    model = PTCModel(data, terms=select_terms(data, force={"nonlinearity": False, "brighter_fatter": False}))
     real = end_errors_mod._end_errors
 
     def stand_in(values, w, probs=(0.025, 0.975), n_resampled=None):

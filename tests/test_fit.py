@@ -56,9 +56,11 @@ def test_basler_matches_emva1288(basler_fit):
     eta_std = np.sum(mu_p * s_model) / np.sum(mu_p**2) * k_std
     assert eta_std == pytest.approx(0.4525, rel=0.02)
     assert p["quantum_efficiency"]["median"] == pytest.approx(0.4525, rel=0.05)
-    # the clip is the ADC's: reported as such, and full well is the charge at the clip
+    # the clip is the ADC's: reported as such, and full well is the charge at the clip, the response
+    # undone: the clip's signal (20 DN above S_ref) over 1 + the response's deviation at S_ref
     assert p["full_well_e"]["clip_source"] == "adc"
-    assert p["full_well_e"]["median"] == pytest.approx((4095 - 14.72) * k, rel=2e-3)
+    dev = p["response_nonlinearity"]["median"]
+    assert p["full_well_e"]["median"] == pytest.approx((4095 - 14.72) * k / (1 + dev), rel=3e-3)
     # a 14 ms dark series barely detects dark current (D·t ≈ 1 e⁻ against σ_d² ≈ 120 e⁻²): a wide
     # interval, or an upper limit, holding emva1288's value from the same variances (70 e⁻/s)
     dc = p["dark_current_e_per_s"]
