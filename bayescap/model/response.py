@@ -43,7 +43,6 @@ import numpy as np
 
 __all__ = [
     "N_BASIS",
-    "NONLINEARITY_BOUNDS",
     "SHAPE_BOUND",
     "BF_BOUND",
     "log_slope",
@@ -57,15 +56,10 @@ __all__ = [
     "response_shape_evidence",
     "response",
     "response_inverse",
-    "response_slope",
     "response_evidence",
     "variance_curvature_evidence",
 ]
 
-#: hard bounds of ``a``: below −0.25 the response has a maximum inside the measured range (g' = 0
-#: at x = S_ref/(−2a) < 2 S_ref) and is no longer invertible there; 0.5 is far beyond any sensor
-#: (a 50 % excess of signal at the top)
-NONLINEARITY_BOUNDS = (-0.24, 0.5)
 #: the term is selected when the curvature of the means against the photons is at least this at the
 #: top of the range (fraction) and at least :data:`EVIDENCE_SIGMA` standard errors from zero
 EVIDENCE_MIN = 0.003
@@ -276,11 +270,6 @@ def response_shape_evidence(signal_dn, photons, rows):
 def response(x, a, s_ref):
     """g(x) = x (1 + a x / S_ref)."""
     return x * (1.0 + a * x / s_ref)
-
-
-def response_slope(x, a, s_ref):
-    """g'(x) = 1 + 2 a x / S_ref."""
-    return 1.0 + 2.0 * a * x / s_ref
 
 
 def response_inverse(s, a, s_ref):
