@@ -48,7 +48,9 @@ def response_model_summary(result) -> dict:
         reading = (
             "the photon-transfer curve bends; without photon counts a response non-linearity and a "
             "brighter-fatter variance loss cannot be told apart: fitted as a response (K, the small-signal "
-            "gain, is valid either way, with a wider interval); add photons_per_pixel to tell them apart"
+            "gain, is valid either way, with a wider interval; the full well and the linearity error assume the "
+            "response reading, and on a brighter-fatter sensor overstate the charge at the clip); add "
+            "photons_per_pixel to tell them apart"
         )
     elif bent and detected:
         reading = (
