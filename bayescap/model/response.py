@@ -248,7 +248,10 @@ def response_shape_evidence(signal_dn, photons, rows):
     S, mp = signal_dn[r], photons[r]
     u = mp / float(mp.max())
     A = np.vstack([np.ones_like(u), u, u * u, u**3]).T / S[:, None]
-    coef, *_ = np.linalg.lstsq(A, np.ones_like(S), rcond=None)
+    try:
+        coef, *_ = np.linalg.lstsq(A, np.ones_like(S), rcond=None)
+    except np.linalg.LinAlgError:
+        return None
     resid = 1.0 - A @ coef
     s2 = float(resid @ resid) / max(S.size - 4, 1)
     try:
@@ -328,10 +331,17 @@ def variance_curvature_evidence(signal_dn, var_dn2, dark_var_dn2, n_pixels, rows
         return None
     S, y, nu = S[r], V[r] - Vd[r], nu[r]
     sd = np.sqrt(2.0 * (V[r] ** 2 + Vd[r] ** 2) / nu)
+    keep = sd > 0  # (rows of zero variance, bright and dark: noise far below a DN, no weight to give)
+    if keep.sum() < 5:
+        return None
+    S, y, sd = S[keep], y[keep], sd[keep]
     u = S / float(S.max())
     A = np.vstack([u, u * u]).T / sd[:, None]
     b = y / sd
-    coef, *_ = np.linalg.lstsq(A, b, rcond=None)
+    try:
+        coef, *_ = np.linalg.lstsq(A, b, rcond=None)
+    except np.linalg.LinAlgError:
+        return None
     resid = b - A @ coef
     chi2_dof = float(resid @ resid) / max(S.size - 2, 1)
     try:
