@@ -48,7 +48,7 @@ def main(seed=1):
     lo, hi = np.quantile(k, [0.025, 0.975])
     # the same fit with a linear response (the term the data select forced out), and on the rows
     # the standard's recipe uses
-    lin = bayescap.fit(d, seed=seed, terms=select_terms(d, force={"nonlinearity": False}))
+    lin = bayescap.fit(d, seed=seed, terms=select_terms(d, force={"nonlinearity": False, "brighter_fatter": False}))
     kl = lin.draws["conversion_gain_e_per_dn"]
     low = bayescap.fit(d.select(d.mean_dn - d.dark_mean_dn <= 0.7 * sat_mean), seed=seed)
     k70 = low.draws["conversion_gain_e_per_dn"]

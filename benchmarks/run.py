@@ -65,6 +65,12 @@ BENCHMARKS = {
         "5-10 min",
         None,
     ),
+    "response_shapes": (
+        "a soft knee, an S-shaped 8-bit camera and a brighter-fatter CCD simulated frame by frame, with and "
+        "without photon counts: coverage of K, dark noise, η, full well; K all rows vs below 70 %; outliers; time",
+        "10-30 min",
+        "5-15 min",
+    ),
     "basler_vs_emva1288": (
         "the Basler conversion gain by emva1288's recipe, other least-squares fits and the bayescap posterior",
         "10 s",

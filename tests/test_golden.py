@@ -37,7 +37,7 @@ CASES = {
     "compare_benchmark_fast": ["compare", *BENCHMARK, "--seed", "2", "--json"],
 }
 
-TIMING_KEYS = {"wall_s"}
+TIMING_KEYS = {"wall_s", "fast_path_wall_s"}
 
 
 def _strip_timings(obj):

@@ -23,7 +23,12 @@ def basler_fast(basler_csv):
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
         data = bayescap.load(basler_csv)
-        return bayescap.fit(data, seed=1, quality="fast", terms=select_terms(data, force={"nonlinearity": False}))
+        return bayescap.fit(
+            data,
+            seed=1,
+            quality="fast",
+            terms=select_terms(data, force={"nonlinearity": False, "brighter_fatter": False}),
+        )
 
 
 def _row(page, label):

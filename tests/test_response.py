@@ -98,9 +98,17 @@ def test_compressive_sensor_without_photons_fits_the_ptc_curvature():
         dd = _without_photons(d, keep)
         t = select_terms(dd)
         assert t.nonlinearity and "PTC bends" in t.how["response_nonlinearity"]
-        out = bayescap.fit(dd, terms=t, quality="fast", seed=1).to_dict()
+        r = bayescap.fit(dd, terms=t, quality="fast", seed=1)
+        out = r.to_dict()
         lo, hi = out["parameters"]["conversion_gain_e_per_dn"]["ci95"]
         assert lo < NO_PHOTONS.conversion_gain_e_per_dn < hi
-        assert out["parameters"]["response_nonlinearity"]["ci95"][1] < 0  # compressive
+        # the response's deviation at S_ref: compressive, its truth inside the (wide: the variances
+        # alone shape the response) interval. Truth: S = x/(1 + b·x/x_top), b = c/(1 − c)
+        b = NO_PHOTONS.response_nonlinearity / (1 - NO_PHOTONS.response_nonlinearity)
+        x_top = dd.adc_max_dn - float(np.median(dd.dark_mean_dn))
+        s_ref = r.model.response_ref_dn
+        x_ref = s_ref / (1 - b * s_ref / x_top)
+        dev = out["parameters"]["response_nonlinearity"]
+        assert dev["median"] < 0 and dev["ci95"][0] < 1 / (1 + b * x_ref / x_top) - 1 < dev["ci95"][1]
         cis.append((lo, hi))
     assert cis[0][0] < cis[1][1] and cis[1][0] < cis[0][1]

@@ -12,7 +12,7 @@ import numpy as np
 
 from bayescap.model.likelihood import _norm_logpdf
 from bayescap.model.quantization import _rounded_normal_moments, _rounded_offset
-from bayescap.model.response import NONLINEARITY_BOUNDS
+from bayescap.model.response import BF_BOUND, N_BASIS, SHAPE_BOUND, deviation_at_ref, linearise
 from bayescap.physics.noise import dark_variance_e2
 
 __all__ = ["PARAMETER_INFO"]
@@ -33,6 +33,14 @@ PARAMETER_INFO = {
     "response_nonlinearity": (
         "",
         "fractional deviation of the response from linearity at the largest unclipped signal",
+    ),
+    **{
+        f"response_shape_{k}": ("", f"coefficient {k} of the response's log-slope (Bernstein basis, docs/model.md)")
+        for k in range(1, N_BASIS + 1)
+    },
+    "brighter_fatter_a00_per_e": (
+        "1/e-",
+        "brighter-fatter a00 (Astier et al. 2019 Eq. 16): the shot variance is (exp(2 a00 mu) - 1)/(2 a00)",
     ),
     "pixel_offset_spread_dn": ("DN", "spread of the pixels' mean offsets about the DN grid (rounding average)"),
 }
@@ -75,9 +83,21 @@ class _ParametersMixin:
             c = np.full(th.shape[0], self.adc)
         else:
             c = None
+        bent = getattr(self.terms, "nonlinearity", False)
+        if bent:
+            theta = self.response_theta(th)
+            for j in range(theta.shape[1]):
+                out[f"response_shape_{j + 1}"] = theta[:, j]
+            out["response_nonlinearity"] = deviation_at_ref(theta, self.response_ref_dn)
+        if getattr(self.terms, "brighter_fatter", False):
+            out["brighter_fatter_a00_per_e"] = g("bf") / (k * self.response_ref_dn)
         if c is not None:
             out["clip_dn"] = c
-            out["full_well_e"] = (c - self.black_dn) * k
+            if bent:  # the charge at the clip: its linear signal h(c − black) times K
+                xc, _ = linearise((c - self.black_dn)[:, None], theta, self.response_ref_dn)
+                out["full_well_e"] = xc[:, 0] * k
+            else:
+                out["full_well_e"] = (c - self.black_dn) * k
         if self.terms.clip_spread:
             out["clip_spread_dn"] = np.exp(g("log_tau"))
         if self.terms.quantum_efficiency:
@@ -88,8 +108,6 @@ class _ParametersMixin:
         if self.terms.dsnu:
             out["dsnu_e"] = np.exp(g("log_dsnu"))
         out["variance_discrepancy"] = np.exp(g("log_f")) if self.terms.discrepancy else np.zeros(th.shape[0])
-        if getattr(self.terms, "nonlinearity", False):
-            out["response_nonlinearity"] = g("nl")
         if getattr(self.terms, "offset_spread", False):
             out["pixel_offset_spread_dn"] = np.exp(g("log_offset_dn"))
         return out
@@ -98,10 +116,18 @@ class _ParametersMixin:
         """Sampling coordinates of the response and pixel-offset terms (after the others)."""
         out = []
         if getattr(self.terms, "nonlinearity", False):
-            out.append("nl")
+            out += [f"nl_{k}" for k in range(1, N_BASIS + 1)]
+        if getattr(self.terms, "brighter_fatter", False):
+            out.append("bf")
         if getattr(self.terms, "offset_spread", False):
             out.append("log_offset_dn")
         return out
+
+    def response_theta(self, th):
+        """The response's log-slope coefficients θ (n, N_BASIS) of draws ``th``."""
+        th = np.atleast_2d(th)
+        j = self.idx["nl_1"]
+        return th[:, j : j + N_BASIS]
 
     @property
     def response_ref_dn(self) -> float:
@@ -178,13 +204,13 @@ class _ParametersMixin:
                 "why": "the rows modelled as partly clipped are those within reach of the clip at this spread",
             }
         if getattr(self.terms, "nonlinearity", False):
-            lo, hi = NONLINEARITY_BOUNDS
-            out["response_nonlinearity"] = {
-                "lower": lo,
-                "upper": hi,
-                "relative_to": None,
-                "why": "the response stays increasing (invertible) over the measured range",
-            }
+            for j in range(1, N_BASIS + 1):
+                out[f"response_shape_{j}"] = {
+                    "lower": -SHAPE_BOUND,
+                    "upper": SHAPE_BOUND,
+                    "relative_to": None,
+                    "why": "the response's slope stays within a factor e^8 of its small-signal slope",
+                }
         if self.terms.quantum_efficiency:
             q0, q1 = P["qe_bounds"] if P["qe_bounds"] is not None else (0.0, 1.0)
             out["quantum_efficiency"] = {"lower": q0, "upper": q1, "relative_to": None, "why": "a probability"}
@@ -260,9 +286,13 @@ class _ParametersMixin:
         if self.terms.discrepancy:
             lp = lp + _norm_logpdf(g("log_f"), np.log(P["f_center"]), P["f_log_sd"])
         if getattr(self.terms, "nonlinearity", False):
-            a = g("nl")
-            lo, hi = NONLINEARITY_BOUNDS
-            lp = lp + _norm_logpdf(a, 0.0, P["nonlinearity_sd"]) + np.where((a > lo) & (a < hi), 0.0, -np.inf)
+            # independent normals shrinking the log-slope towards 0 (the linear response)
+            theta = self.response_theta(th)
+            lp = lp + np.sum(_norm_logpdf(theta, 0.0, P["response_shape_sd"]), axis=1)
+            lp = lp + np.where(np.all(np.abs(theta) < SHAPE_BOUND, axis=1), 0.0, -np.inf)
+        if getattr(self.terms, "brighter_fatter", False):
+            b = g("bf")
+            lp = lp + _norm_logpdf(b, 0.0, P["brighter_fatter_sd"]) + np.where(np.abs(b) < BF_BOUND, 0.0, -np.inf)
         if getattr(self.terms, "offset_spread", False):
             # log-uniform on [1e-3, 2] DN: as much prior mass for one offset shared by every pixel
             # (below 1e-3 DN the rounded moments do not change, relative 4e-5) as for a fully
@@ -451,30 +481,30 @@ class _ParametersMixin:
         return x
 
     def _extra_starts(self, x):
-        """Start values of the response and pixel-offset terms: the curvature of the means against
-        the photons (without photons a third of the PTC's bend), and a spread of 0.3 DN (mid-way between one offset and a fully averaged grid)."""
+        """Start values of the response, brighter-fatter and pixel-offset terms: the response's
+        log-slope from the means against the photons (:func:`~bayescap.model.response.shape_start`,
+        with the responsivity it implies for QE; without photons 0, the linear response), no
+        brighter-fatter, and an offset spread of 0.3 DN (mid-way between one offset and a fully
+        averaged grid)."""
         x = np.array(x, float)
-        if "nl" in self.idx:
-            from bayescap.model.response import response_evidence, variance_curvature_evidence
+        if "nl_1" in self.idx:
+            from bayescap.model.response import shape_start
             from bayescap.model.terms import _unclipped_rows
 
             d = self.data
-            sig = d.mean_dn - d.dark_mean_dn
-            rows = _unclipped_rows(d, self.full_sat)
-            a0 = 0.0
-            if rows.any():
-                rows &= sig >= 0.05 * sig[rows].max()
-                if d.photons_per_pixel is not None:
-                    ev = response_evidence(sig, np.asarray(d.photons_per_pixel, float), rows)
-                else:
-                    # the PTC's bend is ≈ 3a (bayescap.model.response)
-                    ev = variance_curvature_evidence(sig, d.temporal_var_dn2, d.dark_temporal_var_dn2, d.n_pixels, rows)
-                    ev = None if ev is None else (ev[0] / 3.0, ev[1] / 3.0)
-                if ev is not None:
-                    # the evidence's curvature is at its brightest row; a is at S_ref
-                    a0 = ev[0] * self.response_ref_dn / max(float(sig[rows].max()), 1e-9)
-            lo, hi = NONLINEARITY_BOUNDS
-            x[self.idx["nl"]] = float(np.clip(a0, 0.8 * lo, 0.8 * hi))
+            j = self.idx["nl_1"]
+            x[j : j + N_BASIS] = 0.0
+            if d.photons_per_pixel is not None:
+                sig = d.mean_dn - d.dark_mean_dn
+                rows = _unclipped_rows(d, self.full_sat)
+                st = shape_start(sig, np.asarray(d.photons_per_pixel, float), rows, self.response_ref_dn)
+                if st is not None:
+                    x[j : j + N_BASIS] = st[0]
+                    if "qe" in self.idx:
+                        k0 = float(np.exp(x[self.idx["log_k"]]))
+                        x[self.idx["qe"]] = float(np.clip(st[1] * k0, 0.01, 0.99))
+        if "bf" in self.idx:
+            x[self.idx["bf"]] = 0.0
         if "log_offset_dn" in self.idx:
             x[self.idx["log_offset_dn"]] = np.log(0.3)
         return x

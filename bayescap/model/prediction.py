@@ -9,7 +9,7 @@ import numpy as np
 
 from bayescap.model.pixel_quantization import _quantized_pixel_moments
 from bayescap.model.quantization import _rounded_offset
-from bayescap.model.response import response, response_inverse, response_slope
+from bayescap.model.response import bf_factor, linearise
 
 #: below this s² + σ_o² (DN²) the rounded-normal moments replace Sheppard's σ² + 1/12
 _QUANT_EXACT_S2 = 0.5
@@ -133,15 +133,22 @@ class _PredictionMixin:
             out["dark_var"] = (self.vd, vdm, 1.0 / (phi_d / self.nu_d + f2), "gamma")
         # bright temporal variances, unclipped rows: S from the measured mean
         S = np.broadcast_to(self.s_obs, rd2_ok.shape).copy()
-        if "response_nonlinearity" in p:
-            # the response S = g(x) (bayescap.model.response): shot noise g'(x)²·x/K, patterns g'(x)·x
-            a_nl = p["response_nonlinearity"][:, None]
-            x_lin = response_inverse(S, a_nl, self.response_ref_dn)
-            Sx = response_slope(x_lin, a_nl, self.response_ref_dn) * x_lin
-            shot = Sx * Sx / np.where(x_lin > 0, x_lin, 1.0) / K
-            shot = np.where(x_lin > 0, shot, S / K)
+        bent = getattr(self.terms, "nonlinearity", False)
+        bf = getattr(self.terms, "brighter_fatter", False)
+        theta = self.response_theta(th) if bent else None
+        if bent:
+            # the response (bayescap.model.response): x = h(S), g'(x) = 1/h'(S); shot noise
+            # g'(x)²·x/K, patterns g'(x)·x
+            x_lin, hp = linearise(S, theta, self.response_ref_dn)
+            Sx = x_lin / hp
+            shot = np.where(x_lin > 0, Sx / hp, S) / K
         else:
-            a_nl, Sx, shot = None, S, S / K
+            x_lin, Sx, shot = S, S, S / K
+        if bf:
+            # brighter-fatter (Astier et al. 2019 Eq. 16): the charge's variance (e^{2a₀₀μ} − 1)/(2a₀₀)
+            z = 2.0 * th[:, self.idx["bf"]][:, None] * np.maximum(x_lin, 0.0) / self.response_ref_dn
+            shot = shot * bf_factor(z)
+        shaped = bent or bf
         vm, phi_b, hb = self._quantized_var(
             shot + rd2_ok / (K * K), self.bright_frac_dn, pa * Sx * Sx + pb / (K * K) + 2.0 * pc * Sx / K + so2
         )
@@ -178,16 +185,20 @@ class _PredictionMixin:
                 pre = dc_e2 / (K * K)
                 post = (rd2_ok[:, rows] - dc_e2) / (K * K) + 1.0 / 12.0
                 mu, var_c, sl = self._latent_clip_rows(
-                    self._clip_gain(k, S, None if a_nl is None else shot, rows), pre, tau, c, rows
+                    self._clip_gain(k, S, shot if shaped else None, rows), pre, tau, c, rows
                 )
                 vm[:, rows] = put(var_c + post, vm[:, rows])
             else:
                 # the ADC clips everything; quantization survives only for the unclipped pixels
                 mu, var_c, sl = self._latent_clip_rows(
-                    self._clip_gain(k, S, None if a_nl is None else shot, rows), rd2_ok[:, rows] / (K * K), tau, c, rows
+                    self._clip_gain(k, S, shot if shaped else None, rows), rd2_ok[:, rows] / (K * K), tau, c, rows
                 )
                 vm[:, rows] = put(var_c + sl / 12.0, vm[:, rows])
             S[:, rows] = put(mu - self.dm[..., rows], S[:, rows])
+            if bent:  # the latent signal's linearisation, for the means
+                xr, hr = linearise(S[:, rows], theta, self.response_ref_dn)
+                x_lin, hp = x_lin.copy(), hp.copy()
+                x_lin[:, rows], hp[:, rows] = xr, hr
             slope[:, rows] = put(sl, slope[:, rows])
         out["bright_var"] = (self.v, np.maximum(vm, 1e-12), 1.0 / (phi_b / self.nu + f2), "gamma")
         self._last_latent_signal_dn = S
@@ -195,9 +206,12 @@ class _PredictionMixin:
             qe = p["quantum_efficiency"][:, None]
             g2 = p["mean_discrepancy"][:, None] ** 2
             s_model = qe * self.mu_p / K
-            if a_nl is not None:
-                s_model = response(s_model, a_nl, self.response_ref_dn)
-            m_err2 = (self.v + self.vd_ok) / (self.nu + 1.0)
+            if bent:
+                # g(x) by one Newton step from the row's (latent) signal S, whose h(S) and h'(S) are
+                # at hand: exact to second order in the residual (a relative error of ~ the residual
+                # times the response's relative curvature, far below the means' scatter)
+                s_model = S + (s_model - x_lin) / hp
+            m_err2 = (self.v + self.vd_ok) / (self.nu + 1.0) + self.mean_rounding_var
             sd = np.sqrt(g2 * s_model**2 + m_err2 / np.maximum(slope, 1e-6) ** 2)
             out["mean"] = (S, s_model, sd, "normal")
         if self.terms.clip == "well" and self.full_means.size:
@@ -243,7 +257,7 @@ class _PredictionMixin:
             r = self.sp_rows
             Sr = S[:, r]
             # realised pattern, plus what rounding adds to it below the quantization floor
-            Sxr = Sx[:, r] if a_nl is not None else Sr
+            Sxr = Sx[:, r] if bent else Sr
             P = pa * Sxr * Sxr + pb / (K * K) + 2.0 * pc * Sxr / K + hb[:, r]
             out["spatial_var"] = self._spatial_block(
                 self.sp[..., r], P, vm[:, r], self.L_ok[..., r], self.v[..., r], self.nu[..., r], f2, phi_b[:, r]

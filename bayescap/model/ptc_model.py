@@ -93,7 +93,8 @@ class PTCModel(_ParametersMixin, _PredictionMixin, _ClipMixin, _LikelihoodMixin)
         g_log_sd=1.5,
         tau_log_sd=1.5,
         tau_max_frac=0.1,
-        nonlinearity_sd=0.1,
+        response_shape_sd=1.0,
+        brighter_fatter_sd=0.5,
         offset_spread_log_bounds=(1e-3, 2.0),
         read_log_bounds=None,
         dark_current_log_bounds=None,
@@ -218,6 +219,16 @@ class PTCModel(_ParametersMixin, _PredictionMixin, _ClipMixin, _LikelihoodMixin)
         self.nu_pattern = (
             float(np.median(d.n_pixels[sp_any]) - 1.0) if np.any(sp_any) else float(np.median(d.n_pixels) - 1.0)
         )
+        # the means' rounding error: below ~0.5 DN of noise a pixel's rounded mean is off its true mean
+        # by up to ~(1/π)·exp(−2π²σ²) (the first harmonic; its phase, the mean's offset from the DN
+        # grid, unknown), less where the pixels' offsets spread over the grid (a measured dark spatial
+        # variance); bright and dark rows each: a variance allowance on the mean block
+        spread2 = 0.0
+        if d.dark_spatial_var_dn2 is not None and np.any(np.isfinite(d.dark_spatial_var_dn2)):
+            spread2 = float(np.nanmedian(d.dark_spatial_var_dn2))
+        s2b = np.maximum(self.v - 1.0 / 12.0, 0.0) + spread2
+        s2d = np.maximum(self.vd[ok] - 1.0 / 12.0, 0.0) + spread2
+        self.mean_rounding_var = (np.exp(-4.0 * np.pi**2 * s2b) + np.exp(-4.0 * np.pi**2 * s2d)) / (2.0 * np.pi**2)
         # fractional offsets of the measured means from the nearest integer DN (quantization)
         self.dark_frac_dn = d.dark_mean_dn - np.round(d.dark_mean_dn)
         self.bright_frac_dn = self.m - np.round(self.m)

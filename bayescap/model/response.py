@@ -1,20 +1,40 @@
-"""The sensor's response and its non-linearity: the output signal S (DN above the dark level) as a
-function of the linear signal x (DN, charge/K),
+"""The sensor's response and its non-linearity, and the brighter-fatter loss of variance.
 
-    S = g(x) = x · (1 + a · x / S_ref),
+**Response.** The output signal S (DN above the dark level) is a monotone smooth function of the
+linear signal x = charge/K (DN). The model writes its inverse, the *linearisation* x = h(S), as
 
-``a`` the fractional deviation from linearity at the reference signal ``S_ref`` (the largest
-unclipped measured signal): a < 0 compressive, a > 0 expansive. Shot noise is Poisson in the
-charge, so the output variance it causes is g'(x)²·x/K (delta method; g' = 1 + 2a·x/S_ref): the
-response bends the photon-transfer curve as well as the mean. Read noise is added after the
-conversion and is not bent.
+    h(S) = S_ref ∫₀^{S/S_ref} exp(L(u)) du,   L(u) = Σ_{k=1..m} θ_k B_{k,m}(u),
 
-:func:`response_evidence` measures, from the means against ``photons_per_pixel`` alone, whether
-the data need the term (:func:`~bayescap.model.terms.select_terms`). Without photon counts,
-:func:`variance_curvature_evidence` measures the bend of the temporal photon-transfer curve instead:
-to first order in a the shot-noise variance is g'(x)²·x/K ≈ (S/K)·(1 + 3a·S/S_ref), so the PTC's
-relative bend at S_ref is 3a. (A variance loss that leaves the means straight, the brighter-fatter
-effect, bends it the same way: the variances alone cannot tell the two apart.)
+with B_{k,m} the Bernstein polynomials of degree m (:data:`N_BASIS`) on [0, 1] without B_{0,m}
+(so L(0) = 0: h'(0) = 1, and K stays the small-signal gain), ``S_ref`` the largest unclipped
+measured signal. h' = exp(L) > 0, so the response is monotone whatever the coefficients; beyond
+S_ref the slope is held at its value there (the clip level lies a little above). The integral
+is a fixed Gauss–Legendre quadrature, vectorised over draws and rows. All θ = 0 is the linear
+response; a quadratic, cubic or quartic compression, an S shape (expansive low, compressive
+high) and a soft knee are all smooth log-slopes of low degree. The prior (docs/model.md) shrinks
+θ towards 0.
+
+Writing the inverse keeps the model free of root finding where it matters: a row's measured mean
+S gives its linear signal x = h(S) and the slope g'(x) = 1/h'(S) directly. Shot noise is Poisson
+in the charge, so the output variance it causes is g'(x)²·x/K = h(S)/(h'(S)²·K) (delta method).
+The means against the photons need g(x) = h⁻¹(x): :func:`response_forward` (Newton from the
+measured mean, two steps, or from x for a grid).
+
+**Brighter-fatter.** Charge already collected repels further charge into the neighbours: the
+pixel's variance grows less than its mean (Astier et al. 2019, PASP 131, Eq. 16; LSST cp_pipe's
+"EXPAPPROXIMATION"): C₀₀ = (exp(2a₀₀μ) − 1)/(2a₀₀) e⁻² at a mean charge μ (e⁻), a₀₀ < 0 per
+electron. The model samples the dimensionless ``b = a₀₀·K·S_ref`` (the bend at the top) and
+multiplies the shot variance by expm1(z)/z, z = 2b·x/S_ref. It leaves the means straight: only
+the means against photon counts tell it apart from a response that bends both.
+
+:func:`response_evidence` measures from the means against ``photons_per_pixel`` whether the data
+need the response (:func:`~bayescap.model.terms.select_terms`); :func:`variance_curvature_evidence`
+measures the bend of the temporal photon-transfer curve (to first order the shot-noise variance
+is (S/K)(1 + 3a·S/S_ref) for a quadratic response of deviation a, and (S/K)(1 + b·S/S_ref) for
+brighter-fatter: the variances alone cannot tell the two apart).
+
+:func:`response` / :func:`response_inverse` are the one-parameter quadratic S = x(1 + a·x/S_ref)
+(kept for callers that describe a response by its deviation a at S_ref).
 """
 
 from __future__ import annotations
@@ -22,18 +42,24 @@ from __future__ import annotations
 import numpy as np
 
 __all__ = [
-    "NONLINEARITY_BOUNDS",
+    "N_BASIS",
+    "SHAPE_BOUND",
+    "BF_BOUND",
+    "log_slope",
+    "linearise",
+    "response_forward",
+    "deviation_at_ref",
+    "linearity_error_shape",
+    "shape_draws",
+    "bf_factor",
+    "shape_start",
+    "response_shape_evidence",
     "response",
     "response_inverse",
-    "response_slope",
     "response_evidence",
     "variance_curvature_evidence",
 ]
 
-#: hard bounds of ``a``: below −0.25 the response has a maximum inside the measured range (g' = 0
-#: at x = S_ref/(−2a) < 2 S_ref) and is no longer invertible there; 0.5 is far beyond any sensor
-#: (a 50 % excess of signal at the top)
-NONLINEARITY_BOUNDS = (-0.24, 0.5)
 #: the term is selected when the curvature of the means against the photons is at least this at the
 #: top of the range (fraction) and at least :data:`EVIDENCE_SIGMA` standard errors from zero
 EVIDENCE_MIN = 0.003
@@ -47,14 +73,206 @@ VARIANCE_EVIDENCE_MIN = 0.005
 VARIANCE_EVIDENCE_SIGMA = 2.0
 
 
+#: degree of the Bernstein basis of the log-slope (coefficients θ₁..θ_m)
+N_BASIS = 4
+#: a wall on every |θ_k| (far beyond the prior's bulk: a slope ratio e^±8)
+SHAPE_BOUND = 8.0
+#: a wall on |b| = |a₀₀·K·S_ref| (the brighter-fatter bend at the top): e^{2b} spans 0.02–50
+BF_BOUND = 2.0
+#: Gauss–Legendre nodes of the integral of exp(L) on [0, v] (L a polynomial of degree N_BASIS with
+#: |θ| of a few: relative error < 1e-9 with 12 nodes)
+_GL_T, _GL_W = np.polynomial.legendre.leggauss(12)
+_GL_T = 0.5 * (_GL_T + 1.0)
+_GL_W = 0.5 * _GL_W
+
+
+def _bernstein_to_power(m):
+    """The matrix T (m, m) with c = θ T: the power-basis coefficients c_j of u^j (j = 1..m) of
+    Σ_k θ_k B_{k,m}(u) (k = 1..m). B_{k,m}(u) = C(m,k) Σ_{j≥k} C(m−k, j−k) (−1)^{j−k} u^j."""
+    from math import comb
+
+    T = np.zeros((m, m))
+    for k in range(1, m + 1):
+        for j in range(k, m + 1):
+            T[k - 1, j - 1] = comb(m, k) * comb(m - k, j - k) * (-1) ** (j - k)
+    return T
+
+
+_POWER = {N_BASIS: _bernstein_to_power(N_BASIS)}
+
+
+def log_slope(u, theta):
+    """L(u) = Σ_k θ_k B_{k,m}(u) (k = 1..m), u clipped to [0, 1]. ``theta`` (n, m); ``u`` with a
+    leading axis of n draws (or 1), any trailing axes: returns u's broadcast shape. (Horner's
+    scheme in the power basis.)"""
+    theta = np.atleast_2d(np.asarray(theta, float))
+    m = theta.shape[1]
+    T = _POWER.get(m)
+    if T is None:
+        T = _POWER.setdefault(m, _bernstein_to_power(m))
+    c = theta @ T  # (n, m): coefficients of u, u², ..., u^m
+    u = np.clip(np.asarray(u, float), 0.0, 1.0)
+    extra = (1,) * (u.ndim - 1)
+    L = c[:, m - 1].reshape((-1,) + extra) * u
+    for j in range(m - 2, -1, -1):
+        L += c[:, j].reshape((-1,) + extra)
+        L *= u
+    return L
+
+
+def linearise(s, theta, s_ref):
+    """The linear signal x = h(S) (DN) and the slope h'(S) for measured signals ``s`` (DN; leading
+    axis of draws or 1) and shape coefficients ``theta`` (n, m): below 0 the slope is 1, above
+    S_ref it stays at its value there."""
+    s = np.asarray(s, float)
+    v = s / s_ref
+    vc = np.clip(v, 0.0, 1.0)
+    theta = np.atleast_2d(np.asarray(theta, float))
+    vq = vc[..., None] * _GL_T  # (..., J)
+    Lq = log_slope(vq, theta)
+    integral = vc * np.sum(np.exp(Lq) * _GL_W, axis=-1)
+    L = log_slope(vc, theta)
+    slope = np.exp(L)
+    top = np.exp(log_slope(np.ones((1,) * np.ndim(v)), theta))
+    x = s_ref * (integral + np.maximum(v - 1.0, 0.0) * top + np.minimum(v, 0.0))
+    slope = np.where(v < 0.0, 1.0, slope)
+    return x, slope
+
+
+def response_forward(x, theta, s_ref, s0=None, steps=None):
+    """S = g(x) = h⁻¹(x) (DN) by Newton's method from ``s0`` (default x; ``steps`` default 2 from
+    a given s0, 30 from x). h is increasing with a bounded positive slope: each step lands on the
+    tangent's root, clamped to stay within a factor of the previous iterate."""
+    x = np.asarray(x, float)
+    s = np.array(x if s0 is None else s0, float)
+    n = (30 if s0 is None else 2) if steps is None else steps
+    for _ in range(n):
+        h, dh = linearise(s, theta, s_ref)
+        step = (h - x) / dh
+        if s0 is None:  # from afar: at most half the way to zero or twice the iterate per step
+            lim = 0.5 * np.abs(s) + 1e-9 * s_ref
+            step = np.clip(step, -lim, lim)
+        s = s - step
+    return s
+
+
+def deviation_at_ref(theta, s_ref):
+    """The response's fractional deviation from linearity at S_ref, per draw: S_ref/h(S_ref) − 1
+    (the quadratic's ``a``; negative compressive)."""
+    theta = np.atleast_2d(np.asarray(theta, float))
+    x, _ = linearise(np.full((theta.shape[0], 1), s_ref), theta, s_ref)
+    return s_ref / x[:, 0] - 1.0
+
+
+def linearity_error_shape(theta, s_ref):
+    """EMVA 1288's LE (%) of the fitted response per draw
+    (:func:`~bayescap.physics.linearity.linearity_error_percent`) over 5–95 % of the linear signal
+    at S_ref, h(S_ref), the response g = h⁻¹ by Newton's method on the standard's grid."""
+    from bayescap.physics.linearity import linearity_error_percent
+
+    theta = np.atleast_2d(np.asarray(theta, float))
+    x_sat, _ = linearise(np.full((theta.shape[0], 1), s_ref), theta, s_ref)
+    return linearity_error_percent(lambda x: _forward_table(x, theta, s_ref), x_sat[:, 0], n_points=32)
+
+
+def _forward_table(x, theta, s_ref, n_table=65):
+    """g(x) for x (n, k) in [0, h(S_ref)] per draw: linear interpolation in a table of h over
+    [0, S_ref] (one sorted search over all draws: each draw's table is offset by twice its index),
+    then one Newton step."""
+    theta = np.atleast_2d(np.asarray(theta, float))
+    n = theta.shape[0]
+    sg = np.linspace(0.0, s_ref, n_table)[None, :]
+    hg, _ = linearise(np.broadcast_to(sg, (n, n_table)), theta, s_ref)
+    top = hg[:, -1:]
+    off = 2.0 * np.arange(n)[:, None]
+    table = (hg / top + off).ravel()
+    u = np.clip(np.asarray(x, float) / top, 0.0, 1.0) + off
+    j = np.clip(np.searchsorted(table, u.ravel()).reshape(u.shape), 1, table.size - 1)
+    lo, hi = table[j - 1], table[j]
+    w = np.where(hi > lo, (u - lo) / np.where(hi > lo, hi - lo, 1.0), 0.0)
+    k = j % n_table
+    k = np.where(k == 0, n_table - 1, k)  # (the last node of a draw's table)
+    s0 = sg[0, k - 1] + w * (sg[0, k] - sg[0, k - 1])
+    return response_forward(x, theta, s_ref, s0=s0, steps=1)
+
+
+def shape_draws(p):
+    """θ (n, m) from the physical draws ``p`` (``response_shape_1`` ...), None without them."""
+    if "response_shape_1" not in p:
+        return None
+    m = sum(1 for k in p if k.startswith("response_shape_"))
+    return np.column_stack([np.asarray(p[f"response_shape_{k}"], float) for k in range(1, m + 1)])
+
+
+def bf_factor(z):
+    """expm1(z)/z, the brighter-fatter factor of the shot variance (1 at z = 0)."""
+    z = np.asarray(z, float)
+    small = np.abs(z) < 1e-6
+    zs = np.where(small, 1.0, z)
+    return np.where(small, 1.0 + 0.5 * z, np.expm1(zs) / zs)
+
+
+def shape_start(signal_dn, photons, rows, s_ref, m=N_BASIS):
+    """Start values of θ and the responsivity c = QE/K (DN per photon, small signal) from the
+    means against the photons: log(Δμp/ΔS) between neighbouring rows is log(1/c) + L(u) at their
+    mid-signal, a linear least-squares problem. None with fewer than m + 3 rows."""
+    r = np.asarray(rows, bool) & np.isfinite(photons) & (signal_dn > 0) & (photons > 0)
+    if r.sum() < m + 3:
+        return None
+    S, mp = signal_dn[r], photons[r]
+    o = np.argsort(S)
+    S, mp = S[o], mp[o]
+    dS, dp = np.diff(S), np.diff(mp)
+    ok = (dS > 0) & (dp > 0)
+    if ok.sum() < m + 2:
+        return None
+    um = 0.5 * (S[1:] + S[:-1])[ok] / s_ref
+    y = np.log(dp[ok] / dS[ok])
+    B = log_slope(um[None, :, None], np.eye(m))  # (m, rows, 1) basis values
+    A = np.column_stack([np.ones(um.size)] + [B[k, :, 0] for k in range(m)])
+    w = np.sqrt(dS[ok] / dS[ok].max())  # wider steps: less relative noise
+    coef, *_ = np.linalg.lstsq(A * w[:, None], y * w, rcond=None)
+    theta = np.clip(coef[1:], -0.5 * SHAPE_BOUND, 0.5 * SHAPE_BOUND)
+    return theta, float(np.exp(-coef[0]))
+
+
+def response_shape_evidence(signal_dn, photons, rows):
+    """Any smooth bend of the means against the photons: a cubic ``S = b₀ + b₁u + b₂u² + b₃u³``
+    (u = μp/μp,top; relative residuals as in EMVA 1288's linearity fit) against the straight line,
+    over the rows ``rows``. Returns ``(dev, chi2)``: the largest fractional deviation of the cubic
+    from its own straight part over the rows' range, |b₂u + b₃u²|/b₁, and the Wald χ² (2 degrees of
+    freedom) of (b₂, b₃) from the residual scatter. None with fewer than six rows."""
+    r = np.asarray(rows, bool) & np.isfinite(photons) & (signal_dn > 0) & (photons > 0)
+    if r.sum() < 6:
+        return None
+    S, mp = signal_dn[r], photons[r]
+    u = mp / float(mp.max())
+    A = np.vstack([np.ones_like(u), u, u * u, u**3]).T / S[:, None]
+    try:
+        coef, *_ = np.linalg.lstsq(A, np.ones_like(S), rcond=None)
+    except np.linalg.LinAlgError:
+        return None
+    resid = 1.0 - A @ coef
+    s2 = float(resid @ resid) / max(S.size - 4, 1)
+    try:
+        cov = s2 * np.linalg.inv(A.T @ A)
+    except np.linalg.LinAlgError:
+        return None
+    b = coef[2:]
+    if not coef[1] > 0:
+        return None
+    try:
+        chi2 = float(b @ np.linalg.solve(cov[2:, 2:], b))
+    except np.linalg.LinAlgError:
+        return None
+    ug = np.linspace(u.min(), 1.0, 64)
+    dev = float(np.max(np.abs(b[0] * ug + b[1] * ug * ug)) / coef[1])
+    return dev, chi2
+
+
 def response(x, a, s_ref):
     """g(x) = x (1 + a x / S_ref)."""
     return x * (1.0 + a * x / s_ref)
-
-
-def response_slope(x, a, s_ref):
-    """g'(x) = 1 + 2 a x / S_ref."""
-    return 1.0 + 2.0 * a * x / s_ref
 
 
 def response_inverse(s, a, s_ref):
@@ -113,10 +331,17 @@ def variance_curvature_evidence(signal_dn, var_dn2, dark_var_dn2, n_pixels, rows
         return None
     S, y, nu = S[r], V[r] - Vd[r], nu[r]
     sd = np.sqrt(2.0 * (V[r] ** 2 + Vd[r] ** 2) / nu)
+    keep = sd > 0  # (rows of zero variance, bright and dark: noise far below a DN, no weight to give)
+    if keep.sum() < 5:
+        return None
+    S, y, sd = S[keep], y[keep], sd[keep]
     u = S / float(S.max())
     A = np.vstack([u, u * u]).T / sd[:, None]
     b = y / sd
-    coef, *_ = np.linalg.lstsq(A, b, rcond=None)
+    try:
+        coef, *_ = np.linalg.lstsq(A, b, rcond=None)
+    except np.linalg.LinAlgError:
+        return None
     resid = b - A @ coef
     chi2_dof = float(resid @ resid) / max(S.size - 2, 1)
     try:

@@ -57,6 +57,7 @@ class PTCModelStack:
         "full_frac_dn",
         "t_full",
         "vd_ok",
+        "mean_rounding_var",
     )
 
     def __init__(self, models):
@@ -103,6 +104,8 @@ class PTCModelStack:
             tm.robust,
             tm.discrepancy,
             getattr(model, "dark_rows", True),
+            # the response's reference signal is the model's own (one per sensor)
+            model.response_ref_dn if (tm.nonlinearity or tm.brighter_fatter) else None,
         )
         shapes = tuple((a, np.shape(getattr(model, a))) for a in PTCModelStack.ROW_ARRAYS if hasattr(model, a))
         rows = tuple(

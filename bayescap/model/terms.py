@@ -17,6 +17,7 @@ from bayescap.model.response import (
     VARIANCE_EVIDENCE_MIN,
     VARIANCE_EVIDENCE_SIGMA,
     response_evidence,
+    response_shape_evidence,
     variance_curvature_evidence,
 )
 
@@ -37,6 +38,7 @@ class ModelTerms:
     discrepancy: bool = True
     nonlinearity: bool = False
     offset_spread: bool = False
+    brighter_fatter: bool = False
     reasons: dict = field(default_factory=dict)  # term -> why it is left out
     how: dict = field(default_factory=dict)  # term -> how an included term enters (caveats)
 
@@ -58,6 +60,8 @@ class ModelTerms:
             out += ["quantum_efficiency", "mean_discrepancy"]
         if self.nonlinearity:
             out.append("response_nonlinearity")
+        if self.brighter_fatter:
+            out.append("brighter_fatter")
         if self.offset_spread:
             out.append("pixel_offset_spread")
         return out
@@ -170,7 +174,7 @@ def select_terms(d: PTCData, *, force: dict | None = None) -> ModelTerms:
         reasons["prnu"] = "no spatial_var_dn2 column: pair differences cancel fixed-pattern noise"
     if not dsnu:
         reasons["dsnu"] = "no dark_spatial_var_dn2 column: pair differences cancel fixed-pattern noise"
-    nonlin = _select_nonlinearity(d, full, reasons, how)
+    nonlin, bfat = _select_nonlinearity(d, full, reasons, how)
     offsets = _select_offset_spread(d, dsnu, full, reasons, how)
     terms = dict(
         dark_current=multi_t,
@@ -180,6 +184,7 @@ def select_terms(d: PTCData, *, force: dict | None = None) -> ModelTerms:
         prnu=prnu,
         dsnu=dsnu,
         nonlinearity=nonlin,
+        brighter_fatter=bfat,
         offset_spread=offsets,
     )
     if not d.has_dark_rows:
@@ -293,60 +298,103 @@ def _unclipped_rows(d: PTCData, full):
     return ok
 
 
-def _select_nonlinearity(d: PTCData, full, reasons, how) -> bool:
-    """The response term (:mod:`bayescap.model.response`) enters when the means bend against the
-    photons: a curvature of at least ``EVIDENCE_MIN`` at the top, ``EVIDENCE_SIGMA`` standard
-    errors from zero, over the unclipped rows from 5 % of the largest signal up. Without photon
-    counts, when the temporal PTC bends over those rows (:func:`_select_ptc_curvature`)."""
+def _select_nonlinearity(d: PTCData, full, reasons, how) -> tuple[bool, bool]:
+    """Whether the response term and the brighter-fatter term enter (:mod:`bayescap.model.response`),
+    each chosen by its own evidence over the unclipped rows from 5 % of the largest signal up.
+
+    With photon counts: the response when the means bend against the photons (a quadratic
+    curvature of at least ``EVIDENCE_MIN`` at the top, ``EVIDENCE_SIGMA`` standard errors from zero,
+    or a cubic's bend of that size with a Wald χ² of at least ``EVIDENCE_SIGMA²``: S shapes have
+    little quadratic part); brighter-fatter when the temporal PTC bends
+    (:func:`_ptc_bends`): given the means, a response accounts for its share of the bend and the
+    a₀₀ term for the rest. Without photon counts only the PTC's bend is measured, and the response
+    term (flexible enough for either reading) fits it: the two cannot be told apart."""
     sig = d.mean_dn - d.dark_mean_dn
     ok = _unclipped_rows(d, full)
     if not np.any(ok):
         reasons["response_nonlinearity"] = "no unclipped row to measure the response on"
-        return False
+        reasons["brighter_fatter"] = "no unclipped row to measure the photon-transfer curve's bend on"
+        return False, False
     rows = ok & (sig >= 0.05 * sig[ok].max())
     if d.photons_per_pixel is None:
-        return _select_ptc_curvature(d, sig, rows, reasons, how)
-    ev = response_evidence(sig, np.asarray(d.photons_per_pixel, float), rows)
+        reasons["brighter_fatter"] = (
+            "no photons_per_pixel column: a brighter-fatter variance loss and a response non-linearity bend the "
+            "photon-transfer curve alike and cannot be told apart; the response term describes either"
+        )
+        return _select_ptc_curvature(d, sig, rows, reasons, how), False
+    photons = np.asarray(d.photons_per_pixel, float)
+    ev = response_evidence(sig, photons, rows)
     if ev is None:
         reasons["response_nonlinearity"] = "fewer than five unclipped rows with photons: the response is not measured"
-        return False
+        reasons["brighter_fatter"] = "fewer than five unclipped rows: the photon-transfer curve's bend is not measured"
+        return False, False
     a, se = ev
-    if abs(a) >= EVIDENCE_MIN and abs(a) >= EVIDENCE_SIGMA * se:
-        how["response_nonlinearity"] = (
-            f"the means bend against the photons: {100 * a:+.2g} % at the top of the unclipped rows "
-            f"(± {100 * se:.2g} %); the response S = x(1 + a·x/S_ref) enters the means and the variances"
+    quad = abs(a) >= EVIDENCE_MIN and abs(a) >= EVIDENCE_SIGMA * se
+    shape = response_shape_evidence(sig, photons, rows)
+    cubic = shape is not None and shape[0] >= EVIDENCE_MIN and shape[1] >= EVIDENCE_SIGMA**2
+    bend = _ptc_bends(d, sig, rows)
+    bf = bend is not None and bend[2]
+    if bf:
+        how["brighter_fatter"] = (
+            f"the temporal PTC bends {100 * bend[0]:+.2g} % (± {100 * bend[1]:.2g} %) at the top of the unclipped rows: "
+            "a brighter-fatter term (the shot variance (exp(2·a00·μ) − 1)/(2·a00), Astier et al. 2019) enters the "
+            "variances only; the means against the photons decide how much of the bend is the response's"
         )
-        return True
+    else:
+        reasons["brighter_fatter"] = "the temporal PTC is straight within its sampling error" + (
+            "" if bend is None else f": {100 * bend[0]:+.2g} ± {100 * bend[1]:.2g} % at the top of the unclipped rows"
+        )
+    if quad or cubic:
+        dev = a if quad else shape[0]
+        how["response_nonlinearity"] = (
+            f"the means bend against the photons: {100 * dev:+.2g} % at the top of the unclipped rows "
+            f"(± {100 * se:.2g} %); a monotone response (log-slope in a Bernstein basis, shrunk towards "
+            "linear) enters the means and the variances"
+        )
+        return True, bf
     reasons["response_nonlinearity"] = (
         f"the means are linear in the photons within the data's precision: {100 * a:+.2g} ± {100 * se:.2g} % "
         "at the top of the unclipped rows"
     )
-    return False
+    return False, bf
+
+
+def _ptc_bends(d: PTCData, sig, rows):
+    """``(bend, se, significant)`` of the temporal PTC over ``rows``
+    (:func:`~bayescap.model.response.variance_curvature_evidence`), significant when the bend is at
+    least ``VARIANCE_EVIDENCE_MIN`` and ``VARIANCE_EVIDENCE_SIGMA`` standard errors from zero; None
+    with too few rows."""
+    if d.has_dark_rows:
+        ev = variance_curvature_evidence(sig, d.temporal_var_dn2, d.dark_temporal_var_dn2, d.n_pixels, rows)
+    else:  # a mean/variance table: the intercept is fitted with the bend
+        ev = _mean_variance_curvature_evidence(sig, d.temporal_var_dn2, d.n_pixels, rows)
+    if ev is None:
+        return None
+    bend, se = ev
+    return bend, se, bool(abs(bend) >= VARIANCE_EVIDENCE_MIN and abs(bend) >= VARIANCE_EVIDENCE_SIGMA * se)
 
 
 def _select_ptc_curvature(d: PTCData, sig, rows, reasons, how) -> bool:
     """Without photons: the response term enters when the temporal PTC (variance less the dark
     variance, against the signal) bends by at least ``VARIANCE_EVIDENCE_MIN`` at the top of the
     rows, ``VARIANCE_EVIDENCE_SIGMA`` standard errors (its sampling error) from zero. The variances fix the
-    bend (≈ 3a) and the small-signal gain; whether the response or the variance bends (a
+    bend and the small-signal gain; whether the response or the variance bends (a
     brighter-fatter-like loss) needs the means against the photons."""
-    if d.has_dark_rows:
-        ev = variance_curvature_evidence(sig, d.temporal_var_dn2, d.dark_temporal_var_dn2, d.n_pixels, rows)
-    else:
-        ev = _mean_variance_curvature_evidence(sig, d.temporal_var_dn2, d.n_pixels, rows)
+    ev = _ptc_bends(d, sig, rows)
     if ev is None:
         reasons["response_nonlinearity"] = (
             "no photons_per_pixel column and fewer than five unclipped rows: the PTC's curvature is not measured"
         )
         return False
-    bend, se = ev
-    if abs(bend) >= VARIANCE_EVIDENCE_MIN and abs(bend) >= VARIANCE_EVIDENCE_SIGMA * se:
+    bend, se, significant = ev
+    if significant:
         how["response_nonlinearity"] = (
             f"no photons_per_pixel column, and the temporal PTC bends {100 * bend:+.2g} % (± {100 * se:.2g} %) "
-            "at the top of the unclipped rows: fitted as the response S = x(1 + a·x/S_ref), from the variances "
-            "alone (their bend is ≈ 3a). K is the small-signal gain either way, but a variance loss that leaves "
-            "the means straight (brighter-fatter) bends the PTC alike: a and the linearity error assume the "
-            "response reading; photon counts would tell the two apart"
+            "at the top of the unclipped rows: fitted as a monotone response (log-slope in a Bernstein basis), "
+            "from the variances alone. K is the small-signal gain either way (its interval is wider: only the low "
+            "rows pin it), but a variance loss that leaves the means straight (brighter-fatter) bends the PTC "
+            "alike: the response's shape and the linearity error assume the response reading; photon counts "
+            "would tell the two apart"
         )
         return True
     reasons["response_nonlinearity"] = (

@@ -14,7 +14,6 @@ from bayescap.physics.capacity import (
     tonal_range,
     tonal_range_bits,
 )
-from bayescap.physics.linearity import linearity_error_percent
 from bayescap.physics.noise import NoiseCoefficients, dark_variance_e2, dynamic_range_db, snr_db, variance_terms
 from bayescap.posterior.limits import apply_derived_limits
 from bayescap.posterior.summary import DERIVED_INFO, summarize
@@ -136,13 +135,10 @@ class DerivedMixin:
 
     def _linearity_error(self, a):
         """EMVA 1288's LE (%) of the fitted response, per draw, over 5–95 % of the largest
-        unclipped signal (:func:`~bayescap.physics.linearity.linearity_error_percent`)."""
-        from bayescap.model.response import response, response_inverse
+        unclipped signal (:func:`~bayescap.model.response.linearity_error_shape`)."""
+        from bayescap.model.response import linearity_error_shape, shape_draws
 
-        s_ref = self.model.response_ref_dn
-        a = np.asarray(a, float)
-        x_sat = response_inverse(s_ref, a, s_ref)
-        return linearity_error_percent(lambda x: response(x, a[:, None], s_ref), x_sat)
+        return linearity_error_shape(shape_draws(self.draws), self.model.response_ref_dn)
 
     def noise_budget(self, fraction_of_range=0.5):
         """Share of each Eq. 1 term in the noise variance at a signal level of the scene
@@ -185,7 +181,7 @@ class DerivedMixin:
                 extra["lower_bound"] = True
             out[name] = summarize(x, unit, **extra)
             out[name].pop("constrained")
-        if "response_nonlinearity" in self.draws:
+        if "response_nonlinearity" in self.draws or "brighter_fatter_a00_per_e" in self.draws:
             # K is the small-signal gain here; beside it, the gain a straight-line EMVA 1288 fit reports
             from bayescap.posterior.emva import emva1288_gain_draws
 

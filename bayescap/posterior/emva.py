@@ -163,7 +163,8 @@ def emva1288_gain_draws(result, n_max=N_PEAK_DRAWS):
     straight line of Δσ²_y against Δμ_y through the fitted model over the standard's sensitivity rows
     (:func:`_model_gain`), on at most ``n_max`` draws of the walkers kept for the summaries. With a
     linear response it is ``conversion_gain_e_per_dn``; with ``response_nonlinearity`` it is the gain
-    averaged over those rows, the number an EMVA 1288 datasheet prints. None without a chain."""
+    averaged over those rows (likewise with brighter-fatter), the number an EMVA 1288 datasheet prints.
+    None without a chain."""
     kept = result._kept_mask() if hasattr(result, "_kept_mask") else None
     n = next(iter(result.draws.values())).size
     pool = np.arange(n) if kept is None else np.flatnonzero(kept)
@@ -238,7 +239,7 @@ def emva1288_view(result) -> dict:
     K_rec = sw.recipe_gain()
     idx = result.thin_index(N_PEAK_DRAWS)
     K_std = _model_gain(result, sw, idx)
-    bent = "response_nonlinearity" in p
+    bent = "response_nonlinearity" in p or "brighter_fatter_a00_per_e" in p
     if K_std is None:  # (no chain: the model's gain, the same thing for a linear response)
         K_std, how_k = K, "per posterior draw as 1 / conversion_gain_e_per_dn (no chain to evaluate the line on)"
     else:
@@ -248,7 +249,7 @@ def emva1288_view(result) -> dict:
     k_ss = _q(k)
     small = (
         "bayescap's conversion_gain_e_per_dn is the small-signal gain (the slope at zero signal) when "
-        f"response_nonlinearity is in the model, as here: {k_ss[0]:.4g} [{k_ss[1][0]:.4g}, {k_ss[1][1]:.4g}] e-/DN, "
+        f"the response or the brighter-fatter term bends the model's PTC, as here: {k_ss[0]:.4g} [{k_ss[1][0]:.4g}, {k_ss[1][1]:.4g}] e-/DN, "
         "not this entry"
         if bent
         else "with a linear response the line's slope is 1 / conversion_gain_e_per_dn, bayescap's gain (exactly "
@@ -267,7 +268,8 @@ def emva1288_view(result) -> dict:
     )
     if bent:
         notes.append(
-            "response_nonlinearity is in the model: K and 1/K are the standard's straight-line average over its "
+            "the response or the brighter-fatter term bends the model's PTC: K and 1/K are the standard's "
+            "straight-line average over its "
             "rows; the quantities converted to electrons (η, σ_d, μe.sat, μe.min, DSNU1288, μ_I) use bayescap's "
             "small-signal gain conversion_gain_e_per_dn"
         )

@@ -25,10 +25,12 @@ def _quantity(p):
 _CONSEQUENCE = {
     ("clip_dn", "lower"): "the clip sits just above the brightest unclipped row: full well is known only to "
     "lie between that row's signal and the next row's, and its interval is cut there",
-    ("response_nonlinearity", "lower"): "the response bends more than the model's range allows: "
-    "K and full well are biased; fit the rows below the bend",
-    ("response_nonlinearity", "upper"): "the response bends more than the model's range allows: "
-    "K and full well are biased; fit the rows below the bend",
+    **{
+        (f"response_shape_{j}", side): "the response's slope changes by more than e^8 over the measured range: "
+        "K and full well are not to be trusted; fit the rows below the bend"
+        for j in range(1, 9)
+        for side in ("lower", "upper")
+    },
 }
 
 

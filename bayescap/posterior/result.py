@@ -21,6 +21,7 @@ from bayescap.posterior.diagnose import _END_MCSE_FAILURE, DiagnoseMixin
 from bayescap.posterior.display import html_table, short_repr
 from bayescap.posterior.inputs import InputsMixin
 from bayescap.posterior.limits import apply_parameter_limits
+from bayescap.posterior.response_view import response_model_summary
 from bayescap.posterior.scene import Scene
 from bayescap.posterior.summary import json_safe, summarize
 
@@ -351,6 +352,18 @@ class FitResult(DerivedMixin, DiagnoseMixin, ChecksMixin, InputsMixin):
                 "",
                 note="fractional deviation of the response at the largest unclipped signal",
             )
+        for j in range(1, 64):
+            if f"response_shape_{j}" not in p:
+                break
+            out[f"response_shape_{j}"] = summarize(
+                p[f"response_shape_{j}"], "", note="coefficient of the response's log-slope (docs/model.md)"
+            )
+        if "brighter_fatter_a00_per_e" in p:
+            out["brighter_fatter_a00_per_e"] = summarize(
+                p["brighter_fatter_a00_per_e"],
+                "1/e-",
+                note="brighter-fatter a00 (Astier et al. 2019 Eq. 16); negative: the variance grows less than the mean",
+            )
         if "pixel_offset_spread_dn" in p:
             nonneg("pixel_offset_spread_dn", p["pixel_offset_spread_dn"], "DN")
         return apply_parameter_limits(self, out)
@@ -393,6 +406,7 @@ class FitResult(DerivedMixin, DiagnoseMixin, ChecksMixin, InputsMixin):
                 "model_terms": self.model.terms.names(),
                 "terms_left_out": dict(self.model.terms.reasons),
                 "term_notes": dict(self.model.terms.how),
+                "response_model": response_model_summary(self),
                 "mtf": self.mtf_info,
                 "noise_budget_mid_grey": self.noise_budget(),
                 "outliers": list(getattr(self, "outliers", [])),

@@ -37,6 +37,7 @@ PARAMETER_ORDER = [
     "variance_discrepancy",
     "mean_discrepancy",
     "response_nonlinearity",
+    "brighter_fatter_a00_per_e",
     "pixel_offset_spread_dn",
 ]
 DERIVED_ORDER = [

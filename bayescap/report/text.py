@@ -145,6 +145,8 @@ def format_text(result: FitResult | dict) -> str:
         )
     lines.append("")
     lines.append("  model terms: " + ", ".join(d["model_terms"]))
+    if d.get("response_model"):
+        lines.append(f"  response: {d['response_model']['reading']}")
     for t, why in d.get("terms_left_out", {}).items():
         lines.append(f"  left out: {t}: {why}")
     for t, how in d.get("term_notes", {}).items():
