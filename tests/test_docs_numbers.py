@@ -106,7 +106,9 @@ def _emva_table(r, view, ref):
     lines.append(f"| small-signal gain `conversion_gain_e_per_dn` (e⁻/DN) | {_iv(k0['median'], k0['ci95'])} | — | — |")
     a = p["parameters"].get("response_nonlinearity")
     if a:
-        lines.append(f"| response non-linearity a | {_iv(a['median'], a['ci95'], 3)} | — | — |")
+        lines.append(
+            f"| response deviation from linear at the top of the unclipped rows (`response_nonlinearity`) | {_iv(a['median'], a['ci95'], 3)} | — | — |"
+        )
     if "u_e_sat_model" in q:
         lines.append(f"| μe.sat at the model's variance peak (e⁻) | {_cell(q['u_e_sat_model'], 5)} | — | — |")
     lines.append(f"| `full_well_e`, the charge at the clip (e⁻) | {_iv(fw['median'], fw['ci95'], 5)} | — | — |")
@@ -133,7 +135,7 @@ def _gain_sentence(r, view, ref):
     lin = next(v for k, v in b.items() if k.startswith("bayescap with a linear response forced"))
     w = next(v for k, v in b.items() if k.startswith("1/sd²-weighted"))
     return (
-        f"On the Basler set (a = {_g(a['median'], 2) if a else '0'}): small-signal gain "
+        f"On the Basler set (response deviation at the top {_g(a['median'], 2) if a else '0'}): small-signal gain "
         f"{_iv(k0['median'], k0['ci95'])} e⁻/DN, the standard's gain from the same fit "
         f"{_iv(ke['median'], ke['ci95']) if ke else '—'} e⁻/DN, emva1288 {_g(1 / ref['K'], 5)} e⁻/DN. With the "
         f"response held linear the fit gives {lin} e⁻/DN; the standard's own rows weighted by 1/σ² give {w} "
