@@ -114,15 +114,36 @@ def _weighted_slope(t, y, sd):
 
 
 def variance_ramp(model, theta):
-    """The dark variances' slope against the exposure time (DN²/s) and its standard error, each row's
-    error the fitted model's (its Gamma shape k at the draw ``theta``: sd = model variance / √k),
-    or None with fewer than three rows or two exposure times."""
-    with np.errstate(all="ignore"):
-        obs, pred, shape, _ = model.predict(np.atleast_2d(theta))["dark_var"]
-    sd = np.asarray(pred, float)[0] / np.sqrt(np.broadcast_to(shape, np.shape(pred))[0])
-    if np.unique(model.t).size < 2:
+    """How far the dark variances' rise with the exposure time stands out of their noise, as the model
+    sees it (its rounding moments, read noise and DSNU included): ``(z, 1.0)`` with z = ±√Δχ², Δχ² the
+    drop in the dark rows' χ² (each row's error the model's own, sd = model variance / √k at ``theta``)
+    from the best model with D = 0, its read noise free to take up the mean D·t (profiled on a grid),
+    to the model at ``theta``; the sign is that of the fitted rise. A raw slope of the variances
+    against t would mistake the rounding's swing of a sub-DN dark variance for a ramp (or a fall).
+    None with fewer than three rows, two exposure times or no dark-current coordinate."""
+    idx = getattr(model, "idx", {})
+    if np.unique(model.t).size < 2 or "log_dc" not in idx or "log_read" not in idx:
         return None
-    return _weighted_slope(model.t, obs, sd)  # (None with fewer than three rows)
+    th = np.asarray(theta, float).reshape(1, -1)
+    read2 = math.exp(2.0 * th[0, idx["log_read"]])
+    dt_max = math.exp(th[0, idx["log_dc"]]) * float(np.nanmax(model.t))
+    grid = np.tile(th, (65, 1))  # D = 0; read² from the fitted read² to read² + D·t_max
+    grid[:, idx["log_dc"]] = math.log(1e-12)
+    grid[:, idx["log_read"]] = 0.5 * np.log(read2 + np.linspace(0.0, 1.0, 65) * dt_max)
+    with np.errstate(all="ignore"):
+        obs, pred, shape, _ = model.predict(th)["dark_var"]
+        _, pred0, _, _ = model.predict(grid)["dark_var"]
+    pred = np.asarray(pred, float)
+    k = np.broadcast_to(np.asarray(shape, float), pred.shape)[0]
+    obs = np.broadcast_to(np.asarray(obs, float), pred.shape)[0]
+    pred, pred0 = pred[0], np.asarray(pred0, float)
+    sd = pred / np.sqrt(k)
+    ok = np.isfinite(obs) & np.isfinite(pred) & np.all(np.isfinite(pred0), axis=0) & (sd > 0)
+    if ok.sum() < 3:
+        return None
+    chi2_0 = np.min(np.sum(((obs - pred0)[:, ok] / sd[ok]) ** 2, axis=1))
+    d_chi2 = float(chi2_0 - np.sum(((obs - pred)[ok] / sd[ok]) ** 2))
+    return (math.sqrt(d_chi2) if d_chi2 > 0 else -math.sqrt(-d_chi2), 1.0)
 
 
 def mean_ramp(data):
