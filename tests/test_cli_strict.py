@@ -32,7 +32,7 @@ def _stub_report(monkeypatch):
     """The HTML report's figures take ~15 s: the exit status does not depend on them."""
     import bayescap.cli.report as cli_report
 
-    def write_report(cmp, path, title=""):
+    def write_report(cmp, path, title="", **kw):
         open(path, "w").write(f"<html>{len(cmp.sensors)} sensors</html>")
         return path
 

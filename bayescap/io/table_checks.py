@@ -91,3 +91,49 @@ def check_some_row_mostly_unclipped(d, path=None) -> None:
         path=path or d.source,
         column="frac_saturated",
     )
+
+
+def check_not_all_saturated(d, path=None):
+    """Refuse a series in which every row is saturated (no row on the photon-transfer curve).
+
+    Two signatures: (1) every row clipped at the ADC (``frac_saturated`` ≥ 0.999, or the bright
+    mean within 0.5 DN of the ADC maximum); (2) a plateau: the bright means do not move (spread
+    within 6 standard errors of a row mean plus 0.5 DN) although the exposure
+    (``photons_per_pixel``, else ``exposure_lux_s``, else ``exposure_time_s``) changes by ≥ 20 %
+    — a well that clips before the read-out. Nothing can be fitted from such data (the gain
+    comes out 4–100× wrong), so it is an input error. Called by :func:`read_ptc_csv` and by
+    :func:`bayescap.model.saturation_flags` (so a PTCModel built from in-memory data is checked too).
+    """
+    path = d.source if path is None else path
+    n = d.n_levels
+    if n < 2:
+        return
+    adc = d.adc_max_dn
+    fs = d.frac_saturated
+    at_adc = adc is not None and bool(np.all(d.mean_dn >= adc - 0.5))
+    if at_adc or (fs is not None and np.all(fs >= 0.999)):
+        why = f"bright means at the ADC maximum {adc:g} DN" if at_adc else "frac_saturated ≥ 0.999 on every row"
+        raise PTCInputError(
+            f"every row is saturated ({why}): no row lies on the photon-transfer curve, so "
+            "gain and noise cannot be measured; add exposures below saturation",
+            path=path,
+            column="mean_dn" if at_adc else "frac_saturated",
+        )
+    for col in ("photons_per_pixel", "exposure_lux_s", "exposure_time_s"):
+        x = getattr(d, col)
+        if x is not None and np.all(np.isfinite(x)) and np.min(x) > 0:
+            break
+    else:
+        return
+    if np.max(x) < 1.2 * np.min(x):
+        return
+    se = np.sqrt(np.maximum(d.temporal_var_dn2, 0.0) / d.n_pixels)
+    if np.ptp(d.mean_dn) <= 6.0 * float(np.max(se)) + 0.5 and np.median(d.signal_dn) > 0:
+        raise PTCInputError(
+            f"every row is saturated: the bright means stay at {np.median(d.mean_dn):.1f} DN "
+            f"(spread {np.ptp(d.mean_dn):.2f} DN) while {col} changes "
+            f"{np.max(x) / np.min(x):.2f}×: no row lies on the photon-transfer curve, so gain "
+            "and noise cannot be measured; add exposures below saturation",
+            path=path,
+            column="mean_dn",
+        )

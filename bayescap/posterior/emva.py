@@ -29,17 +29,15 @@ EMVA_RELEASE = "EMVA 1288 Release 4.0 (linear model)"
 S2Q = 1.0 / 12.0
 #: the standard's floor of the dark temporal variance σ²_y.dark (DN²): below it quantization rules
 S2_YDARK_FLOOR = 0.24
-#: draws the model's variance peak is located on (a grid search per draw), and the model's line of
-#: the standard's gain is fitted on (one prediction per draw)
+#: draws the model's variance peak is located on (a grid search per draw) and the standard's gain's line fitted on
 N_PEAK_DRAWS = 4000
 
 
 def _q(x):
     x = np.asarray(x, float).ravel()
-    x = x[np.isfinite(x)]
-    if x.size == 0:
+    if not np.isfinite(x).any():
         return None, None
-    lo, med, hi = np.quantile(x, [0.025, 0.5, 0.975])
+    lo, med, hi = np.quantile(x[np.isfinite(x)], [0.025, 0.5, 0.975])
     return float(med), [float(lo), float(hi)]
 
 
@@ -49,11 +47,10 @@ def _lsq_origin(x, y):
 
 
 class _Sweep:
-    """The standard's reading of the measured rows: the irradiation sweep (the pair rows of the most
-    pixels: a spatial stack, or its crop, is left out), its saturation point (the row of largest
-    temporal variance), the sensitivity rows (up to 70 % of the saturation signal), the linearity
-    rows (5–95 %), the dark regression over exposure time, and the spatial row: of the rows of
-    the most frames (the stack), the one nearest 50 %."""
+    """The standard's reading of the measured rows: the irradiation sweep (the pair rows of the most pixels:
+    a spatial stack, or its crop, is left out), its saturation point (the row of largest temporal variance),
+    the sensitivity rows (up to 70 % of the saturation signal), the linearity rows (5–95 %), the dark
+    regression over exposure time, and the spatial row: of the rows of the most frames, the one nearest 50 %."""
 
     def __init__(self, data):
         d = data
