@@ -7,7 +7,9 @@ import errno
 import os
 import secrets
 import shutil
+import stat
 import tempfile
+import time
 from pathlib import Path
 from typing import Callable, Iterable
 
@@ -196,7 +198,9 @@ def write_dir_atomically(target: os.PathLike | str, fill: Callable[[Path], objec
     try:
         fill(tmp)
         os.chmod(tmp, 0o777 & ~_umask())  # mkdtemp's 0o700 -> the ordinary mode of a new folder
-        for _ in range(10):  # another run can put its set in between: try again
+        for attempt in range(200):  # another run can put its set in between: try again, backing off
+            if attempt >= 3:
+                time.sleep(secrets.randbelow(2000) * 1e-6)  # up to 2 ms: lets a busy neighbour finish its swap
             if not target.exists():
                 try:
                     os.rename(tmp, target)
@@ -205,7 +209,11 @@ def write_dir_atomically(target: os.PathLike | str, fill: Callable[[Path], objec
                     if e.errno not in (errno.EEXIST, errno.ENOTEMPTY):
                         raise
                     continue
-            if not target.is_dir() or target.is_symlink():
+            try:
+                st = os.lstat(target)  # one look: another run may move it between two
+            except FileNotFoundError:
+                continue
+            if not stat.S_ISDIR(st.st_mode):  # a file, or a link
                 raise FileExistsError(errno.EEXIST, "exists and is not a directory", str(target))
             old = parent / f"{prefix}{secrets.token_hex(4)}.old"
             try:
