@@ -169,7 +169,9 @@ def test_fast_fit_basler_is_coherent(basler_csv):
         assert dg["khat"] < dg["khat_max"] and dg["converged"]
     else:
         assert dg["method"] == "emcee" and dg["fast_path_accepted"] is False
-        assert dg["fast_path_khat"] >= 0.7 or "ESS" in dg["fallback_reason"]
+        # rejected by one of its own checks (k̂, IS ESS or the interval ends' Monte Carlo error), named
+        reason = dg["fallback_reason"]
+        assert dg["fast_path_khat"] >= 0.7 or "ESS" in reason or "Monte Carlo error" in reason
         assert any("Laplace–IS fast path was rejected" in n for n in r.notes)
 
 

@@ -66,8 +66,9 @@ class _ParametersMixin:
     attributes these methods read: ``idx``, ``names``, ``terms``, ``PRIOR``, the data arrays)."""
 
     # ------------------------------------------------------------------ parameters
-    def physical(self, theta) -> dict:
-        """Named physical parameters for draws ``theta`` (n, ndim)."""
+    def physical(self, theta, derived: bool = True) -> dict:
+        """Named physical parameters for draws ``theta`` (n, ndim); ``derived=False`` leaves out what
+        the likelihood does not read (the response's deviation and the full well)."""
         th = np.atleast_2d(theta)
         g = lambda n: th[:, self.idx[n]]
         k = np.exp(g("log_k"))
@@ -88,13 +89,16 @@ class _ParametersMixin:
             theta = self.response_theta(th)
             for j in range(theta.shape[1]):
                 out[f"response_shape_{j + 1}"] = theta[:, j]
-            out["response_nonlinearity"] = deviation_at_ref(theta, self.response_ref_dn)
+            if derived:
+                out["response_nonlinearity"] = deviation_at_ref(theta, self.response_ref_dn)
         if getattr(self.terms, "brighter_fatter", False):
             out["brighter_fatter_a00_per_e"] = g("bf") / (k * self.response_ref_dn)
         if c is not None:
             out["clip_dn"] = c
-            if bent:  # the charge at the clip: its linear signal h(c − black) times K
-                xc, _ = linearise((c - self.black_dn)[:, None], theta, self.response_ref_dn)
+            if not derived:
+                pass
+            elif bent:  # the charge at the clip: its linear signal h(c − black) times K
+                xc, _ = linearise((c - self.black_dn)[:, None], theta, self.response_ref_dn, per_point=True)
                 out["full_well_e"] = xc[:, 0] * k
             else:
                 out["full_well_e"] = (c - self.black_dn) * k

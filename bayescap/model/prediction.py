@@ -113,7 +113,7 @@ class _PredictionMixin:
         ``"normal"`` it is the standard deviation. Blocks: ``dark_var`` (every row),
         ``bright_var`` and ``mean`` (rows not fully clipped), ``clip_mean`` (fully clipped rows,
         sampled clip), ``spatial_var``/``dark_spatial_var`` (rows with spatial columns)."""
-        p = self.physical(th)
+        p = self.physical(th, derived=False)
         k = p["conversion_gain_e_per_dn"]
         K = k[:, None]
         if self.terms.discrepancy:

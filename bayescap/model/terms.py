@@ -12,6 +12,7 @@ import numpy as np
 from bayescap.exceptions import PTCInputError
 from bayescap.io.ptc_csv import PTCData, check_not_all_saturated
 from bayescap.model.response import (
+    BF_EVIDENCE_SIGMA,
     EVIDENCE_MIN,
     EVIDENCE_SIGMA,
     VARIANCE_EVIDENCE_MIN,
@@ -332,18 +333,14 @@ def _select_nonlinearity(d: PTCData, full, reasons, how) -> tuple[bool, bool]:
     quad = abs(a) >= EVIDENCE_MIN and abs(a) >= EVIDENCE_SIGMA * se
     shape = response_shape_evidence(sig, photons, rows)
     cubic = shape is not None and shape[0] >= EVIDENCE_MIN and shape[1] >= EVIDENCE_SIGMA**2
-    bend = _ptc_bends(d, sig, rows)
-    bf = bend is not None and bend[2]
+    bf, bf_text = _brighter_fatter_evidence(d, sig, rows, a, se)
     if bf:
         how["brighter_fatter"] = (
-            f"the temporal PTC bends {100 * bend[0]:+.2g} % (± {100 * bend[1]:.2g} %) at the top of the unclipped rows: "
-            "a brighter-fatter term (the shot variance (exp(2·a00·μ) − 1)/(2·a00), Astier et al. 2019) enters the "
-            "variances only; the means against the photons decide how much of the bend is the response's"
+            bf_text + ": a brighter-fatter term (the shot variance (exp(2·a00·μ) − 1)/(2·a00), Astier et al. 2019) "
+            "enters the variances only; the means against the photons decide how much of the bend is the response's"
         )
     else:
-        reasons["brighter_fatter"] = "the temporal PTC is straight within its sampling error" + (
-            "" if bend is None else f": {100 * bend[0]:+.2g} ± {100 * bend[1]:.2g} % at the top of the unclipped rows"
-        )
+        reasons["brighter_fatter"] = bf_text
     if quad or cubic:
         dev = a if quad else shape[0]
         how["response_nonlinearity"] = (
@@ -357,6 +354,31 @@ def _select_nonlinearity(d: PTCData, full, reasons, how) -> tuple[bool, bool]:
         "at the top of the unclipped rows"
     )
     return False, bf
+
+
+def _brighter_fatter_evidence(d: PTCData, sig, rows, a, se_a) -> tuple[bool, str]:
+    """Whether the temporal PTC loses more variance than the response of the means explains.
+
+    A response ``S ∝ x(1 + a·x/x_top)`` (the means' quadratic curvature ``a`` against the photons,
+    :func:`~bayescap.model.response.response_evidence`) bends the PTC by about ``3a`` at the top
+    (the local gain squared over the compressed signal); brighter-fatter is what is left. It only
+    lowers the variance (charge pushes later charge to the neighbours: a₀₀ < 0 in Astier's
+    convention), so the term enters on a residual loss of at least ``VARIANCE_EVIDENCE_MIN`` and
+    ``BF_EVIDENCE_SIGMA`` standard errors deep. Returns ``(enters, sentence)``."""
+    bend = _ptc_bends(d, sig, rows)
+    if bend is None:
+        return False, "fewer than five unclipped rows: the photon-transfer curve's bend is not measured"
+    rest = bend[0] - 3.0 * a
+    se = float(np.hypot(bend[1], 3.0 * se_a))
+    said = (
+        f"the temporal PTC bends {100 * bend[0]:+.2g} % (± {100 * bend[1]:.2g} %) at the top of the unclipped rows, "
+        f"the response of the means {100 * 3 * a:+.2g} % of it: {100 * rest:+.2g} ± {100 * se:.2g} % left"
+    )
+    if rest < 0 and -rest >= VARIANCE_EVIDENCE_MIN and -rest >= BF_EVIDENCE_SIGMA * se:
+        return True, said
+    if rest > 0:
+        return False, said + " (brighter-fatter can only lower the variance)"
+    return False, said + f" (within {BF_EVIDENCE_SIGMA:g} standard errors of none)"
 
 
 def _ptc_bends(d: PTCData, sig, rows):

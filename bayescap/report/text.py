@@ -107,8 +107,13 @@ def format_text(result: FitResult | dict) -> str:
     lines.append(f"  {'parameter':<28} {'median':>11}   68 % interval   95 % interval")
     params = d["parameters"]
     for n in PARAMETER_ORDER + [k for k in params if k not in PARAMETER_ORDER]:
-        if n in params:
+        if n in params and not n.startswith("response_shape_"):
             lines.append(_row(n, params[n]))
+    if any(k.startswith("response_shape_") for k in params):
+        lines.append(
+            "  (the response's shape coefficients response_shape_1.. are in the JSON; its deviation and "
+            "linearity error are above and below)"
+        )
     sc = d["scene"]
     lines.append("")
     lines.append(f"  derived at t = {sc['exposure_time_s']:.4g} s ({sc['source']})")
