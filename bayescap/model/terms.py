@@ -10,7 +10,8 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from bayescap.exceptions import PTCInputError
-from bayescap.io.ptc_csv import PTCData, check_not_all_saturated
+from bayescap.io.ptc_csv import PTCData, check_table
+from bayescap.model.prediction import _QUANT_EXACT_S2
 from bayescap.model.response import (
     BF_EVIDENCE_SIGMA,
     EVIDENCE_MIN,
@@ -74,7 +75,7 @@ def saturation_flags(d: PTCData):
     A row is fully clipped when ``frac_saturated`` ≥ 0.999, or when its mean sits at the top of
     the series and its temporal variance has collapsed below a tenth of the peak variance (a
     well that clips before the read-out keeps only read noise there)."""
-    check_not_all_saturated(d)  # every row on the plateau: an input error, not a fit
+    check_table(d)  # repeated rows, every row (mostly) saturated: input errors, not fits (in-memory data too)
     v, m = d.temporal_var_dn2, d.mean_dn
     vmax = float(v.max())
     top = m >= m.max() - max(1.0, 1e-4 * m.max())
@@ -386,9 +387,13 @@ def _ptc_bends(d: PTCData, sig, rows):
     (:func:`~bayescap.model.response.variance_curvature_evidence`), significant when the bend is at
     least ``VARIANCE_EVIDENCE_MIN`` and ``VARIANCE_EVIDENCE_SIGMA`` standard errors from zero; None
     with too few rows."""
-    if d.has_dark_rows:
+    # rounding: below ½ DN² a pair variance is not σ² + 1/12 and bends with the signal on a linear
+    # sensor (an 8-bit camera at K 130 e⁻/DN "bent" −26 %); only rows above it measure the bend, and
+    # with a dark variance below it the intercept is fitted instead of subtracted
+    rows = rows & (d.temporal_var_dn2 >= _QUANT_EXACT_S2)
+    if d.has_dark_rows and np.median(d.dark_temporal_var_dn2) >= _QUANT_EXACT_S2:
         ev = variance_curvature_evidence(sig, d.temporal_var_dn2, d.dark_temporal_var_dn2, d.n_pixels, rows)
-    else:  # a mean/variance table: the intercept is fitted with the bend
+    else:  # a mean/variance table, or dark rows below the rounding's floor: the intercept is fitted with the bend
         ev = _mean_variance_curvature_evidence(sig, d.temporal_var_dn2, d.n_pixels, rows)
     if ev is None:
         return None
