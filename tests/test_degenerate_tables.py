@@ -74,3 +74,25 @@ def test_rows_partly_clipped_by_the_adc_are_not_taken_for_a_wells_plateau():
         full, _ = saturation_flags(d)
         assert not np.any(full & (fs < 0.999)), seed
         assert select_terms(d).clip == "adc", seed  # the ADC clips first (well 2e4 e⁻ ≫ 95.5 e⁻)
+
+
+def test_the_api_checks_a_table_built_in_memory_as_the_csv_reader_does():
+    """A PTCData made in memory (no CSV) goes through the same table checks before a fit: a table
+    repeated twice is refused by select_terms with the rows named, as read_ptc_csv refuses it."""
+    import pytest
+
+    import bayescap
+    from bayescap.exceptions import PTCInputError
+    from bayescap.io.ptc_csv import OPTIONAL_COLUMNS, REQUIRED_COLUMNS, PTCData
+    from bayescap.model import select_terms
+
+    d = bayescap.load("data/simulated/sim_phone_1p75um_10bit.csv")
+    select_terms(d)  # the table itself passes
+    cols = {
+        c: np.tile(getattr(d, c), 2)
+        for c in REQUIRED_COLUMNS + OPTIONAL_COLUMNS
+        if getattr(d, c, None) is not None
+    }
+    twice = PTCData(**cols, metadata=dict(d.metadata))
+    with pytest.raises(PTCInputError, match=rf"row {d.n_levels + 1} repeats row 1 exactly"):
+        select_terms(twice)
