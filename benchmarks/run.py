@@ -133,6 +133,12 @@ BENCHMARKS = {
         "30-90 min",
         None,
     ),
+    "statistical_tests": (
+        "the suite's statistical checks the default pytest run leaves out (pytest -m statistical): coverage of "
+        "the 95 % intervals on 30 prior-drawn sensors, the fast path's gain intervals on 48 small ROIs",
+        "3-5 min",
+        None,
+    ),
     "zoo": (
         "the sensor zoo (68 frame-simulated sensors nobody tuned to + the Basler set): truth in the 95 % "
         "interval per parameter and regime, standard and fast times, convergence, flags",

@@ -52,7 +52,7 @@ COVERAGE_PARAMS = [
 TRUTHS = "prior"  # classic SBC truths (bayescap.validation.sbc.run_one, as benchmarks/sbc.py --truths prior)
 N_LEVELS = 50
 
-pytestmark = pytest.mark.slow
+pytestmark = [pytest.mark.slow, pytest.mark.statistical]
 
 
 def fit_records(seed, n, quality, tmp_path_factory, tag):

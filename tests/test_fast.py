@@ -1036,6 +1036,7 @@ def test_joint_check_never_rejects_with_draws_to_spare():
 
 
 @pytest.mark.slow
+@pytest.mark.statistical
 def test_fast_intervals_of_the_gain_are_not_narrow_on_small_rois():
     """The photon counts tie QE to K along a ridge ~1e-4 wide, straight in (log K, log QE) and curved
     in (log K, QE). Before the fast path worked in log QE (inference.coordinates.SamplerCoordinates) its straight t

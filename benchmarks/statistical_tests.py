@@ -1,0 +1,69 @@
+"""The suite's long statistical checks (pytest marker ``statistical``): coverage of the 95 %
+intervals on 30 sensors drawn from the prior, and the fast path's gain intervals on 48 small ROIs
+against a reference. They take minutes, so the default ``pytest`` run leaves them out; this runs them
+and writes ``benchmarks/results/statistical_tests.md`` (each test's outcome and time).
+
+    python benchmarks/run.py statistical_tests
+"""
+
+from __future__ import annotations
+
+import re
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[1]
+OUT = ROOT / "benchmarks" / "results" / "statistical_tests.md"
+
+
+def main() -> int:
+    from _machine import describe_machine, emit
+
+    cmd = [
+        sys.executable,
+        "-m",
+        "pytest",
+        "-m",
+        "statistical",
+        "-n",
+        "2",
+        "-q",
+        "-rA",
+        "--durations=0",
+        "-p",
+        "no:cacheprovider",
+    ]
+    t0 = time.perf_counter()
+    run = subprocess.run(cmd, cwd=ROOT, capture_output=True, text=True)
+    wall = time.perf_counter() - t0
+    out = run.stdout
+    outcome = {
+        m.group(2): m.group(1) for m in re.finditer(r"^(PASSED|FAILED|ERROR|SKIPPED|XFAIL|XPASS) (\S+)", out, re.M)
+    }
+    durations = {}
+    for m in re.finditer(r"^\s*([0-9.]+)s (call|setup|teardown)\s+(\S+)", out, re.M):
+        durations[m.group(3)] = durations.get(m.group(3), 0.0) + float(m.group(1))
+    summary = next(
+        (line for line in reversed(out.splitlines()) if " in " in line and ("passed" in line or "failed" in line)), ""
+    )
+    lines = [
+        "# Statistical checks of the test suite",
+        "",
+        "`python benchmarks/run.py statistical_tests` (runs `python -m pytest -m statistical -n 2`; the default "
+        "`pytest` run leaves these out to stay under 5 minutes). Machine: " + describe_machine() + ".",
+        "",
+        f"Result: {summary.strip('= ')} (wall {wall:.0f} s).",
+        "",
+        "| test | outcome | time s (setup + call) |",
+        "| --- | --- | --- |",
+    ]
+    for name in sorted(set(outcome) | set(durations)):
+        lines.append(f"| `{name}` | {outcome.get(name, '?')} | {durations.get(name, 0.0):.1f} |")
+    emit(lines, OUT)
+    return 0 if run.returncode == 0 else 1
+
+
+if __name__ == "__main__":
+    sys.exit(main())
