@@ -119,3 +119,16 @@ def test_datasheet_and_report_show_progress(command, tmp_path, monkeypatch, caps
     assert _Recorder.made and not any(b.enabled for b in _Recorder.made) and asked == [False]
     cap = capsys.readouterr()
     assert cap.out == "" and cap.err == ""
+
+
+def test_help_pages_print_percent_signs_once(capsys):
+    """argparse %-formats help strings but not descriptions: a description written with '%%' printed
+    it doubled ('68 %% and 95 %%')."""
+    import pytest
+
+    from bayescap.cli import main
+
+    for cmd in ("fit", "datasheet", "ingest", "mtf", "compare", "report", "sweep", "colour", "summary"):
+        with pytest.raises(SystemExit):
+            main([cmd, "--help"])
+        assert "%%" not in capsys.readouterr().out, cmd

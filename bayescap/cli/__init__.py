@@ -55,7 +55,7 @@ def build_parser() -> argparse.ArgumentParser:
         help="fit a photon-transfer CSV and report capacity with intervals",
         description="Fit the Eq. 1 noise model to a photon-transfer CSV by MCMC and "
         "report every parameter, the derived figures and the information "
-        "capacity with 68 %% and 95 %% credible intervals.",
+        "capacity with 68 % and 95 % credible intervals.",
         epilog=EXIT_STATUS_HELP,
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )

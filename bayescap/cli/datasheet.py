@@ -127,7 +127,7 @@ def register(sub, epilog=None) -> None:
     p = sub.add_parser(
         "datasheet",
         help="one-page EMVA 1288 datasheet (HTML, or PDF) of a fit, with credible intervals",
-        description="Fit a photon-transfer CSV and write the EMVA 1288 Release 4.0 quantities with 95 %% "
+        description="Fit a photon-transfer CSV and write the EMVA 1288 Release 4.0 quantities with 95 % "
         "credible intervals, the standard's recipe beside them, the PTC and SNR plots (docs/emva1288.md).",
         epilog=epilog,
         formatter_class=argparse.RawDescriptionHelpFormatter,
