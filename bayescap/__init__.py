@@ -11,11 +11,8 @@ Importing bayescap changes nothing global. :func:`retain_freed_memory` is an opt
 long-running processes (the command line calls it).
 """
 
-from bayescap import simulate
 from bayescap._heap import retain_freed_memory
 from bayescap._version import __version__
-from bayescap.api import default_scene, fit, load
-from bayescap.batch import fit_many
 from bayescap.exceptions import (
     BayescapError,
     BayescapWarning,
@@ -23,8 +20,37 @@ from bayescap.exceptions import (
     InputError,
     PTCInputError,
 )
-from bayescap.io.ptc_csv import PTCData, read_ptc_csv, write_ptc_csv
-from bayescap.posterior import FitResult, Scene
+
+#: the public names that need scipy, emcee or matplotlib, imported on first use (PEP 562): ``import
+#: bayescap`` and ``bayescap --version`` stay light
+_LAZY = {
+    "fit": "bayescap.api",
+    "load": "bayescap.api",
+    "default_scene": "bayescap.api",
+    "fit_many": "bayescap.batch",
+    "FitResult": "bayescap.posterior",
+    "Scene": "bayescap.posterior",
+    "PTCData": "bayescap.io.ptc_csv",
+    "read_ptc_csv": "bayescap.io.ptc_csv",
+    "write_ptc_csv": "bayescap.io.ptc_csv",
+}
+
+
+def __getattr__(name):
+    import importlib
+
+    if name == "simulate":
+        return importlib.import_module("bayescap.simulate")
+    if name in _LAZY:
+        value = getattr(importlib.import_module(_LAZY[name]), name)
+        globals()[name] = value
+        return value
+    raise AttributeError(f"module 'bayescap' has no attribute {name!r}")
+
+
+def __dir__():
+    return sorted(set(globals()) | set(_LAZY) | {"simulate"})
+
 
 __all__ = [
     "fit",

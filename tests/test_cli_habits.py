@@ -93,7 +93,6 @@ def test_datasheet_and_report_show_progress(command, tmp_path, monkeypatch, caps
     enabled, and reaches its total; with ``--quiet`` no bar is enabled, the fit is asked for none,
     and nothing but errors is printed."""
     import bayescap.api
-    from bayescap.cli import report as cli_report
     from bayescap.studies import compare as compare_mod
 
     asked = []
@@ -104,7 +103,7 @@ def test_datasheet_and_report_show_progress(command, tmp_path, monkeypatch, caps
         return real_fit(*a, **kw)
 
     monkeypatch.setattr(bayescap.api, "fit", fit)
-    for mod in (_progress, cli_report, compare_mod):
+    for mod in (_progress, compare_mod):  # (the report command imports bar from _progress when it runs)
         monkeypatch.setattr(mod, "bar", _Recorder)
     out = tmp_path / "page.html"
     args = [command, str(SMALL), "-o", str(out), "--quality", "fast", "--seed", "1"]

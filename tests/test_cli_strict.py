@@ -29,14 +29,15 @@ def _fit_returns(monkeypatch, result, converged):
 
 
 def _stub_report(monkeypatch):
-    """The HTML report's figures take ~15 s: the exit status does not depend on them."""
-    import bayescap.cli.report as cli_report
+    """The HTML report's figures take ~15 s: the exit status does not depend on them (the report
+    command imports write_report from bayescap.report.html when it runs)."""
+    import bayescap.report.html as report_html
 
     def write_report(cmp, path, title="", **kw):
         open(path, "w").write(f"<html>{len(cmp.sensors)} sensors</html>")
         return path
 
-    monkeypatch.setattr(cli_report, "write_report", write_report)
+    monkeypatch.setattr(report_html, "write_report", write_report)
 
 
 def test_report_strict(basler_csv, basler_fast, tmp_path, capsys, monkeypatch):

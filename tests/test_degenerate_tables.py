@@ -89,9 +89,7 @@ def test_the_api_checks_a_table_built_in_memory_as_the_csv_reader_does():
     d = bayescap.load("data/simulated/sim_phone_1p75um_10bit.csv")
     select_terms(d)  # the table itself passes
     cols = {
-        c: np.tile(getattr(d, c), 2)
-        for c in REQUIRED_COLUMNS + OPTIONAL_COLUMNS
-        if getattr(d, c, None) is not None
+        c: np.tile(getattr(d, c), 2) for c in REQUIRED_COLUMNS + OPTIONAL_COLUMNS if getattr(d, c, None) is not None
     }
     twice = PTCData(**cols, metadata=dict(d.metadata))
     with pytest.raises(PTCInputError, match=rf"row {d.n_levels + 1} repeats row 1 exactly"):

@@ -12,20 +12,7 @@ import argparse
 import sys
 import warnings
 
-from bayescap._heap import retain_freed_memory
-from bayescap.cli.colour import register as _register_colour
-from bayescap.cli.common import (
-    EXIT_BROKEN_PIPE,
-    EXIT_INPUT,
-    _add_metadata_overrides,
-    add_fast_arguments,
-    add_progress_arguments,
-    add_strict_argument,
-    seed_arg,
-)
-from bayescap.cli.datasheet import register as _register_datasheet
-from bayescap.cli.fit import _cmd_fit
-from bayescap.cli.mtf import _cmd_mtf, add_lens_arguments
+from bayescap.cli.common import EXIT_BROKEN_PIPE, EXIT_INPUT
 from bayescap.exceptions import InputError
 
 __all__ = ["main", "build_parser"]
@@ -39,7 +26,19 @@ EXIT_STATUS_HELP = """exit status:
 
 
 def build_parser() -> argparse.ArgumentParser:
+    # each command's module is imported here, not at the top: `bayescap --version` imports none
     from bayescap._version import __version__
+    from bayescap.cli.colour import register as _register_colour
+    from bayescap.cli.common import (
+        _add_metadata_overrides,
+        add_fast_arguments,
+        add_progress_arguments,
+        add_strict_argument,
+        seed_arg,
+    )
+    from bayescap.cli.datasheet import register as _register_datasheet
+    from bayescap.cli.fit import _cmd_fit
+    from bayescap.cli.mtf import _cmd_mtf, add_lens_arguments
 
     parser = argparse.ArgumentParser(
         prog="bayescap",
@@ -229,6 +228,13 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def main(argv=None) -> int:
+    if list(sys.argv[1:] if argv is None else argv) == ["--version"]:  # without building the parser
+        from bayescap._version import __version__
+
+        print(f"bayescap {__version__}")
+        return 0
+    from bayescap._heap import retain_freed_memory
+
     retain_freed_memory()  # this process is ours: keep freed temporaries for the next log_prob call
     warnings.filterwarnings("ignore", category=FutureWarning)  # ArviZ's refactor notice
     warnings.filterwarnings("ignore", module="arviz")

@@ -186,8 +186,13 @@ def fast_settings_from_args(args):
 
 def add_comparison_arguments(p: argparse.ArgumentParser) -> None:
     """The options ``compare`` and ``report`` share: the imaging area, H0, mid-grey, seed, preset."""
-    from bayescap.studies.compare import DEFAULT_AREA, DEFAULT_H0_LUX_S, DEFAULT_PRACTICAL_DIFFERENCE, DEFAULT_QUALITY
-    from bayescap.studies.exposure import DEFAULT_MID_GREY
+    from bayescap.studies.compare_defaults import (
+        DEFAULT_AREA,
+        DEFAULT_H0_LUX_S,
+        DEFAULT_MID_GREY,
+        DEFAULT_PRACTICAL_DIFFERENCE,
+        DEFAULT_QUALITY,
+    )
 
     p.add_argument(
         "--area",

@@ -9,10 +9,6 @@ import warnings
 from pathlib import Path
 
 from bayescap.exceptions import CompareInputError
-from bayescap.studies.compare import (
-    compare,
-    format_compare_text,
-)
 
 
 def add_compare_arguments(p: argparse.ArgumentParser) -> None:
@@ -29,6 +25,10 @@ def run_compare(args) -> int:
     from bayescap.cli.common import fast_settings_from_args, progress_enabled
     from bayescap.exceptions import ConvergenceWarning, InputError, PTCInputError
     from bayescap.io.atomic import write_files_atomically
+    from bayescap.studies.compare import (
+        compare,
+        format_compare_text,
+    )
 
     try:
         fs = fast_settings_from_args(args)

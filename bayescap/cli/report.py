@@ -6,12 +6,7 @@ import argparse
 import sys
 import warnings
 
-from bayescap._progress import bar
 from bayescap.exceptions import CompareInputError
-from bayescap.report.html import write_report
-from bayescap.studies.compare import (
-    compare,
-)
 
 
 def add_report_arguments(p: argparse.ArgumentParser) -> None:
@@ -28,9 +23,14 @@ def add_report_arguments(p: argparse.ArgumentParser) -> None:
 
 def run_report(args) -> int:
     """``bayescap report``: returns the exit status (2 with one line on bad input)."""
+    from bayescap._progress import bar
     from bayescap.cli.colour import colour_result_from_args
     from bayescap.cli.common import fast_settings_from_args, progress_enabled, say, strict_status
     from bayescap.exceptions import ConvergenceWarning, InputError, PTCInputError
+    from bayescap.report.html import write_report
+    from bayescap.studies.compare import (
+        compare,
+    )
 
     try:
         fs = fast_settings_from_args(args)

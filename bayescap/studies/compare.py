@@ -54,6 +54,12 @@ from bayescap.physics.optics import OPTICAL_FORMATS
 from bayescap.posterior import FitResult, rerun_advice, summarize
 from bayescap.posterior.summary import json_safe
 from bayescap.studies.area import AREA_TOLERANCE, AreaCrop, area_crop, parse_area
+from bayescap.studies.compare_defaults import (
+    DEFAULT_AREA,
+    DEFAULT_H0_LUX_S,
+    DEFAULT_PRACTICAL_DIFFERENCE,
+    DEFAULT_QUALITY,
+)
 from bayescap.studies.exposure import (
     DEFAULT_MID_GREY,
     ExposureCalibration,
@@ -75,23 +81,8 @@ __all__ = [
 ]
 
 
-DEFAULT_H0_LUX_S = 0.4
-
-
-DEFAULT_AREA = "1/4in"
-
-
-#: the practical difference δ of capacities: A is practically larger than B when C_A > (1+δ)·C_B
-DEFAULT_PRACTICAL_DIFFERENCE = 0.01
-
-
 #: posterior draws kept per sensor for the comparison (thinned evenly)
 DEFAULT_N_DRAWS = 4000
-
-
-#: compare fits several sensors: the fast preset by default (Laplace–IS; MCMC with ESS >= 200 per
-#: quantity when its k̂ check rejects the draws)
-DEFAULT_QUALITY = "fast"
 
 
 def sensor_seed(seed: int, path) -> int:

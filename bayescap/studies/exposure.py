@@ -13,9 +13,7 @@ from bayescap.physics.capacity import tonal_range
 from bayescap.physics.noise import NoiseCoefficients, snr_db
 from bayescap.physics.photometry import photons_per_lux_s_um2
 from bayescap.posterior import FitResult, summarize
-
-#: mid-grey: the fraction of the top of the signal range at which the scene's mean is placed
-DEFAULT_MID_GREY = 0.18
+from bayescap.studies.compare_defaults import DEFAULT_MID_GREY
 
 
 @dataclass(frozen=True)
