@@ -24,6 +24,8 @@ class ChecksMixin:
             for r, pr in zip(rows, prob):
                 if pr > 0.5:
                     self.outliers.append({"row": int(r), "block": block, "probability": float(pr)})
+        down_weighted = {o["row"] for o in self.outliers}
+        self._separate_systematic_rows()
         if self.outliers:
             desc = ", ".join(f"row {o['row']} ({o['block']}, P = {o['probability']:.2f})" for o in self.outliers)
             self.notes.append(f"outlier rows (down-weighted by the mixture, not removed): {desc}")
@@ -35,7 +37,7 @@ class ChecksMixin:
         z = (obs - med) / (med / np.sqrt(kk))
         order = np.argsort(m.s_obs)
         top = order[-4:]
-        out_rows = {o["row"] for o in self.outliers}
+        out_rows = down_weighted
         rows = m.observation_rows("bright_var")
         low = [i for i in top if z[i] < -4 and int(rows[i]) not in out_rows]
         if len(low) >= 2 and m.terms.clip in ("none", "adc"):
@@ -46,6 +48,60 @@ class ChecksMixin:
                 + ": the model has no term for that (non-linearity or a soft clip before "
                 "full well?); treat full well and the top of the range with caution"
             )
+
+    #: a row with at least this fraction of its pixels clipped sits in the clip (see below)
+    NEAR_CLIP_FRACTION = 0.9
+    #: this many rows in a row along the signal, all down-weighted: a shape, not outliers
+    RUN_LENGTH = 3
+
+    def _separate_systematic_rows(self):
+        """Rows the mixture down-weights that are not outliers of the measurement, moved from
+        ``outliers`` to flags with a note: rows mostly in the clip (``frac_saturated`` ≥
+        :data:`NEAR_CLIP_FRACTION`), where the model of the few unclipped pixels (a normal tail
+        under the response's local slope) is an approximation; and runs of at least
+        :data:`RUN_LENGTH` neighbouring rows along the signal, a shape the model does not follow
+        (a knee, a kink). Neither is a corrupted row, and the mixture's down-weighting of them means
+        the intervals assume the model's shape there."""
+        d = self.model.data
+        if not self.outliers:
+            return
+        pos = {
+            int(r): i for i, r in enumerate(d.row_numbers if d.row_numbers is not None else range(1, d.n_levels + 1))
+        }
+        fs = d.frac_saturated
+        near = sorted(
+            {o["row"] for o in self.outliers if fs is not None and fs[pos[o["row"]]] >= self.NEAR_CLIP_FRACTION}
+        )
+        rest = sorted({o["row"] for o in self.outliers} - set(near))
+        order = np.argsort(d.mean_dn - d.dark_mean_dn, kind="stable")
+        rank = {int(r): k for k, r in enumerate(np.asarray(list(pos))[order])}
+        runs, cur = [], []
+        for r in sorted(rest, key=lambda r: rank[r]):
+            if cur and rank[r] == rank[cur[-1]] + 1:
+                cur.append(r)
+            else:
+                if len(cur) >= self.RUN_LENGTH:
+                    runs.append(cur)
+                cur = [r]
+        if len(cur) >= self.RUN_LENGTH:
+            runs.append(cur)
+        in_runs = {r for run in runs for r in run}
+        if near:
+            self.flags["rows_in_the_clip_misfit"] = near
+            self.notes.append(
+                "rows " + ", ".join(map(str, near)) + " have most of their pixels clipped and fit the model poorly: "
+                "there the model of the few unclipped pixels is an approximation; they are down-weighted, "
+                "not outliers of the measurement"
+            )
+        if runs:
+            self.flags["structured_residuals"] = [r for run in runs for r in run]
+            spans = "; ".join(f"rows {run[0]}–{run[-1]}" if len(run) > 1 else f"row {run[0]}" for run in runs)
+            self.notes.append(
+                f"neighbouring rows depart from the model together ({spans}, in order of signal): a shape "
+                "the response term does not follow (a knee or a kink), not outliers; they are down-weighted, "
+                "so the intervals assume the model's shape there"
+            )
+        self.outliers = [o for o in self.outliers if o["row"] not in near and o["row"] not in in_runs]
 
     #: dark rows whose mean sits fewer than this many sd (temporal and, where measured, spatial)
     #: above 0 DN: the ADC's zero clips the low tail, shrinking the dark variances (≈ 1.1 % at 2.5 sd,

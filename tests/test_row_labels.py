@@ -1,0 +1,47 @@
+"""Which down-weighted rows are called outliers: a corrupted row is; rows mostly in the clip and
+runs of neighbouring rows (a shape the model does not follow) are flagged for what they are."""
+
+from types import SimpleNamespace
+
+import numpy as np
+
+import bayescap
+from bayescap.posterior.checks import ChecksMixin
+
+
+def _result(outlier_rows, frac_saturated=None):
+    d = bayescap.load("data/simulated/sim_phone_1p75um_10bit.csv")
+    if frac_saturated is not None:
+        d = d.select(np.ones(d.n_levels, bool))
+        object.__setattr__(d, "frac_saturated", np.asarray(frac_saturated, float))
+    r = SimpleNamespace(model=SimpleNamespace(data=d), notes=[], flags={})
+    r.outliers = [{"row": int(x), "block": "bright_var", "probability": 0.9} for x in outlier_rows]
+    r.NEAR_CLIP_FRACTION, r.RUN_LENGTH = ChecksMixin.NEAR_CLIP_FRACTION, ChecksMixin.RUN_LENGTH
+    ChecksMixin._separate_systematic_rows(r)
+    return r, d
+
+
+def test_an_isolated_row_stays_an_outlier_and_a_run_becomes_structure():
+    d = bayescap.load("data/simulated/sim_phone_1p75um_10bit.csv")
+    order = [int(x) for x in np.asarray(d.row_numbers)[np.argsort(d.mean_dn - d.dark_mean_dn, kind="stable")]]
+    run = order[20:24]  # four neighbours along the signal
+    lone = order[5]
+    r, _ = _result(run + [lone])
+    assert [o["row"] for o in r.outliers] == [lone]
+    assert sorted(r.flags["structured_residuals"]) == sorted(run)
+    assert any("depart from the model together" in n for n in r.notes)
+    # two neighbours are not yet a shape: both stay outliers
+    r2, _ = _result(order[20:22])
+    assert sorted(o["row"] for o in r2.outliers) == sorted(order[20:22]) and "structured_residuals" not in r2.flags
+
+
+def test_rows_mostly_clipped_are_not_called_outliers():
+    d = bayescap.load("data/simulated/sim_phone_1p75um_10bit.csv")
+    fs = np.zeros(d.n_levels)
+    top = int(np.argmax(d.mean_dn))
+    fs[top] = 0.98
+    label = int(np.asarray(d.row_numbers)[top])
+    other = int(np.asarray(d.row_numbers)[0])
+    r, _ = _result([label, other], frac_saturated=fs)
+    assert r.flags["rows_in_the_clip_misfit"] == [label]
+    assert [o["row"] for o in r.outliers] == [other]
