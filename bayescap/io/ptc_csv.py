@@ -527,13 +527,13 @@ def _check_consistency(d: PTCData, path):
 def check_table(d: PTCData, path=None) -> None:
     """The table-wide checks :func:`read_ptc_csv` makes, for a PTCData built in memory too (the API
     path: :func:`bayescap.model.saturation_flags` calls this before every fit): no row repeated
-    exactly, some row mostly unclipped, not every row saturated."""
+    exactly, not every row saturated, some row mostly unclipped."""
     path = d.source if path is None else path
     cols = {c: getattr(d, c) for c in REQUIRED_COLUMNS + OPTIONAL_COLUMNS if getattr(d, c, None) is not None}
     rows = d.row_numbers if d.row_numbers is not None else np.arange(1, d.n_levels + 1)
     check_repeated_rows(cols, [int(r) for r in rows], path)
+    check_not_all_saturated(d, path)  # the more specific message first, as read_ptc_csv gives it
     check_some_row_mostly_unclipped(d, path)
-    check_not_all_saturated(d, path)
 
 
 def write_ptc_csv(data_or_rows, path, *, metadata: dict | None = None, columns=None):
