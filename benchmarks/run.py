@@ -134,8 +134,8 @@ BENCHMARKS = {
         None,
     ),
     "statistical_tests": (
-        "the suite's statistical checks the default pytest run leaves out (pytest -m statistical): coverage of "
-        "the 95 % intervals on 30 prior-drawn sensors, the fast path's gain intervals on 48 small ROIs",
+        "the suite's statistical checks the default pytest run leaves out (pytest -m statistical): coverage and "
+        "SBC ranks on 30 prior-drawn sensors, the fast path's gain intervals on 48 small ROIs, MTF bootstrap coverage",
         "3-5 min",
         None,
     ),

@@ -152,6 +152,7 @@ def test_iso_bias_is_the_bin_width_response():
 
 
 @pytest.mark.slow
+@pytest.mark.statistical
 def test_bootstrap_interval_coverage_on_synthetic_edges():
     """95 % intervals of MTF50 and of the Eq. 9 MTF loss cover the truth at the nominal rate.
 

@@ -33,7 +33,7 @@ N_BINS = 4
 ALPHA = 0.01
 QUALITY = "standard"
 
-pytestmark = pytest.mark.slow
+pytestmark = [pytest.mark.slow, pytest.mark.statistical]
 
 
 @pytest.fixture(scope="session")
