@@ -324,6 +324,35 @@ def test_channel_csvs_of_different_sizes_cli(frame_set, tmp_path, capsys):
     assert not out.exists()
 
 
+def test_colour_over_a_reflectance_set(frame_set, colour_json, capsys):
+    """--domain reflectances: the same fit (same seed) over the chart's cone, a part of the cube:
+    fewer colours, and the domain and the clipping stated."""
+    argv = ["colour", str(frame_set), "--roi", "1.0", "--json", "--seed", "3", "--domain", "reflectances"]
+    assert main(argv + ["--sensitivities", "Nikon 5100 (NPL)", "--illuminant", "D50"]) == 0
+    c = json.loads(capsys.readouterr().out)["colour"]
+    cube = json.loads((colour_json / "colour.json").read_text())["colour"]
+    assert "ColorChecker N Ohta under D50" in c["choices"]["domain"] and "Nikon 5100" in c["choices"]["domain"]
+    assert cube["choices"]["domain"].startswith("the full raw cube")
+    assert c["choices"]["clip_output"] is True and cube["choices"]["clip_output"] is True
+    assert c["cs_bits"]["ci95"][1] < cube["cs_bits"]["median"]
+
+
+@pytest.mark.parametrize(
+    "extra, must",
+    [
+        ([], ("--domain reflectances needs --sensitivities",)),
+        (["--sensitivities", "Nikon 5100 (NPL)", "--illuminant", "D66"], ("unknown illuminant 'D66'",)),
+        (["--sensitivities", "nosuch.csv"], ("nosuch.csv", "not a file")),
+    ],
+)
+def test_reflectance_domain_refusals(frame_set, tmp_path, capsys, extra, must):
+    out = tmp_path / "out"
+    _one_line_error(
+        capsys, ["colour", str(frame_set), "--domain", "reflectances", "--out", str(out), *extra], must=must
+    )
+    assert not out.exists()
+
+
 # ---------------------------------------------------------------- report and datasheet sections
 def test_colour_section_html_from_the_colour_json(colour_json):
     from bayescap.report.colour_section import colour_section_html, load_colour_result

@@ -297,6 +297,10 @@ def colour_sensitivity(
         if floor
         else "none",
         "clip_output": bool(clip_output),
+        "clipping": "after M: colours outside [0, white] in the output are not counted (as in an output image)"
+        if clip_output
+        else "none: every colour of the domain counts, also beyond the output's [0, white] (a noise-amplifying M "
+        "then raises CS)",
         "green": "G = mean of Gr and Gb at a common signal (variance (σ_Gr² + σ_Gb²)/4)",
         "ccm_uncertain": bool(np.ndim(ccm) == 3),
         "wb_uncertain": bool(np.ndim(wb_gains) == 2),
