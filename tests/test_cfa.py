@@ -376,6 +376,35 @@ def test_datasheet_gains_a_colour_section(frame_set, colour_json, tmp_path, caps
     assert page.count('<section id="colour">') == 1 and "Colour (beyond EMVA 1288)" in page
 
 
+def test_pdf_datasheet_gains_a_colour_page(frame_set, colour_json, tmp_path):
+    """The PDF datasheet: one page, and a second with the colour section when --colour is given
+    (its table rows are those of the HTML section's quantities)."""
+    import re
+
+    from bayescap.io import ingest
+    from bayescap.report.colour_pdf import colour_rows
+
+    (csv,) = ingest(frame_set, out=tmp_path / "ptc.csv", channel="Gr", roi=1.0)
+    argv = ["datasheet", str(csv), "--quality", "fast", "--seed", "1"]
+    assert main(argv + ["-o", str(tmp_path / "plain.pdf")]) == 0
+    assert main(argv + ["-o", str(tmp_path / "colour.pdf"), "--colour", str(colour_json / "colour.json")]) == 0
+
+    def pages(p):
+        return len(re.findall(rb"/Type\s*/Page(?!s)", p.read_bytes()))
+
+    assert pages(tmp_path / "plain.pdf") == 1 and pages(tmp_path / "colour.pdf") == 2
+    doc = json.loads((colour_json / "colour.json").read_text())
+    rows = colour_rows(doc["colour"])
+    cs = doc["colour"]["cs_bits"]
+    assert rows[0] == [
+        "colour sensitivity CS",
+        f"{cs['median']:.4g} bits",
+        f"{cs['ci95'][0]:.4g} – {cs['ci95'][1]:.4g}",
+    ]
+    labels = [r[0] for r in rows]
+    assert "colour capacity, superpixel" in labels and "dynamic range ev (B)" in labels
+
+
 def test_report_refuses_a_colour_file_that_is_not_one(frame_set, tmp_path, capsys):
     bad = tmp_path / "bad.json"
     bad.write_text('{"colour": {}}')

@@ -125,6 +125,8 @@ def colour_section_html(doc: dict, *, heading: str = "Colour") -> str:
         parts.append("<ul>" + "".join(f"<li>{_e(n)}</li>" for n in notes) + "</ul>")
     ch = c.get("choices", {})
     defs = [("CS", ch.get("definition", "")), ("domain", ch.get("domain", "")), ("floor", ch.get("floor", ""))]
+    if ch.get("clipping"):
+        defs.append(("clipping", ch["clipping"]))
     defs += list(c.get("definitions", {}).items())
     parts.append("<dl class=small>" + "".join(f"<dt>{_e(k)}</dt><dd>{_e(v)}</dd>" for k, v in defs) + "</dl>")
     parts.append("</section>")
