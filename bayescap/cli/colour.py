@@ -232,7 +232,7 @@ def colour_text(doc: dict) -> str:
     f = c["cfa_fit"]
     lines = [f"bayescap colour: {doc['input']}  (medians, 95 % credible intervals)", ""]
     lines.append(f"Colour sensitivity CS      {iv(c['cs_bits'])}")
-    lines.append(f"  without the floor        {iv(c['cs_no_floor_bits'])}")
+    lines.append(f"  no floor, raw cube       {iv(c['cs_no_floor_bits'])}")
     per_channel: dict = {}
     for k, v in c["scores"].items():
         base, _, ch = k.rpartition("_")

@@ -511,6 +511,10 @@ def colour_summary(
         sc[f"snr_18_db_{c}"] = summarize(snr[:, j], "dB")
         sc[f"tonal_range_bits_{c}"] = summarize(channel_bits[:, j], "bits")
     out["definitions"]["tonal_range_bits"] = "b' = log2 TR of each CFA channel (Eq. 7, the floor on its own 256 levels)"
+    out["definitions"]["cs_no_floor_bits"] = (
+        "CS without the floor over the full raw cube, unclipped: Σ log2 TR of R, G, B without the floor "
+        "(closed form; the CCM cancels), whatever the domain and clipping of cs_bits"
+    )
     notes.append(
         "low-light ISO needs a gain series (one frame set per ISO; bayescap.colour.scores.low_light_iso): "
         "not computed from one frame set"

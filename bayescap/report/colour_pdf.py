@@ -32,7 +32,7 @@ def colour_rows(c: dict) -> list[list[str]]:
     """The table of the colour page: [quantity, median, 95 % interval] rows of a ``colour`` block."""
     rows = [["colour sensitivity CS", *_value(c["cs_bits"])]]
     if c.get("cs_no_floor_bits"):
-        rows.append(["CS without the floor", *_value(c["cs_no_floor_bits"])])
+        rows.append(["CS without the floor, raw cube unclipped", *_value(c["cs_no_floor_bits"])])
     per_channel: list = []
     for k, v in c.get("scores", {}).items():
         base, _, ch = k.rpartition("_")

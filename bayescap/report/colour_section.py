@@ -68,7 +68,10 @@ def colour_section_html(doc: dict, *, heading: str = "Colour") -> str:
     """An HTML ``<section id="colour">`` of a ``bayescap colour`` result (module docstring)."""
     c = doc["colour"]
     f = c["cfa_fit"]
-    rows = [["colour sensitivity CS", _iv(c["cs_bits"])], ["CS without the floor", _iv(c.get("cs_no_floor_bits"))]]
+    rows = [
+        ["colour sensitivity CS", _iv(c["cs_bits"])],
+        ["CS without the floor, raw cube unclipped", _iv(c.get("cs_no_floor_bits"))],
+    ]
     per_channel: dict = {}
     for k, v in c.get("scores", {}).items():
         base, _, ch = k.rpartition("_")
