@@ -324,6 +324,35 @@ def test_channel_csvs_of_different_sizes_cli(frame_set, tmp_path, capsys):
     assert not out.exists()
 
 
+def test_colour_over_a_reflectance_set(frame_set, colour_json, capsys):
+    """--domain reflectances: the same fit (same seed) over the chart's cone, a part of the cube:
+    fewer colours, and the domain and the clipping stated."""
+    argv = ["colour", str(frame_set), "--roi", "1.0", "--json", "--seed", "3", "--domain", "reflectances"]
+    assert main(argv + ["--sensitivities", "Nikon 5100 (NPL)", "--illuminant", "D50"]) == 0
+    c = json.loads(capsys.readouterr().out)["colour"]
+    cube = json.loads((colour_json / "colour.json").read_text())["colour"]
+    assert "ColorChecker N Ohta under D50" in c["choices"]["domain"] and "Nikon 5100" in c["choices"]["domain"]
+    assert cube["choices"]["domain"].startswith("the full raw cube")
+    assert c["choices"]["clip_output"] is True and cube["choices"]["clip_output"] is True
+    assert c["cs_bits"]["ci95"][1] < cube["cs_bits"]["median"]
+
+
+@pytest.mark.parametrize(
+    "extra, must",
+    [
+        ([], ("--domain reflectances needs --sensitivities",)),
+        (["--sensitivities", "Nikon 5100 (NPL)", "--illuminant", "D66"], ("unknown illuminant 'D66'",)),
+        (["--sensitivities", "nosuch.csv"], ("nosuch.csv", "not a file")),
+    ],
+)
+def test_reflectance_domain_refusals(frame_set, tmp_path, capsys, extra, must):
+    out = tmp_path / "out"
+    _one_line_error(
+        capsys, ["colour", str(frame_set), "--domain", "reflectances", "--out", str(out), *extra], must=must
+    )
+    assert not out.exists()
+
+
 # ---------------------------------------------------------------- report and datasheet sections
 def test_colour_section_html_from_the_colour_json(colour_json):
     from bayescap.report.colour_section import colour_section_html, load_colour_result
@@ -345,6 +374,35 @@ def test_datasheet_gains_a_colour_section(frame_set, colour_json, tmp_path, caps
     assert main(argv + ["--seed", "1"]) == 0
     page = out.read_text()
     assert page.count('<section id="colour">') == 1 and "Colour (beyond EMVA 1288)" in page
+
+
+def test_pdf_datasheet_gains_a_colour_page(frame_set, colour_json, tmp_path):
+    """The PDF datasheet: one page, and a second with the colour section when --colour is given
+    (its table rows are those of the HTML section's quantities)."""
+    import re
+
+    from bayescap.io import ingest
+    from bayescap.report.colour_pdf import colour_rows
+
+    (csv,) = ingest(frame_set, out=tmp_path / "ptc.csv", channel="Gr", roi=1.0)
+    argv = ["datasheet", str(csv), "--quality", "fast", "--seed", "1"]
+    assert main(argv + ["-o", str(tmp_path / "plain.pdf")]) == 0
+    assert main(argv + ["-o", str(tmp_path / "colour.pdf"), "--colour", str(colour_json / "colour.json")]) == 0
+
+    def pages(p):
+        return len(re.findall(rb"/Type\s*/Page(?!s)", p.read_bytes()))
+
+    assert pages(tmp_path / "plain.pdf") == 1 and pages(tmp_path / "colour.pdf") == 2
+    doc = json.loads((colour_json / "colour.json").read_text())
+    rows = colour_rows(doc["colour"])
+    cs = doc["colour"]["cs_bits"]
+    assert rows[0] == [
+        "colour sensitivity CS",
+        f"{cs['median']:.4g} bits",
+        f"{cs['ci95'][0]:.4g} – {cs['ci95'][1]:.4g}",
+    ]
+    labels = [r[0] for r in rows]
+    assert "colour capacity, superpixel" in labels and "dynamic range ev (B)" in labels
 
 
 def test_report_refuses_a_colour_file_that_is_not_one(frame_set, tmp_path, capsys):

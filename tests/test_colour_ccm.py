@@ -173,3 +173,44 @@ def test_low_light_iso_from_a_simulated_gain_series():
             assert out["iso"][i] <= out[name]["median"] <= out["iso"][i + 1]
         else:
             assert "limit" in out[name]
+
+
+def test_reflectance_domain_is_the_spectral_integral_balanced_by_the_white_balance():
+    """Raw response = Σ_λ R(λ) E(λ) S_c(λ) on the sensitivities' grid, each channel scaled so that
+    a perfect white gives raw ∝ 1/wb (the white balance's definition)."""
+    import colour
+
+    sens = colour.MSDS_CAMERA_SENSITIVITIES["Nikon 5100 (NPL)"]
+    shape = sens.shape
+    wl = np.asarray(shape.wavelengths)
+    white = colour.SpectralDistribution(dict(zip(wl, np.ones(wl.size))), name="white")
+    ramp = colour.SpectralDistribution(dict(zip(wl, np.linspace(0.1, 0.9, wl.size))), name="ramp")
+    wb = np.array([2.1, 1.0, 1.4])
+    resp = reflectance_domain(sens, {"white": white, "ramp": ramp}, "A", wb_gains=wb)
+    e = np.asarray(colour.SDS_ILLUMINANTS["A"].copy().align(shape).values)
+    s = np.asarray(sens.values)
+    raw = np.stack([e @ s, (np.linspace(0.1, 0.9, wl.size) * e) @ s]) * ((1 / wb) / (e @ s))
+    np.testing.assert_allclose(resp, raw / raw.max(), rtol=1e-12)
+    np.testing.assert_allclose(resp[0] / resp[0, 1], 1 / wb, rtol=1e-12)
+
+
+def test_sensitivities_from_a_csv_and_refusals(tmp_path):
+    from bayescap.colour.spectral import load_sensitivities
+
+    p = tmp_path / "sens.csv"
+    p.write_text(
+        "wavelength_nm,R,G,B\n"
+        + "".join(f"{w},{0.1 + (w > 580)},{0.5},{0.1 + (w < 490)}\n" for w in range(400, 701, 10))
+    )
+    sens = load_sensitivities(p)
+    assert sens.shape.start == 400 and sens.shape.end == 700 and np.asarray(sens.values).shape == (31, 3)
+    resp = reflectance_domain(p)
+    assert resp.shape == (24, 3) and resp.max() == 1.0
+    bad = tmp_path / "bad.csv"
+    bad.write_text("wavelength_nm,R,G,B\n400,1,1,1\n410,1,x,1\n")
+    with pytest.raises(ValueError, match="bad.csv: row 3"):
+        load_sensitivities(bad)
+    with pytest.raises(ValueError, match="not a file and not one of"):
+        load_sensitivities("Canon 5D")
+    with pytest.raises(ValueError, match="unknown illuminant 'D66'"):
+        reflectance_domain("Nikon 5100 (NPL)", illuminant="D66")

@@ -111,14 +111,18 @@ def _mc_count(v, clip, m, wb, out_bits, n_mc, seed, clip_output=False, cone=None
     return vol * f.mean(), vol * f.std() / np.sqrt(n_mc)
 
 
-@pytest.mark.parametrize("case", ["cube", "clip_output", "cone", "no_floor"])
+@pytest.mark.parametrize("case", ["cube", "clip_output", "cone", "no_floor", "chart"])
 def test_brute_force_count_agrees(case):
     """A small noisy sensor on a 4-bit grid (the floor binds over much of the volume); without the
     floor the count checks the Jacobian's cancellation in the output space, independently."""
     v = np.array([[[4.0, 0.5, 1e-4], [4.0, 0.5, 4e-5], [4.5, 0.5, 4e-5], [5.0, 0.5, 2e-4]]])
     clip = np.array([[300.0, 320.0, 310.0, 290.0]])
     cone = np.array([[1.0, 0.3, 0.1], [0.3, 1.0, 0.3], [0.1, 0.3, 1.0], [0.7, 0.7, 0.2]])
-    kw = {"clip_output": case == "clip_output", "domain": cone if case == "cone" else "cube"}
+    if case == "chart":  # the ColorChecker under D65 through the Nikon's sensitivities, balanced by WB
+        from bayescap.colour.spectral import reflectance_domain
+
+        cone = reflectance_domain("Nikon 5100 (NPL)", "ColorChecker N Ohta", "D65", wb_gains=WB)
+    kw = {"clip_output": case in ("clip_output", "chart"), "domain": cone if case in ("cone", "chart") else "cube"}
     floor = case != "no_floor"
     cs = colour_sensitivity(v, clip, M_SRGB_LIKE, WB, out_bits=4, n_grid=96, floor=floor, **kw)
     count, se = _mc_count(
@@ -130,7 +134,7 @@ def test_brute_force_count_agrees(case):
         400_000,
         seed=7,
         clip_output=kw["clip_output"],
-        cone=kw["domain"] if case == "cone" else None,
+        cone=kw["domain"] if case in ("cone", "chart") else None,
         floor=floor,
     )
     z = (2.0 ** cs.bits[0] - count) / se
@@ -173,3 +177,14 @@ def test_bad_input_is_refused(kw, msg):
     args.update(kw)
     with pytest.raises(ValueError, match=msg):
         colour_sensitivity_bits(**args)
+
+
+@pytest.mark.parametrize("clip_output", [False, True])
+def test_a_set_spanning_every_raw_direction_is_the_cube(clip_output):
+    """Responses that include each pure raw channel span the whole octant: their cone cuts nothing
+    from the cube, so CS over them is CS over the cube (a closed form of the domain)."""
+    v, clip = _draws(8)
+    octant = np.array([[1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0], [0.4, 0.5, 0.3]])
+    cube = colour_sensitivity_bits(v, clip, M_SRGB_LIKE, WB, clip_output=clip_output, n_grid=40)
+    cone = colour_sensitivity_bits(v, clip, M_SRGB_LIKE, WB, clip_output=clip_output, n_grid=40, domain=octant)
+    np.testing.assert_allclose(cone, cube, rtol=0, atol=1e-9)

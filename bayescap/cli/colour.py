@@ -1,6 +1,8 @@
 """``bayescap colour``: colour sensitivity, colour capacity and camera scores of a Bayer sensor.
 
     bayescap colour MANIFEST|DESCRIPTOR|DIR [--ccm SPEC] [--wb as-shot|daylight|flat|R,G,B] [--json] [--out DIR]
+        [--domain cube|reflectances --sensitivities NAME|CSV [--reflectances NAME] [--illuminant NAME]]
+        [--no-clip-output]
     bayescap colour ptc_R.csv ptc_Gr.csv ptc_Gb.csv ptc_B.csv --ccm SPEC
 
 The four CFA channels are measured from the frames in one pass (or read from four channel CSVs),
@@ -56,7 +58,42 @@ def add_colour_arguments(p: argparse.ArgumentParser) -> None:
         help="white-balance gains: the RAW file's as-shot or daylight balance, 'flat' (the flats' own "
         "channel ratios: they become grey) or three numbers (default: as-shot, else flat)",
     )
-    p.add_argument("--domain", choices=("cube",), default="cube", help="colours counted: the full raw cube (default)")
+    p.add_argument(
+        "--domain",
+        choices=("cube", "reflectances"),
+        default="cube",
+        help="colours counted: the full raw cube (default), or 'reflectances': every exposure of every mixture "
+        "of a reflectance set's colours under an illuminant, through the camera's spectral sensitivities "
+        "(--reflectances, --illuminant, --sensitivities; colour-science data)",
+    )
+    p.add_argument(
+        "--reflectances",
+        default="ColorChecker N Ohta",
+        metavar="NAME",
+        help="--domain reflectances: colour-science's reflectance set (SDS_COLOURCHECKERS; default "
+        "'ColorChecker N Ohta')",
+    )
+    p.add_argument(
+        "--illuminant",
+        default="D65",
+        metavar="NAME",
+        help="--domain reflectances: colour-science's illuminant (SDS_ILLUMINANTS; default D65)",
+    )
+    p.add_argument(
+        "--sensitivities",
+        default=None,
+        metavar="NAME|CSV",
+        help="--domain reflectances (required there): the camera's spectral sensitivities, a colour-science "
+        "name ('Nikon 5100 (NPL)', 'Sigma SDMerill (NPL)') or a CSV of wavelength_nm,R,G,B rows; their "
+        "channel balance is set by the white balance (a perfect white gives raw 1/wb)",
+    )
+    p.add_argument(
+        "--no-clip-output",
+        dest="clip_output",
+        action="store_false",
+        help="count every colour of the domain, also those beyond the output's [0, white] after the CCM "
+        "(default: clipped, as in an output image; docs/colour.md)",
+    )
     p.add_argument("--no-floor", action="store_true", help="CS without Eq. 7's max(σ, 1) floor")
     p.add_argument(
         "--out-bits", type=int, default=8, help="bits of the output grid the floor is counted on (default 8)"
@@ -157,6 +194,30 @@ def _colour_inputs(args):
     return cfa, ccm, wb, wb_source
 
 
+def _domain(args, wb):
+    """(domain, its name) of ``--domain``; InputError on a bad reflectance set, illuminant or
+    sensitivities."""
+    if args.domain == "cube":
+        return "cube", None
+    from bayescap.colour.spectral import load_sensitivities, reflectance_domain
+
+    if args.sensitivities is None:
+        raise InputError(
+            "--domain reflectances needs --sensitivities NAME|CSV (the camera's spectral sensitivities: "
+            "'Nikon 5100 (NPL)', 'Sigma SDMerill (NPL)' or a CSV of wavelength_nm,R,G,B)"
+        )
+    try:
+        sens = load_sensitivities(args.sensitivities)
+        resp = reflectance_domain(sens, args.reflectances, args.illuminant, wb_gains=wb)
+    except ValueError as e:
+        raise InputError(str(e)) from None
+    name = (
+        f"{resp.shape[0]} patches of {args.reflectances} under {args.illuminant} through the sensitivities "
+        f"{sens.name} (channels balanced so that a perfect white gives raw 1/wb)"
+    )
+    return resp, name
+
+
 def colour_text(doc: dict) -> str:
     """The human-readable result (what ``bayescap colour`` prints)."""
     from bayescap.report.colour_section import limit_text
@@ -171,7 +232,7 @@ def colour_text(doc: dict) -> str:
     f = c["cfa_fit"]
     lines = [f"bayescap colour: {doc['input']}  (medians, 95 % credible intervals)", ""]
     lines.append(f"Colour sensitivity CS      {iv(c['cs_bits'])}")
-    lines.append(f"  without the floor        {iv(c['cs_no_floor_bits'])}")
+    lines.append(f"  no floor, raw cube       {iv(c['cs_no_floor_bits'])}")
     per_channel: dict = {}
     for k, v in c["scores"].items():
         base, _, ch = k.rpartition("_")
@@ -210,6 +271,8 @@ def colour_text(doc: dict) -> str:
     lines += ["", "Definitions:"]
     lines.append(f"  CS: {c['choices']['definition']}")
     lines.append(f"  domain: {c['choices']['domain']}; floor: {c['choices']['floor']}")
+    if "clipping" in c["choices"]:
+        lines.append(f"  clipping: {c['choices']['clipping']}")
     for k, v in c["definitions"].items():
         lines.append(f"  {k}: {v}")
     return "\n".join(lines) + "\n"
@@ -230,8 +293,11 @@ def run_colour(args) -> int:
         problem = output_problem(args.out, args.inputs, directory=True, option="--out", names=OUT_FILES)
         if problem:
             return refuse(problem)
+    if args.domain == "cube" and args.sensitivities is not None:
+        return refuse("--sensitivities is for --domain reflectances")
     try:
         cfa, ccm, wb, wb_source = _colour_inputs(args)
+        domain, domain_name = _domain(args, wb)
     except InputError as e:
         return refuse(e)
     for kind, text in cfa.notices:  # what the ingest assumed, and what looks implausible in the tables
@@ -249,8 +315,11 @@ def run_colour(args) -> int:
         exposure_time_s=t,
         n_pixels_sensor=n_sensor,
         metadata=md,
+        domain=domain,
+        domain_name=domain_name,
         floor=not args.no_floor,
         out_bits=args.out_bits,
+        clip_output=args.clip_output,
     )
     summary["ccm"] = ccm.to_dict()
     summary["white_balance"] = {"gains": np.asarray(wb, float).tolist(), "source": wb_source}

@@ -107,7 +107,7 @@ def run_datasheet(args) -> int:
                 written.append(str(html_out))
                 steps.update()
             if pdf is not None:
-                write_datasheet_pdf(result, pdf, view=view, title=args.title)
+                write_datasheet_pdf(result, pdf, view=view, title=args.title, colour=colour)
                 written.append(str(pdf))
                 steps.update()
             if args.json:

@@ -66,9 +66,13 @@ SHARED_NAMES = {
 }
 #: the K check fails below this p-value of the χ² of the channels' log K
 K_CHECK_P_MIN = 0.01
-#: CS is computed on at most this many of the joint draws, with this many Gauss-Legendre nodes per axis
+#: CS is computed on at most this many of the joint draws, with this many Gauss-Legendre nodes per
+#: axis over the full raw cube (a smooth integrand: 24 nodes differ from 96 by < 2e-6 bits) and where
+#: the domain is cut (clipping after M, a reflectance cone: the cut is not smooth in the quadrature's
+#: plane; 40 nodes differ from 128 by < 4e-3 bits, a few per cent of a CS interval's width)
 CS_DRAWS = 1000
 CS_GRID = 24
+CS_GRID_CUT = 40
 
 _PARAMETER_UNITS = {
     "conversion_gain_e_per_dn": "e-/DN",
@@ -415,8 +419,10 @@ def colour_summary(
     n_pixels_sensor: float | None,
     metadata: dict | None = None,
     domain="cube",
+    domain_name: str | None = None,
     floor: bool = True,
     out_bits: int = 8,
+    clip_output: bool = True,
 ) -> dict:
     """CS per joint draw and what follows from it: the numbers of the ``colour`` JSON block.
 
@@ -424,6 +430,11 @@ def colour_summary(
     ``wb_gains``: (3,) R, G, B; ``n_pixels_sensor``: the sensor's photosite count N (``None``: no
     capacity and no print normalisation); ``metadata``: the sensor's (pixel pitch, f-number, ...),
     for the MTF loss Δs of the capacities (:func:`bayescap.api.mtf_from_metadata`).
+    ``domain``: ``"cube"`` or the ``(n, 3)`` raw responses of a reflectance set
+    (:func:`bayescap.colour.spectral.reflectance_domain`), ``domain_name`` what to call it in the
+    choices. ``clip_output`` (default True): only the colours inside ``[0, white]`` after M count,
+    as in an output image (docs/colour.md: what DxOMark-like users expect); False counts the whole
+    raw cube, where a noise-amplifying M raises CS.
     Capacities: :func:`bayescap.colour.capacity.colour_capacities`; scores:
     :mod:`bayescap.colour.scores`. Every value is summarised over the draws (median, 68 %, 95 %).
     """
@@ -435,7 +446,7 @@ def colour_summary(
     from bayescap.physics.noise import NoiseCoefficients
 
     # CS on an evenly thinned subset of the joint draws: its 95 % ends to a Monte Carlo error of a few
-    # per cent of the interval's width; 24 Gauss-Legendre nodes per axis differ from 48 by ~1e-5 bits
+    # per cent of the interval's width (CS_GRID, CS_GRID_CUT: the quadrature's error)
     keep = np.linspace(0, fit.n_draws - 1, min(fit.n_draws, CS_DRAWS)).round().astype(int)
     coeffs = fit.var_coeffs_dn2(exposure_time_s)[keep]
     clip = fit.clip_signal_dn()[keep]
@@ -448,8 +459,11 @@ def colour_summary(
         domain=domain,
         floor=floor,
         out_bits=out_bits,
-        n_grid=CS_GRID,
+        clip_output=clip_output,
+        n_grid=CS_GRID_CUT if (clip_output or not isinstance(domain, str)) else CS_GRID,
     )
+    if domain_name:
+        cs.choices["domain"] = f"{cs.choices['domain']}: {domain_name}"
     cs_nofloor = cs_without_floor(coeffs, clip)
     notes: list = []
     out = {
@@ -497,6 +511,10 @@ def colour_summary(
         sc[f"snr_18_db_{c}"] = summarize(snr[:, j], "dB")
         sc[f"tonal_range_bits_{c}"] = summarize(channel_bits[:, j], "bits")
     out["definitions"]["tonal_range_bits"] = "b' = log2 TR of each CFA channel (Eq. 7, the floor on its own 256 levels)"
+    out["definitions"]["cs_no_floor_bits"] = (
+        "CS without the floor over the full raw cube, unclipped: Σ log2 TR of R, G, B without the floor "
+        "(closed form; the CCM cancels), whatever the domain and clipping of cs_bits"
+    )
     notes.append(
         "low-light ISO needs a gain series (one frame set per ISO; bayescap.colour.scores.low_light_iso): "
         "not computed from one frame set"

@@ -156,17 +156,22 @@ def _cone_halfspaces(directions):
 def _interval_b(coef_r, coef_g, coef_b, rhs, s_r, s_g, lo, hi):
     """Tighten [lo, hi] on s_B by the constraints coef_r·s_R + coef_g·s_G + coef_b·s_B ≥ rhs.
 
-    coef_*: (n, m); rhs: (n, m); s_r, s_g: (n, p, p); lo, hi: (n, p, p)."""
-    for j in range(coef_r.shape[1]):
-        cr = coef_r[:, j, None, None]
-        cg = coef_g[:, j, None, None]
-        cb = coef_b[:, j, None, None]
-        rest = rhs[:, j, None, None] - cr * s_r - cg * s_g
-        with np.errstate(divide="ignore", invalid="ignore"):
-            bound = rest / cb
-        lo = np.where(cb > 0, np.maximum(lo, bound), lo)
-        hi = np.where(cb < 0, np.minimum(hi, bound), hi)
-        hi = np.where((cb == 0) & (rest > 0), lo, hi)  # violated whatever s_B is: empty
+    coef_*: (n, m); rhs: (n, m); s_r: (n, p, 1), s_g: (n, 1, p); lo, hi: (n, p, p). A constraint
+    with coef_b > 0 bounds s_B below by (rhs − coef_r·s_R − coef_g·s_G)/coef_b, one with
+    coef_b < 0 above; the division is done on the (n, m) coefficients, and a constraint that does
+    not bound a side is an infinite bound there (no per-node selection)."""
+    pos, neg = coef_b > 0, coef_b < 0
+    with np.errstate(divide="ignore", invalid="ignore"):
+        u, v, w = rhs / coef_b, coef_r / coef_b, coef_g / coef_b
+    for side, inf in ((pos, -np.inf), (neg, np.inf)):
+        uu, vv, ww = np.where(side, u, inf), np.where(side, v, 0.0), np.where(side, w, 0.0)
+        for j in np.flatnonzero(side.any(axis=0)):
+            bound = uu[:, j, None, None] - vv[:, j, None, None] * s_r - ww[:, j, None, None] * s_g
+            lo, hi = (np.maximum(lo, bound), hi) if inf < 0 else (lo, np.minimum(hi, bound))
+    for j in np.flatnonzero((coef_b == 0).any(axis=0)):
+        zero = (coef_b[:, j] == 0)[:, None, None]
+        rest = rhs[:, j, None, None] - coef_r[:, j, None, None] * s_r - coef_g[:, j, None, None] * s_g
+        hi = np.where(zero & (rest > 0), lo, hi)  # violated whatever s_B is: empty
     return lo, np.maximum(hi, lo)
 
 
@@ -191,8 +196,8 @@ def _cs_chunk(rgb, clip3, ccm, wb, floor, n_levels, clip_output, cone, nodes, lo
     d = n_levels / (l_w[:, None] * m1)  # (n, 3)
     amat = d[:, :, None] * ccm * wb[:, None, :]  # A = D M W
     det_a = np.abs(np.linalg.det(amat))  # (n,)
-    SR = s_r[:, :, None]
-    SG = s_g[:, None, :]
+    SR = s_r[:, :, None]  # (n, p, 1)
+    SG = s_g[:, None, :]  # (n, 1, p)
     lo_b = np.broadcast_to(lo[:, 2, None, None], (n, n_grid, n_grid))
     hi_b = np.broadcast_to(clip3[:, 2, None, None], (n, n_grid, n_grid))
     if clip_output:
@@ -206,13 +211,21 @@ def _cs_chunk(rgb, clip3, ccm, wb, floor, n_levels, clip_output, cone, nodes, lo
         m = cone.shape[0]
         cn = np.broadcast_to(cone, (n, m, 3))
         lo_b, hi_b = _interval_b(cn[..., 0], cn[..., 1], cn[..., 2], np.zeros((n, m)), SR, SG, lo_b, hi_b)
-    if floor:
-        k = det_a[:, None, None] * sig_r[:, :, None] * sig_g[:, None, :]
-        fl = 1.0 / k
-    else:
-        fl = 0.0
-    inner = integral_inv_sqrt_quadratic(
-        a[:, 2, None, None], b[:, 2, None, None], c[:, 2, None, None], lo_b, hi_b, floor=fl
+    shape = (n, n_grid, n_grid)
+    fl = 1.0 / (det_a[:, None, None] * sig_r[:, :, None] * sig_g[:, None, :]) if floor else np.zeros(shape)
+    a_b, b_b, c_b = (np.broadcast_to(x[:, 2, None, None], shape) for x in (a, b, c))
+    # the closed form only where it is not known without it: an empty B interval (cut away by
+    # the constraints) contributes 0; over the full cube, a node where the floor does not bind
+    # anywhere on the B axis (σ_B(lo) ≥ floor, σ_B increasing) contributes the B channel's TR
+    need = hi_b > lo_b
+    inner = np.zeros(shape)
+    if not clip_output and cone is None:
+        free = need & (np.sqrt(a_b + b_b * lo_b + c_b * lo_b * lo_b) >= fl)
+        inner = np.where(free, t_max[:, 2, None, None], 0.0)
+        need &= ~free
+    lo_b, hi_b = np.broadcast_to(lo_b, shape), np.broadcast_to(hi_b, shape)
+    inner[need] = integral_inv_sqrt_quadratic(
+        a_b[need], b_b[need], c_b[need], lo_b[need], hi_b[need], floor=fl[need]
     )  # (n, p, p)
     total = np.einsum("npq,p,q->n", inner, wu, wu) * t_max[:, 0] * t_max[:, 1]
     with np.errstate(divide="ignore"):
@@ -284,6 +297,10 @@ def colour_sensitivity(
         if floor
         else "none",
         "clip_output": bool(clip_output),
+        "clipping": "after M: colours outside [0, white] in the output are not counted (as in an output image)"
+        if clip_output
+        else "none: every colour of the domain counts, also beyond the output's [0, white] (a noise-amplifying M "
+        "then raises CS)",
         "green": "G = mean of Gr and Gb at a common signal (variance (σ_Gr² + σ_Gb²)/4)",
         "ccm_uncertain": bool(np.ndim(ccm) == 3),
         "wb_uncertain": bool(np.ndim(wb_gains) == 2),

@@ -68,7 +68,10 @@ def colour_section_html(doc: dict, *, heading: str = "Colour") -> str:
     """An HTML ``<section id="colour">`` of a ``bayescap colour`` result (module docstring)."""
     c = doc["colour"]
     f = c["cfa_fit"]
-    rows = [["colour sensitivity CS", _iv(c["cs_bits"])], ["CS without the floor", _iv(c.get("cs_no_floor_bits"))]]
+    rows = [
+        ["colour sensitivity CS", _iv(c["cs_bits"])],
+        ["CS without the floor, raw cube unclipped", _iv(c.get("cs_no_floor_bits"))],
+    ]
     per_channel: dict = {}
     for k, v in c.get("scores", {}).items():
         base, _, ch = k.rpartition("_")
@@ -125,6 +128,8 @@ def colour_section_html(doc: dict, *, heading: str = "Colour") -> str:
         parts.append("<ul>" + "".join(f"<li>{_e(n)}</li>" for n in notes) + "</ul>")
     ch = c.get("choices", {})
     defs = [("CS", ch.get("definition", "")), ("domain", ch.get("domain", "")), ("floor", ch.get("floor", ""))]
+    if ch.get("clipping"):
+        defs.append(("clipping", ch["clipping"]))
     defs += list(c.get("definitions", {}).items())
     parts.append("<dl class=small>" + "".join(f"<dt>{_e(k)}</dt><dd>{_e(v)}</dd>" for k, v in defs) + "</dl>")
     parts.append("</section>")

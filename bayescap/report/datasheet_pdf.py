@@ -1,6 +1,8 @@
 """The EMVA 1288 datasheet as a one-page PDF (A4 landscape): the HTML datasheet's table (medians
 with 95 % intervals, limits alone where the data give only a limit, the standard's recipe), its
-photon-transfer and SNR plots, the fit's convergence line and the sensor's metadata.
+photon-transfer and SNR plots, the fit's convergence line and the sensor's metadata. Given the
+result of ``bayescap colour`` (``colour=``), a second page holds the colour section
+(:mod:`bayescap.report.colour_pdf`), as the HTML datasheet does.
 
 Drawn on a :class:`matplotlib.figure.Figure` and written by matplotlib's PDF backend
 (``FigureCanvasPdf``): no pyplot and no backend switch, so an interactive session's display is
@@ -53,9 +55,10 @@ def _rows(view, limits):
     return out
 
 
-def datasheet_pdf(result, *, view=None, title=None) -> bytes:
-    """The one-page datasheet of ``result`` as PDF bytes."""
-    from matplotlib.backends.backend_pdf import FigureCanvasPdf
+def datasheet_pdf(result, *, view=None, title=None, colour=None) -> bytes:
+    """The datasheet of ``result`` as PDF bytes: one page, and the colour page with ``colour`` (the
+    JSON of ``bayescap colour``)."""
+    from matplotlib.backends.backend_pdf import FigureCanvasPdf, PdfPages
     from matplotlib.figure import Figure
 
     view = emva1288_view(result) if view is None else view
@@ -116,12 +119,20 @@ def datasheet_pdf(result, *, view=None, title=None) -> bytes:
     fig.text(0.03, 0.07, textwrap.fill(op_txt, 230), fontsize=6, va="top", parse_math=False)
     fig.text(0.03, 0.05, textwrap.fill(meta_txt, 230), fontsize=6, color="0.3", va="top", parse_math=False)
     buf = io.BytesIO()
-    FigureCanvasPdf(fig).print_pdf(buf)
+    if colour is None:
+        FigureCanvasPdf(fig).print_pdf(buf)
+        return buf.getvalue()
+    from bayescap.report.colour_pdf import colour_page
+
+    with PdfPages(buf) as pages:
+        for page in (fig, colour_page(colour, name=name, page_in=PAGE_IN)):
+            FigureCanvasPdf(page)  # the PDF canvas (a Figure made without pyplot has none)
+            pages.savefig(page)
     return buf.getvalue()
 
 
-def write_datasheet_pdf(result, path, *, title=None, view=None) -> Path:
+def write_datasheet_pdf(result, path, *, title=None, view=None, colour=None) -> Path:
     """Write :func:`datasheet_pdf` of ``result`` to ``path`` (atomically); returns the path."""
     path = Path(path)
-    atomic_write_bytes(path, datasheet_pdf(result, view=view, title=title))
+    atomic_write_bytes(path, datasheet_pdf(result, view=view, title=title, colour=colour))
     return path
