@@ -194,13 +194,15 @@ def fit_in_memory(
         return res
     from bayescap.api import load
     from bayescap.io.ptc_csv import PTCData
-    from bayescap.model import PTCModel, select_terms
+    from bayescap.model import PTCModel, rows_to_fit, select_terms
 
     models, out = [], [None] * len(datas)
     for i, d in enumerate(datas):
         try:
-            d = d if isinstance(d, PTCData) else load(d)
-            models.append(PTCModel(d, terms=select_terms(d)))
+            d, left_out = rows_to_fit(d if isinstance(d, PTCData) else load(d))
+            m = PTCModel(d, terms=select_terms(d))
+            m.data_notes = [left_out] if left_out else []
+            models.append(m)
         except Exception as e:  # one bad sensor must not stop a batch: report it
             models.append(None)
             out[i] = {"error": f"{type(e).__name__}: {e}"} if summary_only else e

@@ -21,7 +21,7 @@ from bayescap.model.likelihood import gamma_logpdf
 from bayescap.model.parameters import PARAMETER_INFO
 from bayescap.model.ptc_model import PTCModel
 from bayescap.model.stack import PTCModelStack
-from bayescap.model.terms import ModelTerms, saturation_flags, select_terms
+from bayescap.model.terms import ModelTerms, rows_to_fit, saturation_flags, select_terms
 
 __all__ = [
     "PARAMETER_INFO",
@@ -29,6 +29,7 @@ __all__ = [
     "PTCModel",
     "PTCModelStack",
     "gamma_logpdf",
+    "rows_to_fit",
     "saturation_flags",
     "select_terms",
 ]

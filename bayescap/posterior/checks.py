@@ -5,6 +5,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from bayescap.model.terms import SKEWED_CLIP_E
+
 __all__ = ["ChecksMixin"]
 
 
@@ -104,11 +106,10 @@ class ChecksMixin:
             )
         self.outliers = [o for o in self.outliers if o["row"] not in near and o["row"] not in in_runs]
 
-    #: a clip below this many electrons: the charge's Poisson skewness there (1/√N) exceeds 0.05
-    SKEWED_CLIP_E = 400.0
-
     def _check_clip_skew(self):
-        """Flag partly clipped rows at a clip of few electrons. The model takes each pixel's charge
+        """Flag partly clipped rows at a clip of few electrons that are still in the fit (a fit
+        leaves them out itself at an ADC clip, :func:`bayescap.model.terms.rows_to_fit`; a well's clip,
+        or a model built on every row, keeps them). The model takes each pixel's charge
         near the clip as normal; at N electrons its Poisson skewness is 1/√N, and the clipped
         pixels' tail then differs from the normal's enough to pull K by about a percent through
         those rows (an 8-bit camera at K 0.5 e⁻/DN, clip ~95 e⁻: K 1.3 % high, its interval ±0.7 %,
@@ -120,7 +121,7 @@ class ChecksMixin:
             return
         n_e = float(np.median(fw))
         partial = np.flatnonzero((fs > 1e-3) & (fs < 0.999))
-        if not (n_e < self.SKEWED_CLIP_E and partial.size):
+        if not (n_e < SKEWED_CLIP_E and partial.size):
             return
         rows = d.row_numbers if d.row_numbers is not None else np.arange(1, d.n_levels + 1)
         self.flags["skewed_clip_tail"] = [int(rows[i]) for i in partial]

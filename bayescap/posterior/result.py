@@ -95,6 +95,7 @@ class FitResult(DerivedMixin, DiagnoseMixin, ChecksMixin, InputsMixin):
     @classmethod
     def from_chains(cls, model: PTCModel, chains: ChainResult, *, metadata, scene, mtf, seed, quality):
         self = cls(model=model, chains=chains, metadata=metadata, scene=scene, mtf=mtf, seed=seed, quality=quality)
+        self.notes.extend(getattr(model, "data_notes", []))  # rows left out before the fit (model.rows_to_fit)
         E, S, W, D = chains.chain.shape
         flat = chains.chain.reshape(E * S * W, D)
         self.draws = model.physical(flat)
