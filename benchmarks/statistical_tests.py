@@ -40,9 +40,9 @@ def main() -> int:
     run = subprocess.run(cmd, cwd=ROOT, capture_output=True, text=True)
     wall = time.perf_counter() - t0
     out = run.stdout
-    outcome = {
-        m.group(2): m.group(1) for m in re.finditer(r"^(PASSED|FAILED|ERROR|SKIPPED|XFAIL|XPASS) (\S+)", out, re.M)
-    }
+    outcome = {m.group(2): m.group(1) for m in re.finditer(r"^(PASSED|FAILED|ERROR|XFAIL|XPASS) (\S+)", out, re.M)}
+    for m in re.finditer(r"^SKIPPED \[\d+\] (\S+?):\d+: (.*)$", out, re.M):  # "SKIPPED [1] file:line: reason"
+        outcome[f"{m.group(1)} ({m.group(2)})"] = "SKIPPED"
     durations = {}
     for m in re.finditer(r"^\s*([0-9.]+)s (call|setup|teardown)\s+(\S+)", out, re.M):
         durations[m.group(3)] = durations.get(m.group(3), 0.0) + float(m.group(1))
