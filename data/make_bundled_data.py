@@ -185,9 +185,41 @@ def simulated():
         )
 
 
+def s_shaped():
+    """An 8-bit camera with an S-shaped response (the non-linear zoo's nl_s_shape_8bit_ph: frames
+    from bayescap.validation.framesim), for the README's "Real sensors" example."""
+    import shutil
+    import tempfile
+
+    from bayescap.validation.zoo_nonlinear import ensure_csvs, nonlinear_zoo, scored_truths
+
+    zs = next(z for z in nonlinear_zoo() if z.name == "nl_s_shape_8bit_ph")
+    name = "sim_s_shape_8bit"
+    with tempfile.TemporaryDirectory() as tmp:
+        path, _ = ensure_csvs(zs, Path(tmp))
+        shutil.copyfile(path, HERE / "simulated" / f"{name}.csv")
+    r = zs.sensor.response
+    atomic_write_text(
+        HERE / "simulated" / f"{name}.truth.json",
+        json.dumps(
+            {
+                "name": name,
+                "seed": zs.seed,
+                "truth": {p: v[0] for p, v in scored_truths(zs).items()},
+                "response": {"kind": r.kind, "strength": r.strength, "ref_e": r.ref_e},
+                "zoo_sensor": zs.name,
+                "note": "simulated frame by frame with bayescap.validation.framesim; not a measurement",
+            },
+            indent=2,
+        )
+        + "\n",
+    )
+
+
 if __name__ == "__main__":
     basler()
     simulated()
+    s_shaped()
     print(
         "wrote", sorted(p.name for p in HERE.glob("*.csv")), sorted(p.name for p in (HERE / "simulated").glob("*.csv"))
     )
