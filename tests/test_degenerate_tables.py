@@ -50,13 +50,9 @@ def test_the_left_out_dark_current_says_why_when_times_differ(tmp_path):
     assert "share one exposure time" not in why and "7 exposure times span less than 1.5×" in why
 
 
-def test_rows_partly_clipped_by_the_adc_are_not_taken_for_a_wells_plateau():
-    """An 8-bit sensor at K 0.5 e⁻/DN whose top rows are partly ADC-clipped (the top row 91 % of
-    its pixels at 255 DN, variance collapsed to 15 DN²). Was: that row taken for a full well's
-    plateau ("the plateau keeps the read noise"), the clip modelled as the well's, and K 7 % low
-    (0.466 [0.447, 0.499], truth 0.5) with a 42 % variance discrepancy; without the clipped rows K
-    was right. A row with some but not all pixels at the ADC maximum is partly clipped."""
-    from bayescap.model import saturation_flags, select_terms
+def _k05_8bit(seed):
+    """An 8-bit camera at K 0.5 e⁻/DN (read 3 e⁻, PRNU 1 %): its ADC clips at ~95 e⁻, and the top
+    rows of a 50-level series are partly clipped."""
     from bayescap.simulate import SensorTruth, simulate_ptc
 
     t = SensorTruth(
@@ -68,8 +64,19 @@ def test_rows_partly_clipped_by_the_adc_are_not_taken_for_a_wells_plateau():
         dsnu_e=0.5,
         adc_bits=8,
     )
+    return simulate_ptc(t, seed=seed, n_levels=50, shape=(100, 100))
+
+
+def test_rows_partly_clipped_by_the_adc_are_not_taken_for_a_wells_plateau():
+    """An 8-bit sensor at K 0.5 e⁻/DN whose top rows are partly ADC-clipped (the top row 91 % of
+    its pixels at 255 DN, variance collapsed to 15 DN²). Was: that row taken for a full well's
+    plateau ("the plateau keeps the read noise"), the clip modelled as the well's, and K 7 % low
+    (0.466 [0.447, 0.499], truth 0.5) with a 42 % variance discrepancy; without the clipped rows K
+    was right. A row with some but not all pixels at the ADC maximum is partly clipped."""
+    from bayescap.model import saturation_flags, select_terms
+
     for seed in (1, 2, 3):
-        d = simulate_ptc(t, seed=seed, n_levels=50, shape=(100, 100))
+        d = _k05_8bit(seed)
         fs = d.frac_saturated
         full, _ = saturation_flags(d)
         assert not np.any(full & (fs < 0.999)), seed
@@ -106,19 +113,9 @@ def test_partly_clipped_rows_at_a_clip_of_few_electrons_are_left_out_or_flagged(
 
     import bayescap
     from bayescap.model import PTCModel, select_terms
-    from bayescap.simulate import SensorTruth, simulate_ptc
 
-    t = SensorTruth(
-        conversion_gain_e_per_dn=0.5,
-        read_noise_e=3.0,
-        full_well_e=2e4,
-        quantum_efficiency=0.6,
-        prnu_frac=0.01,
-        dsnu_e=0.5,
-        adc_bits=8,
-    )
     for seed in (1, 2, 3):
-        d = simulate_ptc(t, seed=seed, n_levels=50, shape=(100, 100))
+        d = _k05_8bit(seed)
         partly = {int(x) for x, f in zip(d.row_numbers, d.frac_saturated) if 1e-3 < f < 0.999}
         assert len(partly) > 5
         with warnings.catch_warnings():
