@@ -9,7 +9,7 @@ import numpy as np
 
 from bayescap.model.pixel_quantization import _quantized_pixel_moments
 from bayescap.model.quantization import _rounded_offset
-from bayescap.model.response import bf_factor, linearise
+from bayescap.model.response import _h_table, bf_factor, linearise
 
 #: below this s² + σ_o² (DN²) the rounded-normal moments replace Sheppard's σ² + 1/12
 _QUANT_EXACT_S2 = 0.5
@@ -139,7 +139,8 @@ class _PredictionMixin:
         if bent:
             # the response (bayescap.model.response): x = h(S), g'(x) = 1/h'(S); shot noise
             # g'(x)²·x/K, patterns g'(x)·x
-            x_lin, hp = linearise(S, theta, self.response_ref_dn)
+            table = _h_table(theta)  # one per call: the clipped rows' latent signals below use it too
+            x_lin, hp = linearise(S, theta, self.response_ref_dn, table=table)
             Sx = x_lin / hp
             shot = np.where(x_lin > 0, Sx / hp, S) / K
         else:
@@ -196,7 +197,7 @@ class _PredictionMixin:
                 vm[:, rows] = put(var_c + sl / 12.0, vm[:, rows])
             S[:, rows] = put(mu - self.dm[..., rows], S[:, rows])
             if bent:  # the latent signal's linearisation, for the means
-                xr, hr = linearise(S[:, rows], theta, self.response_ref_dn)
+                xr, hr = linearise(S[:, rows], theta, self.response_ref_dn, table=table)
                 x_lin, hp = x_lin.copy(), hp.copy()
                 x_lin[:, rows], hp[:, rows] = xr, hr
             slope[:, rows] = put(sl, slope[:, rows])

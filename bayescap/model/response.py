@@ -166,14 +166,14 @@ def _linearise_points(v, theta, s_ref):
     return x, np.where(v < 0.0, 1.0, slope)
 
 
-def linearise(s, theta, s_ref, per_point=False):
+def linearise(s, theta, s_ref, per_point=False, table=None):
     """The linear signal x = h(S) (DN) and the slope h'(S) for measured signals ``s`` (DN; leading
     axis of draws or 1) and shape coefficients ``theta`` (n, m): below 0 the slope is 1, above
     S_ref it stays at its value there. (Cubic Hermite interpolation of h and of exp(L) in a per-draw
     table of :data:`N_TABLE` intervals: errors far below the means' and variances' precision;
     ``per_point=True`` integrates at each point instead, cheaper for one or two points per draw.
     The choice is the caller's, never the array's size: a stacked fit must give each sensor its
-    own numbers bit for bit.)"""
+    own numbers bit for bit. ``table``: :func:`_h_table` of ``theta`` when the caller has it.)"""
     s = np.asarray(s, float)
     v = s / s_ref
     theta = np.atleast_2d(np.asarray(theta, float))
@@ -181,7 +181,7 @@ def linearise(s, theta, s_ref, per_point=False):
     shape = np.broadcast_shapes(v.shape, (n,) + (1,) * (v.ndim - 1)) if v.ndim else (n,)
     if per_point:
         return _linearise_points(v, theta, s_ref)
-    H, fh, fph = _h_table(theta)
+    H, fh, fph = _h_table(theta) if table is None else table
     k = H.shape[1] - 1
     vb = np.broadcast_to(v, shape)
     t = np.clip(vb, 0.0, 1.0).reshape(shape[0], -1) * k
