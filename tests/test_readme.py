@@ -148,3 +148,43 @@ def test_readme_python_block(i, workdir):
     if proc.returncode != 0 and "Can't pickle local object" in proc.stderr:
         raise PicklingCrash(proc.stderr[-1500:])
     assert proc.returncode == 0, proc.stderr[-3000:]
+
+
+def _output_blocks() -> list[tuple[str, list[str]]]:
+    """The README's printed outputs of ``bayescap fit CSV --seed 1``: plain blocks whose first line
+    is the header a fit prints (``bayescap <version>: <csv>  (...)``), as (csv, lines)."""
+    out, block, lang = [], None, None
+    for line in README.read_text(encoding="utf-8").splitlines():
+        if line.startswith("```"):
+            if block is None:
+                block, lang = [], line[3:].strip()
+                continue
+            m = re.match(r"bayescap \S+: (\S+\.csv)  \(", block[0]) if block and not lang else None
+            if m:
+                out.append((m.group(1), block))
+            block = None
+        elif block is not None:
+            block.append(line)
+    return out
+
+
+@pytest.mark.parametrize("csv, lines", _output_blocks(), ids=[c for c, _ in _output_blocks()])
+def test_readme_output_is_what_the_fit_prints(csv, lines, workdir):
+    """Every line of an abridged output in the README is a line the command prints now (``...``
+    marks lines left out, ``…`` a part that changes from run to run: the time), so the README's
+    numbers are the program's."""
+    proc = subprocess.run(
+        [sys.executable, "-m", "bayescap", "fit", csv, "--seed", "1"],
+        cwd=workdir,
+        env=_env(),
+        capture_output=True,
+        text=True,
+        timeout=300,
+    )
+    assert proc.returncode == 0, proc.stderr[-2000:]
+    printed = [line.rstrip() for line in proc.stdout.splitlines()]
+    for line in lines:
+        if line.strip() == "...":
+            continue
+        pattern = ".*".join(re.escape(part) for part in line.rstrip().split("…"))
+        assert any(re.fullmatch(pattern, p) for p in printed), f"README line not printed by the fit: {line!r}"
