@@ -18,7 +18,7 @@ from bayescap.inference import FastSettings
 from bayescap.inference.mcmc import run_ensembles
 from bayescap.inference.presets import QUALITY_PRESETS, SamplerSettings
 from bayescap.io.ptc_csv import PTCData, read_ptc_csv
-from bayescap.model import PTCModel, rows_to_fit, saturation_flags, select_terms
+from bayescap.model import PTCModel, saturation_flags
 from bayescap.physics.optics import default_mtf
 from bayescap.posterior import FitResult, Scene
 
@@ -235,11 +235,9 @@ def fit(
     else:
         if not isinstance(data, PTCData):
             data = load(data)
-        if terms is None:  # (terms given: the caller has chosen the model for these rows)
-            data, left_out = rows_to_fit(data)
-        model = PTCModel(data, terms=terms or select_terms(data), prior=prior)
-        if terms is None and left_out:
-            model.data_notes = [left_out]
+        # (terms given: the caller has chosen the model for every row)
+        model = PTCModel.for_fit(data, prior=prior) if terms is None else PTCModel(data, terms=terms, prior=prior)
+        data = model.data
     notes: list = []
     defaults_used = sorted(k for k in METADATA_DEFAULTS if k not in data.metadata)
     mtf_given = mtf is not None

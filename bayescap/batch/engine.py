@@ -194,15 +194,12 @@ def fit_in_memory(
         return res
     from bayescap.api import load
     from bayescap.io.ptc_csv import PTCData
-    from bayescap.model import PTCModel, rows_to_fit, select_terms
+    from bayescap.model import PTCModel
 
     models, out = [], [None] * len(datas)
     for i, d in enumerate(datas):
         try:
-            d, left_out = rows_to_fit(d if isinstance(d, PTCData) else load(d))
-            m = PTCModel(d, terms=select_terms(d))
-            m.data_notes = [left_out] if left_out else []
-            models.append(m)
+            models.append(PTCModel.for_fit(d if isinstance(d, PTCData) else load(d)))
         except Exception as e:  # one bad sensor must not stop a batch: report it
             models.append(None)
             out[i] = {"error": f"{type(e).__name__}: {e}"} if summary_only else e

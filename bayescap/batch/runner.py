@@ -189,7 +189,7 @@ def _fit_to_folder(
     from bayescap.api import load
     from bayescap.inference.lockstep import stack_groups
     from bayescap.io.ptc_csv import PTCData
-    from bayescap.model import PTCModel, rows_to_fit, select_terms
+    from bayescap.model import PTCModel
 
     datas = list(datas)
     seeds = sensor_seeds(seed, len(datas))
@@ -211,9 +211,7 @@ def _fit_to_folder(
             report[i] = {"status": "resumed"}
             continue
         try:
-            d, left_out = rows_to_fit(d)
-            models[i] = PTCModel(d, terms=select_terms(d))
-            models[i].data_notes = [left_out] if left_out else []
+            models[i] = PTCModel.for_fit(d)
         except Exception as e:
             report[i] = _error(e)
     for i, r in enumerate(report):

@@ -55,7 +55,7 @@ from bayescap.model.clipping import _ClipMixin
 from bayescap.model.likelihood import _LikelihoodMixin
 from bayescap.model.parameters import _ParametersMixin
 from bayescap.model.prediction import _PredictionMixin
-from bayescap.model.terms import ModelTerms, intercept_variance_dn2, saturation_flags, select_terms
+from bayescap.model.terms import ModelTerms, intercept_variance_dn2, rows_to_fit, saturation_flags, select_terms
 from bayescap.model.threads import SPLIT_MIN_ELEMENTS, _split_rows
 
 __all__ = ["PTCModel", "CHUNK_ELEMENTS", "CHUNK_MIN_DRAWS"]
@@ -102,6 +102,16 @@ class PTCModel(_ParametersMixin, _PredictionMixin, _ClipMixin, _LikelihoodMixin)
         dsnu_log_bounds=None,
         qe_bounds=None,
     )
+
+    @classmethod
+    def for_fit(cls, data: PTCData, prior: dict | None = None) -> "PTCModel":
+        """The model a fit builds from ``data``: the rows :func:`~bayescap.model.terms.rows_to_fit`
+        leaves out removed, the terms chosen by :func:`select_terms` on the rest, and the note on
+        what was left out in ``data_notes`` (the result carries it)."""
+        data, left_out = rows_to_fit(data)
+        model = cls(data, terms=select_terms(data), prior=prior)
+        model.data_notes = [left_out] if left_out else []
+        return model
 
     def __init__(self, data: PTCData, terms: ModelTerms | None = None, prior: dict | None = None):
         self.data = data
