@@ -16,8 +16,10 @@ from bayescap.simulate import SensorTruth, simulate_ptc
 
 
 def _stackable_sets():
-    """Groups of models that stack: simulated Gpixel ROIs (clip rows, QE), and one sensor design
-    with spatial columns (PRNU, DSNU and their latents) at several seeds, 8-bit (ADC clip)."""
+    """Groups of models that stack: simulated Gpixel ROIs (clip rows, QE), and sensor designs
+    with spatial columns (PRNU, DSNU and their latents) at several seeds, 8-bit (ADC clip), and
+    12-bit with a dark current both the dark variances and the dark means see (the dark means'
+    block)."""
     datas, _ = gpixel_sensors(n_max=24, seed=2)
     sets = [[PTCModel(d) for d in datas]]
     for t in (
@@ -26,6 +28,15 @@ def _stackable_sets():
         ),
         SensorTruth(
             conversion_gain_e_per_dn=20.0, read_noise_e=1.0, full_well_e=1e5, prnu_frac=0.01, dsnu_e=0.5, adc_bits=8
+        ),
+        SensorTruth(
+            conversion_gain_e_per_dn=1.0,
+            read_noise_e=3.0,
+            full_well_e=8000,
+            dark_current_e_per_s=3000,
+            prnu_frac=0.01,
+            dsnu_e=2.0,
+            adc_bits=12,
         ),
     ):
         sets.append(
@@ -62,7 +73,8 @@ def test_stacked_log_prob_equals_each_models_own_bit_for_bit():
             assert np.all(np.isneginf(lp[starts]))
             # the comparison covers the likelihood: every sensor has draws inside the support
             assert all(np.isfinite(part).any() for part in np.split(lp, starts[1:]))
-    assert n_groups >= 3
+    assert n_groups >= 4
+    assert any(m.terms.dark_mean for ms in _stackable_sets() for m in ms)  # the dark means' block is covered
 
 
 def test_a_model_stacked_with_itself_equals_its_own_calls_bit_for_bit():

@@ -6,11 +6,15 @@ independent of the model), and end to end on the issue's 8-bit sensor (K 100 e�
 D·t ≤ 0.1 e⁻ against a read variance of 25 e⁻²), whose fit the old rule (2.5 % point above a fifth of
 the median) printed as a detection on the seed used here."""
 
+import dataclasses
 import warnings
 
 import numpy as np
 
 import bayescap
+from bayescap.model import PTCModel
+from bayescap.model.dark_ramp import dark_mean_line, select_dark_mean
+from bayescap.model.terms import select_terms
 from bayescap.posterior.dark_current import (
     RAMP_Z,
     ZERO_LIKELIHOOD_RATIO,
@@ -100,3 +104,73 @@ def test_one_frame_spatial_dark_ramp_holds_the_truth(tmp_path_factory):
     p = d["parameters"]["dark_current_e_per_s"]
     # the dark means see this dark current (D·t/K = 0.2 DN against a 0.014 DN error per row)
     assert abs(p["detection"]["mean_ramp_e_per_s"] - 20.0) < 3.5 * p["detection"]["mean_ramp_sd_e_per_s"]
+
+
+def _ramp_sensor():
+    # 12-bit, K 1 e-/DN, read 3 e-, D 600 e-/s up to 10 ms: D·t_max = 6 e- against 9 e-² of read
+    # variance; the dark variances see it (~6 DN² over 9), the dark means far better (6 DN, each row
+    # known to √(9/(2·48²)) = 0.04 DN)
+    return _make("both_witnesses", 12, 1.0, 3.0, seed=11, dark=600.0, t_max=0.01, levels=16, roi=48, spatial="none")
+
+
+def test_dark_means_enter_the_likelihood_where_both_witnesses_agree(tmp_path):
+    zs = _ramp_sensor()
+    path = tmp_path / "s.csv"
+    write_csv(path, simulate_rows(zs.sensor, zs.acq, zs.seed), zs.metadata())
+    data = bayescap.load(str(path))
+    use, why = select_dark_mean(data)
+    assert use, why
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        both = bayescap.fit(str(path), seed=1, quality="fast")
+        alone = bayescap.fit(
+            PTCModel(data, terms=dataclasses.replace(select_terms(data), dark_mean=False)), seed=1, quality="fast"
+        )
+    assert both.model.terms.dark_mean and not alone.model.terms.dark_mean
+    d_both = both.summary_draws()["dark_current_e_per_s"]
+    d_alone = alone.summary_draws()["dark_current_e_per_s"]
+    lo, hi = np.quantile(d_both, [0.025, 0.975])
+    assert lo < 600.0 < hi
+    # the means' slope is known to ~1 %, the variances' to ~10 %: the joint D/K is the means' (its
+    # spread the slope's standard error times the line's Birge ratio), D's spread adds K's
+    assert np.std(d_both) < 0.3 * np.std(d_alone)
+    ratio = d_both / both.summary_draws()["conversion_gain_e_per_dn"]
+    line = dark_mean_line(data)
+    se = mean_ramp(data)[1] * line.birge
+    # a product of two normal witnesses: the variances' pull the means' slope by their precision share
+    alone_ratio = d_alone / alone.summary_draws()["conversion_gain_e_per_dn"]
+    w = se**2 / (se**2 + np.var(alone_ratio))
+    expected = mean_ramp(data)[0] + w * (np.median(alone_ratio) - mean_ramp(data)[0])
+    assert abs(np.median(ratio) - expected) < 0.15 * se  # the draws' own error is ~0.05 se
+    assert abs(np.std(ratio) / se - 1.0) < 0.1
+
+
+def _with_dark_means(data, means):
+    return dataclasses.replace(data, dark_mean_dn=np.asarray(means, float))
+
+
+def test_a_clamped_or_drifting_black_level_keeps_the_means_out(tmp_path):
+    zs = _ramp_sensor()
+    path = tmp_path / "s.csv"
+    write_csv(path, simulate_rows(zs.sensor, zs.acq, zs.seed), zs.metadata())
+    data = bayescap.load(str(path))
+    t = data.exposure_time_s
+    noise = data.dark_mean_dn - np.polyval(np.polyfit(t, data.dark_mean_dn, 1), t)
+    # clamped: the means stay at the black level while the variances rise
+    use, why = select_dark_mean(_with_dark_means(data, data.dark_mean_dn[0] + noise))
+    assert not use and "clamped" in why
+    # drifting: the means rise three times faster than the charge does
+    slope = mean_ramp(data)[0]
+    use, why = select_dark_mean(_with_dark_means(data, data.dark_mean_dn + 2.0 * slope * t))
+    assert not use and "drifting" in why
+    terms = select_terms(_with_dark_means(data, data.dark_mean_dn[0] + noise))
+    assert not terms.dark_mean and "clamped" in terms.reasons["dark_mean"]
+
+
+def test_dark_means_stay_out_without_the_variances_witness(tmp_path):
+    # the dark current of test_invisible_dark_current_is_an_upper_limit_holding_the_truth's kind, seen
+    # by the means only: a drifting black level could not be told from it
+    zs = _make("means_only", 12, 2.0, 2.0, seed=20, dark=20, t_max=0.02, n_frames=1, spatial="all")
+    data = _load(zs, tmp_path)
+    assert mean_ramp(data) is not None
+    assert select_dark_mean(data) == (False, None)

@@ -121,6 +121,7 @@ class _LikelihoodMixin:
         "plateau_var": "temporal_var_dn2",
         "spatial_var": "spatial_var_dn2",
         "dark_spatial_var": "dark_spatial_var_dn2",
+        "dark_mean": "dark_mean_dn",
     }
 
     def nonfinite_observations(self, x):
@@ -202,6 +203,7 @@ class _LikelihoodMixin:
             "plateau_var": np.nonzero(self.full_sat)[0],
             "spatial_var": ok[self.sp_rows],
             "dark_spatial_var": self.spd_rows,
+            "dark_mean": np.arange(d.n_levels),
         }[block]
         return np.array([d.row_label(i) for i in idx], int)
 

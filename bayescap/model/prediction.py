@@ -112,7 +112,8 @@ class _PredictionMixin:
         spread is the shape ``k`` (the observed value ~ Gamma(k, model/k)); for
         ``"normal"`` it is the standard deviation. Blocks: ``dark_var`` (every row),
         ``bright_var`` and ``mean`` (rows not fully clipped), ``clip_mean`` (fully clipped rows,
-        sampled clip), ``spatial_var``/``dark_spatial_var`` (rows with spatial columns)."""
+        sampled clip), ``spatial_var``/``dark_spatial_var`` (rows with spatial columns),
+        ``dark_mean`` (every row, where the dark means' ramp enters: :mod:`bayescap.model.dark_ramp`)."""
         p = self.physical(th, derived=False)
         k = p["conversion_gain_e_per_dn"]
         K = k[:, None]
@@ -131,6 +132,9 @@ class _PredictionMixin:
         if getattr(self, "dark_rows", True):  # (a mean/variance table has no dark pairs)
             vdm, phi_d, hd = self._quantized_var(rd2_all / (K * K), self.dark_frac_dn, pb / (K * K) + so2)
             out["dark_var"] = (self.vd, vdm, 1.0 / (phi_d / self.nu_d + f2), "gamma")
+        if getattr(self.terms, "dark_mean", False):  # the dark means' ramp, the black level profiled
+            slope = (p["dark_current_e_per_s"] / k)[:, None]
+            out["dark_mean"] = (self.dmn, self.dmn_mbar + slope * self.dmn_tc, self.dmn_sd, "normal")
         # bright temporal variances, unclipped rows: S from the measured mean
         S = np.broadcast_to(self.s_obs, rd2_ok.shape).copy()
         bent = getattr(self.terms, "nonlinearity", False)

@@ -52,6 +52,7 @@ import numpy as np
 
 from bayescap.io.ptc_csv import PTCData
 from bayescap.model.clipping import _ClipMixin
+from bayescap.model.dark_ramp import dark_mean_line
 from bayescap.model.likelihood import _LikelihoodMixin
 from bayescap.model.parameters import _ParametersMixin
 from bayescap.model.prediction import _PredictionMixin
@@ -239,6 +240,14 @@ class PTCModel(_ParametersMixin, _PredictionMixin, _ClipMixin, _LikelihoodMixin)
         s2b = np.maximum(self.v - 1.0 / 12.0, 0.0) + spread2
         s2d = np.maximum(self.vd[ok] - 1.0 / 12.0, 0.0) + spread2
         self.mean_rounding_var = (np.exp(-4.0 * np.pi**2 * s2b) + np.exp(-4.0 * np.pi**2 * s2d)) / (2.0 * np.pi**2)
+        # the dark means' ramp (bayescap.model.dark_ramp), where it enters: every dark row
+        if getattr(tm, "dark_mean", False):
+            line = dark_mean_line(d)
+            self.dmn = np.asarray(d.dark_mean_dn, float)
+            self.dmn_mbar = np.full(d.n_levels, line.mbar)
+            self.dmn_tc = line.tc
+            self.dmn_sd = line.sd
+            self.dark_mean_birge = line.birge
         # fractional offsets of the measured means from the nearest integer DN (quantization)
         self.dark_frac_dn = d.dark_mean_dn - np.round(d.dark_mean_dn)
         self.bright_frac_dn = self.m - np.round(self.m)

@@ -58,6 +58,10 @@ class PTCModelStack:
         "t_full",
         "vd_ok",
         "mean_rounding_var",
+        "dmn",
+        "dmn_mbar",
+        "dmn_tc",
+        "dmn_sd",
     )
 
     def __init__(self, models):
@@ -104,6 +108,7 @@ class PTCModelStack:
             tm.robust,
             tm.discrepancy,
             getattr(model, "dark_rows", True),
+            getattr(tm, "dark_mean", False),
             # the response's reference signal is the model's own (one per sensor)
             model.response_ref_dn if (tm.nonlinearity or tm.brighter_fatter) else None,
         )

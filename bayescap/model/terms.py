@@ -11,6 +11,7 @@ import numpy as np
 
 from bayescap.exceptions import PTCInputError
 from bayescap.io.ptc_csv import PTCData, check_table
+from bayescap.model.dark_ramp import select_dark_mean
 from bayescap.model.prediction import _QUANT_EXACT_S2
 from bayescap.model.response import (
     BF_EVIDENCE_SIGMA,
@@ -41,12 +42,15 @@ class ModelTerms:
     nonlinearity: bool = False
     offset_spread: bool = False
     brighter_fatter: bool = False
+    dark_mean: bool = False
     reasons: dict = field(default_factory=dict)  # term -> why it is left out
     how: dict = field(default_factory=dict)  # term -> how an included term enters (caveats)
 
     def names(self) -> list[str]:
         out = ["photon_shot", "read"]
         out.append("dark_current_shot" if self.dark_current else "read_plus_dark_combined")
+        if self.dark_mean:
+            out.append("dark_mean_ramp")
         out.append("quantization")
         if self.prnu:
             out.append("prnu")
@@ -243,6 +247,11 @@ def select_terms(d: PTCData, *, force: dict | None = None) -> ModelTerms:
         brighter_fatter=bfat,
         offset_spread=offsets,
     )
+    if multi_t and d.has_dark_rows:
+        dark_mean, why = select_dark_mean(d)
+        if why:
+            (how if dark_mean else reasons)["dark_mean"] = why
+        terms["dark_mean"] = dark_mean
     if not d.has_dark_rows:
         terms.update(_mean_variance_terms(d, reasons, how))
     if force:

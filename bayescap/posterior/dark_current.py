@@ -30,6 +30,8 @@ import math
 
 import numpy as np
 
+from bayescap.model.dark_ramp import mean_ramp
+
 __all__ = [
     "ZERO_LIKELIHOOD_RATIO",
     "RAMP_Z",
@@ -53,10 +55,6 @@ RAMP_Z = 3.0
 #: the dark means contradict the variances' dark current when their 97.5 % bound lies below its 95 %
 #: interval (or their 2.5 % bound above it)
 MEAN_Z = 1.959963984540054
-
-#: the dark means witness a shift one for one where the pixels spread over at least this much (DN)
-#: about the DN grid: the rounded mean's derivative is then 1 within 2·exp(−2π²s²) = 1.4 %
-MEAN_SPREAD_MIN_DN = 0.5
 
 #: draws the density is estimated from (evenly thinned; the bandwidth's sample size is capped at
 #: this, as MCMC draws are autocorrelated)
@@ -109,20 +107,6 @@ def zero_likelihood_ratio(x, prior_scale=None) -> float:
     return float(f[0] / peak) if peak > 0 else float("nan")
 
 
-def _weighted_slope(t, y, sd):
-    """Weighted least-squares slope of ``y`` against ``t`` (row errors ``sd``) and its standard error."""
-    t, y, sd = (np.asarray(a, float) for a in (t, y, sd))
-    ok = np.isfinite(t) & np.isfinite(y) & np.isfinite(sd) & (sd > 0)
-    if ok.sum() < 3:
-        return None
-    t, y, w = t[ok], y[ok], 1.0 / sd[ok] ** 2
-    tc = t - np.sum(w * t) / np.sum(w)
-    stt = float(np.sum(w * tc * tc))
-    if not stt > 0:
-        return None
-    return float(np.sum(w * tc * y) / stt), float(1.0 / math.sqrt(stt))
-
-
 def variance_ramp(model, theta):
     """How far the dark variances' rise with the exposure time stands out of their noise, as the model
     sees it (its rounding moments, read noise and DSNU included): ``(z, 1.0)`` with z = ±√Δχ², Δχ² the
@@ -154,30 +138,6 @@ def variance_ramp(model, theta):
     chi2_0 = np.min(np.sum(((obs - pred0)[:, ok] / sd[ok]) ** 2, axis=1))
     d_chi2 = float(chi2_0 - np.sum(((obs - pred)[ok] / sd[ok]) ** 2))
     return (math.sqrt(d_chi2) if d_chi2 > 0 else -math.sqrt(-d_chi2), 1.0)
-
-
-def mean_ramp(data):
-    """The dark means' witness: their slope against the exposure time (DN/s, = D/K) and its standard
-    error (each row's mean of a pair over n pixels: √(var/(2n))), or None with fewer than three rows
-    or two exposure times, or where the rounding bends the means: the rounded mean follows a shift of the
-    analog mean one for one (within 1.5 %, wherever it falls within a DN) only when the pixels spread
-    over at least :data:`MEAN_SPREAD_MIN_DN` about the DN grid, by temporal noise or by a fixed pattern
-    (the dark spatial variance); below, its gain swings between ~0 and ~1/s with the mean's offset, and
-    the witness stands down."""
-    t = np.asarray(data.exposure_time_s, float)
-    if np.unique(t).size < 2:
-        return None
-    vd = np.maximum(np.asarray(data.dark_temporal_var_dn2, float), 0.0)
-    spread2 = float(np.median(vd))
-    if data.dark_spatial_var_dn2 is not None:
-        sp = np.asarray(data.dark_spatial_var_dn2, float)
-        if np.any(np.isfinite(sp)):
-            spread2 = max(spread2, float(np.nanmedian(sp)))
-    if spread2 - 1.0 / 12.0 < MEAN_SPREAD_MIN_DN**2:  # Sheppard: the rounded values' variance less 1/12
-        return None
-    m = np.asarray(data.dark_mean_dn, float)
-    n = np.asarray(data.n_pixels, float)
-    return _weighted_slope(t, m, np.sqrt(np.maximum(vd, 1e-6) / (2.0 * n)))
 
 
 def dark_current_evidence(result) -> dict | None:

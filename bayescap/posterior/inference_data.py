@@ -92,6 +92,7 @@ OBSERVATION_VARS = {
     "dark_spatial_var": ("dark_spatial_var_dn2", "DN²", "dark spatial variance of the n_frames average"),
     "clip_mean": ("clipped_mean_dn", "DN", "bright mean of the rows at the clip"),
     "plateau_var": ("clipped_temporal_var_dn2", "DN²", "bright temporal variance of the rows at the clip"),
+    "dark_mean": ("dark_mean_dn", "DN", "dark mean (the dark means' ramp, black level profiled)"),
 }
 #: the log_likelihood variable holding every observation at once (dimension ``observation``,
 #: coordinates ``block`` and ``row``): the pointwise log-likelihood PSIS-LOO is computed on
