@@ -112,3 +112,28 @@ def test_compressive_sensor_without_photons_fits_the_ptc_curvature():
         assert dev["median"] < 0 and dev["ci95"][0] < 1 / (1 + b * x_ref / x_top) - 1 < dev["ci95"][1]
         cis.append((lo, hi))
     assert cis[0][0] < cis[1][1] and cis[1][0] < cis[0][1]
+
+
+def test_full_well_without_photons_spans_both_readings_of_the_bend():
+    """Without photon counts the bend is the response's (bent means: the charge at the clip is K·x(c))
+    or brighter-fatter's (straight means: K·(c − black)): half the draws take each reading, the same
+    draw always the same one, and the note says so. With photons only the response's reading."""
+    d = simulate_ptc(NO_PHOTONS, n_levels=30, shape=(200, 200), seed=3)
+    r = bayescap.fit(_without_photons(d), quality="fast", seed=1)
+    m = r.model
+    assert m.response_share_unknown
+    th = r.chains.chain.reshape(-1, m.ndim)[::7]
+    p = m.physical(th)
+    straight = (p["clip_dn"] - m.black_dn) * p["conversion_gain_e_per_dn"]
+    bent = np.isclose(p["full_well_e"], straight, rtol=1e-12)
+    assert 0.4 < bent.mean() < 0.6  # a fair coin per draw over ~1000 draws: ± 0.05 is 3 sd
+    # a compressive response: more charge at the clip (most draws; the variances alone shape it loosely)
+    assert np.mean(p["full_well_e"][~bent] > straight[~bent]) > 0.9
+    # the same draw reads the same way in another chunk
+    again = m.physical(th[1::2])["full_well_e"]
+    assert np.array_equal(again, p["full_well_e"][1::2])
+    note = r.to_dict()["parameters"]["full_well_e"]["note"]
+    assert "brighter-fatter" in note and "both readings" in note
+    with_photons = bayescap.fit(d, quality="fast", seed=1)
+    assert not with_photons.model.response_share_unknown
+    assert "both readings" not in (with_photons.to_dict()["parameters"]["full_well_e"].get("note") or "")

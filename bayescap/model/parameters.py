@@ -15,7 +15,25 @@ from bayescap.model.quantization import _rounded_normal_moments, _rounded_offset
 from bayescap.model.response import BF_BOUND, N_BASIS, SHAPE_BOUND, deviation_at_ref, linearise
 from bayescap.physics.noise import dark_variance_e2
 
-__all__ = ["PARAMETER_INFO"]
+__all__ = ["PARAMETER_INFO", "response_share"]
+
+#: fixed irrational weights of :func:`response_share` (square roots of primes)
+_SHARE_WEIGHTS = np.sqrt(np.array([2, 3, 5, 7, 11, 13, 17, 19, 23, 29, 31, 37, 41, 43, 47, 53, 59, 61, 67, 71], float))
+
+
+def response_share(th) -> np.ndarray:
+    """Per draw, the share (0 or 1) of the photon-transfer curve's bend that is the response's, where
+    the data cannot say (no photon counts: a response and a brighter-fatter variance loss bend the
+    curve alike, and only the charge at the clip depends on which it is: K·x(c) for a bent response,
+    K·(c − black) for straight means). The two readings are equally likely, a prior the data do not
+    update: half the draws take each (a two-model average; a sensor that is partly both lies between
+    the two). Which reading a draw takes is a deterministic function of the draw (the fractional part
+    of a large multiple of a fixed irrational combination of its coordinates, below or above ½), so
+    the same draw reads the same way in every call and chunk."""
+    th = np.atleast_2d(np.asarray(th, float))
+    w = np.resize(_SHARE_WEIGHTS, th.shape[1])
+    z = (th @ w) * 1.0e5
+    return (z - np.floor(z) >= 0.5).astype(float)
 
 # physical parameter -> (unit, description)
 PARAMETER_INFO = {
@@ -98,6 +116,8 @@ class _ParametersMixin:
             if not derived:
                 pass
             elif bent:  # the charge at the clip: its linear signal h(c − black) times K
+                if self.response_share_unknown:  # the bend read as the response's or as brighter-fatter's
+                    theta = theta * response_share(th)[:, None]
                 xc, _ = linearise((c - self.black_dn)[:, None], theta, self.response_ref_dn, per_point=True)
                 out["full_well_e"] = xc[:, 0] * k
             else:
@@ -126,6 +146,12 @@ class _ParametersMixin:
         if getattr(self.terms, "offset_spread", False):
             out.append("log_offset_dn")
         return out
+
+    @property
+    def response_share_unknown(self) -> bool:
+        """Whether the response term's bend may be brighter-fatter instead: without photon counts
+        the two bend the photon-transfer curve alike (:func:`response_share`)."""
+        return getattr(self.terms, "nonlinearity", False) and self.data.photons_per_pixel is None
 
     def response_theta(self, th):
         """The response's log-slope coefficients θ (n, N_BASIS) of draws ``th``."""

@@ -321,6 +321,13 @@ class FitResult(DerivedMixin, DiagnoseMixin, ChecksMixin, InputsMixin):
                 }
             else:
                 extra = {"clip_source": "full_well_or_adc"}
+            if getattr(m, "response_share_unknown", False):
+                share = (
+                    "without photon counts the photon-transfer curve's bend may be the response's (bent means: "
+                    "more charge at the clip) or brighter-fatter's (straight means: (clip − black)·K); the "
+                    "interval spans both readings, half the draws taking each"
+                )
+                extra["note"] = f"{extra['note']}; {share}" if "note" in extra else share
             out["full_well_e"] = summarize(p["full_well_e"], "e-", **extra)
         else:
             lb = float(np.quantile((m.max_mean_ok - m.black_dn) * k, 0.025))
