@@ -195,12 +195,13 @@ def test_cp_pipe_column_names(tmp_path):
 
 def test_modest_variance_curvature(tmp_path):
     """A brighter-fatter-like charge sharing (the variance 8 % short at the top, the means linear):
-    K (the small-signal gain) inside its interval and the read noise within 10 % with today's
-    response term standing in for the curvature (to be the brighter-fatter term once it exists)."""
+    K (the small-signal gain) inside its interval and the read noise within 10 %, the bend fitted by
+    the brighter-fatter term (a mean/variance table's bend always is: model/terms.py)."""
     m, v = simulate_flat_pairs(71, gain_e_per_adu=1.5, read_e=7.0, n_levels=60, top_e=1e5, bf_top=0.08)
     d = bayescap.fit(write_table(tmp_path / "bf.csv", m, v), seed=1, quality="fast").to_dict()
     par = d["parameters"]
-    assert "response_nonlinearity" in d["model_terms"]
+    assert "brighter_fatter" in d["model_terms"] and "response_nonlinearity" not in d["model_terms"]
+    assert par["brighter_fatter_a00_per_e"]["ci95"][1] < 0  # a variance loss
     assert _inside(par["conversion_gain_e_per_dn"], 1.5), par["conversion_gain_e_per_dn"]
     assert abs(par["read_noise_e"]["median"] / 7.0 - 1) < 0.10
 

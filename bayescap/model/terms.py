@@ -381,6 +381,8 @@ def _select_nonlinearity(d: PTCData, full, reasons, how) -> tuple[bool, bool]:
         reasons["brighter_fatter"] = "no unclipped row to measure the photon-transfer curve's bend on"
         return False, False
     rows = ok & (sig >= 0.05 * sig[ok].max())
+    if d.photons_per_pixel is None and not d.has_dark_rows:
+        return False, _mean_variance_bend(d, sig, rows, reasons, how)
     if d.photons_per_pixel is None:
         reasons["brighter_fatter"] = (
             "no photons_per_pixel column: a brighter-fatter variance loss and a response non-linearity bend the "
@@ -418,6 +420,30 @@ def _select_nonlinearity(d: PTCData, full, reasons, how) -> tuple[bool, bool]:
         "at the top of the unclipped rows"
     )
     return False, bf
+
+
+def _mean_variance_bend(d: PTCData, sig, rows, reasons, how) -> bool:
+    """A mean/variance table (astronomers' flat pairs, no dark pairs, no photon counts): the PTC's bend
+    is always fitted, by the brighter-fatter term (Astier et al. 2019's a₀₀ model, LSST cp_pipe's
+    EXPAPPROXIMATION; one parameter). CCD flats show brighter-fatter, and a bend as small as such a
+    table's sampling error allows moves a straight line's K by several of its standard errors (about
+    three quarters of the bend at the top); fitted, K's interval carries it. A response non-linearity
+    bends the PTC alike and cannot be told apart without photon counts: the response term stays out."""
+    ev = _ptc_bends(d, sig, rows)
+    measured = (
+        "" if ev is None else f" (it bends {100 * ev[0]:+.2g} ± {100 * ev[1]:.2g} % at the top of the unclipped rows)"
+    )
+    how["brighter_fatter"] = (
+        "a mean/variance table: the photon-transfer curve's bend is always fitted by the brighter-fatter term "
+        "(Astier et al. 2019's a00 model, as LSST cp_pipe fits flat pairs)" + measured + ": a bend within the "
+        "table's sampling error would move a straight line's K by several of its standard errors, so K's "
+        "interval carries it"
+    )
+    reasons["response_nonlinearity"] = (
+        "a mean/variance table (no photon counts): a response non-linearity and a brighter-fatter loss bend the "
+        "photon-transfer curve alike and cannot be told apart; the brighter-fatter term describes the bend"
+    )
+    return True
 
 
 def _brighter_fatter_evidence(d: PTCData, sig, rows, a, se_a) -> tuple[bool, str]:
