@@ -247,12 +247,13 @@ def _k_check(separate: dict, channels) -> dict:
     }
 
 
-def _fit_channel(args):
-    """One channel's unchanged single-channel fit (a pool task): ``bayescap.fit(data, seed, quality)``."""
+def _fit_channel(args, n_jobs=None):
+    """One channel's unchanged single-channel fit: ``bayescap.fit(data, seed=seed, quality=quality)``
+    (``n_jobs``: its MCMC ensembles' processes; the numbers do not depend on it)."""
     from bayescap.api import fit
 
     data, seed, quality = args
-    return fit(data, seed=seed, quality=quality)
+    return fit(data, seed=seed, quality=quality, n_jobs=n_jobs)
 
 
 def _channel_jobs(n_jobs, n_channels: int) -> int:
@@ -271,22 +272,32 @@ def _separate_fits(tables, channels, *, quality, seed, n_jobs=None):
     """The unchanged single-channel fit of each channel, ``bayescap.fit(table, seed=child, quality)``
     with child ``i`` of :func:`bayescap.batch.sensor_seeds` (``seed``): {channel: FitResult}.
 
-    With ``n_jobs`` > 1 the channels are fitted in that many worker processes, one channel each at
-    a time (a channel fit inside a worker runs its MCMC ensembles in lockstep in that process
-    instead of forking its own pool). The numbers do not depend on ``n_jobs``: each channel's
-    result is bit for bit the one :func:`bayescap.fit` gives in this process
-    (``tests/test_cfa.py``); only its wall time differs (a channel's ``chains.wall_s`` is its own)."""
+    With ``n_jobs`` > 1 the channels are shared out round-robin among this process and
+    ``n_jobs − 1`` worker processes, one channel at a time in each (a channel fit runs its MCMC
+    ensembles in lockstep in its own process instead of forking a pool of its own; this process
+    works too rather than wait, which saves a fork and the transfer of its channels' results). The
+    numbers do not depend on ``n_jobs``: each channel's result is bit for bit the one
+    :func:`bayescap.fit` gives alone (``tests/test_cfa.py``); only its wall time differs."""
     from bayescap.batch import sensor_seeds
 
     tasks = [(tables[c], s, quality) for c, s in zip(channels, sensor_seeds(seed, len(channels)))]
     n_jobs = _channel_jobs(n_jobs, len(tasks))
     if n_jobs == 1:
-        res = [_fit_channel(t) for t in tasks]
-    else:
-        from bayescap.batch.workers import process_pool
+        return dict(zip(channels, (_fit_channel(t) for t in tasks)))
+    from bayescap.batch.workers import process_pool
 
-        with process_pool(n_jobs) as ex:  # workers end with this process
-            res = list(ex.map(_fit_channel, tasks))
+    res: list = [None] * len(tasks)
+    with process_pool(n_jobs - 1) as ex:  # workers end with this process
+        futures = {i: ex.submit(_fit_channel, tasks[i]) for i in range(len(tasks)) if i % n_jobs}
+        try:
+            for i in range(0, len(tasks), n_jobs):
+                res[i] = _fit_channel(tasks[i], n_jobs=1)
+        except BaseException:
+            for f in futures.values():
+                f.cancel()
+            raise
+        for i, f in futures.items():
+            res[i] = f.result()
     return dict(zip(channels, res))
 
 
