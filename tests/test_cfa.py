@@ -262,6 +262,17 @@ def test_channel_fits_do_not_depend_on_the_process_count(joint_fit):
     assert one.to_dict()["k_check"] == two.to_dict()["k_check"]
 
 
+@pytest.mark.parametrize("bad", ["R", "Gr"])  # R is fitted in this process, Gr in a worker
+def test_a_channel_fit_refusing_its_input_raises_here(bad, tmp_path):
+    """An input error inside a worker process comes back as the same error, naming the file."""
+    from bayescap.colour.cfa_fit import fit_cfa
+
+    tables = dict(_tables(3))
+    tables[bad] = tmp_path / "missing.csv"
+    with pytest.raises(InputError, match="missing.csv"):
+        fit_cfa(tables, seed=5, n_jobs=2)
+
+
 def test_k_check_catches_a_digitally_scaled_channel():
     from bayescap.colour.cfa_fit import fit_cfa
 
