@@ -244,10 +244,12 @@ def _each_chunk(fn, starts) -> None:
         for i in starts:
             fn(i)
         return
+    import contextvars
     from concurrent.futures import ThreadPoolExecutor
 
+    # each chunk runs in a copy of this context: numpy's errstate (a context variable) goes with it
     with ThreadPoolExecutor(k, thread_name_prefix="bayescap-cs") as ex:
-        for fut in [ex.submit(fn, i) for i in starts]:
+        for fut in [ex.submit(contextvars.copy_context().run, fn, i) for i in starts]:
             fut.result()
 
 
