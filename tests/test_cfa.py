@@ -243,6 +243,36 @@ def test_consensus_agrees_with_the_mode_of_the_exact_joint_density(joint_fit):
         assert abs(z) < 0.5, (name, z)
 
 
+def test_channel_fits_do_not_depend_on_the_process_count(joint_fit):
+    """The four channel fits in worker processes (the default on two cores) give bit for bit what
+    one process gives, and each channel's is ``bayescap.fit``'s with the channel's child seed."""
+    import bayescap
+    from bayescap.batch import sensor_seeds
+    from bayescap.colour.cfa_fit import fit_cfa
+
+    one = fit_cfa(_tables(3), seed=5, n_jobs=1)
+    two = fit_cfa(_tables(3), seed=5, n_jobs=2)
+    for c in one.channels:
+        np.testing.assert_array_equal(one.results[c].chains.chain, two.results[c].chains.chain)
+        for name, v in one.draws[c].items():
+            np.testing.assert_array_equal(v, two.draws[c][name])
+            np.testing.assert_array_equal(v, joint_fit.draws[c][name])
+    alone = bayescap.fit(_tables(3)["B"], seed=sensor_seeds(5, 4)[3], quality="fast")
+    np.testing.assert_array_equal(alone.chains.chain, one.results["B"].chains.chain)
+    assert one.to_dict()["k_check"] == two.to_dict()["k_check"]
+
+
+@pytest.mark.parametrize("bad", ["R", "Gr"])  # R is fitted in this process, Gr in a worker
+def test_a_channel_fit_refusing_its_input_raises_here(bad, tmp_path):
+    """An input error inside a worker process comes back as the same error, naming the file."""
+    from bayescap.colour.cfa_fit import fit_cfa
+
+    tables = dict(_tables(3))
+    tables[bad] = tmp_path / "missing.csv"
+    with pytest.raises(InputError, match="missing.csv"):
+        fit_cfa(tables, seed=5, n_jobs=2)
+
+
 def test_k_check_catches_a_digitally_scaled_channel():
     from bayescap.colour.cfa_fit import fit_cfa
 

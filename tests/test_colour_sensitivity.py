@@ -188,3 +188,14 @@ def test_a_set_spanning_every_raw_direction_is_the_cube(clip_output):
     cube = colour_sensitivity_bits(v, clip, M_SRGB_LIKE, WB, clip_output=clip_output, n_grid=40)
     cone = colour_sensitivity_bits(v, clip, M_SRGB_LIKE, WB, clip_output=clip_output, n_grid=40, domain=octant)
     np.testing.assert_allclose(cone, cube, rtol=0, atol=1e-9)
+
+
+def test_threads_do_not_change_the_numbers(monkeypatch):
+    """CS draws computed in chunks on two threads equal those computed one chunk after the other."""
+    v, clip = _draws(n=600, seed=3)  # three chunks of draws
+    kw = dict(clip_output=True, n_grid=12)
+    monkeypatch.setenv("BAYESCAP_THREADS", "2")
+    two = colour_sensitivity_bits(v, clip, M_SRGB_LIKE, WB, **kw)
+    monkeypatch.setenv("BAYESCAP_THREADS", "1")
+    one = colour_sensitivity_bits(v, clip, M_SRGB_LIKE, WB, **kw)
+    np.testing.assert_array_equal(one, two)

@@ -27,13 +27,15 @@ EXPECTED = {
         120,
         [
             "noise gain R, G, B",
-            "colour depth",
+            "K check passed",
+            "colour depth (CS clipped after M, as bayescap colour prints)",
             "at an 8-Mpixel print",
-            "clipped after M",
+            "raw cube, unclipped",
             "superpixel",
             "cs_luminance_mtf",
         ],
-        # CCM noise gains, CS histograms (cube and clipped), capacities by definition
+        # CCM noise gains, CS intervals (clipped after M as bayescap colour prints, and the raw cube
+        # unclipped), capacities by definition
         3,
     ),
     "paper_reproduction.ipynb": (

@@ -8,8 +8,13 @@ variance discrepancy and its response non-linearity.
 
 **How the channels are combined: per-channel fits and a Gaussian consensus.** Each channel is
 fitted alone by the unchanged single-channel fit (:func:`bayescap.fit`, the same model, likelihood
-and sampler; with ``quality="fast"`` the four run as one :func:`bayescap.batch.fit_many` batch,
-whose vectorisation gains nothing measurable at four sensors). These are the *separate fits*, reported beside the joint one.
+and sampler, seeded by the channel's child of :func:`bayescap.batch.sensor_seeds`). These are the
+*separate fits*, reported beside the joint one. The four run in worker processes, one per core
+(``n_jobs``, ``BAYESCAP_JOBS``), as the monochrome MCMC runs its ensembles: four fits cost about
+four monochrome fits of CPU time, and the cores share that out (wall time and CPU time against the
+monochrome fit's: ``benchmarks/colour_cfa_speed.py``); the numbers do not depend on the process
+count. Stacking the four channels' ``log_prob`` calls instead gains nothing measurable (their tables
+differ in their clip rows, so at most Gr and Gb stack, and the fast path's calls are large).
 The *joint* posterior of the shared coordinates (``log K``, ``log σ_read``, ``log D``, the clip
 level in DN) is the product of the channels' marginal posteriors with the prior counted once,
 
@@ -242,19 +247,57 @@ def _k_check(separate: dict, channels) -> dict:
     }
 
 
-def _separate_fits(tables, channels, *, quality, seed):
-    """The unchanged single-channel fit of each channel: {channel: FitResult}."""
+def _fit_channel(args, n_jobs=None):
+    """One channel's unchanged single-channel fit: ``bayescap.fit(data, seed=seed, quality=quality)``
+    (``n_jobs``: its MCMC ensembles' processes; the numbers do not depend on it)."""
     from bayescap.api import fit
-    from bayescap.batch import fit_many, sensor_seeds
 
-    datas = [tables[c] for c in channels]
-    if quality == "fast":
-        res = fit_many(datas, quality="fast", seed=seed)
-    else:
-        res = [fit(d, seed=s, quality=quality) for d, s in zip(datas, sensor_seeds(seed, len(datas)))]
-    for r in res:
-        if isinstance(r, BaseException):
-            raise r
+    data, seed, quality = args
+    return fit(data, seed=seed, quality=quality, n_jobs=n_jobs)
+
+
+def _channel_jobs(n_jobs, n_channels: int) -> int:
+    """Processes for the channel fits: ``n_jobs``, else ``BAYESCAP_JOBS``, else one per core (at most
+    one per channel; 1 inside a multiprocessing worker, whose siblings have the other cores)."""
+    import os
+
+    from bayescap.model.threads import _allowed
+
+    if n_jobs is None:
+        n_jobs = _allowed("BAYESCAP_JOBS", lambda: os.cpu_count() or 1)
+    return max(1, min(int(n_jobs), n_channels))
+
+
+def _separate_fits(tables, channels, *, quality, seed, n_jobs=None):
+    """The unchanged single-channel fit of each channel, ``bayescap.fit(table, seed=child, quality)``
+    with child ``i`` of :func:`bayescap.batch.sensor_seeds` (``seed``): {channel: FitResult}.
+
+    With ``n_jobs`` > 1 the channels are shared out round-robin among this process and
+    ``n_jobs − 1`` worker processes, one channel at a time in each (a channel fit runs its MCMC
+    ensembles in lockstep in its own process instead of forking a pool of its own; this process
+    works too rather than wait, which saves a fork and the transfer of its channels' results). The
+    numbers do not depend on ``n_jobs``: each channel's result is bit for bit the one
+    :func:`bayescap.fit` gives alone (``tests/test_cfa.py``); only its wall time differs."""
+    from bayescap.batch import sensor_seeds
+
+    tasks = [(tables[c], s, quality) for c, s in zip(channels, sensor_seeds(seed, len(channels)))]
+    n_jobs = _channel_jobs(n_jobs, len(tasks))
+    if n_jobs == 1:
+        return dict(zip(channels, (_fit_channel(t) for t in tasks)))
+    from bayescap.batch.workers import process_pool
+
+    res: list = [None] * len(tasks)
+    with process_pool(n_jobs - 1) as ex:  # workers end with this process
+        futures = {i: ex.submit(_fit_channel, tasks[i]) for i in range(len(tasks)) if i % n_jobs}
+        try:
+            for i in range(0, len(tasks), n_jobs):
+                res[i] = _fit_channel(tasks[i], n_jobs=1)
+        except BaseException:
+            for f in futures.values():
+                f.cancel()
+            raise
+        for i, f in futures.items():
+            res[i] = f.result()
     return dict(zip(channels, res))
 
 
@@ -309,7 +352,9 @@ def _transport(m, x, shared, s_new, rng):
     return x
 
 
-def fit_cfa(tables: dict[str, PTCData], *, seed: int = 0, quality: str = "fast", n_draws: int = 4000) -> CFAFit:
+def fit_cfa(
+    tables: dict[str, PTCData], *, seed: int = 0, quality: str = "fast", n_draws: int = 4000, n_jobs: int | None = None
+) -> CFAFit:
     """Fit the four channels' photon-transfer tables as one readout chain (module docstring).
 
     Parameters
@@ -318,13 +363,15 @@ def fit_cfa(tables: dict[str, PTCData], *, seed: int = 0, quality: str = "fast",
     seed : the seed of every random draw (the same seed gives the same numbers).
     quality : the single-channel fit's preset ("fast", "standard", "accurate").
     n_draws : draws of the joint posterior.
+    n_jobs : processes for the four channel fits (default: one per core, ``BAYESCAP_JOBS``
+        overrides; 1 in a multiprocessing worker). The numbers do not depend on it.
     """
     missing = [c for c in CFA_CHANNELS if c not in tables]
     if missing:
         raise ValueError(f"the tables of channels {', '.join(missing)} are missing")
     t_start = time.perf_counter()
     channels = CFA_CHANNELS
-    results = _separate_fits(tables, channels, quality=quality, seed=seed)
+    results = _separate_fits(tables, channels, quality=quality, seed=seed, n_jobs=n_jobs)
     models = [results[c].model for c in channels]
     xs = [results[c].chains.chain.reshape(-1, results[c].chains.chain.shape[-1]) for c in channels]
     separate = {c: results[c].draws for c in channels}

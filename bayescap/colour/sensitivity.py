@@ -232,6 +232,27 @@ def _cs_chunk(rgb, clip3, ccm, wb, floor, n_levels, clip_output, cone, nodes, lo
         return np.log2(total)
 
 
+def _each_chunk(fn, starts) -> None:
+    """``fn(i)`` for every chunk start ``i``: on two threads where this process may use two
+    (:func:`bayescap.model.threads.n_threads`; numpy's ufuncs release the GIL), else one after the
+    other. Each chunk's draws are computed alone, so the numbers do not depend on the threads."""
+    from bayescap.model.threads import n_threads
+
+    starts = list(starts)
+    k = min(n_threads(), len(starts))
+    if k < 2:
+        for i in starts:
+            fn(i)
+        return
+    import contextvars
+    from concurrent.futures import ThreadPoolExecutor
+
+    # each chunk runs in a copy of this context: numpy's errstate (a context variable) goes with it
+    with ThreadPoolExecutor(k, thread_name_prefix="bayescap-cs") as ex:
+        for fut in [ex.submit(contextvars.copy_context().run, fn, i) for i in starts]:
+            fut.result()
+
+
 def colour_sensitivity(
     var_coeffs_dn2,
     clip_dn,
@@ -285,9 +306,12 @@ def colour_sensitivity(
     x, w = np.polynomial.legendre.leggauss(int(n_grid))
     nodes = (0.5 * (x + 1.0), 0.5 * w)  # on [0, 1]
     bits = np.empty(n)
-    for i in range(0, n, _DRAW_CHUNK):
+
+    def chunk(i):
         sl = slice(i, i + _DRAW_CHUNK)
         bits[sl] = _cs_chunk(rgb[sl], clip3[sl], ccm_d[sl], wb_d[sl], floor, n_levels, clip_output, cone, nodes, lower)
+
+    _each_chunk(chunk, range(0, n, _DRAW_CHUNK))
     choices = {
         "definition": CS_DEFINITION,
         "colour_space": colour_space,
