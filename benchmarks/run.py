@@ -134,6 +134,13 @@ BENCHMARKS = {
         "30-90 min",
         None,
     ),
+    "process_stages": (
+        "the whole process a user waits for (python -m bayescap fit CSV --json) on the bundled sensors at fast "
+        "and standard, stage by stage (imports, read, model, sampler, result, write), bayescap --version, and a "
+        "plain 2-parameter emcee script on the same CSV",
+        "3-5 min",
+        None,
+    ),
     "statistical_tests": (
         "the suite's statistical checks the default pytest run leaves out (pytest -m statistical): coverage and "
         "SBC ranks on 30 prior-drawn sensors, the fast path's gain intervals on 48 small ROIs, MTF bootstrap coverage",

@@ -1,0 +1,216 @@
+"""The whole process a user waits for, stage by stage (issue 50).
+
+    python benchmarks/run.py process_stages        # writes benchmarks/results/process_stages.md
+    python benchmarks/process_stages.py --repeat 1 # one run of each, printed and written
+
+For the bundled sensors (the real Basler CCD and the simulated ones in ``data/simulated/``), at
+``fast`` and ``standard``, three measurements, each in fresh Python processes (the median of
+``--repeat`` runs):
+
+* **whole process**: ``python -m bayescap fit CSV --quality Q --json`` from start to exit, as a user
+  types it (stdout to /dev/null);
+* **stages**: the same work in one process, timed stage by stage with ``time.perf_counter``: imports
+  (``bayescap``, the fit command's module and what a fit loads: ``bayescap.api``, emcee, scipy),
+  reading the CSV, building the model (term selection and the rows a fit sees), the fit itself split
+  into the sampler's own wall time (start, optimisation, sampling: ``diagnostics.wall_s``) and the
+  rest of ``bayescap.fit`` (checks, derived quantities' draws), the result's dictionary
+  (``to_dict``: summaries, intervals, limits, notes) and writing the JSON;
+* **a plain 2-parameter emcee script** on the same CSV (log K and log read noise, Gaussian variances,
+  StretchMove, 32 walkers × 2 500 steps, one walker per call: how a new user would write it), from
+  start to exit: the yardstick issue 50 asks the whole process to beat.
+
+Also ``bayescap --version`` (start to exit). Targets (issue 50, quiet 2-core machine): ``--version``
+≤ 0.3 s; the Basler ``fit --json`` ≤ 2 s; faster than the plain script.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import statistics
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT / "benchmarks"))
+OUT = ROOT / "benchmarks" / "results" / "process_stages.md"
+
+SENSORS = {
+    "basler_ccd12 (real)": "data/emva1288_basler_ccd12.csv",
+    "phone 1.75 µm 10-bit": "data/simulated/sim_phone_1p75um_10bit.csv",
+    "industrial 3.45 µm 12-bit": "data/simulated/sim_industrial_3p45um_12bit.csv",
+    "scientific 6.5 µm 16-bit": "data/simulated/sim_scientific_6p5um_16bit_unsaturated.csv",
+    "S-shaped 8-bit": "data/simulated/sim_s_shape_8bit.csv",
+}
+
+STAGES_DRIVER = r"""
+import json, sys, time
+t0 = time.perf_counter()
+import bayescap
+import bayescap.cli.fit
+import bayescap.api
+import emcee
+t1 = time.perf_counter()
+from bayescap.model import PTCModel
+path, quality, out = sys.argv[1], sys.argv[2], sys.argv[3]
+data = bayescap.load(path)
+t2 = time.perf_counter()
+model = PTCModel.for_fit(data)
+t3 = time.perf_counter()
+result = bayescap.fit(model, quality=quality, seed=1)
+t4 = time.perf_counter()
+doc = result.to_dict()
+t5 = time.perf_counter()
+from bayescap.io.atomic import atomic_write_text
+atomic_write_text(out, json.dumps(doc, default=float))
+t6 = time.perf_counter()
+print(json.dumps({"import": t1 - t0, "read": t2 - t1, "model": t3 - t2, "fit": t4 - t3,
+                  "sampler": float(result.diag.get("wall_s", float("nan"))), "result": t5 - t4,
+                  "write": t6 - t5, "method": result.diag.get("method")}))
+"""
+
+PLAIN_SCRIPT = r"""
+import sys
+import numpy as np
+import emcee
+cols = None
+rows = []
+for line in open(sys.argv[1]):
+    if line.startswith("#") or not line.strip():
+        continue
+    if cols is None:
+        cols = line.strip().split(",")
+        continue
+    rows.append([float(x) if x else float("nan") for x in line.strip().split(",")])
+a = np.array(rows)
+c = {n: a[:, i] for i, n in enumerate(cols)}
+s = c["mean_dn"] - c["dark_mean_dn"]
+keep = s <= 0.7 * s.max()
+S, v, n = s[keep], c["temporal_var_dn2"][keep], c["n_pixels"][keep]
+vd, nd = c["dark_temporal_var_dn2"], c["n_pixels"]
+sv, svd = v * np.sqrt(2 / (n - 1)), vd * np.sqrt(2 / (nd - 1))
+def log_prob(th):
+    lk, lr = th
+    if not (-7 < lk < 7 and -5 < lr < 8):
+        return -np.inf
+    K, r = np.exp(lk), np.exp(lr)
+    m = S / K + r * r / (K * K) + 1 / 12
+    md = r * r / (K * K) + 1 / 12
+    return -0.5 * np.sum(((v - m) / sv) ** 2) - 0.5 * np.sum(((vd - md) / svd) ** 2)
+rng = np.random.default_rng(1)
+k0 = 1 / np.polyfit(S, v, 1)[0]
+r0 = np.sqrt(max((np.median(vd) - 1 / 12) * k0 * k0, 1.0))
+p0 = np.array([np.log(k0), np.log(r0)]) + 1e-3 * rng.standard_normal((32, 2))
+sampler = emcee.EnsembleSampler(32, 2, log_prob)
+sampler.run_mcmc(p0, 2500, progress=False)
+ch = np.exp(sampler.get_chain(discard=500, flat=True))
+print("K", np.percentile(ch[:, 0], [2.5, 50, 97.5]), "read", np.percentile(ch[:, 1], [2.5, 50, 97.5]))
+"""
+
+
+def _env():
+    env = dict(os.environ)
+    env["PYTHONPATH"] = os.pathsep.join([str(ROOT)] + [p for p in env.get("PYTHONPATH", "").split(os.pathsep) if p])
+    env.setdefault("OMP_NUM_THREADS", "1")
+    return env
+
+
+def _wall(cmd, repeat):
+    """Median wall time (s) of ``repeat`` runs of ``cmd`` (a list), each a fresh process."""
+    times = []
+    for _ in range(repeat):
+        t = time.perf_counter()
+        subprocess.run(cmd, cwd=ROOT, env=_env(), stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, check=True)
+        times.append(time.perf_counter() - t)
+    return statistics.median(times)
+
+
+def _stages(path, quality, repeat, tmp):
+    runs = []
+    for _ in range(repeat):
+        out = subprocess.run(
+            [sys.executable, "-c", STAGES_DRIVER, path, quality, str(Path(tmp) / "r.json")],
+            cwd=ROOT,
+            env=_env(),
+            capture_output=True,
+            text=True,
+            check=True,
+        )
+        runs.append(json.loads(out.stdout.strip().splitlines()[-1]))
+    keys = ("import", "read", "model", "fit", "sampler", "result", "write")
+    med = {k: statistics.median(r[k] for r in runs) for k in keys}
+    med["method"] = runs[0]["method"]
+    return med
+
+
+def run(repeat):
+    rows = []
+    with tempfile.TemporaryDirectory() as tmp:
+        plain = Path(tmp) / "plain_emcee.py"
+        plain.write_text(PLAIN_SCRIPT)
+        version = _wall([sys.executable, "-m", "bayescap", "--version"], max(repeat, 3))
+        for name, csv in SENSORS.items():
+            plain_s = _wall([sys.executable, str(plain), csv], repeat)
+            for q in ("fast", "standard"):
+                whole = _wall([sys.executable, "-m", "bayescap", "fit", csv, "--quality", q, "--json"], repeat)
+                st = _stages(csv, q, repeat, tmp)
+                rows.append({"name": name, "quality": q, "whole": whole, "plain": plain_s, **st})
+                print(json.dumps(rows[-1]), flush=True)
+    return version, rows
+
+
+def report(version, rows, repeat):
+    from _machine import describe_machine, emit
+
+    try:
+        load = "{:.1f}, {:.1f}, {:.1f}".format(*os.getloadavg())
+    except OSError:
+        load = "unknown"
+    basler = next(r for r in rows if r["name"].startswith("basler") and r["quality"] == "standard")
+    L = [
+        "# The whole process, stage by stage",
+        "",
+        f"`python benchmarks/run.py process_stages` (`python benchmarks/process_stages.py --repeat {repeat}`); "
+        f"each number the median of {repeat} fresh processes. Machine: {describe_machine()}; load average "
+        f"at the end {load} (above ~1 the machine was shared and the times are pessimistic).",
+        "",
+        "## Targets (issue 50, quiet 2-core machine)",
+        "",
+        f"* `bayescap --version`: **{version:.2f} s** (target ≤ 0.3 s)",
+        f"* the Basler `fit --json` (`standard`, the default): **{basler['whole']:.2f} s** (target ≤ 2 s)",
+        f"* the plain 2-parameter emcee script on the same CSV: {basler['plain']:.2f} s "
+        f"({'bayescap faster' if basler['whole'] < basler['plain'] else 'bayescap slower'})",
+        "",
+        "## Per sensor (seconds)",
+        "",
+        "Stages from one process: imports (bayescap, the fit command, bayescap.api, emcee and scipy), reading "
+        "the CSV, building the model (terms and rows), the fit (of which the sampler: start, optimisation, "
+        "sampling), the result's dictionary (summaries, limits, notes) and writing the JSON. 'whole' is "
+        "`python -m bayescap fit CSV --quality Q --json` from start to exit; 'plain' the plain emcee script.",
+        "",
+        "| sensor | preset | method | whole | imports | read | model | fit | of which sampler | result | write | plain emcee |",
+        "|---|---|---|---|---|---|---|---|---|---|---|---|",
+    ]
+    for r in rows:
+        L.append(
+            f"| {r['name']} | {r['quality']} | {r['method']} | {r['whole']:.2f} | {r['import']:.2f} | {r['read']:.3f} | "
+            f"{r['model']:.3f} | {r['fit']:.2f} | {r['sampler']:.2f} | {r['result']:.2f} | {r['write']:.3f} | "
+            f"{r['plain']:.2f} |"
+        )
+    return emit(L, OUT)
+
+
+def main(argv=None):
+    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    ap.add_argument("--repeat", type=int, default=3, help="fresh processes per measurement (median; default 3)")
+    a = ap.parse_args(argv)
+    version, rows = run(a.repeat)
+    report(version, rows, a.repeat)
+
+
+if __name__ == "__main__":
+    main()
