@@ -35,6 +35,7 @@ def response_share(th) -> np.ndarray:
     z = (th @ w) * 1.0e5
     return (z - np.floor(z) >= 0.5).astype(float)
 
+
 # physical parameter -> (unit, description)
 PARAMETER_INFO = {
     "conversion_gain_e_per_dn": ("e-/DN", "conversion gain K"),
