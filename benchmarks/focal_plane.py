@@ -61,6 +61,15 @@ def _load():
         return "n/a"
 
 
+def _verdict(wall, n, full=3024, target_s=300.0):
+    """The target's verdict for a run of ``n`` tables: on the whole focal plane as measured; on fewer,
+    at the run's own rate scaled to the whole (an extrapolation, said as one)."""
+    if n >= full:
+        return "met" if wall <= target_s else "**NOT met**"
+    at = wall * full / n
+    return f"{at:.0f} s at this rate (extrapolated): " + ("met" if at <= target_s else "**NOT met**")
+
+
 def run_cli(paths, out, extra, log):
     env = dict(os.environ)
     env["PYTHONPATH"] = os.pathsep.join([str(ROOT)] + [p for p in env.get("PYTHONPATH", "").split(os.pathsep) if p])
@@ -150,12 +159,12 @@ def main(argv=None):
         f"({gen_s:.0f} s here; cached). Both runs: `bayescap fit <{n} CSVs> --out DIR --quality fast --seed 1`, "
         "timed from start to exit.",
         "",
-        "| run | wall (s) | tables/s | exit | result.json written | target |",
+        "| run | wall (s) | tables/s | exit | result.json written | target: 3 024 tables ≤ 300 s |",
         "|---|---:|---:|---|---|---|",
         f"| `--dask {a.workers}` (a new LocalCluster, its start-up included) | {t_dask:.1f} | {n / t_dask:.1f} | {c_dask} "
-        f"| {n - missing['dask']}/{n} | ≤ 300 s: {'met' if t_dask <= 300 else '**NOT met**'} |",
+        f"| {n - missing['dask']}/{n} | {_verdict(t_dask, n)} |",
         f"| `--jobs {a.workers}` (the local process pool) | {t_pool:.1f} | {n / t_pool:.1f} | {c_pool} "
-        f"| {n - missing['pool']}/{n} | ≤ 300 s: {'met' if t_pool <= 300 else '**NOT met**'} |",
+        f"| {n - missing['pool']}/{n} | {_verdict(t_pool, n)} |",
         "",
         f"Same numbers: {same} of {both} amplifiers' `result.json` identical between the two runs (wall times "
         "and the `batch` entry aside).",
