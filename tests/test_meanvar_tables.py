@@ -243,3 +243,32 @@ def test_a_folder_of_tables_gives_the_same_numbers_on_the_pool_and_on_dask(tmp_p
 def _numbers(doc):
     doc["diagnostics"] = {k: v for k, v in doc["diagnostics"].items() if not k.endswith("wall_s")}
     return doc
+
+
+def test_rows_past_the_turnoff_are_not_outliers_a_corrupted_row_is(tmp_path):
+    """Without a frac_saturated column the rows past the PTC's turnoff are the rows at the clip: those
+    the mixture down-weights there (an amplifier simulated frame by frame, whose wells spread: the clip
+    model is an approximation) are flagged rows_in_the_clip_misfit, not outliers; a corrupted row
+    below the turnoff is still an outlier."""
+    from bayescap.validation.astro import ensure_astro_csv, focal_plane
+
+    name, truth, seed = focal_plane()[2]  # 47 flat pairs, 32 × 32 pixels
+    path = ensure_astro_csv(tmp_path, name, truth, seed, n_pixels=True)
+    d = bayescap.fit(str(path), seed=1, quality="fast").to_dict()
+    past = set(d["derived"]["ptc_turnoff_dn"]["rows_past"])
+    clip = set(d["flags"].get("rows_in_the_clip_misfit", []))
+    assert clip and clip <= past and not {o["row"] for o in d["outliers"]} & past
+    assert "lie past the PTC's turnoff" in " ".join(d["notes"])
+    # the same table with one row's variance 50 % high, well below the turnoff
+    lines = path.read_text().splitlines()
+    head = [i for i, line in enumerate(lines) if not line.startswith("#")][0]
+    cols = lines[head].split(",")
+    j = cols.index("temporal_var_dn2")
+    row = head + 10  # data row 10
+    cells = lines[row].split(",")
+    cells[j] = repr(1.5 * float(cells[j]))
+    lines[row] = ",".join(cells)
+    bad = tmp_path / "bad.csv"
+    bad.write_text("\n".join(lines) + "\n")
+    d = bayescap.fit(str(bad), seed=1, quality="fast").to_dict()
+    assert 10 in {o["row"] for o in d["outliers"]} and 10 not in d["flags"].get("rows_in_the_clip_misfit", [])

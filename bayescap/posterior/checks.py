@@ -60,8 +60,9 @@ class ChecksMixin:
     def _separate_systematic_rows(self):
         """Rows the mixture down-weights that are not outliers of the measurement, moved from
         ``outliers`` to flags with a note: rows mostly in the clip (``frac_saturated`` ≥
-        :data:`NEAR_CLIP_FRACTION`), where the model of the few unclipped pixels (a normal tail
-        under the response's local slope) is an approximation; and runs of at least
+        :data:`NEAR_CLIP_FRACTION`; without that column, the rows past the PTC's turnoff), where the
+        model of the few unclipped pixels (a normal tail under the response's local slope) is an
+        approximation; and runs of at least
         :data:`RUN_LENGTH` neighbouring rows along the signal, a shape the model does not follow
         (a knee, a kink). Neither is a corrupted row, and the mixture's down-weighting of them means
         the intervals assume the model's shape there."""
@@ -72,9 +73,14 @@ class ChecksMixin:
             int(r): i for i, r in enumerate(d.row_numbers if d.row_numbers is not None else range(1, d.n_levels + 1))
         }
         fs = d.frac_saturated
-        near = sorted(
-            {o["row"] for o in self.outliers if fs is not None and fs[pos[o["row"]]] >= self.NEAR_CLIP_FRACTION}
-        )
+        if fs is not None:
+            clipped = {r for r, i in pos.items() if fs[i] >= self.NEAR_CLIP_FRACTION}
+        else:  # no frac_saturated column (a mean/variance table): the rows past the PTC's turnoff
+            from bayescap.posterior.derived import ptc_turnoff
+
+            _, past = ptc_turnoff(d.signal_dn, d.temporal_var_dn2)
+            clipped = {int(d.row_label(k)) for k in past}
+        near = sorted({o["row"] for o in self.outliers if o["row"] in clipped})
         rest = sorted({o["row"] for o in self.outliers} - set(near))
         order = np.argsort(d.mean_dn - d.dark_mean_dn, kind="stable")
         rank = {int(r): k for k, r in enumerate(np.asarray(list(pos))[order])}
@@ -92,7 +98,14 @@ class ChecksMixin:
         if near:
             self.flags["rows_in_the_clip_misfit"] = near
             self.notes.append(
-                "rows " + ", ".join(map(str, near)) + " have most of their pixels clipped and fit the model poorly: "
+                "rows "
+                + ", ".join(map(str, near))
+                + (
+                    " have most of their pixels clipped"
+                    if fs is not None
+                    else " lie past the PTC's turnoff, at the clip"
+                )
+                + " and fit the model poorly: "
                 "there the model of the few unclipped pixels is an approximation; they are down-weighted, "
                 "not outliers of the measurement"
             )
