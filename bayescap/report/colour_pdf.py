@@ -13,6 +13,7 @@ from __future__ import annotations
 import textwrap
 
 from bayescap.report.colour_section import limit_text
+from bayescap.report.pdf_table import grid_table
 
 __all__ = ["colour_page", "colour_rows"]
 
@@ -45,21 +46,6 @@ def colour_rows(c: dict) -> list[list[str]]:
     return rows + per_channel
 
 
-def _table(ax, rows, header, widths, fontsize=6.5):
-    ax.axis("off")
-    if not rows:
-        return
-    t = ax.table(cellText=rows, colLabels=header, loc="upper left", cellLoc="left", colWidths=widths)
-    t.auto_set_font_size(False)
-    t.set_fontsize(fontsize)
-    t.scale(1.0, 1.1)
-    for (r, _), cell in t.get_celld().items():
-        cell.set_linewidth(0.3)
-        cell.get_text().set_parse_math(False)
-        if r == 0:
-            cell.set_facecolor("#eeeeee")
-
-
 def colour_page(doc: dict, *, name: str, page_in=(11.69, 8.27)):
     """The colour page of a ``bayescap colour`` result ``doc`` (its JSON) as a Figure."""
     from matplotlib.figure import Figure
@@ -75,7 +61,7 @@ def colour_page(doc: dict, *, name: str, page_in=(11.69, 8.27)):
     )
     fig.text(0.03, 0.935, textwrap.fill(sub, 200), fontsize=7.5, va="top", color="0.3" if ok else "#b00000",
              parse_math=False)  # fmt: skip
-    _table(fig.add_axes((0.03, 0.35, 0.47, 0.55)), colour_rows(c), ["Quantity", "Median", "95 % interval"],
+    grid_table(fig.add_axes((0.03, 0.35, 0.47, 0.55)), colour_rows(c), ["Quantity", "Median", "95 % interval"],
            [0.5, 0.25, 0.25])  # fmt: skip
     right = []
     ccm = c.get("ccm") or {}
@@ -84,7 +70,7 @@ def colour_page(doc: dict, *, name: str, page_in=(11.69, 8.27)):
             [f"{v:.4f}" for v in row] + [f"{g:.3f}"] for row, g in zip(ccm.get("matrix", []), ccm.get("noise_gain", []))
         ]
         head = ["M: R", "G", "B", "noise gain √Σⱼ Mᵢⱼ²"]  # white-balanced raw R, G, B → output row
-        _table(fig.add_axes((0.53, 0.78, 0.44, 0.12)), rows, head, [0.2, 0.2, 0.2, 0.4])
+        grid_table(fig.add_axes((0.53, 0.78, 0.44, 0.12)), rows, head, [0.2, 0.2, 0.2, 0.4])
         right.append(
             f"CCM: {ccm.get('source', '')}; uncertainty: {ccm.get('uncertainty', '')}; "
             f"condition number {ccm.get('condition_number', float('nan')):.3g}."
@@ -110,7 +96,7 @@ def colour_page(doc: dict, *, name: str, page_in=(11.69, 8.27)):
                 row.append(f"{med.split(' ')[0]} [{iv}]" if iv else med)
         rows.append(row)
     head = ["ch"] + [f"{lab} {p}" for _, lab in names for p in ("sep.", "joint")]
-    _table(fig.add_axes((0.53, 0.35, 0.44, 0.28)), rows, head, [0.06] + [0.94 / 6] * 6, fontsize=5.5)
+    grid_table(fig.add_axes((0.53, 0.35, 0.44, 0.28)), rows, head, [0.06] + [0.94 / 6] * 6, fontsize=5.5)
     ch = c.get("choices", {})
     lines = [f"CS: {ch.get('definition', '')}", f"domain: {ch.get('domain', '')}", f"floor: {ch.get('floor', '')}"]
     if ch.get("clipping"):

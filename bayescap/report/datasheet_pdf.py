@@ -28,6 +28,7 @@ from bayescap.report.datasheet import (
     ptc_figure,
     snr_figure,
 )
+from bayescap.report.pdf_table import grid_table
 
 __all__ = ["datasheet_pdf", "write_datasheet_pdf"]
 
@@ -84,25 +85,9 @@ def datasheet_pdf(result, *, view=None, title=None, colour=None) -> bytes:
         0.03, 0.915, conv, fontsize=7.5, va="top", color="0" if ok else "#b00000", weight="normal" if ok else "bold",
         parse_math=False,
     )  # fmt: skip
-    tab_ax = fig.add_axes((0.03, 0.1, 0.58, 0.78))
-    tab_ax.axis("off")
     rows = _rows(view, limits)
     header = ["Quantity", "Symbol", "Unit", "Median", "95 % interval", "Recipe"]
-    table = tab_ax.table(
-        cellText=rows,
-        colLabels=header,
-        loc="upper left",
-        cellLoc="left",
-        colWidths=[0.41, 0.11, 0.07, 0.11, 0.18, 0.12],
-    )
-    table.auto_set_font_size(False)
-    table.set_fontsize(6.5)
-    table.scale(1.0, 1.12)
-    for (r, _), cell in table.get_celld().items():
-        cell.set_linewidth(0.3)
-        cell.get_text().set_parse_math(False)
-        if r == 0:
-            cell.set_facecolor("#eeeeee")
+    grid_table(fig.add_axes((0.03, 0.1, 0.58, 0.78)), rows, header, [0.41, 0.11, 0.07, 0.11, 0.18, 0.12], scale=1.12)
     ptc_figure(result, view, ax=fig.add_axes((0.69, 0.56, 0.29, 0.31)))
     snr_figure(result, view, limits, ax=fig.add_axes((0.69, 0.15, 0.29, 0.31)))
     for ax in fig.axes[1:]:
