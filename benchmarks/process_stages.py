@@ -16,9 +16,9 @@ For the bundled sensors (the real Basler CCD and the simulated ones in ``data/si
   into the sampler's own wall time (start, optimisation, sampling: ``diagnostics.wall_s``) and the
   rest of ``bayescap.fit`` (checks, derived quantities' draws), the result's dictionary
   (``to_dict``: summaries, intervals, limits, notes) and writing the JSON;
-* **a plain 2-parameter emcee script** on the same CSV (log K and log read noise, Gaussian variances,
-  StretchMove, 32 walkers × 2 500 steps, one walker per call: how a new user would write it), from
-  start to exit: the yardstick issue 50 asks the whole process to beat.
+* **a plain 2-parameter emcee script** on the same CSV (``benchmarks/_plain_emcee.py``: log K and
+  log read noise, Gaussian variances, StretchMove, 32 walkers × 2 500 steps, one walker per call: how
+  a new user would write it), from start to exit: the yardstick issue 50 asks the whole process to beat.
 
 Also ``bayescap --version`` (start to exit). Targets (issue 50, quiet 2-core machine): ``--version``
 ≤ 0.3 s; the Basler ``fit --json`` ≤ 2 s; faster than the plain script.
@@ -72,44 +72,6 @@ print(json.dumps({"import": t1 - t0, "read": t2 - t1, "model": t3 - t2, "fit": t
                   "write": t6 - t5, "method": result.diag.get("method")}))
 """
 
-PLAIN_SCRIPT = r"""
-import sys
-import numpy as np
-import emcee
-cols = None
-rows = []
-for line in open(sys.argv[1]):
-    if line.startswith("#") or not line.strip():
-        continue
-    if cols is None:
-        cols = line.strip().split(",")
-        continue
-    rows.append([float(x) if x else float("nan") for x in line.strip().split(",")])
-a = np.array(rows)
-c = {n: a[:, i] for i, n in enumerate(cols)}
-s = c["mean_dn"] - c["dark_mean_dn"]
-keep = s <= 0.7 * s.max()
-S, v, n = s[keep], c["temporal_var_dn2"][keep], c["n_pixels"][keep]
-vd, nd = c["dark_temporal_var_dn2"], c["n_pixels"]
-sv, svd = v * np.sqrt(2 / (n - 1)), vd * np.sqrt(2 / (nd - 1))
-def log_prob(th):
-    lk, lr = th
-    if not (-7 < lk < 7 and -5 < lr < 8):
-        return -np.inf
-    K, r = np.exp(lk), np.exp(lr)
-    m = S / K + r * r / (K * K) + 1 / 12
-    md = r * r / (K * K) + 1 / 12
-    return -0.5 * np.sum(((v - m) / sv) ** 2) - 0.5 * np.sum(((vd - md) / svd) ** 2)
-rng = np.random.default_rng(1)
-k0 = 1 / np.polyfit(S, v, 1)[0]
-r0 = np.sqrt(max((np.median(vd) - 1 / 12) * k0 * k0, 1.0))
-p0 = np.array([np.log(k0), np.log(r0)]) + 1e-3 * rng.standard_normal((32, 2))
-sampler = emcee.EnsembleSampler(32, 2, log_prob)
-sampler.run_mcmc(p0, 2500, progress=False)
-ch = np.exp(sampler.get_chain(discard=500, flat=True))
-print("K", np.percentile(ch[:, 0], [2.5, 50, 97.5]), "read", np.percentile(ch[:, 1], [2.5, 50, 97.5]))
-"""
-
 
 def _env():
     env = dict(os.environ)
@@ -149,8 +111,7 @@ def _stages(path, quality, repeat, tmp):
 def run(repeat):
     rows = []
     with tempfile.TemporaryDirectory() as tmp:
-        plain = Path(tmp) / "plain_emcee.py"
-        plain.write_text(PLAIN_SCRIPT)
+        plain = ROOT / "benchmarks" / "_plain_emcee.py"
         version = _wall([sys.executable, "-m", "bayescap", "--version"], max(repeat, 3))
         for name, csv in SENSORS.items():
             plain_s = _wall([sys.executable, str(plain), csv], repeat)

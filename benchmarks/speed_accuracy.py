@@ -140,27 +140,13 @@ def naive_emcee(data, *, seed, n_walkers=32, n_burn=500, n_steps=2000):
     Two parameters (log K, log read noise). Returns (wall s, min ESS over parameters)."""
     import arviz as az
     import emcee
+    from _plain_emcee import problem
 
-    s = data.mean_dn - data.dark_mean_dn
-    keep = s <= 0.7 * s.max()
-    S, v, n = s[keep], data.temporal_var_dn2[keep], data.n_pixels[keep]
-    vd, nd = data.dark_temporal_var_dn2, data.n_pixels
-    sv, svd = v * np.sqrt(2 / (n - 1)), vd * np.sqrt(2 / (nd - 1))
-
-    def log_prob(th):
-        lk, lr = th
-        if not (-7 < lk < 7 and -5 < lr < 8):
-            return -np.inf
-        K, r = np.exp(lk), np.exp(lr)
-        m = S / K + r * r / (K * K) + 1 / 12
-        md = r * r / (K * K) + 1 / 12
-        return -0.5 * np.sum(((v - m) / sv) ** 2) - 0.5 * np.sum(((vd - md) / svd) ** 2)
-
+    log_prob, x0 = problem(
+        data.mean_dn, data.dark_mean_dn, data.temporal_var_dn2, data.n_pixels, data.dark_temporal_var_dn2
+    )
     rng = np.random.default_rng(seed)
-    slope = np.polyfit(S, v, 1)[0]
-    k0 = 1 / slope
-    r0 = np.sqrt(max((np.median(vd) - 1 / 12) * k0 * k0, 1.0))
-    p0 = np.array([np.log(k0), np.log(r0)]) + 1e-3 * rng.standard_normal((n_walkers, 2))
+    p0 = x0 + 1e-3 * rng.standard_normal((n_walkers, 2))
     t0 = time.perf_counter()
     sampler = emcee.EnsembleSampler(n_walkers, 2, log_prob)  # StretchMove, vectorize=False
     sampler.random_state = np.random.RandomState(seed).get_state()
