@@ -103,12 +103,18 @@ def mean_ramp(d):
     with fewer than three rows or two exposure times, without dark pairs, or where the rounding bends
     the means (the pixels spread over less than :data:`MEAN_SPREAD_MIN_DN` about the DN grid, by
     temporal noise or by a fixed pattern)."""
+    fit = _mean_line_fit(d)
+    return None if fit is None else fit[:2]
+
+
+def _mean_line_fit(d):
+    """:func:`weighted_slope` of the dark means against the exposure time, or None where they are no
+    witness (:func:`mean_ramp`)."""
     if not getattr(d, "has_dark_rows", True) or np.unique(np.asarray(d.exposure_time_s, float)).size < 2:
         return None
     if not _means_follow_shifts(d):
         return None
-    fit = weighted_slope(d.exposure_time_s, d.dark_mean_dn, _mean_sd_dn(d))
-    return None if fit is None else fit[:2]
+    return weighted_slope(d.exposure_time_s, d.dark_mean_dn, _mean_sd_dn(d))
 
 
 @dataclass(frozen=True)
@@ -155,7 +161,8 @@ def select_dark_mean(d) -> tuple[bool, str | None]:
     """Whether the dark means enter the likelihood (the module docstring's three tests), and why:
     a sentence for the result when they enter or when the two witnesses disagree, None when the
     means cannot witness (rounding) or the variances see no ramp of their own."""
-    if mean_ramp(d) is None:
+    mr = _mean_line_fit(d)
+    if mr is None:
         return False, None
     t = np.asarray(d.exposure_time_s, float)
     vd = np.maximum(np.asarray(d.dark_temporal_var_dn2, float), 1e-6)
@@ -163,7 +170,6 @@ def select_dark_mean(d) -> tuple[bool, str | None]:
     vr = weighted_slope(t, vd, vd * np.sqrt(2.0 / nu))
     if vr is None or not vr[0] / (vr[1] * _birge(vr)) >= VAR_RAMP_Z:
         return False, None
-    mr = weighted_slope(t, d.dark_mean_dn, _mean_sd_dn(d))
     k = _rough_gain(d)
     if k is None:
         return False, None
