@@ -140,6 +140,20 @@ def test_brighter_fatter_without_photons_cannot_be_told_apart():
     assert "cannot be told apart" in t.reasons["brighter_fatter"]
 
 
+def test_brighter_fatter_without_photons_holds_its_truths():
+    """docs/real_sensors.md's claim: without photon counts the response term stands in for
+    brighter-fatter; K and the dark noise hold their truths, and the full well's interval, spanning
+    the bent and the straight reading, holds the true charge at the clip ((ADC max − black)·K: the
+    means are straight)."""
+    d = dataclasses.replace(_case_bf(), photons_per_pixel=None)
+    p = bayescap.fit(d, quality="fast", seed=1).to_dict()["parameters"]
+    truths = {"conversion_gain_e_per_dn": 1.5, "dark_noise_e": 5.0, "full_well_e": (2**16 - 1 - 1000.0) * 1.5}
+    for name, truth in truths.items():
+        lo, hi = p[name]["ci95"]
+        assert lo < truth < hi, (name, p[name]["ci95"], truth)
+    assert "both readings" in p["full_well_e"]["note"]
+
+
 def test_brighter_fatter_variance_matches_the_frames():
     """The model's variance with the fitted-in a₀₀ bends as the frames do: at the simulated a₀₀ the
     predicted bright variances match the measured ones within their sampling error (K, read noise,
