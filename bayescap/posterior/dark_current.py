@@ -1,8 +1,9 @@
 """Whether the data see a dark current: the data's own rule, not a fixed ratio.
 
 A dark current ``D`` has two witnesses (EMVA 1288 reports both): the dark *variances* rise as
-``D·t/K²`` (the witness the likelihood uses) and the dark *means* as ``D·t/K`` above the black level
-(very precise, but a black level that drifts or is clamped with time moves them too). The fit's
+``D·t/K²`` (always in the likelihood) and the dark *means* as ``D·t/K`` above the black level
+(very precise, but a black level that drifts or is clamped with time moves them too; in the
+likelihood only where the two agree: :mod:`bayescap.model.dark_ramp`). The fit's
 ``dark_current_e_per_s`` is printed as a detection (a median with its 95 % interval) only when
 
 1. **the posterior excludes zero**: the marginal likelihood of ``D`` (its posterior density divided by

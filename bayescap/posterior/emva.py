@@ -576,8 +576,8 @@ def emva1288_view(result) -> dict:
             "e-/s",
             sw.dark_mean_slope * k,
             recipe=sw.dark_mean_slope / K_rec,
-            note="slope of the dark mean over exposure time (DN/s, from the data) divided by K per draw; bayescap "
-            "does not fit the dark mean. Differs from μ_I.var where the camera corrects its offset",
+            note="slope of the dark mean over exposure time (DN/s, from the data) divided by K per draw; bayescap fits "
+            "it only where it agrees with the variances. Differs from μ_I.var where the camera corrects its offset",
         )
     view = json_safe(
         {
