@@ -12,7 +12,7 @@ import numpy as np
 
 from bayescap.model.likelihood import _norm_logpdf
 from bayescap.model.quantization import _rounded_normal_moments, _rounded_offset
-from bayescap.model.response import BF_BOUND, N_BASIS, SHAPE_BOUND, deviation_at_ref, linearise
+from bayescap.model.response import BF_BOUND, N_BASIS, RICH_BASIS, SHAPE_BOUND, deviation_at_ref, linearise
 from bayescap.physics.noise import dark_variance_e2
 
 __all__ = ["PARAMETER_INFO", "response_share"]
@@ -55,7 +55,7 @@ PARAMETER_INFO = {
     ),
     **{
         f"response_shape_{k}": ("", f"coefficient {k} of the response's log-slope (Bernstein basis, docs/model.md)")
-        for k in range(1, N_BASIS + 1)
+        for k in range(1, RICH_BASIS + 1)
     },
     "brighter_fatter_a00_per_e": (
         "1/e-",
@@ -141,7 +141,7 @@ class _ParametersMixin:
         """Sampling coordinates of the response and pixel-offset terms (after the others)."""
         out = []
         if getattr(self.terms, "nonlinearity", False):
-            out += [f"nl_{k}" for k in range(1, N_BASIS + 1)]
+            out += [f"nl_{k}" for k in range(1, self.n_basis + 1)]
         if getattr(self.terms, "brighter_fatter", False):
             out.append("bf")
         if getattr(self.terms, "offset_spread", False):
@@ -154,11 +154,16 @@ class _ParametersMixin:
         the two bend the photon-transfer curve alike (:func:`response_share`)."""
         return getattr(self.terms, "nonlinearity", False) and self.data.photons_per_pixel is None
 
+    @property
+    def n_basis(self) -> int:
+        """Degree of the response's log-slope (:attr:`ModelTerms.response_degree`)."""
+        return int(getattr(self.terms, "response_degree", N_BASIS))
+
     def response_theta(self, th):
-        """The response's log-slope coefficients θ (n, N_BASIS) of draws ``th``."""
+        """The response's log-slope coefficients θ (n, :attr:`n_basis`) of draws ``th``."""
         th = np.atleast_2d(th)
         j = self.idx["nl_1"]
-        return th[:, j : j + N_BASIS]
+        return th[:, j : j + self.n_basis]
 
     @property
     def response_ref_dn(self) -> float:
@@ -235,7 +240,7 @@ class _ParametersMixin:
                 "why": "the rows modelled as partly clipped are those within reach of the clip at this spread",
             }
         if getattr(self.terms, "nonlinearity", False):
-            for j in range(1, N_BASIS + 1):
+            for j in range(1, self.n_basis + 1):
                 out[f"response_shape_{j}"] = {
                     "lower": -SHAPE_BOUND,
                     "upper": SHAPE_BOUND,
@@ -524,13 +529,15 @@ class _ParametersMixin:
 
             d = self.data
             j = self.idx["nl_1"]
-            x[j : j + N_BASIS] = 0.0
+            x[j : j + self.n_basis] = 0.0
             if d.photons_per_pixel is not None:
                 sig = d.mean_dn - d.dark_mean_dn
                 rows = _unclipped_rows(d, self.full_sat)
-                st = shape_start(sig, np.asarray(d.photons_per_pixel, float), rows, self.response_ref_dn)
+                st = shape_start(
+                    sig, np.asarray(d.photons_per_pixel, float), rows, self.response_ref_dn, m=self.n_basis
+                )
                 if st is not None:
-                    x[j : j + N_BASIS] = st[0]
+                    x[j : j + self.n_basis] = st[0]
                     if "qe" in self.idx:
                         k0 = float(np.exp(x[self.idx["log_k"]]))
                         x[self.idx["qe"]] = float(np.clip(st[1] * k0, 0.01, 0.99))

@@ -43,6 +43,7 @@ import numpy as np
 
 __all__ = [
     "N_BASIS",
+    "RICH_BASIS",
     "SHAPE_BOUND",
     "BF_BOUND",
     "log_slope",
@@ -54,6 +55,7 @@ __all__ = [
     "bf_factor",
     "shape_start",
     "response_shape_evidence",
+    "response_degree_evidence",
     "response",
     "response_inverse",
     "response_evidence",
@@ -79,6 +81,12 @@ BF_EVIDENCE_SIGMA = 3.0
 
 #: degree of the Bernstein basis of the log-slope (coefficients θ₁..θ_m)
 N_BASIS = 4
+#: the degree when the data show a shape a degree-4 log-slope cannot follow (a knee or a kink in the
+#: top rows: :func:`response_degree_evidence`)
+RICH_BASIS = 8
+#: ... chosen on an F-test of the two degrees' smooth fits at this p-value (strong evidence: a richer
+#: shape costs K's precision without photon counts, and sampling time)
+RICH_P_VALUE = 1e-3
 #: a wall on every |θ_k| (far beyond the prior's bulk: a slope ratio e^±8)
 SHAPE_BOUND = 8.0
 #: a wall on |b| = |a₀₀·K·S_ref| (the brighter-fatter bend at the top): e^{2b} spans 0.02–50
@@ -342,6 +350,35 @@ def response_shape_evidence(signal_dn, photons, rows):
     ug = np.linspace(u.min(), 1.0, 64)
     dev = float(np.max(np.abs(b[0] * ug + b[1] * ug * ug)) / coef[1])
     return dev, chi2
+
+
+def response_degree_evidence(u, y, sd, rows, lo=N_BASIS, hi=RICH_BASIS):
+    """Whether a shape needs the richer log-slope: smooth fits of ``y`` against ``u`` (a Chebyshev
+    series of degree ``lo + 1`` and ``hi + 1``, the polynomial a log-slope of degree m bends a curve
+    into to first order) over the rows ``rows``, each weighted by ``1/sd``, compared by the F-test of
+    the nested fits. With photon counts ``u`` are the photons and ``y`` the signals (``sd`` the
+    signals: relative residuals, as in EMVA 1288's linearity fit); without them ``u`` the signals and
+    ``y`` the shot variances (``sd`` their sampling errors). Returns ``(p_value, n_rows)``, None with
+    too few rows for the richer fit to leave four degrees of freedom."""
+    from scipy.special import fdtrc
+
+    u, y, sd = (np.asarray(a, float) for a in (u, y, sd))
+    r = np.asarray(rows, bool) & np.isfinite(u) & np.isfinite(y) & np.isfinite(sd) & (sd > 0)
+    n, p_lo, p_hi = int(r.sum()), lo + 2, hi + 2
+    if n < p_hi + 4:
+        return None
+    x = 2.0 * (u[r] - u[r].min()) / max(float(np.ptp(u[r])), 1e-300) - 1.0
+    V = np.polynomial.chebyshev.chebvander(x, hi + 1) / sd[r][:, None]
+    b = y[r] / sd[r]
+    rss = []
+    for p in (p_lo, p_hi):
+        coef, *_ = np.linalg.lstsq(V[:, :p], b, rcond=None)
+        res = b - V[:, :p] @ coef
+        rss.append(float(res @ res))
+    if not rss[1] > 0:
+        return (0.0 if rss[0] > 0 else 1.0), n
+    F = ((rss[0] - rss[1]) / (p_hi - p_lo)) / (rss[1] / (n - p_hi))
+    return float(fdtrc(p_hi - p_lo, n - p_hi, max(F, 0.0))), n
 
 
 def response(x, a, s_ref):

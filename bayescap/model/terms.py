@@ -17,8 +17,12 @@ from bayescap.model.response import (
     BF_EVIDENCE_SIGMA,
     EVIDENCE_MIN,
     EVIDENCE_SIGMA,
+    N_BASIS,
+    RICH_BASIS,
+    RICH_P_VALUE,
     VARIANCE_EVIDENCE_MIN,
     VARIANCE_EVIDENCE_SIGMA,
+    response_degree_evidence,
     response_evidence,
     response_shape_evidence,
     variance_curvature_evidence,
@@ -40,6 +44,7 @@ class ModelTerms:
     robust: bool = True
     discrepancy: bool = True
     nonlinearity: bool = False
+    response_degree: int = N_BASIS  # degree of the response's log-slope (bayescap.model.response)
     offset_spread: bool = False
     brighter_fatter: bool = False
     dark_mean: bool = False
@@ -235,6 +240,7 @@ def select_terms(d: PTCData, *, force: dict | None = None) -> ModelTerms:
     if not dsnu:
         reasons["dsnu"] = "no dark_spatial_var_dn2 column: pair differences cancel fixed-pattern noise"
     nonlin, bfat = _select_nonlinearity(d, full, reasons, how)
+    degree = _response_degree(d, full, how) if nonlin else N_BASIS
     offsets = _select_offset_spread(d, dsnu, full, reasons, how)
     terms = dict(
         dark_current=multi_t,
@@ -244,6 +250,7 @@ def select_terms(d: PTCData, *, force: dict | None = None) -> ModelTerms:
         prnu=prnu,
         dsnu=dsnu,
         nonlinearity=nonlin,
+        response_degree=degree,
         brighter_fatter=bfat,
         offset_spread=offsets,
     )
@@ -350,10 +357,15 @@ def _mean_variance_curvature_evidence(sig, var, n_pixels, rows):
 def _unclipped_rows(d: PTCData, full):
     """Rows whose pixels are all below the clip: not fully clipped, no saturated pixel, more than
     4 temporal sd below the ADC maximum, and below 90 % of the signal of the largest temporal
-    variance (a well that clips before the ADC bends the means there without a saturated value)."""
+    variance (a well that clips before the ADC bends the means there without a saturated value).
+    The last rule is dropped when a row has (nearly) all its pixels at the ADC maximum
+    (``frac_saturated`` ≥ 0.999): every well then holds more than the ADC reads, and a bend below
+    the first saturated pixel is the response's (a soft knee), not a well's clip."""
     ok = ~full
     sig = d.mean_dn - d.dark_mean_dn
-    if np.any(ok):
+    fs = d.frac_saturated
+    adc_first = fs is not None and d.adc_max_dn is not None and bool(np.any(full & (fs >= 0.999)))
+    if np.any(ok) and not adc_first:
         i_peak = np.flatnonzero(ok)[int(np.argmax(d.temporal_var_dn2[ok]))]
         ok &= sig <= 0.9 * sig[i_peak]
     if d.frac_saturated is not None:
@@ -518,6 +530,33 @@ def _select_ptc_curvature(d: PTCData, sig, rows, reasons, how) -> bool:
         f"{100 * bend:+.2g} ± {100 * se:.2g} % at the top of the unclipped rows"
     )
     return False
+
+
+def _response_degree(d: PTCData, full, how) -> int:
+    """The degree of the response's log-slope: :data:`RICH_BASIS` when a degree-4 shape leaves
+    structure the richer one removes (:func:`~bayescap.model.response.response_degree_evidence`, an
+    F-test at :data:`RICH_P_VALUE` on the means against the photons, or without photons on the
+    temporal PTC), over the rows the response is selected on; else :data:`N_BASIS`."""
+    sig = d.mean_dn - d.dark_mean_dn
+    ok = _unclipped_rows(d, full)
+    if not np.any(ok):
+        return N_BASIS
+    rows = ok & (sig >= 0.05 * sig[ok].max())
+    if d.photons_per_pixel is not None:
+        ev = response_degree_evidence(np.asarray(d.photons_per_pixel, float), sig, np.abs(sig), rows)
+        what = "the means against the photons"
+    else:
+        V, Vd = d.temporal_var_dn2, d.dark_temporal_var_dn2
+        sd = np.sqrt(2.0 * (V**2 + Vd**2) / np.maximum(d.n_pixels - 1.0, 1.0))
+        ev = response_degree_evidence(sig, V - Vd, sd, rows & (V >= _QUANT_EXACT_S2))
+        what = "the temporal photon-transfer curve"
+    if ev is None or not ev[0] < RICH_P_VALUE:
+        return N_BASIS
+    how["response_nonlinearity"] = how.get("response_nonlinearity", "") + (
+        f"; {what} has a shape a degree-{N_BASIS} log-slope does not follow (a knee or a kink: F-test "
+        f"p = {ev[0]:.1g} over {ev[1]} rows), so the log-slope has degree {RICH_BASIS}"
+    )
+    return RICH_BASIS
 
 
 def _select_offset_spread(d: PTCData, dsnu: bool, full, reasons, how) -> bool:

@@ -6,7 +6,6 @@ from __future__ import annotations
 
 import numpy as np
 
-from bayescap.model.response import N_BASIS
 
 __all__ = ["response_model_summary"]
 
@@ -38,7 +37,7 @@ def response_model_summary(result) -> dict:
     if bent or bf:
         out["reference_signal_dn"] = float(m.response_ref_dn)
     if bent:
-        out["n_basis"] = N_BASIS
+        out["n_basis"] = m.n_basis
     detected = None
     if bf and "brighter_fatter_a00_per_e" in p:
         med, lo, hi = _ci(p["brighter_fatter_a00_per_e"])
