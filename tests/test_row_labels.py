@@ -9,7 +9,7 @@ import bayescap
 from bayescap.posterior.checks import ChecksMixin
 
 
-def _result(outlier_rows, frac_saturated=None):
+def _result(outlier_rows, frac_saturated=None, residual_z=None):
     d = bayescap.load("data/simulated/sim_phone_1p75um_10bit.csv")
     if frac_saturated is not None:
         d = d.select(np.ones(d.n_levels, bool))
@@ -17,7 +17,8 @@ def _result(outlier_rows, frac_saturated=None):
     r = SimpleNamespace(model=SimpleNamespace(data=d), notes=[], flags={})
     r.outliers = [{"row": int(x), "block": "bright_var", "probability": 0.9} for x in outlier_rows]
     r.NEAR_CLIP_FRACTION, r.RUN_LENGTH = ChecksMixin.NEAR_CLIP_FRACTION, ChecksMixin.RUN_LENGTH
-    ChecksMixin._separate_systematic_rows(r)
+    r.DEPART_Z = ChecksMixin.DEPART_Z
+    ChecksMixin._separate_systematic_rows(r, residual_z)
     return r, d
 
 
@@ -45,3 +46,27 @@ def test_rows_mostly_clipped_are_not_called_outliers():
     r, _ = _result([label, other], frac_saturated=fs)
     assert r.flags["rows_in_the_clip_misfit"] == [label]
     assert [o["row"] for o in r.outliers] == [other]
+
+
+def test_a_row_whose_neighbours_depart_with_it_is_structure():
+    """One down-weighted row at a knee, its neighbours along the signal off the model in the same
+    direction by more than DEPART_Z sd but not down-weighted: a shape, not an outlier. Neighbours
+    within 1 sd, or departing the other way, leave it an outlier (a corrupted row)."""
+    d = bayescap.load("data/simulated/sim_phone_1p75um_10bit.csv")
+    order = [int(x) for x in np.asarray(d.row_numbers)[np.argsort(d.mean_dn - d.dark_mean_dn, kind="stable")]]
+    row, below, above = order[30], order[29], order[31]
+    base = {r: 0.3 for r in order}
+
+    def labels(z_below, z_row, z_above):
+        z = {**base, below: z_below, row: z_row, above: z_above}
+        return _result([row], residual_z={"bright_var": z})[0]
+
+    r = labels(-1.5, -6.3, -1.2)
+    assert r.outliers == [] and r.flags["structured_residuals"] == [row]
+    for zb, za in ((-0.5, -1.2), (+1.5, +1.2), (-1.5, +1.2)):
+        r = labels(zb, -6.3, za)
+        assert [o["row"] for o in r.outliers] == [row] and "structured_residuals" not in r.flags
+    # the residuals of another block do not count
+    z = {**base, below: -1.5, above: -1.2}
+    r = _result([row], residual_z={"mean": z, "bright_var": {**base, row: -6.3}})[0]
+    assert [o["row"] for o in r.outliers] == [row]

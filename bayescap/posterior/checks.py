@@ -27,7 +27,7 @@ class ChecksMixin:
                 if pr > 0.5:
                     self.outliers.append({"row": int(r), "block": block, "probability": float(pr)})
         down_weighted = {o["row"] for o in self.outliers}
-        self._separate_systematic_rows()
+        self._separate_systematic_rows(_residual_z(m, pred))
         if self.outliers:
             desc = ", ".join(f"row {o['row']} ({o['block']}, P = {o['probability']:.2f})" for o in self.outliers)
             self.notes.append(f"outlier rows (down-weighted by the mixture, not removed): {desc}")
@@ -54,18 +54,24 @@ class ChecksMixin:
 
     #: a row with at least this fraction of its pixels clipped sits in the clip (see below)
     NEAR_CLIP_FRACTION = 0.9
-    #: this many rows in a row along the signal, all down-weighted: a shape, not outliers
+    #: this many neighbouring rows along the signal departing together: a shape, not outliers
     RUN_LENGTH = 3
+    #: a row departs with a down-weighted neighbour when its residual in the same block has the same
+    #: sign and at least this many standard deviations (a corrupted row's two neighbours both do
+    #: so by chance with probability 0.16² = 2.5 %)
+    DEPART_Z = 1.0
 
-    def _separate_systematic_rows(self):
+    def _separate_systematic_rows(self, residual_z=None):
         """Rows the mixture down-weights that are not outliers of the measurement, moved from
         ``outliers`` to flags with a note: rows mostly in the clip (``frac_saturated`` ≥
         :data:`NEAR_CLIP_FRACTION`; without that column, the rows past the PTC's turnoff), where the
         model of the few unclipped pixels (a normal tail under the response's local slope) is an
-        approximation; and runs of at least
-        :data:`RUN_LENGTH` neighbouring rows along the signal, a shape the model does not follow
-        (a knee, a kink). Neither is a corrupted row, and the mixture's down-weighting of them means
-        the intervals assume the model's shape there."""
+        approximation; and runs of at least :data:`RUN_LENGTH` neighbouring rows along the signal
+        that depart from the model together, a shape the model does not follow (a knee, a kink):
+        down-weighted rows, and (``residual_z``: {block: {row: median standardised residual}})
+        rows whose residual in a down-weighted row's block has its sign and at least
+        :data:`DEPART_Z` sd. Neither is a corrupted row, and the mixture's down-weighting of them
+        means the intervals assume the model's shape there."""
         d = self.model.data
         if not self.outliers:
             return
@@ -84,17 +90,17 @@ class ChecksMixin:
         rest = sorted({o["row"] for o in self.outliers} - set(near))
         order = np.argsort(d.mean_dn - d.dark_mean_dn, kind="stable")
         rank = {int(r): k for k, r in enumerate(np.asarray(list(pos))[order])}
-        runs, cur = [], []
-        for r in sorted(rest, key=lambda r: rank[r]):
-            if cur and rank[r] == rank[cur[-1]] + 1:
-                cur.append(r)
-            else:
-                if len(cur) >= self.RUN_LENGTH:
-                    runs.append(cur)
-                cur = [r]
-        if len(cur) >= self.RUN_LENGTH:
-            runs.append(cur)
+        runs = _runs(set(rest), rank, self.RUN_LENGTH)
+        for block, z in (residual_z or {}).items():
+            flagged = {o["row"] for o in self.outliers if o["block"] == block and o["row"] in rest and o["row"] in z}
+            for sign in (1.0, -1.0):
+                mine = {r for r in flagged if sign * z[r] > 0}
+                if mine:
+                    with_them = mine | {r for r, v in z.items() if sign * v >= self.DEPART_Z}
+                    runs += [[r for r in run if r in mine] for run in _runs(with_them, rank, self.RUN_LENGTH)]
+        runs = [run for run in runs if run]
         in_runs = {r for run in runs for r in run}
+        runs = [sorted(c, key=lambda r: rank[r]) for c in _connected(in_runs, rank)]
         if near:
             self.flags["rows_in_the_clip_misfit"] = near
             self.notes.append(
@@ -175,3 +181,54 @@ class ChecksMixin:
                 + ": the ADC's zero clips the darkest pixels, so read noise and DSNU are biased low "
                 "(raise the black level / offset, as EMVA 1288 requires)"
             )
+
+
+def _runs(rows, rank, length):
+    """Runs of at least ``length`` rows of ``rows`` that are neighbours along the signal (``rank``:
+    row label -> position in signal order), each in signal order."""
+    runs, cur = [], []
+    for r in sorted(rows, key=lambda r: rank[r]):
+        if cur and rank[r] == rank[cur[-1]] + 1:
+            cur.append(r)
+        else:
+            if len(cur) >= length:
+                runs.append(cur)
+            cur = [r]
+    if len(cur) >= length:
+        runs.append(cur)
+    return runs
+
+
+def _connected(rows, rank):
+    """``rows`` split into groups of neighbours along the signal (gaps of one row bridged)."""
+    out, cur = [], []
+    for r in sorted(rows, key=lambda r: rank[r]):
+        if cur and rank[r] <= rank[cur[-1]] + 2:
+            cur.append(r)
+        else:
+            if cur:
+                out.append(cur)
+            cur = [r]
+    if cur:
+        out.append(cur)
+    return out
+
+
+def _residual_z(model, pred):
+    """{block: {row label: median standardised residual over the draws}} of the robust blocks (a
+    gamma block's sd is model/√shape)."""
+    from bayescap.model.likelihood import ROBUST_BLOCKS
+
+    out = {}
+    for name in ROBUST_BLOCKS:
+        if name not in pred:
+            continue
+        obs, mod, spread, kind = pred[name]
+        mod = np.atleast_2d(mod)
+        shape = (mod.shape[0], np.shape(mod)[-1])
+        mod, spread, obs = (np.broadcast_to(a, shape) for a in (mod, spread, obs))
+        sd = mod / np.sqrt(spread) if kind == "gamma" else spread
+        with np.errstate(divide="ignore", invalid="ignore"):
+            z = np.median((obs - mod) / sd, axis=0)
+        out[name] = {int(r): float(v) for r, v in zip(model.observation_rows(name), z) if np.isfinite(v)}
+    return out
