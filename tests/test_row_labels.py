@@ -1,4 +1,4 @@
-"""Which down-weighted rows are called outliers: a corrupted row is; rows mostly in the clip and
+"""Which down-weighted rows are called outliers: a corrupted row is; rows in the clip and
 runs of neighbouring rows (a shape the model does not follow) are flagged for what they are."""
 
 from types import SimpleNamespace
@@ -17,7 +17,7 @@ def _result(outlier_rows, frac_saturated=None, residual_z=None):
     r = SimpleNamespace(model=SimpleNamespace(data=d), notes=[], flags={})
     r.outliers = [{"row": int(x), "block": "bright_var", "probability": 0.9} for x in outlier_rows]
     r.NEAR_CLIP_FRACTION, r.RUN_LENGTH = ChecksMixin.NEAR_CLIP_FRACTION, ChecksMixin.RUN_LENGTH
-    r.DEPART_Z = ChecksMixin.DEPART_Z
+    r.DEPART_Z, r.MOSTLY_CLIPPED = ChecksMixin.DEPART_Z, ChecksMixin.MOSTLY_CLIPPED
     ChecksMixin._separate_systematic_rows(r, residual_z)
     return r, d
 
@@ -70,3 +70,16 @@ def test_a_row_whose_neighbours_depart_with_it_is_structure():
     z = {**base, below: -1.5, above: -1.2}
     r = _result([row], residual_z={"mean": z, "bright_var": {**base, row: -6.3}})[0]
     assert [o["row"] for o in r.outliers] == [row]
+
+
+def test_a_half_clipped_row_is_in_the_clip_and_a_row_with_a_few_clipped_pixels_is_not():
+    d = bayescap.load("data/simulated/sim_phone_1p75um_10bit.csv")
+    order = np.argsort(d.mean_dn)
+    half, few = int(order[-1]), int(order[-2])
+    fs = np.zeros(d.n_levels)
+    fs[half], fs[few] = 0.45, 0.05
+    labels = np.asarray(d.row_numbers)
+    r, _ = _result([int(labels[half]), int(labels[few])], frac_saturated=fs)
+    assert r.flags["rows_in_the_clip_misfit"] == [int(labels[half])]
+    assert [o["row"] for o in r.outliers] == [int(labels[few])]
+    assert any("a tenth or more of their pixels clipped" in n for n in r.notes)

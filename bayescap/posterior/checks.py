@@ -52,8 +52,12 @@ class ChecksMixin:
                 "full well?); treat full well and the top of the range with caution"
             )
 
-    #: a row with at least this fraction of its pixels clipped sits in the clip (see below)
-    NEAR_CLIP_FRACTION = 0.9
+    #: a row with at least this fraction of its pixels clipped sits in the clip (see below): its
+    #: mean and variance then depend on the pixels' distribution at the clip, which the model takes as
+    #: normal (half-clipped rows of bent responses misfit by tens of sd while every other row fits)
+    NEAR_CLIP_FRACTION = 0.1
+    #: ... and with at least this fraction, only a few unclipped pixels are left
+    MOSTLY_CLIPPED = 0.9
     #: this many neighbouring rows along the signal departing together: a shape, not outliers
     RUN_LENGTH = 3
     #: a row departs with a down-weighted neighbour when its residual in the same block has the same
@@ -63,10 +67,10 @@ class ChecksMixin:
 
     def _separate_systematic_rows(self, residual_z=None):
         """Rows the mixture down-weights that are not outliers of the measurement, moved from
-        ``outliers`` to flags with a note: rows mostly in the clip (``frac_saturated`` ≥
+        ``outliers`` to flags with a note: rows in the clip (``frac_saturated`` ≥
         :data:`NEAR_CLIP_FRACTION`; without that column, the rows past the PTC's turnoff), where the
-        model of the few unclipped pixels (a normal tail under the response's local slope) is an
-        approximation; and runs of at least :data:`RUN_LENGTH` neighbouring rows along the signal
+        model of the clipped pixels' distribution (a normal tail under the response's local slope) is
+        an approximation; and runs of at least :data:`RUN_LENGTH` neighbouring rows along the signal
         that depart from the model together, a shape the model does not follow (a knee, a kink):
         down-weighted rows, and (``residual_z``: {block: {row: median standardised residual}})
         rows whose residual in a down-weighted row's block has its sign and at least
@@ -107,21 +111,37 @@ class ChecksMixin:
                 "rows "
                 + ", ".join(map(str, near))
                 + (
-                    " have most of their pixels clipped"
-                    if fs is not None
-                    else " lie past the PTC's turnoff, at the clip"
+                    " lie past the PTC's turnoff, at the clip"
+                    if fs is None
+                    else " have most of their pixels clipped"
+                    if all(fs[pos[r]] >= self.MOSTLY_CLIPPED for r in near)
+                    else " have a tenth or more of their pixels clipped"
                 )
                 + " and fit the model poorly: "
-                "there the model of the few unclipped pixels is an approximation; they are down-weighted, "
-                "not outliers of the measurement"
+                + (
+                    "there the model of the few unclipped pixels is an approximation"
+                    if fs is None or all(fs[pos[r]] >= self.MOSTLY_CLIPPED for r in near)
+                    else "there the model of the pixels at the clip (a normal distribution under the response's "
+                    "local slope) is an approximation"
+                )
+                + "; they are down-weighted, not outliers of the measurement"
             )
         if runs:
             self.flags["structured_residuals"] = [r for run in runs for r in run]
             spans = "; ".join(f"rows {run[0]}–{run[-1]}" if len(run) > 1 else f"row {run[0]}" for run in runs)
+            n_rows = len(rank)
+            where = [
+                "at the shortest exposures: a shutter-time offset?"
+                if rank[run[-1]] < n_rows / 4
+                else "near the top: a knee or a kink the response does not follow"
+                if rank[run[0]] >= n_rows / 2
+                else "a shape the response does not follow"
+                for run in runs
+            ]
             self.notes.append(
-                f"neighbouring rows depart from the model together ({spans}, in order of signal): a shape "
-                "the response term does not follow (a knee or a kink), not outliers; they are down-weighted, "
-                "so the intervals assume the model's shape there"
+                f"neighbouring rows depart from the model together ({spans}, in order of signal; "
+                + "; ".join(dict.fromkeys(where))
+                + "), not outliers; they are down-weighted, so the intervals assume the model's shape there"
             )
         self.outliers = [o for o in self.outliers if o["row"] not in near and o["row"] not in in_runs]
 
