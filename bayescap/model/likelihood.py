@@ -11,7 +11,7 @@ the blocks in :data:`ROBUST_BLOCKS` may be bad measurements: a broad component o
 from __future__ import annotations
 
 import numpy as np
-from scipy.special import gammaln
+from scipy.special import gammaln, log_ndtr, ndtri
 
 __all__ = ["OUTLIER_RATE", "OUTLIER_REL_SD", "ROBUST_BLOCKS", "gamma_logpdf"]
 
@@ -84,6 +84,10 @@ class _LikelihoodMixin:
 
     def _block_loglik(self, name, obs, model, spread, kind, with_outlier_prob=False):
         obs = obs if np.ndim(obs) == 2 else obs[None, :]
+        if kind == "upper_probit":
+            # an upper bound: the model's fraction above the measured one by the probit tolerance
+            good = log_ndtr((ndtri(obs) - ndtri(np.clip(model, 0.0, 1.0 - 1e-12))) / spread)
+            return (good, None) if with_outlier_prob else good
         robust = self.terms.robust and name in ROBUST_BLOCKS
         if not robust:
             good = gamma_logpdf(obs, model, spread) if kind == "gamma" else _norm_logpdf(obs, model, spread)
@@ -122,6 +126,7 @@ class _LikelihoodMixin:
         "spatial_var": "spatial_var_dn2",
         "dark_spatial_var": "dark_spatial_var_dn2",
         "dark_mean": "dark_mean_dn",
+        "saturated": "frac_saturated",
     }
 
     def nonfinite_observations(self, x):
@@ -204,6 +209,7 @@ class _LikelihoodMixin:
             "spatial_var": ok[self.sp_rows],
             "dark_spatial_var": self.spd_rows,
             "dark_mean": np.arange(d.n_levels),
+            "saturated": ok[getattr(self, "sat_rows", np.zeros(0, int))],
         }[block]
         return np.array([d.row_label(i) for i in idx], int)
 

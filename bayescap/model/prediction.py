@@ -113,7 +113,9 @@ class _PredictionMixin:
         ``"normal"`` it is the standard deviation. Blocks: ``dark_var`` (every row),
         ``bright_var`` and ``mean`` (rows not fully clipped), ``clip_mean`` (fully clipped rows,
         sampled clip), ``spatial_var``/``dark_spatial_var`` (rows with spatial columns),
-        ``dark_mean`` (every row, where the dark means' ramp enters: :mod:`bayescap.model.dark_ramp`)."""
+        ``dark_mean`` (every row, where the dark means' ramp enters: :mod:`bayescap.model.dark_ramp`),
+        ``saturated`` (rows near an ADC clip with ``frac_saturated``: kind ``"upper_probit"``, the
+        spread the probit tolerance; the model's clipped fraction may not exceed the measured one)."""
         p = self.physical(th, derived=False)
         k = p["conversion_gain_e_per_dn"]
         K = k[:, None]
@@ -206,6 +208,11 @@ class _PredictionMixin:
                 x_lin[:, rows], hp[:, rows] = xr, hr
             slope[:, rows] = put(sl, slope[:, rows])
         out["bright_var"] = (self.v, np.maximum(vm, 1e-12), 1.0 / (phi_b / self.nu + f2), "gamma")
+        if getattr(self, "sat_rows", np.zeros(0)).size:
+            # the fraction of one frame's pixel values at the ADC maximum, 1 − the unclipped fraction:
+            # the measured one bounds it from above (_block_loglik, kind "upper_probit")
+            r = self.sat_rows
+            out["saturated"] = (self.sat_fs[..., r], 1.0 - slope[:, r], self.sat_sd[..., r], "upper_probit")
         self._last_latent_signal_dn = S
         if self.terms.quantum_efficiency:
             qe = p["quantum_efficiency"][:, None]

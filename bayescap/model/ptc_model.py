@@ -195,6 +195,7 @@ class PTCModel(_ParametersMixin, _PredictionMixin, _ClipMixin, _LikelihoodMixin)
         else:
             self.clip_rows = np.zeros(0, int)
         self.lin_rows = np.setdiff1d(np.arange(self.m.size), self.clip_rows)
+        self._saturated_rows(d, ok)
         if tm.quantum_efficiency:
             self.mu_p = d.photons_per_pixel[ok]
         # fully clipped rows: their mean locates a sampled clip level
@@ -252,6 +253,29 @@ class PTCModel(_ParametersMixin, _PredictionMixin, _ClipMixin, _LikelihoodMixin)
         self.dark_frac_dn = d.dark_mean_dn - np.round(d.dark_mean_dn)
         self.bright_frac_dn = self.m - np.round(self.m)
         self.full_frac_dn = self.full_means - np.round(self.full_means)
+
+    #: the tolerance of the model's clipped fraction against the measured one, in probit units
+    #: beyond the count's binomial error: the model takes the pixels near the clip as normal
+    SATURATED_PROBIT_SD = 0.3
+
+    def _saturated_rows(self, d: PTCData, ok):
+        """The rows of the ``saturated`` block (:meth:`~bayescap.model.prediction._PredictionMixin.predict`):
+        with an ADC clip and a ``frac_saturated`` column, the rows within reach of the clip. The
+        measured fraction of pixels at the ADC maximum bounds the model's from above (a defective
+        pixel can only add saturated pixels); 0 counts as half a pixel."""
+        self.sat_rows = np.zeros(0, int)
+        if self.terms.clip != "adc" or d.frac_saturated is None or not self.clip_rows.size:
+            return
+        from scipy.special import ndtri
+
+        fs = np.asarray(d.frac_saturated, float)[ok]
+        n = np.maximum(d.n_pixels[ok], 2.0)
+        self.sat_rows = self.clip_rows[np.isfinite(fs[self.clip_rows])]
+        self.sat_n = n
+        self.sat_fs = np.clip(np.where(np.isfinite(fs), fs, 0.0), 0.5 / n, 1.0 - 0.5 / n)
+        f = self.sat_fs
+        binomial = np.sqrt(f * (1.0 - f) / n) / (np.exp(-0.5 * ndtri(f) ** 2) * 0.3989422804014327)
+        self.sat_sd = np.sqrt(binomial**2 + self.SATURATED_PROBIT_SD**2)
 
     # ------------------------------------------------------------------ stacked views
     #: request ids of the draws in a call (a PTCModelStack's view sets them): reductions over

@@ -62,6 +62,8 @@ class PTCModelStack:
         "dmn_mbar",
         "dmn_tc",
         "dmn_sd",
+        "sat_fs",
+        "sat_sd",
     )
 
     def __init__(self, models):
@@ -114,7 +116,8 @@ class PTCModelStack:
         )
         shapes = tuple((a, np.shape(getattr(model, a))) for a in PTCModelStack.ROW_ARRAYS if hasattr(model, a))
         rows = tuple(
-            tuple(np.asarray(getattr(model, a)).tolist()) for a in ("clip_rows", "lin_rows", "sp_rows", "spd_rows")
+            tuple(np.asarray(getattr(model, a)).tolist())
+            for a in ("clip_rows", "lin_rows", "sp_rows", "spd_rows", "sat_rows")
         )
         prior = tuple(sorted((k, repr(v)) for k, v in model.PRIOR.items()))
         return (

@@ -93,6 +93,11 @@ OBSERVATION_VARS = {
     "clip_mean": ("clipped_mean_dn", "DN", "bright mean of the rows at the clip"),
     "plateau_var": ("clipped_temporal_var_dn2", "DN²", "bright temporal variance of the rows at the clip"),
     "dark_mean": ("dark_mean_dn", "DN", "dark mean (the dark means' ramp, black level profiled)"),
+    "saturated": (
+        "frac_saturated",
+        DIMENSIONLESS,
+        "fraction of pixels at the ADC maximum (0 read as half a pixel): it bounds the model's fraction from above",
+    ),
 }
 #: the log_likelihood variable holding every observation at once (dimension ``observation``,
 #: coordinates ``block`` and ``row``): the pointwise log-likelihood PSIS-LOO is computed on
@@ -168,6 +173,11 @@ def _replicate(model, th, rng):
         obs_out.append(obs[0] if np.all(obs == obs[:1]) else np.median(obs, axis=0))
         if kind == "gamma":
             rep = rng.gamma(spread, mod / spread)
+        elif kind == "upper_probit":  # the count at the model's fraction (the bound's own density is one-sided)
+            n_px = model.sat_n[model.sat_rows]
+            rep = np.clip(
+                rng.binomial(n_px.astype(np.int64), np.clip(mod, 0.0, 1.0)) / n_px, 0.5 / n_px, 1 - 0.5 / n_px
+            )
         else:
             rep = rng.normal(mod, spread)
         if model.terms.robust and name in ROBUST_BLOCKS:

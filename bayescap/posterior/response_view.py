@@ -6,7 +6,6 @@ from __future__ import annotations
 
 import numpy as np
 
-
 __all__ = ["response_model_summary"]
 
 
