@@ -16,7 +16,7 @@ from bayescap.inference.chains import ChainResult
 from bayescap.inference.diagnostics import interval_end_mcse_mcmc
 from bayescap.model.ptc_model import PTCModel
 from bayescap.posterior.checks import ChecksMixin
-from bayescap.posterior.derived import _DERIVED_FLAGS, _DERIVED_NOTE_PREFIXES, DerivedMixin
+from bayescap.posterior.derived import _DERIVED_FLAGS, _DERIVED_NOTE_PREFIXES, DerivedMixin, derived_per_draw
 from bayescap.posterior.diagnose import _END_MCSE_FAILURE, DiagnoseMixin
 from bayescap.posterior.display import html_table, short_repr
 from bayescap.posterior.inputs import InputsMixin
@@ -41,6 +41,16 @@ class DerivedValues:
     def __init__(self, result_cls, inputs):
         self.result_cls = result_cls
         self.inputs = inputs
+        self._per_draw = None
+
+    @property
+    def per_draw(self) -> bool:
+        """Whether each draw's values depend on that draw alone, so that a caller may compute them
+        for new draws only and join them to earlier ones (:class:`bayescap.inference.end_errors.PerDrawValues`):
+        not when the MTF has its own draws (:func:`bayescap.posterior.derived.derived_per_draw`)."""
+        if getattr(self, "_per_draw", None) is None:
+            self._per_draw = derived_per_draw(self.inputs[3])
+        return self._per_draw
 
     def __call__(self, x):
         model, metadata, scene, mtf, seed = self.inputs
