@@ -136,3 +136,26 @@ def test_top_up_with_per_draw_caching_gives_the_same_answer_bit_for_bit():
     assert da["end_mcse"] == db["end_mcse"] and da["n_proposals"] == db["n_proposals"]
     assert np.array_equal(ca.extra["weighted_draws"]["w"], cb.extra["weighted_draws"]["w"])
     assert Cached.rows <= db["n_proposals"] * (1 + int(db["retried_with_restarts"])) < Plain.rows
+
+
+def test_result_derives_each_distinct_draw_once_with_the_same_numbers():
+    """A chain whose walkers repeat their draws (rejected moves): the physical parameters and
+    derived quantities are computed on the distinct draws and given to the repeats, the same
+    numbers bit for bit as computing every draw."""
+    model, x = _basler_draws(300)
+    rng = np.random.default_rng(2)
+    chain = x[np.sort(rng.integers(0, 300, 4 * 50 * 8))].reshape(4, 50, 8, -1)  # ~75 % repeats
+    mtf = mtf_from_metadata(model.data.metadata, [])
+    kw = _result_kw(model.data, mtf=mtf, scene=None, seed=1)
+    seen = []
+    physical = model.physical
+    model.physical = lambda th, **k: seen.append(len(th)) or physical(th, **k)
+    once = FitResult._of_chain(model, chain, **kw)
+    every = FitResult._of_chain(model, chain, repeats=False, **kw)
+    n_distinct = len(np.unique(chain.reshape(-1, chain.shape[-1]), axis=0))
+    assert seen == [n_distinct, chain[..., 0].size] and n_distinct < chain[..., 0].size / 2
+    for d1, d2 in ((once.draws, every.draws), (once.derived, every.derived)):
+        assert list(d1) == list(d2)
+        for k in d2:
+            assert np.array_equal(d1[k], d2[k]), k
+    assert once.notes == every.notes and once.flags == every.flags

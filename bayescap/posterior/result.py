@@ -56,7 +56,7 @@ class DerivedValues:
         model, metadata, scene, mtf, seed = self.inputs
         x = np.asarray(x, float)
         tmp = self.result_cls._of_chain(
-            model, x.reshape(1, -1, 1, x.shape[-1]), metadata=metadata, scene=scene, mtf=mtf, seed=seed
+            model, x.reshape(1, -1, 1, x.shape[-1]), metadata=metadata, scene=scene, mtf=mtf, seed=seed, repeats=False
         )
         return {n: np.asarray(v, float) for n, v in tmp.derived.items() if np.size(v) == x.shape[0]}
 
@@ -108,8 +108,7 @@ class FitResult(DerivedMixin, DiagnoseMixin, ChecksMixin, InputsMixin):
         self.notes.extend(getattr(model, "data_notes", []))  # rows left out before the fit (model.rows_to_fit)
         E, S, W, D = chains.chain.shape
         flat = chains.chain.reshape(E * S * W, D)
-        self.draws = model.physical(flat)
-        self._derive()
+        self._derive_draws(flat)
         self._diagnose()
         self._check_rows()
         self._check_inputs()
@@ -171,13 +170,13 @@ class FitResult(DerivedMixin, DiagnoseMixin, ChecksMixin, InputsMixin):
             return False
 
     @classmethod
-    def _of_chain(cls, model, chain, *, metadata, scene, mtf, seed):
+    def _of_chain(cls, model, chain, *, metadata, scene, mtf, seed, repeats=True):
         """A result without chains holding the physical draws and derived quantities of ``chain``
-        (E, S, W, D), for the checks :func:`bayescap.inference.mcmc.run_ensembles` makes after each round."""
+        (E, S, W, D), for the checks :func:`bayescap.inference.mcmc.run_ensembles` makes after each
+        round (``repeats``: the draws may repeat, :meth:`_derive_draws`)."""
         E, S, W, D = chain.shape
         tmp = cls(model=model, chains=None, metadata=metadata, scene=scene, mtf=mtf, seed=seed, quality="")
-        tmp.draws = model.physical(chain.reshape(E * S * W, D))
-        tmp._derive()
+        tmp._derive_draws(chain.reshape(E * S * W, D), repeats=repeats)
         return tmp
 
     def _reported_draws(self, shape):
