@@ -159,3 +159,23 @@ def test_result_derives_each_distinct_draw_once_with_the_same_numbers():
         for k in d2:
             assert np.array_equal(d1[k], d2[k]), k
     assert once.notes == every.notes and once.flags == every.flags
+
+
+def test_from_chains_takes_over_the_checks_computation_on_the_same_chain(monkeypatch):
+    """The MCMC's checks computed the final chain's derived quantities (chain_check_fns): the result
+    takes them over instead of computing them again, with the same JSON; a chain that is not the
+    last one checked (a copy) is computed afresh."""
+    r = bayescap.fit("data/simulated/sim_phone_1p75um_10bit.csv", quality="fast", seed=1)
+    kw = dict(metadata=r.metadata, scene=r.scene, mtf=r.mtf, seed=r.seed)
+    check_derived, _ = FitResult.chain_check_fns(r.model, **kw)
+    assert check_derived.result_of(r.chains.chain) is None
+    check_derived(r.chains.chain)
+    plain = FitResult.from_chains(r.model, r.chains, quality="fast", **kw).to_dict()
+    calls = []
+    real = FitResult._derive_draws
+    monkeypatch.setattr(FitResult, "_derive_draws", lambda self, *a, **k: calls.append(1) or real(self, *a, **k))
+    taken = FitResult.from_chains(r.model, r.chains, quality="fast", checked=check_derived, **kw)
+    assert calls == [] and taken.to_dict() == plain
+    copy = replace(r.chains, chain=r.chains.chain.copy())
+    again = FitResult.from_chains(r.model, copy, quality="fast", checked=check_derived, **kw)
+    assert calls == [1] and again.to_dict() == plain

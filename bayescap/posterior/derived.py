@@ -34,18 +34,11 @@ _DERIVED_NOTE_PREFIXES = (
 _DERIVED_FLAGS = ("capacity_lower_bound", "mtf_band_cut", "mtf_above_one")
 
 
-def _paired_at_random(ds) -> bool:
-    """Whether the MTF loss ``ds`` (:func:`mtf_loss_bits` with ``draws=True``) holds the MTF's own
-    draws, which :meth:`DerivedMixin._derive` pairs with the posterior's at random: then a draw's
-    derived quantities depend on its position among the draws, not on the draw alone."""
-    return ds.ndim == 1 and ds.size > 1
-
-
 def derived_per_draw(mtf) -> bool:
     """Whether every derived quantity of a draw is a function of that draw alone (the same values
-    whichever other draws are computed with it): unless the MTF has its own draws
-    (:func:`_paired_at_random`)."""
-    return not _paired_at_random(np.asarray(mtf_loss_bits(mtf, draws=True).delta_s_bits, float))
+    whichever other draws are computed with it): unless the MTF has its own draws, which
+    :meth:`DerivedMixin._derive` pairs with the posterior's at random by position."""
+    return not mtf_loss_bits(mtf, draws=True).has_draws
 
 
 def _distinct_rows(x):
@@ -121,7 +114,7 @@ class DerivedMixin:
         bprime = tonal_range_bits(tr)
         ml = mtf_loss_bits(self.mtf, draws=True)
         ds = np.asarray(ml.delta_s_bits, float)
-        if _paired_at_random(ds):
+        if ml.has_draws:
             # MTF with its own draws (measured): pair them with posterior samples at random
             rng = np.random.default_rng(np.random.SeedSequence(self.seed).spawn(2)[1])
             ds = ds[rng.integers(0, ds.size, size=bprime.size)]

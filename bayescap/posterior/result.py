@@ -103,12 +103,20 @@ class FitResult(DerivedMixin, DiagnoseMixin, ChecksMixin, InputsMixin):
         return load_result(path, cls)
 
     @classmethod
-    def from_chains(cls, model: PTCModel, chains: ChainResult, *, metadata, scene, mtf, seed, quality):
+    def from_chains(cls, model: PTCModel, chains: ChainResult, *, metadata, scene, mtf, seed, quality, checked=None):
+        """The result of ``chains``; ``checked``: the ``derived_fn`` of :meth:`chain_check_fns` made
+        with the same inputs, whose computation on the last chain it checked is taken over when that
+        chain is ``chains.chain`` (the MCMC's final round: its derived quantities are not computed twice)."""
         self = cls(model=model, chains=chains, metadata=metadata, scene=scene, mtf=mtf, seed=seed, quality=quality)
         self.notes.extend(getattr(model, "data_notes", []))  # rows left out before the fit (model.rows_to_fit)
-        E, S, W, D = chains.chain.shape
-        flat = chains.chain.reshape(E * S * W, D)
-        self._derive_draws(flat)
+        tmp = None if checked is None else checked.result_of(chains.chain)
+        if tmp is not None:
+            self.draws, self.derived, self.mtf_info = tmp.draws, tmp.derived, tmp.mtf_info
+            self.notes.extend(tmp.notes)
+            self.flags.update(tmp.flags)
+        else:
+            E, S, W, D = chains.chain.shape
+            self._derive_draws(chains.chain.reshape(E * S * W, D))
         self._diagnose()
         self._check_rows()
         self._check_inputs()
@@ -141,6 +149,8 @@ class FitResult(DerivedMixin, DiagnoseMixin, ChecksMixin, InputsMixin):
         def reported_fn(chain):
             return of(chain)._reported_draws(chain.shape[:3])
 
+        # (for from_chains: the result computed on the last chain checked, if it is ``chain``)
+        derived_fn.result_of = lambda chain: last[1] if last[0] is chain else None
         return derived_fn, reported_fn
 
     @classmethod
