@@ -179,3 +179,7 @@ def test_from_chains_takes_over_the_checks_computation_on_the_same_chain(monkeyp
     copy = replace(r.chains, chain=r.chains.chain.copy())
     again = FitResult.from_chains(r.model, copy, quality="fast", checked=check_derived, **kw)
     assert calls == [1] and again.to_dict() == plain
+    # the bounds check reads the summaries' physical draws: those of the kept chain, bit for bit
+    th = again._kept(copy.chain.reshape(-1, copy.chain.shape[-1]))
+    direct, kept = r.model.physical(th), again.summary_draws()
+    assert list(direct) == list(kept) and all(np.array_equal(direct[k], kept[k]) for k in kept)
