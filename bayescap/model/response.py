@@ -214,8 +214,10 @@ def linearise(s, theta, s_ref, per_point=False, table=None):
     t3 = t2 * t
     a = 2.0 * t3 - 3.0 * t2  # Hermite basis: h00 = 1 + a, h01 = −a, h10 = t³ − 2t² + t, h11 = t³ − t²
     b0, b1 = t3 - 2.0 * t2 + t, t3 - t2
-    integral = (1.0 + a) * H[j] - a * H[j + 1] + b0 * fh[j] + b1 * fh[j + 1]
-    slope = ((1.0 + a) * fh[j] - a * fh[j + 1]) * k + b0 * fph[j] + b1 * fph[j + 1]
+    j1 = j + 1
+    f0, f1, a1 = fh[j], fh[j1], 1.0 + a  # (each gathered or computed once)
+    integral = a1 * H[j] - a * H[j1] + b0 * f0 + b1 * f1
+    slope = (a1 * f0 - a * f1) * k + b0 * fph[j] + b1 * fph[j1]
     integral, slope = integral.reshape(shape), slope.reshape(shape)
     top = (fh[(np.arange(n) + 1) * (k + 1) - 1] * k).reshape((n,) + (1,) * (len(shape) - 1))
     x = s_ref * (integral + np.maximum(vb - 1.0, 0.0) * top + np.minimum(vb, 0.0))
