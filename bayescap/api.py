@@ -285,7 +285,7 @@ def fit(
                 reported_fn=check_reported,
             )
             mc.wall_s += fd["wall_s"]  # the rejected attempt is part of the cost
-            res = FitResult.from_chains(model, mc, quality="fast", **kw)
+            res = FitResult.from_chains(model, mc, quality="fast", checked=check_derived, **kw)
             res.diag.update(
                 {
                     "fast_path": (
@@ -319,7 +319,7 @@ def fit(
             derived_fn=check_derived,
             reported_fn=check_reported,
         )
-        res = FitResult.from_chains(model, chains, quality=qname, **kw)
+        res = FitResult.from_chains(model, chains, quality=qname, checked=check_derived, **kw)
     res.notes.extend(notes)
     if seed_drawn:
         res.diag["seed_drawn"] = True

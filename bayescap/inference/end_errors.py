@@ -78,8 +78,57 @@ def _end_errors(values, w, probs=(0.025, 0.975), n_resampled=None):
 
 def _weighted_kept(x, w):
     """The weighted draws that count (weight above 1e-12 of the largest), and their weights."""
-    keep = w > 1e-12 * np.max(w)
+    keep = _kept(w)
     return x[keep], w[keep]
+
+
+def _kept(w):
+    """:func:`_weighted_kept`'s mask."""
+    return w > 1e-12 * np.max(w)
+
+
+class PerDrawValues:
+    """``fn`` (draws (n, ndim) -> {name: values (n,)}) on rows of a growing array of draws, each row
+    computed once: the fast path's top-up adds draws round by round and looks at the quantities of
+    every draw of non-negligible weight each time. Only for a function of each draw alone (no grid
+    or normalisation shared by the draws, no pairing by position), whose values on some rows are
+    those rows of its values on all of them. :meth:`rows` starts again when the draws are not
+    those of the last call followed by new ones, or a call returns other names."""
+
+    def __init__(self, fn):
+        self.fn = fn
+        self._x = None  # the draws of the last call
+        self._vals = None  # {name: values on every row of _x, NaN where not computed}
+        self._done = np.zeros(0, bool)
+
+    def rows(self, x, keep):
+        """{name: values} of ``fn`` on ``x[keep]`` (``keep`` a boolean mask of x's rows)."""
+        n, m = x.shape[0], 0 if self._x is None else self._x.shape[0]
+        if m and not (x is self._x or (n >= m and np.array_equal(x[:m], self._x))):
+            self._vals, self._done, m = None, np.zeros(0, bool), 0
+        if n > m:
+            self._done = np.concatenate([self._done, np.zeros(n - m, bool)])
+            if self._vals is not None:
+                self._vals = {k: np.concatenate([v, np.full(n - m, np.nan)]) for k, v in self._vals.items()}
+        self._x = x
+        idx = np.flatnonzero(keep)
+        need = idx[~self._done[idx]]
+        if need.size:
+            new = {k: v for k, v in self.fn(x[need]).items() if np.size(v) == need.size}
+            if self._vals is not None and list(new) != list(self._vals):
+                self._vals, self._done = None, np.zeros(n, bool)
+                return self.rows(x, keep)  # (once: with nothing computed, every kept row is new)
+            if self._vals is None:
+                self._vals = {k: np.full(n, np.nan) for k in new}
+            for k, v in new.items():
+                self._vals[k][need] = v
+            self._done[need] = True
+        return {k: v[idx] for k, v in (self._vals or {}).items()}
+
+
+def _on_kept(fn, x, keep, xk):
+    """``fn`` of the kept draws ``xk = x[keep]`` (through its cache for a :class:`PerDrawValues`)."""
+    return fn.rows(x, keep) if isinstance(fn, PerDrawValues) else fn(xk)
 
 
 def _end_mcse(model, x, w, n_resampled=None, derived_fn=None):
@@ -93,18 +142,22 @@ def _end_mcse(model, x, w, n_resampled=None, derived_fn=None):
     return {n: interval_end_mcse(v, wk, n_resampled=n_resampled) for n, v in vals.items()}
 
 
-def _end_values(model, x, w, derived_fn=None, names=None):
+def _end_values(model, x, w, derived_fn=None, names=None, phys=None):
     """(kept draws, their weights, {name: values on them}) of the quantities :func:`_end_mcse`
     looks at (those that vary); ``names``: only those (the derived quantities computed only when
-    one of them is among them)."""
-    phys = _physical_fn(model)
+    one of them is among them). ``phys``: the physical parameters' function of the draws when the
+    caller has it (default :func:`_physical_fn` of ``model``); it and ``derived_fn`` may be
+    :class:`PerDrawValues`, which compute each draw once over the calls."""
+    phys = _physical_fn(model) if phys is None else phys
     if phys is None:
         return x[:0], w[:0], {}
-    xk, wk = _weighted_kept(x, w)
+    keep = _kept(w)
+    xk, wk = x[keep], w[keep]
     with np.errstate(all="ignore"):
-        p = phys(xk)
+        p = _on_kept(phys, x, keep, xk)
         if derived_fn is not None and (names is None or any(n not in p for n in names)):
-            p = {**p, **{n: v for n, v in derived_fn(xk).items() if np.size(v) == xk.shape[0]}}
+            d = _on_kept(derived_fn, x, keep, xk)
+            p = {**p, **{n: v for n, v in d.items() if np.size(v) == xk.shape[0]}}
     return xk, wk, {n: v for n, v in p.items() if (names is None or n in names) and _varies(v)}
 
 

@@ -51,10 +51,12 @@ from bayescap.inference.chains import ChainResult
 from bayescap.inference.coordinates import SamplerCoordinates, _sampler_coordinates
 from bayescap.inference.curvature import _proposal_cov, laplace_covariance, refine_covariance
 from bayescap.inference.end_errors import (
+    PerDrawValues,
     _all_ends,
     _end_table,
     _end_values,
     _joint_target,
+    _physical_fn,
     _weighted_kept,
     _within_logprob,
     _worst_end_mcse,
@@ -78,6 +80,7 @@ from bayescap.inference.proposals import (
     _tail_probe,
     _tail_proposal,
 )
+from bayescap.model.ptc_model import PTCModel
 
 __all__ = ["fast_posterior", "METHOD"]
 
@@ -98,7 +101,7 @@ def _fast_in_coordinates(model, wrapped, seed, n_draws, settings, derived_fn):
         polish_both=settings.polish_both,
     )
     t_start = time.perf_counter() - t0
-    d_fn = None if derived_fn is None else (lambda z: derived_fn(wrapped.to_x(z)))
+    d_fn = None if derived_fn is None else _InCoordinates(derived_fn, wrapped)
     chains, diag = _fast_once(wrapped, seed, n_draws, settings, z0, cz, d_fn)
     diag["wall_map_s"] += t_start
     diag["wall_s"] += t_start
@@ -114,6 +117,25 @@ def _fast_in_coordinates(model, wrapped, seed, n_draws, settings, derived_fn):
         wd["x"] = wrapped.to_x(wd["x"])
     chains.extra["coordinates"] = diag["coordinates"] = wrapped.describe()
     return chains, diag
+
+
+class _InCoordinates:
+    """``fn`` (draws in the model's coordinates -> {name: values}) of draws in ``coords``; of each
+    draw alone (``per_draw``) when ``fn`` is: the map between the coordinates is row by row."""
+
+    def __init__(self, fn, coords):
+        self.fn, self.coords = fn, coords
+        self.per_draw = bool(getattr(fn, "per_draw", False))
+
+    def __call__(self, z):
+        return self.fn(self.coords.to_x(z))
+
+
+def _physical_per_draw(model) -> bool:
+    """Whether the physical parameters of ``model``'s draws (:func:`_physical_fn`) are each a
+    function of its draw alone: a :class:`PTCModel`'s, in its coordinates or the sampler's."""
+    inner = model.model if isinstance(model, SamplerCoordinates) else model
+    return isinstance(inner, PTCModel)
 
 
 def _mode_and_covariance(model, settings, x_map, cov, t0):
@@ -218,11 +240,19 @@ def _top_up(model, settings, rng, derived_fn, x, logp, logq, comps, cache, n_dra
     khat, ess = float(khat), float(ess)
     gate, tol, conf = settings.end_mcse_max, settings.end_tolerance, settings.end_confidence
     n_topup, n_out, partial = 0, n_draws, False
+    # each round looks at the quantities of every draw that counts, the earlier rounds' draws
+    # included: each draw's are computed once (the linearity error's per-draw response inverse was
+    # ~40 % of a Basler fast fit), where the functions are of each draw alone
+    phys = _physical_fn(model)
+    if phys is not None and _physical_per_draw(model):
+        phys = PerDrawValues(phys)
+    if derived_fn is not None and getattr(derived_fn, "per_draw", False):
+        derived_fn = PerDrawValues(derived_fn)
 
     def full_table():
         """Every quantity's interval-end errors on the current draws: (kept draws, weights, values,
         {name: worst end}, {name: ends}, the worst, the per-end target)."""
-        xk_, wk_, vals_ = _end_values(model, x, w, derived_fn)
+        xk_, wk_, vals_ = _end_values(model, x, w, derived_fn, phys=phys)
         mcse_, ends_ = _end_table(vals_, wk_, n_out)
         return xk_, wk_, vals_, mcse_, ends_, _worst_end_mcse(mcse_), _joint_target(_all_ends(ends_), tol, conf, gate)
 
@@ -270,7 +300,7 @@ def _top_up(model, settings, rng, derived_fn, x, logp, logq, comps, cache, n_dra
         if watch is None:
             xk, wk, vals, mcse, ends, worst, target = full_table()
             continue
-        xk, wk, vals = _end_values(model, x, w, derived_fn, names=watch)
+        xk, wk, vals = _end_values(model, x, w, derived_fn, names=watch, phys=phys)
         part, part_ends = _end_table(vals, wk, n_out)
         partial = not _worst_end_mcse(part) <= target
         if not partial:

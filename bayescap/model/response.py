@@ -147,21 +147,41 @@ def _h_table(theta, n_table=N_TABLE):
     """Per draw, on u = 0, 1/K, ..., 1 (K = ``n_table``): h(u) = ∫₀^u exp(L), and exp(L)/K and
     (exp(L))'/K, the Hermite data in units of one interval. Each (n, K + 1)."""
     c = _power_coefficients(theta)
-    m = c.shape[1]
-    g = np.linspace(0.0, 1.0, n_table + 1)[None, :]
-    # Horner's scheme, element by element (a BLAS product's rounding would depend on how many draws
-    # come together, and a stacked fit must give each sensor its own numbers bit for bit)
-    L = c[:, m - 1 : m] * g  # L = Σ cᵢ u^(i+1)
-    dL = np.broadcast_to(m * c[:, m - 1 : m], (c.shape[0], g.size))  # L' = Σ (i+1) cᵢ u^i
-    for i in range(m - 2, -1, -1):
-        L = (L + c[:, i : i + 1]) * g
-        dL = dL * g + (i + 1) * c[:, i : i + 1]
-    f = np.exp(L)
-    fp = f * dL
+    n, m = c.shape
+    g = np.linspace(0.0, 1.0, n_table + 1)
     h = 1.0 / n_table
-    seg = 0.5 * h * (f[:, :-1] + f[:, 1:]) + (h * h / 12.0) * (fp[:, :-1] - fp[:, 1:])
-    H = np.concatenate([np.zeros((f.shape[0], 1)), np.cumsum(seg, axis=1)], axis=1)
-    return H, f * h, fp * h
+    H, f, fp = np.empty((n, n_table + 1)), np.empty((n, n_table + 1)), np.empty((n, n_table + 1))
+    H[:, 0] = 0.0
+    seg, tmp = np.empty((min(n, _H_BLOCK), n_table)), np.empty((min(n, _H_BLOCK), n_table))
+    # in blocks of draws that stay in cache, in place (3× faster on 6 000 draws than whole-array
+    # temporaries); the same operations in the same order as written out whole, bit for bit
+    for a in range(0, n, _H_BLOCK):
+        b = min(a + _H_BLOCK, n)
+        cb, L, dL, s, t = c[a:b], f[a:b], fp[a:b], seg[: b - a], tmp[: b - a]
+        # Horner's scheme, element by element (a BLAS product's rounding would depend on how many
+        # draws come together, and a stacked fit must give each sensor its own numbers bit for bit)
+        np.multiply(cb[:, m - 1 : m], g, out=L)  # L = Σ cᵢ u^(i+1)
+        dL[...] = m * cb[:, m - 1 : m]  # L' = Σ (i+1) cᵢ u^i
+        for i in range(m - 2, -1, -1):
+            L += cb[:, i : i + 1]
+            L *= g
+            dL *= g
+            dL += (i + 1) * cb[:, i : i + 1]
+        np.exp(L, out=L)  # f = exp(L)
+        dL *= L  # f' = f·L'
+        np.add(L[:, :-1], L[:, 1:], out=s)  # the end-corrected trapezoid on each interval
+        s *= 0.5 * h
+        np.subtract(dL[:, :-1], dL[:, 1:], out=t)
+        t *= h * h / 12.0
+        s += t
+        np.cumsum(s, axis=1, out=H[a:b, 1:])
+        L *= h
+        dL *= h
+    return H, f, fp
+
+
+#: draws per block of :func:`_h_table`
+_H_BLOCK = 256
 
 
 def _linearise_points(v, theta, s_ref):
@@ -202,8 +222,10 @@ def linearise(s, theta, s_ref, per_point=False, table=None):
     t3 = t2 * t
     a = 2.0 * t3 - 3.0 * t2  # Hermite basis: h00 = 1 + a, h01 = −a, h10 = t³ − 2t² + t, h11 = t³ − t²
     b0, b1 = t3 - 2.0 * t2 + t, t3 - t2
-    integral = (1.0 + a) * H[j] - a * H[j + 1] + b0 * fh[j] + b1 * fh[j + 1]
-    slope = ((1.0 + a) * fh[j] - a * fh[j + 1]) * k + b0 * fph[j] + b1 * fph[j + 1]
+    j1 = j + 1
+    f0, f1, a1 = fh[j], fh[j1], 1.0 + a  # (each gathered or computed once)
+    integral = a1 * H[j] - a * H[j1] + b0 * f0 + b1 * f1
+    slope = (a1 * f0 - a * f1) * k + b0 * fph[j] + b1 * fph[j1]
     integral, slope = integral.reshape(shape), slope.reshape(shape)
     top = (fh[(np.arange(n) + 1) * (k + 1) - 1] * k).reshape((n,) + (1,) * (len(shape) - 1))
     x = s_ref * (integral + np.maximum(vb - 1.0, 0.0) * top + np.minimum(vb, 0.0))

@@ -116,6 +116,13 @@ class MTFLoss:
     f_end_cy_per_px: float
     band_cut_bits: float
 
+    @property
+    def has_draws(self) -> bool:
+        """Whether Δs holds the MTF's own draws (a measured MTF with its uncertainty, from
+        ``mtf_loss_bits(..., draws=True)``) rather than one value."""
+        ds = np.asarray(self.delta_s_bits, float)
+        return ds.ndim == 1 and ds.size > 1
+
     def to_dict(self):
         return {
             "band_cut": self.band_cut,

@@ -34,6 +34,25 @@ _DERIVED_NOTE_PREFIXES = (
 _DERIVED_FLAGS = ("capacity_lower_bound", "mtf_band_cut", "mtf_above_one")
 
 
+def derived_per_draw(mtf) -> bool:
+    """Whether every derived quantity of a draw is a function of that draw alone (the same values
+    whichever other draws are computed with it): unless the MTF has its own draws, which
+    :meth:`DerivedMixin._derive` pairs with the posterior's at random by position."""
+    return not mtf_loss_bits(mtf, draws=True).has_draws
+
+
+def _distinct_rows(x):
+    """(rows, where): the distinct rows of ``x`` (n, D) (equal bytes), in the order they first
+    appear, and for each row of ``x`` its index among them."""
+    x = np.ascontiguousarray(x)
+    v = x.view(np.dtype((np.void, x.dtype.itemsize * x.shape[1]))).ravel()
+    _, first, inv = np.unique(v, return_index=True, return_inverse=True)
+    order = np.argsort(first)
+    rank = np.empty_like(order)
+    rank[order] = np.arange(order.size)
+    return x[first[order]], rank[np.ravel(inv)]
+
+
 class DerivedMixin:
     """The derived quantities of :class:`~bayescap.posterior.FitResult` (its ``model``, ``draws``,
     ``scene``, ``mtf``, ``metadata`` and ``seed``), written to ``derived``, ``mtf_info``,
@@ -69,6 +88,24 @@ class DerivedMixin:
             return np.maximum(p["full_well_e"] - dark_charge, 1e-9), False
         return np.maximum((m.max_mean_ok - m.black_dn) * k - dark_charge, 1e-9), True
 
+    def _derive_draws(self, flat, repeats=True):
+        """``draws`` (the physical parameters) and ``derived`` of the draws ``flat`` (n, ndim). With
+        ``repeats``, each distinct draw is computed once and its values given to its repeats (an
+        MCMC walker whose move is rejected repeats its draw: ~80 % of the standard Basler chain;
+        the fast path resamples with repeats), where every quantity is a function of its draw
+        alone (:func:`derived_per_draw`): the same numbers, bit for bit."""
+        if not repeats or flat.shape[0] < 2 or not derived_per_draw(self.mtf):
+            self.draws = self.model.physical(flat)
+            self._derive()
+            return
+        rows, where = _distinct_rows(flat)
+        self.draws = self.model.physical(rows)
+        self._derive()
+        n = rows.shape[0]
+        if n < flat.shape[0]:
+            spread = lambda d: {k: v[where] if np.ndim(v) == 1 and np.size(v) == n else v for k, v in d.items()}
+            self.draws, self.derived = spread(self.draws), spread(self.derived)
+
     def _derive(self):
         p = self.draws
         coeffs = self._noise_coefficients(p, self.scene.exposure_time_s)
@@ -77,7 +114,7 @@ class DerivedMixin:
         bprime = tonal_range_bits(tr)
         ml = mtf_loss_bits(self.mtf, draws=True)
         ds = np.asarray(ml.delta_s_bits, float)
-        if ds.ndim == 1 and ds.size > 1:
+        if ml.has_draws:
             # MTF with its own draws (measured): pair them with posterior samples at random
             rng = np.random.default_rng(np.random.SeedSequence(self.seed).spawn(2)[1])
             ds = ds[rng.integers(0, ds.size, size=bprime.size)]

@@ -174,9 +174,10 @@ class InputsMixin:
                         "consequence": "the interval ends at the bound you set, not where the data put it",
                     }
         # every other wall the model names (:meth:`PTCModel.parameter_bounds`), judged on the draws
+        # (the physical ones of ``th``, as the summaries have them)
         if hasattr(m, "binding_bounds"):
             same = {"clip_dn": "full_well_e"}
-            for name, b in m.binding_bounds(m.physical(th)).items():
+            for name, b in m.binding_bounds(self.summary_draws()).items():
                 if name in found or same.get(name) in found:
                     continue
                 found[name] = {

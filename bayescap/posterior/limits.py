@@ -25,6 +25,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from bayescap.physics.capacity import mtf_loss_bits
+
 __all__ = [
     "apply_parameter_limits",
     "apply_derived_limits",
@@ -189,7 +191,10 @@ def _followers(result, params: dict, names) -> dict:
     n = next(iter(p.values())).size
     take = np.linspace(0, n - 1, min(n, _FOLLOW_DRAWS)).round().astype(int)
     p = {k: np.asarray(v)[take] for k, v in p.items()}
-    base = _derived_of(result, p)
+    if not mtf_loss_bits(result.mtf, draws=True).has_draws:  # (each draw's own: the result's)
+        base = {k: np.asarray(v, float)[take] for k, v in result.summary_derived().items() if np.size(v) == n}
+    else:
+        base = _derived_of(result, p)
     out = {}
     for c in causes:
         # (without dark pairs the intercept's dark_noise_e draws are reported as read_noise_e)

@@ -16,7 +16,7 @@ from bayescap.inference.chains import ChainResult
 from bayescap.inference.diagnostics import interval_end_mcse_mcmc
 from bayescap.model.ptc_model import PTCModel
 from bayescap.posterior.checks import ChecksMixin
-from bayescap.posterior.derived import _DERIVED_FLAGS, _DERIVED_NOTE_PREFIXES, DerivedMixin
+from bayescap.posterior.derived import _DERIVED_FLAGS, _DERIVED_NOTE_PREFIXES, DerivedMixin, derived_per_draw
 from bayescap.posterior.diagnose import _END_MCSE_FAILURE, DiagnoseMixin
 from bayescap.posterior.display import html_table, short_repr
 from bayescap.posterior.inputs import InputsMixin
@@ -41,12 +41,22 @@ class DerivedValues:
     def __init__(self, result_cls, inputs):
         self.result_cls = result_cls
         self.inputs = inputs
+        self._per_draw = None
+
+    @property
+    def per_draw(self) -> bool:
+        """Whether each draw's values depend on that draw alone, so that a caller may compute them
+        for new draws only and join them to earlier ones (:class:`bayescap.inference.end_errors.PerDrawValues`):
+        not when the MTF has its own draws (:func:`bayescap.posterior.derived.derived_per_draw`)."""
+        if getattr(self, "_per_draw", None) is None:
+            self._per_draw = derived_per_draw(self.inputs[3])
+        return self._per_draw
 
     def __call__(self, x):
         model, metadata, scene, mtf, seed = self.inputs
         x = np.asarray(x, float)
         tmp = self.result_cls._of_chain(
-            model, x.reshape(1, -1, 1, x.shape[-1]), metadata=metadata, scene=scene, mtf=mtf, seed=seed
+            model, x.reshape(1, -1, 1, x.shape[-1]), metadata=metadata, scene=scene, mtf=mtf, seed=seed, repeats=False
         )
         return {n: np.asarray(v, float) for n, v in tmp.derived.items() if np.size(v) == x.shape[0]}
 
@@ -93,13 +103,20 @@ class FitResult(DerivedMixin, DiagnoseMixin, ChecksMixin, InputsMixin):
         return load_result(path, cls)
 
     @classmethod
-    def from_chains(cls, model: PTCModel, chains: ChainResult, *, metadata, scene, mtf, seed, quality):
+    def from_chains(cls, model: PTCModel, chains: ChainResult, *, metadata, scene, mtf, seed, quality, checked=None):
+        """The result of ``chains``; ``checked``: the ``derived_fn`` of :meth:`chain_check_fns` made
+        with the same inputs, whose computation on the last chain it checked is taken over when that
+        chain is ``chains.chain`` (the MCMC's final round: its derived quantities are not computed twice)."""
         self = cls(model=model, chains=chains, metadata=metadata, scene=scene, mtf=mtf, seed=seed, quality=quality)
         self.notes.extend(getattr(model, "data_notes", []))  # rows left out before the fit (model.rows_to_fit)
-        E, S, W, D = chains.chain.shape
-        flat = chains.chain.reshape(E * S * W, D)
-        self.draws = model.physical(flat)
-        self._derive()
+        tmp = None if checked is None else checked.result_of(chains.chain)
+        if tmp is not None:
+            self.draws, self.derived, self.mtf_info = tmp.draws, tmp.derived, tmp.mtf_info
+            self.notes.extend(tmp.notes)
+            self.flags.update(tmp.flags)
+        else:
+            E, S, W, D = chains.chain.shape
+            self._derive_draws(chains.chain.reshape(E * S * W, D))
         self._diagnose()
         self._check_rows()
         self._check_inputs()
@@ -132,6 +149,8 @@ class FitResult(DerivedMixin, DiagnoseMixin, ChecksMixin, InputsMixin):
         def reported_fn(chain):
             return of(chain)._reported_draws(chain.shape[:3])
 
+        # (for from_chains: the result computed on the last chain checked, if it is ``chain``)
+        derived_fn.result_of = lambda chain: last[1] if last[0] is chain else None
         return derived_fn, reported_fn
 
     @classmethod
@@ -161,13 +180,13 @@ class FitResult(DerivedMixin, DiagnoseMixin, ChecksMixin, InputsMixin):
             return False
 
     @classmethod
-    def _of_chain(cls, model, chain, *, metadata, scene, mtf, seed):
+    def _of_chain(cls, model, chain, *, metadata, scene, mtf, seed, repeats=True):
         """A result without chains holding the physical draws and derived quantities of ``chain``
-        (E, S, W, D), for the checks :func:`bayescap.inference.mcmc.run_ensembles` makes after each round."""
+        (E, S, W, D), for the checks :func:`bayescap.inference.mcmc.run_ensembles` makes after each
+        round (``repeats``: the draws may repeat, :meth:`_derive_draws`)."""
         E, S, W, D = chain.shape
         tmp = cls(model=model, chains=None, metadata=metadata, scene=scene, mtf=mtf, seed=seed, quality="")
-        tmp.draws = model.physical(chain.reshape(E * S * W, D))
-        tmp._derive()
+        tmp._derive_draws(chain.reshape(E * S * W, D), repeats=repeats)
         return tmp
 
     def _reported_draws(self, shape):
