@@ -137,3 +137,18 @@ def test_full_well_without_photons_spans_both_readings_of_the_bend():
     with_photons = bayescap.fit(d, quality="fast", seed=1)
     assert not with_photons.model.response_share_unknown
     assert "both readings" not in (with_photons.to_dict()["parameters"]["full_well_e"].get("note") or "")
+
+
+def test_the_richer_log_slope_only_for_a_knee():
+    """response_degree_evidence on signals against photons with 3e-4 relative scatter: a soft knee
+    in the top quarter needs the degree-8 log-slope (F-test p < RICH_P_VALUE), a quadratic
+    compression (exactly a low-degree curve) does not."""
+    from bayescap.model.response import RICH_P_VALUE, response_degree_evidence
+
+    rng = np.random.default_rng(3)
+    u = np.linspace(0.02, 1.0, 40)
+    knee = np.where(u <= 0.75, u, 0.75 + 0.2 * np.tanh((u - 0.75) / 0.2))
+    for y, rich in ((knee, True), (u * (1.0 - 0.08 * u), False)):
+        s = 3000.0 * y * (1.0 + 3e-4 * rng.standard_normal(u.size))
+        p, n = response_degree_evidence(1e5 * u, s, s, np.ones(u.size, bool))
+        assert n == u.size and (p < RICH_P_VALUE) == rich
