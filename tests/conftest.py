@@ -9,6 +9,23 @@ ROOT = Path(__file__).resolve().parents[1]
 DATA = ROOT / "data"
 
 
+def pytest_collection_modifyitems(config, items):
+    """Under ``pytest -n 2`` (pytest-xdist, ``--dist loadgroup`` in pyproject's addopts) a module whose
+    tests share a module-scoped fixture (a fit, a simulated sensor) runs on one worker, as one group,
+    so the fixture is built once rather than once per worker. The other tests are handed out one by
+    one; xdist sends the largest groups first. A test that already names its xdist_group keeps it."""
+    shared = set()
+    for item in items:
+        info = getattr(item, "_fixtureinfo", None)
+        defs = info.name2fixturedefs if info is not None else {}
+        if any(d and d[-1].scope == "module" for d in defs.values()):
+            shared.add(item.module.__name__)
+    for item in items:
+        module = getattr(item, "module", None)
+        if module is not None and module.__name__ in shared and item.get_closest_marker("xdist_group") is None:
+            item.add_marker(pytest.mark.xdist_group(module.__name__))
+
+
 @pytest.fixture(scope="session")
 def basler_csv():
     return DATA / "emva1288_basler_ccd12.csv"
