@@ -1,4 +1,5 @@
 import json
+import os
 import sys
 import warnings
 from pathlib import Path
@@ -7,6 +8,15 @@ import pytest
 
 ROOT = Path(__file__).resolve().parents[1]
 DATA = ROOT / "data"
+
+if os.environ.get("PYTEST_XDIST_WORKER"):
+    # Under ``pytest -n 2`` each of the two workers has one core: a fit's default fork pool of 2
+    # processes (BAYESCAP_JOBS) and second log_prob thread (BAYESCAP_THREADS) only compete with the
+    # other worker, and cost 8-20 % more CPU than the ensembles in lockstep on one thread (the same
+    # numbers bit for bit: tests/test_fit.py checks the pool against lockstep). Tests that pass
+    # n_jobs or set these variables themselves are unaffected; subprocesses inherit the setting.
+    os.environ.setdefault("BAYESCAP_JOBS", "1")
+    os.environ.setdefault("BAYESCAP_THREADS", "1")
 
 
 def pytest_collection_modifyitems(config, items):

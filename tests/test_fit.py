@@ -551,6 +551,32 @@ def test_ensembles_in_lockstep_give_the_chains_of_one_after_the_other():
         assert all(np.array_equal(p, q) for p, q in zip(a[8], b[8]))
 
 
+def test_ensembles_in_a_fork_pool_give_the_chains_of_lockstep(monkeypatch):
+    """run_ensembles with n_jobs=2 (the default on two cores: a fork pool, one process an ensemble)
+    gives the chains, log p and rounds of n_jobs=1 (the ensembles in lockstep in this process), bit
+    for bit. Short rounds that never converge (3 of them), so the pool also runs the extensions."""
+    from dataclasses import replace
+
+    from bayescap.model.ptc_model import PTCModel
+
+    model = PTCModel(bayescap.load(Path(__file__).resolve().parents[1] / "data" / "emva1288_basler_ccd12.csv"))
+    settings = replace(
+        inf_presets.QUALITY_PRESETS["fast"], ess_target=1e12, max_rounds=3, n_burn=10, n_steps=12, extend_steps=6
+    )
+    made, workers = [], inf_mcmc._Workers
+
+    def counted(n):
+        made.append(n)
+        return workers(n)
+
+    monkeypatch.setattr(inf_mcmc, "_Workers", counted)
+    pool, lockstep = (inf_mcmc.run_ensembles(model, settings=settings, seed=3, n_jobs=n) for n in (2, 1))
+    assert made == [2]  # the first run forked its pool of 2 processes, the second none
+    assert pool.n_rounds == lockstep.n_rounds == 3
+    assert np.array_equal(pool.chain, lockstep.chain) and np.array_equal(pool.log_prob, lockstep.log_prob)
+    assert np.array_equal(pool.acceptance, lockstep.acceptance)
+
+
 @pytest.mark.parametrize("shift", [0.0, 0.5])
 def test_convergence_check_in_the_pool_decides_as_one_after_the_other(shift):
     """_default_converged with the ensembles' pool (every quantity diagnosed in the workers) gives
