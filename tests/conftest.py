@@ -23,7 +23,8 @@ def pytest_collection_modifyitems(config, items):
     """Under ``pytest -n 2`` (pytest-xdist, ``--dist loadgroup`` in pyproject's addopts) a module whose
     tests share a module-scoped fixture (a fit, a simulated sensor) runs on one worker, as one group,
     so the fixture is built once rather than once per worker. The other tests are handed out one by
-    one; xdist sends the largest groups first. A test that already names its xdist_group keeps it."""
+    one (xdist sends the largest groups first, then the rest in order). A test that already names its
+    xdist_group keeps it."""
     shared = set()
     for item in items:
         info = getattr(item, "_fixtureinfo", None)
@@ -34,6 +35,9 @@ def pytest_collection_modifyitems(config, items):
         module = getattr(item, "module", None)
         if module is not None and module.__name__ in shared and item.get_closest_marker("xdist_group") is None:
             item.add_marker(pytest.mark.xdist_group(module.__name__))
+    # the long tests outside a group (marked slow) are handed out first, so that neither worker is left
+    # running one alone at the end; they use no module fixture, so moving them sets up nothing twice
+    items.sort(key=lambda it: not (it.get_closest_marker("slow") and not it.get_closest_marker("xdist_group")))
 
 
 @pytest.fixture(scope="session")

@@ -160,6 +160,7 @@ def test_readme_command(cmd, workdir):
             assert name in proc.stdout, name
 
 
+@pytest.mark.slow  # the quick start's standard fit, fit_many in two processes, save, the EMVA view
 @pytest.mark.parametrize(
     "i",
     [
