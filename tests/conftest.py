@@ -1,5 +1,7 @@
 import json
+import os
 import sys
+import tempfile
 import warnings
 from pathlib import Path
 
@@ -7,6 +9,79 @@ import pytest
 
 ROOT = Path(__file__).resolve().parents[1]
 DATA = ROOT / "data"
+
+if os.environ.get("PYTEST_XDIST_WORKER"):
+    # Under ``pytest -n 2`` each of the two workers has one core: a fit's default fork pool of 2
+    # processes (BAYESCAP_JOBS) and second log_prob thread (BAYESCAP_THREADS) only compete with the
+    # other worker, and cost 8-20 % more CPU than the ensembles in lockstep on one thread (the same
+    # numbers bit for bit: tests/test_fit.py checks the pool against lockstep). Tests that pass
+    # n_jobs or set these variables themselves are unaffected; subprocesses inherit the setting.
+    os.environ.setdefault("BAYESCAP_JOBS", "1")
+    os.environ.setdefault("BAYESCAP_THREADS", "1")
+
+
+#: under ``pytest -n``: the file in which a worker writes each test's xdist group for the controller
+_GROUPS_FILE = "BAYESCAP_TEST_GROUPS_FILE"
+
+
+def pytest_configure(config):
+    if config.getoption("numprocesses", None) and not os.environ.get("PYTEST_XDIST_WORKER"):
+        fd, path = tempfile.mkstemp(prefix="bayescap-test-groups-", suffix=".json")
+        os.close(fd)
+        os.environ[_GROUPS_FILE] = path  # the workers, started after this, inherit it
+        config.add_cleanup(lambda: Path(path).unlink(missing_ok=True))
+
+
+def pytest_collection_modifyitems(config, items):
+    """Under ``pytest -n 2`` (``--dist loadgroup`` in pyproject's addopts) the tests of one xdist group
+    run on one worker: those marked ``xdist_group(name)``, and every test of a module whose tests share
+    a module-scoped fixture (a fit, a simulated sensor), so the fixture is built once rather than once
+    per worker. The other tests are handed out one by one; the largest groups go first, then the long
+    tests (marked slow), then the rest in order, so that neither worker is left running a long one alone
+    at the end. (pytest-xdist's own loadgroup renames each test ``nodeid@group``, which pytest 9 no
+    longer reads: its groups would be ignored. The groups go to the controller in a file instead, and
+    :func:`pytest_xdist_make_scheduler` schedules by them.)"""
+    shared = set()
+    for item in items:
+        info = getattr(item, "_fixtureinfo", None)
+        defs = info.name2fixturedefs if info is not None else {}
+        if any(d and d[-1].scope == "module" for d in defs.values()):
+            shared.add(item.module.__name__)
+    groups = {}
+    for item in items:
+        mark = item.get_closest_marker("xdist_group")
+        module = getattr(item, "module", None)
+        if mark is not None:
+            groups[item.nodeid] = "group:" + str(mark.args[0] if mark.args else mark.kwargs.get("name", "default"))
+        elif module is not None and module.__name__ in shared:
+            groups[item.nodeid] = "module:" + module.__name__
+    # ungrouped long tests first; they use no module fixture, so moving them sets up nothing twice
+    items.sort(key=lambda it: not (it.nodeid not in groups and it.get_closest_marker("slow")))
+    path = os.environ.get(_GROUPS_FILE)
+    if path and os.environ.get("PYTEST_XDIST_WORKER") == "gw0":  # every worker collects the same tests
+        tmp = f"{path}.{os.getpid()}.tmp"
+        Path(tmp).write_text(json.dumps(groups), encoding="utf-8")
+        os.replace(tmp, path)
+
+
+@pytest.hookimpl(optionalhook=True)  # pytest-xdist's hook: unknown without it
+def pytest_xdist_make_scheduler(config, log):
+    """``--dist loadgroup``: xdist's scope scheduler with the groups the workers wrote (a test without
+    a group is a scope of its own); any other ``--dist`` is xdist's own."""
+    if config.getvalue("dist") != "loadgroup" or not os.environ.get(_GROUPS_FILE):
+        return None
+    from xdist.scheduler import LoadScopeScheduling
+
+    class GroupScheduling(LoadScopeScheduling):
+        _groups = None
+
+        def _split_scope(self, nodeid):
+            if self._groups is None:  # read once, when the workers have collected (schedule())
+                text = Path(os.environ[_GROUPS_FILE]).read_text(encoding="utf-8")
+                self._groups = json.loads(text) if text else {}
+            return self._groups.get(nodeid, nodeid)
+
+    return GroupScheduling(config, log)
 
 
 @pytest.fixture(scope="session")

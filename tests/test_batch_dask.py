@@ -35,7 +35,9 @@ def client():
 
 @pytest.fixture(scope="module")
 def sensors():
-    datas, _ = gpixel_sensors(n_max=16, seed=3)
+    # 8 ROIs in chunks of 2: four chunks on the two workers, as 16 in chunks of 4 were; the fifth
+    # (index 4) fails the fast path's check and falls back to MCMC
+    datas, _ = gpixel_sensors(n_max=8, seed=3)
     return datas
 
 
@@ -55,9 +57,9 @@ def _inodes(out):
 
 
 def test_dask_gives_every_sensor_the_local_runs_numbers(client, sensors, tmp_path):
-    """Same seeds, same numbers: the cluster (chunks of 4, on 2 workers) against this process
+    """Same seeds, same numbers: the cluster (chunks of 2, on 2 workers) against this process
     (chunks of 128) and against the in-memory batch's FitResult.to_dict()."""
-    rd = fit_many(sensors, seed=7, out=tmp_path / "dask", client=client, chunk_size=4)
+    rd = fit_many(sensors, seed=7, out=tmp_path / "dask", client=client, chunk_size=2)
     rl = fit_many(sensors, seed=7, out=tmp_path / "local")
     assert [r["status"] for r in rd] == ["fitted"] * len(sensors) == [r["status"] for r in rl]
     assert [r["name"] for r in rd] == [r["name"] for r in rl]
@@ -68,7 +70,7 @@ def test_dask_gives_every_sensor_the_local_runs_numbers(client, sensors, tmp_pat
         b = _numbers(r.to_dict())
         assert _numbers({k: v for k, v in a.items() if k != "batch"}) == b
     methods = Counter(d["diagnostics"]["method"] for d in dd)
-    assert methods["laplace-is"] >= 10 and len(methods) == 2, methods  # and an MCMC fallback
+    assert methods["laplace-is"] >= 6 and len(methods) == 2, methods  # and an MCMC fallback
 
 
 def test_a_stopped_run_resumes_without_refitting(client, sensors, tmp_path):
@@ -84,10 +86,10 @@ def test_a_stopped_run_resumes_without_refitting(client, sensors, tmp_path):
             raise KeyboardInterrupt
 
     with pytest.raises(KeyboardInterrupt):
-        fit_to_folder(sensors, seed=7, out=out, client=client, chunk_size=4, on_chunk=stop_after_two, fallback=False)
+        fit_to_folder(sensors, seed=7, out=out, client=client, chunk_size=2, on_chunk=stop_after_two, fallback=False)
     before = _inodes(out)
     assert 0 < len(before) < len(sensors)
-    report = fit_many(sensors, seed=7, out=out, client=client, chunk_size=4, fallback=False)
+    report = fit_many(sensors, seed=7, out=out, client=client, chunk_size=2, fallback=False)
     status = Counter(r["status"] for r in report)
     assert status == {"resumed": len(before), "fitted": len(sensors) - len(before)}
     assert {r["name"] for r in report if r["status"] == "resumed"} == set(before)
@@ -186,7 +188,7 @@ def test_a_worker_killed_mid_run_and_the_batch_completes_every_result_once(clien
                 except Exception:  # the worker's connection closes as it dies
                     pass
 
-    report = fit_to_folder(sensors, seed=7, out=out, client=client, chunk_size=4, on_chunk=kill_once, fallback=False)
+    report = fit_to_folder(sensors, seed=7, out=out, client=client, chunk_size=2, on_chunk=kill_once, fallback=False)
     assert killed
     assert Counter(written) == Counter(range(len(sensors)))
     assert [r["status"] for r in report] == ["fitted"] * len(sensors)

@@ -1,8 +1,11 @@
 """The other subcommands: mtf, fit --mtf, sweep, ingest registration."""
 
+import contextlib
+import io
 import json
 import subprocess
 import sys
+import types
 from pathlib import Path
 
 import numpy as np
@@ -13,6 +16,20 @@ EDGE = Path(__file__).parent / "data" / "slanted_edge" / "sfrmat3_v_edge_mono.ti
 
 def _run(*args):
     return subprocess.run([sys.executable, "-m", "bayescap.cli", *map(str, args)], capture_output=True, text=True)
+
+
+def _main(*args):
+    """``bayescap ARGS`` in this process (what :func:`_run` gives, without a fresh interpreter's
+    imports): its exit status, standard output and standard error."""
+    from bayescap.cli import main
+
+    out, err = io.StringIO(), io.StringIO()
+    with contextlib.redirect_stdout(out), contextlib.redirect_stderr(err):
+        try:
+            code = main([str(a) for a in args])
+        except SystemExit as e:  # argparse's usage errors
+            code = e.code
+    return types.SimpleNamespace(returncode=0 if code is None else code, stdout=out.getvalue(), stderr=err.getvalue())
 
 
 def test_mtf_command_json_and_table(tmp_path):
@@ -103,12 +120,13 @@ def test_fast_tolerance_and_confidence_flags(tmp_path):
     """``--fast-tolerance``/``--fast-confidence`` set the fast path's check (FastSettings), are recorded
     in the result JSON, make it stop drawing no later than the default does (the same seed draws the
     same first proposals; a looser target is met no later), reach the batch too, and are refused
-    with exit 2 outside ``--quality fast`` or out of range."""
+    with exit 2 outside ``--quality fast`` or out of range. The default run is a true subprocess,
+    the others run in this process."""
     # a linear sensor: the fast path's check accepts it (the Basler set's response terms send it to MCMC)
     sensor = Path(__file__).resolve().parents[1] / "data" / "simulated" / "sim_industrial_3p45um_12bit.csv"
     runs = {}
-    for name, extra in (("default", ()), ("loose", ("--fast-tolerance", "0.1"))):
-        r = _run("fit", sensor, "--quality", "fast", "--seed", "1", "--json", *extra)
+    for name, extra, run in (("default", (), _run), ("loose", ("--fast-tolerance", "0.1"), _main)):
+        r = run("fit", sensor, "--quality", "fast", "--seed", "1", "--json", *extra)
         assert r.returncode == 0, r.stderr
         runs[name] = json.loads(r.stdout)["diagnostics"]
     d, lo = runs["default"], runs["loose"]
@@ -126,16 +144,16 @@ def test_fast_tolerance_and_confidence_flags(tmp_path):
     paths = [tmp_path / f"roi{i}.csv" for i in range(2)]
     for dd, p in zip(datas, paths):
         write_ptc_csv(dd, p)
-    r = _run("fit", *paths, "--quality", "fast", "--seed", "3", "--json", "--fast-confidence", "none")
+    r = _main("fit", *paths, "--quality", "fast", "--seed", "3", "--json", "--fast-confidence", "none")
     assert r.returncode == 0, r.stderr
     assert all(doc["diagnostics"]["fast_settings"]["end_confidence"] is None for doc in json.loads(r.stdout))
 
     # compare and report (fast by default) take them too
     bench = sorted((Path(__file__).resolve().parents[1] / "data" / "benchmark").glob("*.csv"))[:2]
-    r = _run("compare", *bench, "--fast-tolerance", "0.1", "--json")
+    r = _main("compare", *bench, "--fast-tolerance", "0.1", "--json")
     assert r.returncode == 0, r.stderr
     assert [s["fast_settings"]["end_tolerance"] for s in json.loads(r.stdout)["sensors"]] == [0.1, 0.1]
-    r = _run("report", *bench, "--fast-confidence", "7", "-o", tmp_path / "r.html")
+    r = _main("report", *bench, "--fast-confidence", "7", "-o", tmp_path / "r.html")
     assert r.returncode == 2 and "--fast-confidence must be" in r.stderr and not (tmp_path / "r.html").exists()
 
     for bad, msg in (
@@ -143,7 +161,7 @@ def test_fast_tolerance_and_confidence_flags(tmp_path):
         (("--quality", "fast", "--fast-tolerance", "1.5"), "--fast-tolerance must be"),
         (("--quality", "fast", "--fast-confidence", "high"), "--fast-confidence must be"),
     ):
-        r = _run("fit", sensor, *bad)
+        r = _main("fit", sensor, *bad)
         assert r.returncode == 2 and msg in r.stderr and "Traceback" not in r.stderr, r.stderr
 
 

@@ -109,9 +109,16 @@ KNOWN = {
 }
 
 
+#: cases whose fit (``fitted``'s cache) another test also asserts on: one xdist group each, so under
+#: ``pytest -n 2`` both tests run on one worker and the case is fitted once
+SHARED = {
+    c: pytest.mark.xdist_group(f"test_extremes:{c}") for c in ("single_exposure_time", "noise_below_one_dn_everywhere")
+}
+
+
 def _case_param(c):
     marks = ([pytest.mark.slow] if c in SLOWEST else []) + ([KNOWN[c]] if c in KNOWN else [])
-    return pytest.param(c, marks=marks)
+    return pytest.param(c, marks=marks + ([SHARED[c]] if c in SHARED else []))
 
 
 @pytest.mark.parametrize("case", [_case_param(c) for c in CASES])
@@ -126,6 +133,7 @@ def test_extreme_case_finite_and_sensible(case):
     assert ("capacity C =" in txt) != ("capacity C >" in txt)
 
 
+@SHARED["single_exposure_time"]
 def test_single_exposure_time_reports_combined_dark_noise():
     truth, d, r, _ = fitted("single_exposure_time")
     p = r.to_dict()["parameters"]
@@ -133,6 +141,7 @@ def test_single_exposure_time_reports_combined_dark_noise():
     assert "dark_current" in r.model.terms.reasons
 
 
+@SHARED["noise_below_one_dn_everywhere"]
 def test_noise_below_one_dn_gives_upper_limit_not_detection():
     """Read noise of 0.005 DN is invisible (every dark pixel rounds to the black level): the result
     never claims a detection. The fast path rejects its own approximation here (K sits where the

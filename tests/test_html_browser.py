@@ -127,6 +127,42 @@ def test_report_images_are_pngs_of_nonzero_size(report):
             assert im.format == "PNG" and min(im.size) > 100
 
 
+class _Sections(html.parser.HTMLParser):
+    """The ids of the <section> elements and the src of every <img>."""
+
+    def __init__(self):
+        super().__init__()
+        self.ids, self.imgs = [], []
+
+    def handle_starttag(self, tag, attrs):
+        a = dict(attrs)
+        if tag == "section" and "id" in a:
+            self.ids.append(a["id"])
+        if tag == "img":
+            self.imgs.append(a.get("src", ""))
+
+
+def test_report_structure_and_self_contained(report):
+    """Every section and one per sensor; each image an inline PNG of some size; nothing fetched from the
+    network; the simulated inputs said to be simulated and every sensor named; written atomically
+    (no temporary file left beside it)."""
+    text = report.read_text(encoding="utf-8")
+    assert not list(report.parent.glob(".*tmp*"))
+    p = _Sections()
+    p.feed(text)
+    assert set(SECTION_IDS) <= set(p.ids)
+    assert {f"sensor-{i}" for i in range(len(SENSORS))} <= set(p.ids)
+    assert len(p.imgs) == 5 + 3 * len(SENSORS)  # capacity, TR(H0), SNR, 2 matrices; per sensor PTC, SNR, corner
+    for src in p.imgs:
+        assert src.startswith("data:image/png;base64,")
+        png = base64.b64decode(src.split(",", 1)[1], validate=True)
+        assert png[:8] == b"\x89PNG\r\n\x1a\n" and len(png) > 2000
+    assert "http://" not in text and "https://" not in text
+    assert "Simulated data" in text
+    for s in SENSORS:
+        assert s.stem in text, s.stem
+
+
 def test_report_tables_show_names_not_identifiers(report):
     parser = _Text()
     parser.feed(report.read_text(encoding="utf-8"))

@@ -77,6 +77,32 @@ def workdir(tmp_path):
     return tmp_path
 
 
+#: (args) -> the finished process: the README's ``bayescap fit data/emva1288_basler_ccd12.csv --seed 1``
+#: is both a command of its quick start and the command whose output it shows, run once for both tests
+#: (they share an xdist group, so one worker runs them). Only runs whose arguments name no file the
+#: command writes are shared: each reads ``data/`` by the same relative path from its working folder.
+_RUNS: dict[tuple[str, ...], subprocess.CompletedProcess] = {}
+
+
+def _bayescap(args: list[str], workdir: Path) -> subprocess.CompletedProcess:
+    key = tuple(args)
+    if key not in _RUNS:
+        _RUNS[key] = subprocess.run(
+            [sys.executable, "-m", "bayescap", *args],
+            cwd=workdir,
+            env=_env(),
+            capture_output=True,
+            text=True,
+            timeout=300,
+        )
+    return _RUNS[key]
+
+
+def _shared_fit(args: list[str]) -> bool:
+    """A ``fit`` whose output is only printed (no --out, -o, --save, --json file), so sharing it is safe."""
+    return args[:1] == ["fit"] and not any(a.startswith(("-o", "--out", "--save")) for a in args)
+
+
 def test_readme_has_examples():
     assert PYTHON_BLOCKS and BAYESCAP_COMMANDS
 
@@ -109,20 +135,24 @@ def test_ci_runs_the_readme_commands_and_the_test_command_installs_nothing():
     assert steps == [quick[0], CI_BROWSER_INSTALL, quick[1]], steps
 
 
+@pytest.mark.xdist_group("readme_fit")  # with the output test: the shared Basler fit runs once
 @pytest.mark.parametrize("cmd", BAYESCAP_COMMANDS)
 def test_readme_command(cmd, workdir):
     argv = shlex.split(cmd)
     # the shell's glob expansion (data/benchmark/M*.csv), in the working folder
     args = [x for a in argv[1:] for x in (sorted(glob.glob(a, root_dir=workdir)) if "*" in a else [a])]
     # the quick start's .venv/bin/bayescap is this interpreter's bayescap
-    proc = subprocess.run(
-        [sys.executable, "-m", "bayescap", *args],
-        cwd=workdir,
-        env=_env(),
-        capture_output=True,
-        text=True,
-        timeout=300,
-    )
+    if _shared_fit(args):
+        proc = _bayescap(args, workdir)
+    else:
+        proc = subprocess.run(
+            [sys.executable, "-m", "bayescap", *args],
+            cwd=workdir,
+            env=_env(),
+            capture_output=True,
+            text=True,
+            timeout=300,
+        )
     assert proc.returncode == 0, proc.stdout[-2000:] + proc.stderr[-3000:]
     if argv[1] == "fit" and "--json" not in argv:
         # the parameters the README's abridged output lists
@@ -130,6 +160,7 @@ def test_readme_command(cmd, workdir):
             assert name in proc.stdout, name
 
 
+@pytest.mark.slow  # the quick start's standard fit, fit_many in two processes, save, the EMVA view
 @pytest.mark.parametrize(
     "i",
     [
@@ -168,19 +199,13 @@ def _output_blocks() -> list[tuple[str, list[str]]]:
     return out
 
 
+@pytest.mark.xdist_group("readme_fit")
 @pytest.mark.parametrize("csv, lines", _output_blocks(), ids=[c for c, _ in _output_blocks()])
 def test_readme_output_is_what_the_fit_prints(csv, lines, workdir):
     """Every line of an abridged output in the README is a line the command prints now (``...``
     marks lines left out, ``…`` a part that changes from run to run: the time), so the README's
     numbers are the program's."""
-    proc = subprocess.run(
-        [sys.executable, "-m", "bayescap", "fit", csv, "--seed", "1"],
-        cwd=workdir,
-        env=_env(),
-        capture_output=True,
-        text=True,
-        timeout=300,
-    )
+    proc = _bayescap(["fit", csv, "--seed", "1"], workdir)
     assert proc.returncode == 0, proc.stderr[-2000:]
     printed = [line.rstrip() for line in proc.stdout.splitlines()]
     for line in lines:
