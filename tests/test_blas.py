@@ -1,13 +1,12 @@
 """BLAS thread pools are held to one thread inside the sampling entry points (bayescap/_blas.py)."""
 
-import numpy as np
 import pytest
+
+import bayescap
 
 threadpoolctl = pytest.importorskip("threadpoolctl")
 
 from bayescap._blas import one_blas_thread  # noqa: E402
-from bayescap.inference import fast  # noqa: E402
-from bayescap.io.ptc_csv import read_ptc_csv  # noqa: E402
 from bayescap.model.ptc_model import PTCModel  # noqa: E402
 
 
@@ -36,8 +35,7 @@ def test_fast_posterior_runs_with_one_blas_thread(monkeypatch, basler_csv):
         return orig(self, X)
 
     monkeypatch.setattr(PTCModel, "log_prob", spy)
-    model = PTCModel(read_ptc_csv(basler_csv))
     with threadpoolctl.threadpool_limits(2, user_api="blas"):
-        _, diag = fast.fast_posterior(model, seed=1)
-    assert diag["accepted"] and seen and all(s == {1} for s in seen)
-    assert np.isfinite(diag["khat"])
+        r = bayescap.fit(basler_csv, seed=1, quality="fast")  # the fast path as a fit runs it
+    assert r.to_dict()["diagnostics"]["method"] == "laplace-is"  # accepted: no MCMC fallback
+    assert seen and all(s == {1} for s in seen)

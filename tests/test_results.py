@@ -153,16 +153,14 @@ def test_posterior_nc_one_variable_per_observation_kind_with_one_unit(written):
     """Each observed_data/posterior_predictive variable is one kind of observation in one unit
     (means in DN, variances in DN²), indexed by the CSV's file rows, so ``az.plot_ppc`` on one
     variable compares like with like."""
-    from bayescap.posterior.inference_data import DIMENSIONLESS, OBSERVATION_VARS
+    from bayescap.posterior.inference_data import OBSERVATION_VARS
 
     units = {name: unit for name, unit, _ in OBSERVATION_VARS.values()}
     od, pp = written.observed_data, written.posterior_predictive
     assert {"signal_mean_dn", "temporal_var_dn2", "dark_temporal_var_dn2"} <= set(od.data_vars)
     for v in od.data_vars:
         assert od[v].attrs["units"] == pp[v].attrs["units"] == units[v]
-        # every observation in DN or DN², but the one fraction of pixels
-        assert units[v] == ("DN" if v.endswith("_dn") else "DN²" if v.endswith("_dn2") else DIMENSIONLESS)
-        assert units[v] != DIMENSIONLESS or v == "frac_saturated"
+        assert units[v] == ("DN" if v.endswith("_dn") else "DN²")
         assert od[v].dims == (f"{v}_row",) and pp[v].dims == ("chain", "draw", f"{v}_row")
         rows = od[v][f"{v}_row"].values
         assert len(set(rows)) == rows.size and rows.min() >= 1  # file rows, each once

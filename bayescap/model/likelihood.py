@@ -13,13 +13,17 @@ from __future__ import annotations
 import numpy as np
 from scipy.special import gammaln, log_ndtr, ndtri
 
-__all__ = ["OUTLIER_RATE", "OUTLIER_REL_SD", "ROBUST_BLOCKS", "gamma_logpdf"]
+__all__ = ["BOUND_BLOCKS", "OUTLIER_RATE", "OUTLIER_REL_SD", "ROBUST_BLOCKS", "gamma_logpdf"]
 
 _LOG_2PI = np.log(2.0 * np.pi)
 #: prior probability that a row is a bad measurement, and the relative scatter of bad rows
 OUTLIER_RATE = 0.02
 OUTLIER_REL_SD = 0.3
 ROBUST_BLOCKS = ("bright_var", "dark_var", "mean")
+#: blocks that bound the model rather than give the observations a density (kind "upper_probit"):
+#: in the posterior, but not among the pointwise terms PSIS-LOO and the posterior predictive read
+#: (a bound that holds contributes exactly 0 in every draw, which leaves LOO's Pareto fit undefined)
+BOUND_BLOCKS = ("saturated",)
 # log of OUTLIER_RATE × the log-normal's normalisation, less log v (added to both components)
 _BAD_GAMMA_CONST = float(np.log(OUTLIER_RATE) - np.log(OUTLIER_REL_SD) - 0.5 * np.log(2.0 * np.pi))
 
@@ -147,11 +151,14 @@ class _LikelihoodMixin:
 
     def pointwise_loglik(self, th):
         """Log-likelihood of every observation for draws ``th``: (n_draws, n_obs), and the
-        matching labels ``[(block, row), ...]`` (for PSIS-LOO)."""
+        matching labels ``[(block, row), ...]`` (for PSIS-LOO; the bounds of :data:`BOUND_BLOCKS`
+        left out)."""
         with np.errstate(over="ignore", invalid="ignore", divide="ignore"):
             terms = self.loglik_terms(th)
         labels, cols = [], []
         for name, ll in terms.items():
+            if name in BOUND_BLOCKS:
+                continue
             rows = self.observation_rows(name)
             ll = np.broadcast_to(ll, (th.shape[0], rows.size))
             cols.append(ll)

@@ -271,7 +271,6 @@ class PTCModel(_ParametersMixin, _PredictionMixin, _ClipMixin, _LikelihoodMixin)
         fs = np.asarray(d.frac_saturated, float)[ok]
         n = np.maximum(d.n_pixels[ok], 2.0)
         self.sat_rows = self.clip_rows[np.isfinite(fs[self.clip_rows])]
-        self.sat_n = n
         self.sat_fs = np.clip(np.where(np.isfinite(fs), fs, 0.0), 0.5 / n, 1.0 - 0.5 / n)
         f = self.sat_fs
         binomial = np.sqrt(f * (1.0 - f) / n) / (np.exp(-0.5 * ndtri(f) ** 2) * 0.3989422804014327)

@@ -41,7 +41,7 @@ import numpy as np
 
 from bayescap._version import __version__
 from bayescap.inference.diagnostics import draw_order
-from bayescap.model.likelihood import OUTLIER_RATE, OUTLIER_REL_SD, ROBUST_BLOCKS
+from bayescap.model.likelihood import BOUND_BLOCKS, OUTLIER_RATE, OUTLIER_REL_SD, ROBUST_BLOCKS
 from bayescap.posterior.summary import DERIVED_INFO
 
 __all__ = [
@@ -93,11 +93,6 @@ OBSERVATION_VARS = {
     "clip_mean": ("clipped_mean_dn", "DN", "bright mean of the rows at the clip"),
     "plateau_var": ("clipped_temporal_var_dn2", "DN²", "bright temporal variance of the rows at the clip"),
     "dark_mean": ("dark_mean_dn", "DN", "dark mean (the dark means' ramp, black level profiled)"),
-    "saturated": (
-        "frac_saturated",
-        DIMENSIONLESS,
-        "fraction of pixels at the ADC maximum (0 read as half a pixel): it bounds the model's fraction from above",
-    ),
 }
 #: the log_likelihood variable holding every observation at once (dimension ``observation``,
 #: coordinates ``block`` and ``row``): the pointwise log-likelihood PSIS-LOO is computed on
@@ -163,6 +158,8 @@ def _replicate(model, th, rng):
     obs_out, rep_out = [], []
     n = th.shape[0]
     for name, (obs, mod, spread, kind) in pred.items():
+        if name in BOUND_BLOCKS:  # a bound, not a density: not an observation of these groups
+            continue
         rows = model.observation_rows(name)
         shape = (n, rows.size)
         mod = np.broadcast_to(mod, shape)
@@ -173,11 +170,6 @@ def _replicate(model, th, rng):
         obs_out.append(obs[0] if np.all(obs == obs[:1]) else np.median(obs, axis=0))
         if kind == "gamma":
             rep = rng.gamma(spread, mod / spread)
-        elif kind == "upper_probit":  # the count at the model's fraction (the bound's own density is one-sided)
-            n_px = model.sat_n[model.sat_rows]
-            rep = np.clip(
-                rng.binomial(n_px.astype(np.int64), np.clip(mod, 0.0, 1.0)) / n_px, 0.5 / n_px, 1 - 0.5 / n_px
-            )
         else:
             rep = rng.normal(mod, spread)
         if model.terms.robust and name in ROBUST_BLOCKS:
