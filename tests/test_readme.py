@@ -84,17 +84,17 @@ def workdir(tmp_path):
 _RUNS: dict[tuple[str, ...], subprocess.CompletedProcess] = {}
 
 
+def _run_bayescap(args: list[str], workdir: Path) -> subprocess.CompletedProcess:
+    return subprocess.run(
+        [sys.executable, "-m", "bayescap", *args], cwd=workdir, env=_env(), capture_output=True, text=True, timeout=300
+    )
+
+
 def _bayescap(args: list[str], workdir: Path) -> subprocess.CompletedProcess:
+    """``bayescap ARGS`` in a subprocess, once per argument list in this session (the shared fit)."""
     key = tuple(args)
     if key not in _RUNS:
-        _RUNS[key] = subprocess.run(
-            [sys.executable, "-m", "bayescap", *args],
-            cwd=workdir,
-            env=_env(),
-            capture_output=True,
-            text=True,
-            timeout=300,
-        )
+        _RUNS[key] = _run_bayescap(args, workdir)
     return _RUNS[key]
 
 
@@ -142,17 +142,7 @@ def test_readme_command(cmd, workdir):
     # the shell's glob expansion (data/benchmark/M*.csv), in the working folder
     args = [x for a in argv[1:] for x in (sorted(glob.glob(a, root_dir=workdir)) if "*" in a else [a])]
     # the quick start's .venv/bin/bayescap is this interpreter's bayescap
-    if _shared_fit(args):
-        proc = _bayescap(args, workdir)
-    else:
-        proc = subprocess.run(
-            [sys.executable, "-m", "bayescap", *args],
-            cwd=workdir,
-            env=_env(),
-            capture_output=True,
-            text=True,
-            timeout=300,
-        )
+    proc = _bayescap(args, workdir) if _shared_fit(args) else _run_bayescap(args, workdir)
     assert proc.returncode == 0, proc.stdout[-2000:] + proc.stderr[-3000:]
     if argv[1] == "fit" and "--json" not in argv:
         # the parameters the README's abridged output lists
