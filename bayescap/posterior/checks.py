@@ -94,19 +94,20 @@ class ChecksMixin:
         rest = sorted({o["row"] for o in self.outliers} - set(near))
         order = np.argsort(d.mean_dn - d.dark_mean_dn, kind="stable")
         rank = {int(r): k for k, r in enumerate(np.asarray(list(pos))[order])}
-        runs = _runs(set(rest), rank, self.RUN_LENGTH)
+        runs = _neighbours(set(rest), rank, self.RUN_LENGTH)
         for block, z in (residual_z or {}).items():
             flagged = {o["row"] for o in self.outliers if o["block"] == block and o["row"] in rest and o["row"] in z}
             for sign in (1.0, -1.0):
                 mine = {r for r in flagged if sign * z[r] > 0}
                 if mine:
                     with_them = mine | {r for r, v in z.items() if sign * v >= self.DEPART_Z}
-                    runs += [[r for r in run if r in mine] for run in _runs(with_them, rank, self.RUN_LENGTH)]
+                    runs += [[r for r in run if r in mine] for run in _neighbours(with_them, rank, self.RUN_LENGTH)]
         runs = [run for run in runs if run]
         in_runs = {r for run in runs for r in run}
-        runs = [sorted(c, key=lambda r: rank[r]) for c in _connected(in_runs, rank)]
+        runs = _neighbours(in_runs, rank, 1, gap=2)  # for the note: runs a row apart told as one
         if near:
             self.flags["rows_in_the_clip_misfit"] = near
+            few_left = fs is None or all(fs[pos[r]] >= self.MOSTLY_CLIPPED for r in near)
             self.notes.append(
                 "rows "
                 + ", ".join(map(str, near))
@@ -114,13 +115,13 @@ class ChecksMixin:
                     " lie past the PTC's turnoff, at the clip"
                     if fs is None
                     else " have most of their pixels clipped"
-                    if all(fs[pos[r]] >= self.MOSTLY_CLIPPED for r in near)
+                    if few_left
                     else " have a tenth or more of their pixels clipped"
                 )
                 + " and fit the model poorly: "
                 + (
                     "there the model of the few unclipped pixels is an approximation"
-                    if fs is None or all(fs[pos[r]] >= self.MOSTLY_CLIPPED for r in near)
+                    if few_left
                     else "there the model of the pixels at the clip (a normal distribution under the response's "
                     "local slope) is an approximation"
                 )
@@ -203,33 +204,19 @@ class ChecksMixin:
             )
 
 
-def _runs(rows, rank, length):
-    """Runs of at least ``length`` rows of ``rows`` that are neighbours along the signal (``rank``:
-    row label -> position in signal order), each in signal order."""
-    runs, cur = [], []
+def _neighbours(rows, rank, length, gap=1):
+    """Groups of at least ``length`` rows of ``rows`` that follow each other along the signal
+    (``rank``: row label -> position in signal order) at most ``gap`` positions apart, each in
+    signal order."""
+    out, cur = [], []
     for r in sorted(rows, key=lambda r: rank[r]):
-        if cur and rank[r] == rank[cur[-1]] + 1:
+        if cur and rank[r] <= rank[cur[-1]] + gap:
             cur.append(r)
         else:
             if len(cur) >= length:
-                runs.append(cur)
-            cur = [r]
-    if len(cur) >= length:
-        runs.append(cur)
-    return runs
-
-
-def _connected(rows, rank):
-    """``rows`` split into groups of neighbours along the signal (gaps of one row bridged)."""
-    out, cur = [], []
-    for r in sorted(rows, key=lambda r: rank[r]):
-        if cur and rank[r] <= rank[cur[-1]] + 2:
-            cur.append(r)
-        else:
-            if cur:
                 out.append(cur)
             cur = [r]
-    if cur:
+    if len(cur) >= length:
         out.append(cur)
     return out
 
