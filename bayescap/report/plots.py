@@ -204,10 +204,19 @@ def png_bytes(fig, dpi=110) -> bytes:
     nothing visible, and the file is a third to a fifth of the full-colour one."""
     from PIL import Image
 
+    # Agg's pixels as they are (format "rgba"): the same pixels a full-colour PNG would hold, without
+    # encoding that PNG and decoding it again (a quarter of the time; the same bytes out)
     buf = io.BytesIO()
-    fig.savefig(buf, format="png", dpi=dpi)
-    buf.seek(0)
-    with Image.open(buf) as im:
+    fig.savefig(buf, format="rgba", dpi=dpi)
+    w, h = (int(v) for v in fig.get_size_inches() * dpi)  # Agg's canvas: int() of the size in pixels
+    if len(buf.getbuffer()) == 4 * w * h:
+        im = Image.frombuffer("RGBA", (w, h), buf.getbuffer(), "raw", "RGBA", 0, 1)
+    else:  # not the size expected: let PIL read the size from a PNG
+        buf = io.BytesIO()
+        fig.savefig(buf, format="png", dpi=dpi)
+        buf.seek(0)
+        im = Image.open(buf)
+    with im:
         pal = im.convert("RGB").quantize(256, method=Image.Quantize.MEDIANCUT, dither=Image.Dither.NONE)
     out = io.BytesIO()
     pal.save(out, format="png", optimize=True)
