@@ -89,6 +89,35 @@ def basler_csv():
     return DATA / "emva1288_basler_ccd12.csv"
 
 
+@pytest.fixture(scope="session")
+def basler_standard_fit(basler_csv, tmp_path_factory):
+    """``bayescap.fit(basler_csv, seed=1)``: the README's and the docs' fit (what ``bayescap fit
+    data/emva1288_basler_ccd12.csv --seed 1`` prints and plots), fitted once per test run. Under
+    ``pytest -n`` the first worker to ask fits it and pickles it beside the workers' temporary
+    folders; the other waits for the pickle (a lock) and loads it (tests/test_results.py checks that
+    a result pickles and comes back the same). Read-only: a test that changes it copies it first."""
+    import fcntl
+    import pickle
+
+    import bayescap
+
+    root = tmp_path_factory.getbasetemp()
+    if os.environ.get("PYTEST_XDIST_WORKER"):
+        root = root.parent  # this run's folder, shared by its workers
+    path = root / "basler_standard_seed1.pickle"
+    with open(root / "basler_standard_seed1.lock", "w") as lock:
+        fcntl.flock(lock, fcntl.LOCK_EX)
+        if path.exists():
+            return pickle.loads(path.read_bytes())
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            result = bayescap.fit(basler_csv, seed=1)
+        tmp = path.with_name(path.name + f".{os.getpid()}.tmp")
+        tmp.write_bytes(pickle.dumps(result))
+        os.replace(tmp, path)
+        return result
+
+
 def standard_recipe_gain(result):
     """EMVA 1288's gain recipe (Δσ² against Δμ through the origin, unweighted, over the rows up to
     70 % of the signal of the largest temporal variance) applied to the model's variances at the

@@ -181,8 +181,8 @@ def regenerate() -> list[Path]:
 
 
 @pytest.fixture(scope="module")
-def generated():
-    return _generated(basler_fit())
+def generated(basler_standard_fit):
+    return _generated(basler_standard_fit)  # basler_fit()'s fit, shared with other tests (conftest)
 
 
 def test_every_block_has_a_generator_and_every_generator_a_block():

@@ -620,7 +620,7 @@ def test_truncated_dng_and_tiff_are_refused(tmp_path):
         raw.read_frame(tmp_path / "half.tif")
 
 
-def test_ingested_crops_fit_to_the_full_frame_gain(png_csv):
+def test_ingested_crops_fit_to_the_full_frame_gain(png_csv, basler_standard_fit):
     """Frames -> CSV -> fit gives the conversion gain of the full-frame table's fit.
 
     The crop's statistical error: each pair variance over 128x128 pixels has a relative sd of
@@ -631,7 +631,7 @@ def test_ingested_crops_fit_to_the_full_frame_gain(png_csv):
     import bayescap
 
     crop = bayescap.fit(png_csv, seed=2)
-    full = bayescap.fit(Path(__file__).resolve().parents[1] / "data" / "emva1288_basler_ccd12.csv", seed=2)
+    full = basler_standard_fit  # the full table's standard fit (seed 1), shared with other tests
     kc, kf = crop.draws["conversion_gain_e_per_dn"], full.draws["conversion_gain_e_per_dn"]
     sd = np.hypot(kc.std(), kf.std())
     diff = np.median(kc) - np.median(kf)

@@ -3,16 +3,15 @@ small file."""
 
 import pytest
 
-import bayescap
 from bayescap.report.plots import CORNER_LABELS, plot_corner
 
 NUISANCE = ("clip_spread_dn", "variance_discrepancy", "mean_discrepancy", "clip_dn")
 
 
 @pytest.fixture(scope="module")
-def basler_result(basler_csv):
+def basler_result(basler_standard_fit):
     # what `bayescap fit data/emva1288_basler_ccd12.csv --seed 1 --out DIR` plots
-    return bayescap.fit(basler_csv, seed=1)
+    return basler_standard_fit
 
 
 def test_corner_shows_the_physical_parameters_with_units(basler_result, tmp_path):
