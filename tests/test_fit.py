@@ -1,8 +1,6 @@
 """Whole fits: the real EMVA 1288 reference set, reproducibility, the CLI outputs."""
 
 import json
-import subprocess
-import sys
 from pathlib import Path
 
 import numpy as np
@@ -114,7 +112,11 @@ def test_same_seed_same_numbers(tmp_path):
     )
 
 
-def test_cli_json_and_out_dir(tmp_path):
+def test_cli_json_and_out_dir(tmp_path, capsys):
+    """``bayescap fit CSV --json --out DIR``, run in this process (main(argv) is the console script's
+    entry point; tests/test_cli_commands.py and tests/test_faults.py run ``--out`` in fresh processes)."""
+    from bayescap.cli import main
+
     csv = tmp_path / "s.csv"
     truth = bayescap.simulate.SensorTruth(
         conversion_gain_e_per_dn=2.0, read_noise_e=3.0, full_well_e=8000.0, prnu_frac=0.01, dsnu_e=1.0
@@ -131,26 +133,10 @@ def test_cli_json_and_out_dir(tmp_path):
     )
     before = csv.read_bytes()
     out = tmp_path / "out"
-    r = subprocess.run(
-        [
-            sys.executable,
-            "-m",
-            "bayescap.cli",
-            "fit",
-            str(csv),
-            "--json",
-            "--seed",
-            "3",
-            "--quality",
-            "fast",
-            "--out",
-            str(out),
-        ],
-        capture_output=True,
-        text=True,
-    )
-    assert r.returncode == 0, r.stderr
-    d = json.loads(r.stdout)
+    code = main(["fit", str(csv), "--json", "--seed", "3", "--quality", "fast", "--out", str(out)])
+    cap = capsys.readouterr()
+    assert code == 0, cap.err
+    d = json.loads(cap.out)
     assert d["input"] == str(csv)
     assert d["parameters"]["prnu_percent"]["constrained"]
     assert d["sensor"]["pixel_pitch_um"] == 2.2
