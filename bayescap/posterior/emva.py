@@ -150,8 +150,6 @@ def _model_gain(result, sw, idx):
     th = ch.chain.reshape(-1, ch.chain.shape[-1])[idx]
     with np.errstate(all="ignore"):
         pred = m.predict(th)
-    if "dark_var" not in pred:  # (a model without the dark block)
-        return None
     ds2 = pred["bright_var"][1][:, pos] - pred["dark_var"][1][:, rows]
     x = m.s_obs[pos]
     return np.sum(x * ds2, axis=1) / np.sum(x * x)
