@@ -98,6 +98,7 @@ def main(argv=None):
     models = [PTCModel(d, terms=select_terms(d)) for d in datas]
     groups = [ix for g in stack_groups(models) for ix in g]
     chunks = _chunks(groups, 128, 2)
+    sizes = [sum(map(len, c)) for c in chunks]
     lines = [
         "# The batch on a Dask LocalCluster against the local process pool",
         "",
@@ -107,7 +108,7 @@ def main(argv=None):
         "",
         f"{a.n} simulated Gpixel ROIs (32 × 32 pixels, 30 levels), fast preset with the MCMC fallback "
         f"({n_fallback} sensors fell back, {n_err} errors), seed 1, 2 worker processes each way. "
-        f"Tasks with `out`: {len(chunks)} chunks of {min(map(len, chunks))}–{max(map(len, chunks))} sensors "
+        f"Tasks with `out`: {len(chunks)} chunks of {min(sizes)}–{max(sizes)} sensors "
         f"({len(groups)} stack groups) plus one task per fallback.",
         "",
         "| run | wall (s) | sensors/s | vs local in-memory |",

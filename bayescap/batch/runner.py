@@ -3,8 +3,9 @@ as tasks, on this process, a local process pool or a Dask cluster, each chunk's 
 (:mod:`bayescap.batch.store`) as it finishes, and a rerun resuming.
 
 **Tasks.** The sensors still to fit are sorted into groups that stack
-(:func:`~bayescap.inference.lockstep.stack_groups`) and each group cut into chunks of at most
-``chunk_size`` sensors: a task fits one chunk's fast paths in lockstep and returns, per sensor, its
+(:func:`~bayescap.inference.lockstep.stack_groups`), each group cut into pieces and the pieces
+packed into tasks of at most ``chunk_size`` sensors, smaller towards the end (:func:`_chunks`): a
+task fits each of its pieces' fast paths in lockstep and returns, per sensor, its
 fit JSON (``FitResult.to_dict()``: plain data, a few kB), its error, or, where the fast path
 rejected its draws and ``fallback``, the fast path's diagnostics; each such sensor's MCMC fallback is
 then a task of its own, so that the fallbacks, which take far longer than a fast path and fall
@@ -24,6 +25,8 @@ import math
 import warnings
 from concurrent.futures import FIRST_COMPLETED, ThreadPoolExecutor, wait
 
+import numpy as np
+
 import bayescap.batch.store as store
 from bayescap._blas import one_blas_thread
 from bayescap.batch.engine import _Deferred, _fallback_fit, _fit_groups, sensor_seeds
@@ -41,9 +44,13 @@ def _error(e) -> dict:
 @one_blas_thread
 def run_chunk(task):
     """One task: ``(items, quality, settings, fallback, stack_size)`` with ``items`` a list of
-    ``(index, model, seed)``, every model of one stack group. Returns ``[(index, kind, value)]``:
-    ``("doc", fit JSON)``, ``("error", message)`` or ``("deferred", fast-path diagnostics)``."""
+    ``(index, model, seed)``, or a list of such lists, each of one stack group (a chunk packs the
+    small groups of a batch whose sensors do not stack, e.g. tables of different lengths). Returns
+    ``[(index, kind, value)]``: ``("doc", fit JSON)``, ``("error", message)`` or ``("deferred",
+    fast-path diagnostics)``."""
     items, quality, settings, fallback, stack_size = task
+    parts = items if items and isinstance(items[0], list) else [items]
+    items = [it for part in parts for it in part]
     out = []
     if quality != "fast":
         from bayescap.api import fit
@@ -56,7 +63,9 @@ def run_chunk(task):
         return out
     models = [m for _, m, _ in items]
     seeds = [s for _, _, s in items]
-    done = _fit_groups((models, seeds, [list(range(len(items)))], settings, fallback, False, stack_size, True))
+    bounds = np.cumsum([0] + [len(part) for part in parts])
+    groups = [list(range(a, b)) for a, b in zip(bounds[:-1], bounds[1:])]
+    done = _fit_groups((models, seeds, groups, settings, fallback, False, stack_size, True))
     for k, (i, _, _) in enumerate(items):
         out.append((i, *_outcome(done[k])))
     return out
@@ -125,15 +134,32 @@ class _Pool:
 
 
 def _chunks(groups, chunk_size, n_workers):
-    """Each group cut into near-equal chunks of at most ``chunk_size`` sensors; with fewer than four
-    chunks per worker, smaller ones (down to 8 sensors), so that the last tasks do not leave workers idle."""
+    """The batch's tasks: each a list of pieces of stack groups, at most ``chunk_size`` sensors in
+    all. A group larger than a task is cut into near-equal pieces; groups smaller than a task are
+    packed together (sensors that do not stack, e.g. amplifier tables of 40–400 rows, are each a
+    group of one: a task per sensor cost the Dask run of 256 focal-plane tables a quarter more time
+    than the local pool). The tasks shrink towards the end of the batch (guided scheduling: each
+    about the sensors left over four per worker, down to 8), so that the last ones do not leave
+    workers idle while one finishes a large chunk; the tasks are submitted, and run, in order."""
     n = sum(len(g) for g in groups)
     size = max(1, int(chunk_size))
-    size = min(size, max(8, math.ceil(n / (4 * max(1, n_workers)))))
-    out = []
+    workers = max(1, int(n_workers))
+    cut = min(size, max(8, math.ceil(n / (4 * workers))))  # (at least four pieces a worker)
+    pieces = []
     for g in groups:
-        k = math.ceil(len(g) / size)
-        out.extend([g[round(j * len(g) / k) : round((j + 1) * len(g) / k)] for j in range(k)])
+        k = math.ceil(len(g) / cut)
+        pieces.extend([g[round(j * len(g) / k) : round((j + 1) * len(g) / k)] for j in range(k)])
+    out, task, in_task, left = [], [], 0, n
+    for piece in pieces:
+        want = min(size, max(min(8, size), math.ceil(left / (4 * workers))))
+        if task and in_task + len(piece) > want:
+            out.append(task)
+            left -= in_task
+            task, in_task = [], 0
+        task.append(piece)
+        in_task += len(piece)
+    if task:
+        out.append(task)
     return out
 
 
@@ -236,7 +262,7 @@ def _fit_to_folder(
     writers = ThreadPoolExecutor(max_workers=8)
     try:
         for chunk in _chunks(groups, chunk_size, n_workers):
-            items = [(i, models[i], seeds[i]) for i in chunk]
+            items = [[(i, models[i], seeds[i]) for i in piece] for piece in chunk]
             tasks.submit(run_chunk, (items, quality, settings, fallback, stack_size))
         for part in tasks.completed():
             n_done, docs = 0, []

@@ -49,6 +49,63 @@ def _psi_inverse_guess(L):
     return lo + (t - i) * (_PSI_INV[i + 1] - lo)
 
 
+def _ndtr_upper(x):
+    """``ndtr(x)``, evaluated only where x ≤ 8.5: above, Φ(x) is 1.0 exactly (1 − Φ(8.5) = 9.5e-18
+    rounds away against 1, and ``ndtr`` returns 1.0 there), so the same numbers at less cost where
+    many elements lie far below the clip."""
+    x = np.asarray(x, float)
+    w = ~(x > 8.5)
+    if w.all():
+        return ndtr(x)
+    out = np.ones(x.shape)
+    if w.any():
+        out[w] = ndtr(x[w])
+    return out
+
+
+def _clip_var_slope(s, tau, d):
+    """The variance and the unclipped fraction Φ(h) of :meth:`_ClipMixin._clip_moments` (its
+    formula, element by element the same numbers), for ``d`` = c − mu, without the clipped mean;
+    also h and s'² (``s``, ``tau``, ``d`` broadcast against each other).
+
+    More than 8.5 s' below the clip nothing is clipped to double precision: the variance is the
+    temporal variance s² itself (the difference of the formula loses digits as h² grows), and Φ(h)
+    is 1 exactly (1 − Φ(8.5) = 9.5e-18 rounds away against 1; ``ndtr`` returns 1.0 there). The
+    special functions (``ndtr``, Owen's T at ~85 ns an element, ``exp``) are evaluated only where
+    h ≤ 8.5: on a focal-plane amplifier's rows near the clip, about 40 % of the elements are above."""
+    # (the operands broadcast by the ufuncs themselves: arrays of np.broadcast_arrays, strided with
+    # zeros, take numpy's slow loops)
+    s2 = np.asarray(s * s, float)
+    sp2 = np.maximum(s2 + tau * tau, 1e-300)
+    h = d / np.sqrt(sp2)
+    shape = h.shape
+    var = np.array(np.broadcast_to(s2, shape), dtype=float, order="C")  # a copy, also for 0-d input
+    Ph = np.ones(shape)
+    w = ~(h > 8.5)
+    if w.all():
+        hw, sp2w, tw = h, np.broadcast_to(sp2, shape), np.broadcast_to(tau, shape)
+    elif w.any():
+        hw, sp2w, tw = h[w], np.broadcast_to(sp2, shape)[w], np.broadcast_to(tau, shape)[w]
+    else:
+        return var, Ph, h, sp2
+    Phw = ndtr(hw)
+    phw = np.exp(-0.5 * hw * hw) * 0.3989422804014327
+    rho = tw * tw / sp2w
+    k = np.sqrt((1.0 - rho) / (1.0 + rho))
+    P2 = Phw - 2.0 * owens_t(hw, k)
+    M = (
+        (hw * hw + rho) * P2
+        + 2.0 * hw * phw * ndtr(hw * k)
+        + np.sqrt(1.0 - rho * rho) * 0.15915494309189535 * np.exp(-hw * hw / (1.0 + rho))
+    )
+    vw = np.maximum(sp2w * ((hw * hw + 1.0) * Phw + hw * phw - M), 0.0)
+    if w.all():
+        var, Ph = np.asarray(vw, float).reshape(h.shape), np.asarray(Phw, float).reshape(h.shape)
+    else:
+        var[w], Ph[w] = vw, Phw
+    return var, Ph, h, sp2
+
+
 class _ClipMixin:
     """The clipped-moment methods of :class:`~bayescap.model.PTCModel` (the latent solver reads
     the model's row arrays ``m`` and ``dm``)."""
@@ -72,29 +129,10 @@ class _ClipMixin:
         1e-10 s² for τ/s up to 100 (``tests/test_model.py``) and costs a third. Returns (mean,
         var, unclipped fraction)."""
         mu, s, tau, c = np.broadcast_arrays(mu, s, tau, c)
-        s2 = s * s
-        sp2 = np.maximum(s2 + tau * tau, 1e-300)
-        sp = np.sqrt(sp2)
         d = c - mu
-        h = d / sp
-        Ph = ndtr(h)
-        ph = np.exp(-0.5 * h * h) * 0.3989422804014327
-        mean = c - d * Ph - sp * ph  # _clip_mean's, from the same h
-        # more than 8.5 s' below the clip nothing is clipped to double precision: the temporal
-        # variance itself (the difference below loses digits as h² grows). The bivariate part
-        # (Owen's T, ~85 ns an element) is evaluated only where it is kept.
-        var = np.array(s2, dtype=float)  # a copy, also for 0-d input
-        w = ~(h > 8.5)
-        if w.any():
-            hw, phw, Phw, rho = h[w], ph[w], Ph[w], tau[w] * tau[w] / sp2[w]
-            k = np.sqrt((1.0 - rho) / (1.0 + rho))
-            P2 = Phw - 2.0 * owens_t(hw, k)
-            M = (
-                (hw * hw + rho) * P2
-                + 2.0 * hw * phw * ndtr(hw * k)
-                + np.sqrt(1.0 - rho * rho) * 0.15915494309189535 * np.exp(-hw * hw / (1.0 + rho))
-            )
-            var[w] = np.maximum(sp2[w] * ((hw * hw + 1.0) * Phw + hw * phw - M), 0.0)
+        var, Ph, h, sp2 = _clip_var_slope(s, tau, d)
+        sp = np.sqrt(sp2)
+        mean = c - d * Ph - sp * (np.exp(-0.5 * h * h) * 0.3989422804014327)  # _clip_mean's, from the same h
         return mean, var, Ph
 
     @staticmethod
@@ -109,7 +147,7 @@ class _ClipMixin:
         sp = np.sqrt(s * s + tau * tau)
         d = c - mu
         alpha = d / sp
-        Phi = ndtr(alpha)
+        Phi = _ndtr_upper(alpha)
         phi = np.exp(-0.5 * alpha * alpha) * 0.3989422804014327
         return c - d * Phi - sp * phi, Phi
 
@@ -131,26 +169,25 @@ class _ClipMixin:
         dm = self.dm[..., rows]
         K = k[:, None] if np.ndim(k) == 1 else k  # per row: an effective gain (a non-linear response)
         shape = pre_var_dn2.shape
-        cc = np.broadcast_to(c[:, None], shape)
-        tt_ = np.broadcast_to(tau[:, None], shape)
-        mu = np.broadcast_to(m_obs, shape).copy()
-        mu_f = mu.reshape(-1)  # a view: updates land in mu
-        # the fixed inputs of each element, one row each, so that dropping the converged elements
-        # is one fancy-indexing call instead of six
-        P = np.empty((6,) + shape)
-        for i, a in enumerate((m_obs, dm, K, pre_var_dn2, tt_, cc)):
-            P[i] = a
-        P = P.reshape(6, -1)
-        idx = np.arange(mu_f.size)
-        mu_a = mu_f.copy()
-        # first pass, on every element: the clipped mean at the measured mean
-        mo_a, dm_a, k_a, pre_a, tau_a, c_a = P
-        s = np.sqrt(np.maximum(mu_a - dm_a, 0.0) / k_a + pre_a)
-        mean, _ = self._clip_mean(mu_a, s, tau_a, c_a)
+        cc, tt_ = c[:, None], tau[:, None]
+        # first pass, on every element: the clipped mean at the measured mean (:meth:`_clip_mean`'s
+        # formula on the broadcast arrays: the same numbers as on full copies, without making them)
+        s0 = np.broadcast_to(np.sqrt(np.maximum(m_obs - dm, 0.0) / K + pre_var_dn2), shape)
+        mean, _ = _ClipMixin._clip_mean(m_obs, s0, tt_, cc)
         # elements already within 1e-9 of the noise of it (the unclipped rows) stay there
-        todo = ~(mo_a - mean < 1e-9 * s)
+        todo = ~(m_obs - mean < 1e-9 * s0)
+        mu = np.array(np.broadcast_to(m_obs, shape), dtype=float, order="C")
+        s_all = np.array(s0, dtype=float, order="C")
         if todo.any():
-            idx, mu_a, P, s = idx[todo], mu_a[todo], P[:, todo], s[todo]
+            idx = np.flatnonzero(todo)
+            mu_f, s_f = mu.reshape(-1), s_all.reshape(-1)  # views (C order): updates land in mu and s_all
+            # the fixed inputs of each element to solve, one row each, so that dropping the
+            # converged elements is one fancy-indexing call instead of six
+            P = np.empty((6, idx.size))
+            for i, a in enumerate((m_obs, dm, K, pre_var_dn2, tt_, cc)):
+                P[i] = np.broadcast_to(a, shape)[todo]
+            P_all = P
+            mu_a, s = P[0].copy(), s_f[idx]
             mo_a, dm_a, k_a, pre_a, tau_a, c_a = P
             g_obs = c_a - mo_a  # the measured shortfall (≤ 0: no root, μ → ∞)
             pos = g_obs > 0
@@ -160,6 +197,7 @@ class _ClipMixin:
                 guess = c_a - sp * _psi_inverse_guess(np.log(g_obs / sp))
             mu_a = np.where(pos & (guess > mu_a), guess, mu_a)
             lo, hi = mo_a.copy(), np.full(mu_a.size, np.inf)  # the clipped mean is below / above
+            sub = idx
             with np.errstate(divide="ignore", invalid="ignore", over="ignore", under="ignore"):
                 for _ in range(30):
                     mo_a, dm_a, k_a, pre_a, tau_a, c_a = P
@@ -193,12 +231,14 @@ class _ClipMixin:
                     out = ~((new > lo) & (new < hi)) & pos & ~done
                     new = np.where(out, np.where(hi < np.inf, 0.5 * (lo + hi), mu_a + step_lin), new)
                     mu_a = np.where(np.isfinite(new), new, mu_a)
-                    mu_f[idx] = mu_a
+                    mu_f[sub] = mu_a
                     if done.all():
                         break
                     if done.any():  # drop the converged elements
                         keep = ~done
-                        idx, mu_a, P, lo, hi, pos = idx[keep], mu_a[keep], P[:, keep], lo[keep], hi[keep], pos[keep]
-        s = np.sqrt(np.maximum(mu - dm, 0.0) / K + pre_var_dn2)
-        mean, var, slope = self._clip_moments(mu, s, tt_, cc)
+                        sub, mu_a, P, lo, hi, pos = sub[keep], mu_a[keep], P[:, keep], lo[keep], hi[keep], pos[keep]
+            # the solved elements' noise at their latent mean (the others' is s0)
+            mo_a, dm_a, k_a, pre_a = P_all[:4]
+            s_f[idx] = np.sqrt(np.maximum(mu_f[idx] - dm_a, 0.0) / k_a + pre_a)
+        var, slope, _, _ = _clip_var_slope(s_all, tt_, cc - mu)
         return mu, var, slope

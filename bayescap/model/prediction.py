@@ -82,10 +82,17 @@ class _PredictionMixin:
         (relative errors < 3e-4, below the ≥ 0.4 % sampling error of a variance over ≤ 10⁵
         pixels); elsewhere the exact moments of :func:`_quantized_pixel_moments`."""
         var = s2 + 1.0 / 12.0
+        if np.ndim(spread2) == 0:  # one σ_o² for all (0 without patterns): s² + σ_o² as a scalar sum
+            sp2 = max(float(spread2), 0.0)
+            need = (s2 < _QUANT_TEMPORAL_S2) | (s2 + sp2 < _QUANT_EXACT_S2)
+            if not np.any(need):  # Sheppard everywhere: φ = 2 and no excess (read-only views)
+                return var, np.broadcast_to(2.0, var.shape), np.broadcast_to(0.0, var.shape)
+            sp2 = np.full(s2.shape, sp2)
+        else:
+            sp2 = np.maximum(np.broadcast_to(spread2, s2.shape), 0.0)
+            need = (s2 < _QUANT_TEMPORAL_S2) | (s2 + sp2 < _QUANT_EXACT_S2)
         phi = np.full_like(var, 2.0)
         excess = np.zeros_like(var)
-        sp2 = np.maximum(np.broadcast_to(spread2, s2.shape), 0.0)
-        need = (s2 < _QUANT_TEMPORAL_S2) | (s2 + sp2 < _QUANT_EXACT_S2)
         if not np.any(need):
             return var, phi, excess
         s = np.sqrt(np.maximum(s2[need], 1e-8))
@@ -150,15 +157,19 @@ class _PredictionMixin:
             Sx = x_lin / hp
             shot = np.where(x_lin > 0, Sx / hp, S) / K
         else:
-            x_lin, Sx, shot = S, S, S / K
+            # (the measured signal broadcast by the ufuncs: the same numbers as from the copy S)
+            x_lin, Sx, shot = S, S, self.s_obs / K
         if bf:
             # brighter-fatter (Astier et al. 2019 Eq. 16): the charge's variance (e^{2a₀₀μ} − 1)/(2a₀₀)
-            z = 2.0 * th[:, self.idx["bf"]][:, None] * np.maximum(x_lin, 0.0) / self.response_ref_dn
+            xp = np.maximum(x_lin if bent else self.s_obs, 0.0)
+            z = 2.0 * th[:, self.idx["bf"]][:, None] * xp / self.response_ref_dn
             shot = shot * bf_factor(z)
         shaped = bent or bf
-        vm, phi_b, hb = self._quantized_var(
-            shot + rd2_ok / (K * K), self.bright_frac_dn, pa * Sx * Sx + pb / (K * K) + 2.0 * pc * Sx / K + so2
-        )
+        if self.terms.prnu or self.terms.dsnu or "pixel_offset_spread_dn" in p:
+            spread2 = pa * Sx * Sx + pb / (K * K) + 2.0 * pc * Sx / K + so2
+        else:  # no fixed pattern and no offset spread: σ_o² is 0 (as the sum of zeros above)
+            spread2 = 0.0
+        vm, phi_b, hb = self._quantized_var(shot + rd2_ok / (K * K), self.bright_frac_dn, spread2)
         slope = np.ones_like(vm)
         if self.clip_rows.size:
             c = p["clip_dn"]

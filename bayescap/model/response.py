@@ -312,6 +312,8 @@ def bf_factor(z):
     """expm1(z)/z, the brighter-fatter factor of the shot variance (1 at z = 0)."""
     z = np.asarray(z, float)
     small = np.abs(z) < 1e-6
+    if not small.any():  # (the usual case: the same numbers without the two selections)
+        return np.expm1(z) / z
     zs = np.where(small, 1.0, z)
     return np.where(small, 1.0 + 0.5 * z, np.expm1(zs) / zs)
 

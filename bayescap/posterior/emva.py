@@ -141,6 +141,8 @@ def _model_gain(result, sw, idx):
     predicts no other), so the line is the model's variance curve sampled where the standard samples
     the data. None without the sampler's chain or with a sensitivity row the model left out."""
     m, ch = result.model, getattr(result, "chains", None)
+    if not m.data.has_dark_rows:  # a mean/variance table: the standard's Δσ²_y is undefined (no dark rows)
+        return None
     rows = sw.data_rows[sw.sens]
     pos = np.searchsorted(m.rows, rows)
     if ch is None or rows.size == 0 or pos.max() >= m.rows.size or not np.array_equal(m.rows[pos], rows):
@@ -148,8 +150,6 @@ def _model_gain(result, sw, idx):
     th = ch.chain.reshape(-1, ch.chain.shape[-1])[idx]
     with np.errstate(all="ignore"):
         pred = m.predict(th)
-    if "dark_var" not in pred:  # no dark pairs (a mean/variance table): the standard's Δσ²_y is undefined
-        return None
     ds2 = pred["bright_var"][1][:, pos] - pred["dark_var"][1][:, rows]
     x = m.s_obs[pos]
     return np.sum(x * ds2, axis=1) / np.sum(x * x)
