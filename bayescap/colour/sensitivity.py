@@ -117,18 +117,26 @@ def _per_draw(x, n, shape, name):
 
 
 def _inverse_tonal(a, b, c, lo, t):
-    """s ≥ lo with ∫_lo^s dS/√(a + bS + cS²) = t (vectorised; t ≥ 0). Newton from the c = 0
-    solution, which lies left of the root (F is concave and c only slows it), so the iteration
-    increases monotonically to the root."""
-    q_lo = a + b * lo + c * lo * lo
-    r_lo = np.sqrt(q_lo)
-    with np.errstate(divide="ignore", invalid="ignore"):
-        s0 = np.where(b > 0, lo + (r_lo * t + b * t * t / 4.0), lo + r_lo * t)
-    s = s0
+    """s ≥ lo with ∫_lo^s dS/√(a + bS + cS²) = t (vectorised; t ≥ 0): the closed-form inverse of
+    the integral, polished by Newton's method to 1e-13 relative.
+
+    With e = √c the integral is ln((2e·σ(s) + 2c·s + b)/(2e·σ(lo) + 2c·lo + b))/e; solved for s,
+
+        s = (D² − 4a) / (4(b + e·D)),   D = 2(σ(lo) + e·lo)·exp(e·t) + b·t·expm1(e·t)/(e·t),
+
+    which has no division by c and tends to the c = 0 solution lo + σ(lo)·t + b·t²/4 as c → 0."""
+    r_lo = np.sqrt(a + b * lo + c * lo * lo)
+    e = np.sqrt(c)
+    x = e * t
+    with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
+        g = np.where(x > 1e-8, np.expm1(x) / np.where(x > 1e-8, x, 1.0), 1.0 + x / 2.0)
+        big_d = 2.0 * (r_lo + e * lo) * np.exp(x) + b * t * g
+        s = np.where((b > 0) | (c > 0), (big_d * big_d - 4.0 * a) / (4.0 * (b + e * big_d)), lo + r_lo * t)
+    s = np.maximum(s, lo)
     for _ in range(60):
         f = integral_inv_sqrt_quadratic(a, b, c, lo, s)
         step = (t - f) * np.sqrt(a + b * s + c * s * s)
-        s = s + np.maximum(step, 0.0)
+        s = np.maximum(s + step, lo)
         if np.all(np.abs(step) <= 1e-13 * np.maximum(s, 1.0)):
             break
     return s
