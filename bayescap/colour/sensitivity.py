@@ -284,27 +284,6 @@ def _b_axis(a, b, c, lo, clip3, t_max, s_r, s_g, sig_r, sig_g, amat, det_a, floo
     return inner
 
 
-def _each_chunk(fn, starts) -> None:
-    """``fn(i)`` for every chunk start ``i``: on two threads where this process may use two
-    (:func:`bayescap.model.threads.n_threads`; numpy's ufuncs release the GIL), else one after the
-    other. Each chunk's draws are computed alone, so the numbers do not depend on the threads."""
-    from bayescap.model.threads import n_threads
-
-    starts = list(starts)
-    k = min(n_threads(), len(starts))
-    if k < 2:
-        for i in starts:
-            fn(i)
-        return
-    import contextvars
-    from concurrent.futures import ThreadPoolExecutor
-
-    # each chunk runs in a copy of this context: numpy's errstate (a context variable) goes with it
-    with ThreadPoolExecutor(k, thread_name_prefix="bayescap-cs") as ex:
-        for fut in [ex.submit(contextvars.copy_context().run, fn, i) for i in starts]:
-            fut.result()
-
-
 def colour_sensitivity(
     var_coeffs_dn2,
     clip_dn,
@@ -359,11 +338,11 @@ def colour_sensitivity(
     nodes = (0.5 * (x + 1.0), 0.5 * w)  # on [0, 1]
     bits = np.empty(n)
 
-    def chunk(i):
+    # one thread: on two threads (numpy releasing the GIL) the same CS took 1.5x the wall time on the
+    # project's 2-core VM, the node arrays being small enough to stay in the core's cache
+    for i in range(0, n, _DRAW_CHUNK):
         sl = slice(i, i + _DRAW_CHUNK)
         bits[sl] = _cs_chunk(rgb[sl], clip3[sl], ccm_d[sl], wb_d[sl], floor, n_levels, clip_output, cone, nodes, lower)
-
-    _each_chunk(chunk, range(0, n, _DRAW_CHUNK))
     choices = {
         "definition": CS_DEFINITION,
         "colour_space": colour_space,
