@@ -12,8 +12,9 @@ and sampler, seeded by the channel's child of :func:`bayescap.batch.sensor_seeds
 *separate fits*, reported beside the joint one. The four run in worker processes, one per core
 (``n_jobs``, ``BAYESCAP_JOBS``), as the monochrome MCMC runs its ensembles: four fits cost about
 four monochrome fits of CPU time, and the cores share that out (wall time and CPU time against the
-monochrome fit's: ``benchmarks/colour_cfa_speed.py``); the numbers do not depend on the process
-count. Stacking the four channels' ``log_prob`` calls instead gains nothing measurable (their tables
+monochrome fit's: ``benchmarks/colour_cfa_speed.py``; on the project's 2-core VM a fast fit runs
+~1.3x slower while the other core fits too, so two processes give ~1.5x the throughput of one);
+the numbers do not depend on the process count. Stacking the four channels' ``log_prob`` calls instead gains nothing measurable (their tables
 differ in their clip rows, so at most Gr and Gb stack, and the fast path's calls are large).
 The *joint* posterior of the shared coordinates (``log K``, ``log σ_read``, ``log D``, the clip
 level in DN) is the product of the channels' marginal posteriors with the prior counted once,
