@@ -8,7 +8,7 @@ tables. Timed, per camera and preset, after one warm-up fit:
   presets' ensembles in one process per core, the fast path in this process);
 * colour: ``fit_cfa`` of the four tables (the separate fits, in one worker process per core, the K
   check, the consensus) plus ``colour_summary`` (CS per draw with the CCM's stated uncertainty, on
-  two threads, scores and capacities): what ``bayescap colour`` computes after reading the tables;
+  one thread, scores and capacities): what ``bayescap colour`` computes after reading the tables;
 * the same colour run with ``n_jobs=1`` (every channel fit in this process, the same numbers).
 
 Wall time is the target's measure; CPU time (this process and its finished workers) is recorded
@@ -16,9 +16,13 @@ beside it, and the load average, since the machine may be shared: the colour fit
 fits over the cores, so it gains less where other jobs hold them (the one-process run shows what
 the processes gain or cost as the machine is loaded).
 
+Each timing is the fastest of ``--repeats`` runs (default 3; the three in turn, per camera and
+preset), the ratios with the median of the runs listed too: the machine is shared, and a burst of
+other jobs during one colour run would otherwise decide its row.
+
 Also recorded: whether the K check passed and whether the true K lies in the joint 95 % interval.
 
-    python benchmarks/colour_cfa_speed.py [--quick] [--seeds N]
+    python benchmarks/colour_cfa_speed.py [--quick] [--seeds N] [--repeats N]
 
 Writes ``benchmarks/results/colour_cfa_speed.md``.
 """
@@ -68,6 +72,14 @@ def cpu_s() -> float:
     return a.ru_utime + a.ru_stime + b.ru_utime + b.ru_stime
 
 
+def reap_workers() -> None:
+    """Wait for this process's worker processes to end (so that their CPU time is counted)."""
+    import multiprocessing as mp
+
+    for p in mp.active_children():
+        p.join()
+
+
 def colour_run(tb, seed, quality, times=None, n_jobs=None):
     t0 = time.perf_counter()
     f = fit_cfa(tb, seed=seed, quality=quality, n_jobs=n_jobs)
@@ -83,10 +95,34 @@ def colour_run(tb, seed, quality, times=None, n_jobs=None):
     return f, s
 
 
+def measure(tb, seed, q) -> dict:
+    """One run of each: the monochrome fit, the colour run and the colour run in one process (wall
+    and CPU seconds), checking that the colour numbers do not depend on the process count."""
+    out = {}
+    t0, c0 = time.perf_counter(), cpu_s()
+    bayescap.fit(tb["Gr"], seed=seed, quality=q)
+    out["mono"], out["monocpu"] = time.perf_counter() - t0, cpu_s() - c0
+    t0, c0 = time.perf_counter(), cpu_s()
+    parts: dict = {}
+    f, s = colour_run(tb, seed, q, parts)
+    out["colour"] = time.perf_counter() - t0
+    reap_workers()  # (fit_cfa does not wait for its workers to exit: their CPU counts once ended)
+    out["colourcpu"] = cpu_s() - c0
+    t0 = time.perf_counter()
+    f1, _ = colour_run(tb, seed, q, n_jobs=1)  # the same numbers, every fit in this process
+    out["colour1"] = time.perf_counter() - t0
+    assert np.array_equal(f1.draws["R"]["conversion_gain_e_per_dn"], f.draws["R"]["conversion_gain_e_per_dn"])
+    out["_fits"], out["_summary"], out["_fit"], out["_summary_dict"] = parts["fits"], parts["summary"], f, s
+    return out
+
+
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--quick", action="store_true", help="2 cameras, the fast preset only")
     ap.add_argument("--seeds", type=int, default=None)
+    ap.add_argument(
+        "--repeats", type=int, default=3, help="runs of each timing per camera and preset; the table gives the fastest"
+    )
     args = ap.parse_args(argv)
     n = args.seeds or (2 if args.quick else 5)
     presets = ("fast",) if args.quick else ("fast", "standard")
@@ -101,38 +137,36 @@ def main(argv=None) -> int:
             tb, truth = tables(seed, tmp)
             row = {"seed": seed}
             for q in presets:
-                t0, c0 = time.perf_counter(), cpu_s()
-                bayescap.fit(tb["Gr"], seed=seed, quality=q)
-                row[f"mono_{q}"] = time.perf_counter() - t0
-                row[f"monocpu_{q}"] = cpu_s() - c0
-                t0, c0 = time.perf_counter(), cpu_s()
-                parts: dict = {}
-                f, s = colour_run(tb, seed, q, parts)
-                row[f"colour_{q}"] = time.perf_counter() - t0
-                row[f"colourcpu_{q}"] = cpu_s() - c0
-                t0 = time.perf_counter()
-                f1, _ = colour_run(tb, seed, q, n_jobs=1)  # the same numbers, every fit in this process
-                row[f"colour1_{q}"] = time.perf_counter() - t0
-                assert np.array_equal(
-                    f1.draws["R"]["conversion_gain_e_per_dn"], f.draws["R"]["conversion_gain_e_per_dn"]
-                )
-                row[f"fits_{q}"], row[f"summary_{q}"] = parts["fits"], parts["summary"]
+                runs = [measure(tb, seed, q) for _ in range(args.repeats)]
+                for key in runs[0]:
+                    if key.startswith("_"):
+                        continue
+                    row[f"{key}_{q}"] = min(r[key] for r in runs)
+                    row[f"{key}_med_{q}"] = float(np.median([r[key] for r in runs]))
+                best = min(runs, key=lambda r: r["colour"])  # the split of the fastest colour run
+                row[f"fits_{q}"], row[f"summary_{q}"] = best["_fits"], best["_summary"]
+                f, s = runs[0]["_fit"], runs[0]["_summary_dict"]
                 k = f.to_dict()["shared"]["conversion_gain_e_per_dn"]["ci95"]
                 row[f"ok_{q}"] = (f.k_check["passed"], bool(k[0] <= truth["k_e_per_dn"] <= k[1]), f.converged)
                 row[f"cs_{q}"] = s["cs_bits"]["median"]
             rows.append(row)
-            print(row, flush=True)
+            print({k: v for k, v in row.items() if "_med_" not in k}, flush=True)
     lines = [
         "# One CFA sensor's colour fit against its monochrome fit",
         "",
-        f"`python benchmarks/colour_cfa_speed.py{' --quick' if args.quick else ''}`; {describe_machine()}",
+        f"`python benchmarks/colour_cfa_speed.py{' --quick' if args.quick else ''}"
+        f"{f' --seeds {args.seeds}' if args.seeds else ''}{f' --repeats {args.repeats}' if args.repeats != 3 else ''}`; "
+        f"{describe_machine()}",
         "",
         "Cameras: `bayescap.validation.cfasim.simulate_cfa_ptc(seed)` (Nikon 5100 sensitivities under D65, "
         "K 2 e-/DN, read 3 e-, well 12 000 e-, 80x80 px per channel, 14 levels). Monochrome: `bayescap.fit` of "
         "the Gr table. Colour: `fit_cfa` of the four tables (four separate fits in one worker process per core, "
         "the K check, the consensus) + `colour_summary` (CS per draw on 1000 joint draws with a CCM of 2 % stated "
-        "element uncertainty, clipped after the CCM as by default, on two threads; scores, capacities). Times "
-        "after one warm-up fit; 'fits' and 'CS etc.' split the colour wall time; CPU: this process and its ended "
+        "element uncertainty, clipped after the CCM as by default, on one thread; scores, capacities). Times "
+        f"after one warm-up fit; each the fastest of {args.repeats} runs (monochrome, colour and colour in one "
+        "process in turn, so that a burst of other jobs on the shared machine does not decide a row; the ratios "
+        "with the median of the runs are listed below the table); 'fits' and 'CS etc.' split the fastest colour "
+        "run's wall time; CPU: this process and its ended "
         "workers (the monochrome MCMC's ensemble processes, the colour fit's channel processes). 'Colour in one "
         "process': the same colour run with `n_jobs=1` (the same numbers, checked), every channel fit in this "
         "process one after the other: what the processes gain or cost on the machine as loaded.",
@@ -172,8 +206,15 @@ def main(argv=None) -> int:
         tot = total(num, den)
         lines.append(
             f"- {label}: median {np.median(rr):.2f}x (range {min(rr):.2f}-{max(rr):.2f}x), total time "
-            f"{tot:.2f}x: {'meets' if tot <= 3.0 else 'MISSES'} the 3x target."
+            f"{tot:.2f}x: {'meets' if max(tot, np.median(rr)) <= 3.0 else 'MISSES'} the 3x target."
         )
+    if args.repeats > 1:
+        for q in presets:
+            rr = [r[f"colour_med_{q}"] / r[f"mono_med_{q}"] for r in rows]
+            lines.append(
+                f"- with the median of the {args.repeats} runs instead of the fastest, colour ({q}) / monochrome "
+                f"({q}): median {np.median(rr):.2f}x (range {min(rr):.2f}-{max(rr):.2f}x)."
+            )
     for q in presets:
         lines.append(
             f"- CPU time, colour ({q}) / monochrome ({q}): total {total(f'colourcpu_{q}', f'monocpu_{q}'):.2f}x "

@@ -260,6 +260,10 @@ def test_channel_fits_do_not_depend_on_the_process_count(joint_fit):
     alone = bayescap.fit(_tables(3)["B"], seed=sensor_seeds(5, 4)[3], quality="fast")
     np.testing.assert_array_equal(alone.chains.chain, one.results["B"].chains.chain)
     assert one.to_dict()["k_check"] == two.to_dict()["k_check"]
+    # each channel's parameter summary, computed once where its fit ran, is the result's own
+    for c in one.channels:
+        assert two.summaries[c] == two.results[c].parameter_summary() == one.summaries[c]
+    assert one.to_dict()["separate"] == two.to_dict()["separate"]
 
 
 @pytest.mark.parametrize("bad", ["R", "Gr"])  # R is fitted in this process, Gr in a worker

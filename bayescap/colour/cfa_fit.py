@@ -12,8 +12,9 @@ and sampler, seeded by the channel's child of :func:`bayescap.batch.sensor_seeds
 *separate fits*, reported beside the joint one. The four run in worker processes, one per core
 (``n_jobs``, ``BAYESCAP_JOBS``), as the monochrome MCMC runs its ensembles: four fits cost about
 four monochrome fits of CPU time, and the cores share that out (wall time and CPU time against the
-monochrome fit's: ``benchmarks/colour_cfa_speed.py``); the numbers do not depend on the process
-count. Stacking the four channels' ``log_prob`` calls instead gains nothing measurable (their tables
+monochrome fit's: ``benchmarks/colour_cfa_speed.py``; on the project's 2-core VM a fast fit runs
+~1.3x slower while the other core fits too, so two processes give ~1.5x the throughput of one);
+the numbers do not depend on the process count. Stacking the four channels' ``log_prob`` calls instead gains nothing measurable (their tables
 differ in their clip rows, so at most Gr and Gb stack, and the fast path's calls are large).
 The *joint* posterior of the shared coordinates (``log K``, ``log σ_read``, ``log D``, the clip
 level in DN) is the product of the channels' marginal posteriors with the prior counted once,
@@ -151,6 +152,8 @@ class CFAFit:
     seed: int
     seconds: float
     results: dict = field(default_factory=dict, repr=False)
+    #: ``results[c].parameter_summary()`` of each channel, computed once
+    summaries: dict = field(default_factory=dict, repr=False)
     notes: list = field(default_factory=list)
 
     @property
@@ -208,7 +211,11 @@ class CFAFit:
             "shared": shared,
             "joint": block(self.draws),
             "separate": {
-                c: {n: v for n, v in self.results[c].parameter_summary().items() if n in _PARAMETER_UNITS}
+                c: {
+                    n: v
+                    for n, v in (self.summaries.get(c) or self.results[c].parameter_summary()).items()
+                    if n in _PARAMETER_UNITS
+                }
                 for c in self.channels
             }
             if self.results
@@ -248,12 +255,14 @@ def _k_check(separate: dict, channels) -> dict:
 
 
 def _fit_channel(args, n_jobs=None):
-    """One channel's unchanged single-channel fit: ``bayescap.fit(data, seed=seed, quality=quality)``
-    (``n_jobs``: its MCMC ensembles' processes; the numbers do not depend on it)."""
+    """One channel's unchanged single-channel fit, ``bayescap.fit(data, seed=seed, quality=quality)``
+    (``n_jobs``: its MCMC ensembles' processes; the numbers do not depend on it), and its
+    ``parameter_summary()`` (computed where the fit ran: in a worker, beside this process's fits)."""
     from bayescap.api import fit
 
     data, seed, quality = args
-    return fit(data, seed=seed, quality=quality, n_jobs=n_jobs)
+    res = fit(data, seed=seed, quality=quality, n_jobs=n_jobs)
+    return res, res.parameter_summary()
 
 
 def _channel_jobs(n_jobs, n_channels: int) -> int:
@@ -270,7 +279,8 @@ def _channel_jobs(n_jobs, n_channels: int) -> int:
 
 def _separate_fits(tables, channels, *, quality, seed, n_jobs=None):
     """The unchanged single-channel fit of each channel, ``bayescap.fit(table, seed=child, quality)``
-    with child ``i`` of :func:`bayescap.batch.sensor_seeds` (``seed``): {channel: FitResult}.
+    with child ``i`` of :func:`bayescap.batch.sensor_seeds` (``seed``): ({channel: FitResult},
+    {channel: its ``parameter_summary()``}).
 
     With ``n_jobs`` > 1 the channels are shared out round-robin among this process and
     ``n_jobs − 1`` worker processes, one channel at a time in each (a channel fit runs its MCMC
@@ -283,22 +293,31 @@ def _separate_fits(tables, channels, *, quality, seed, n_jobs=None):
     tasks = [(tables[c], s, quality) for c, s in zip(channels, sensor_seeds(seed, len(channels)))]
     n_jobs = _channel_jobs(n_jobs, len(tasks))
     if n_jobs == 1:
-        return dict(zip(channels, (_fit_channel(t) for t in tasks)))
-    from bayescap.batch.workers import process_pool
+        res = [_fit_channel(t) for t in tasks]
+    else:
+        res = _pooled(tasks, n_jobs)
+    return {c: r for c, (r, _) in zip(channels, res)}, {c: s for c, (_, s) in zip(channels, res)}
+
+
+def _pooled(tasks, n_jobs) -> list:
+    """:func:`_fit_channel` of every task, shared out round-robin among this process and ``n_jobs − 1``
+    worker processes (:func:`_separate_fits`)."""
+    from bayescap.batch.workers import process_pool, stop_pool
 
     res: list = [None] * len(tasks)
-    with process_pool(n_jobs - 1) as ex:  # workers end with this process
+    ex = process_pool(n_jobs - 1)  # workers end with this process
+    try:
         futures = {i: ex.submit(_fit_channel, tasks[i]) for i in range(len(tasks)) if i % n_jobs}
-        try:
-            for i in range(0, len(tasks), n_jobs):
-                res[i] = _fit_channel(tasks[i], n_jobs=1)
-        except BaseException:
-            for f in futures.values():
-                f.cancel()
-            raise
+        for i in range(0, len(tasks), n_jobs):
+            res[i] = _fit_channel(tasks[i], n_jobs=1)
         for i, f in futures.items():
             res[i] = f.result()
-    return dict(zip(channels, res))
+    except BaseException:
+        stop_pool(ex)  # an error or an interrupt: the workers' fits are not waited for
+        raise
+    # every result is in: the workers exit on their own, not waited for (~20 ms of a fast fit's ~250)
+    ex.shutdown(wait=False)
+    return res
 
 
 def _consensus(models, xs, shared, rng, n_draws):
@@ -371,7 +390,7 @@ def fit_cfa(
         raise ValueError(f"the tables of channels {', '.join(missing)} are missing")
     t_start = time.perf_counter()
     channels = CFA_CHANNELS
-    results = _separate_fits(tables, channels, quality=quality, seed=seed, n_jobs=n_jobs)
+    results, summaries = _separate_fits(tables, channels, quality=quality, seed=seed, n_jobs=n_jobs)
     models = [results[c].model for c in channels]
     xs = [results[c].chains.chain.reshape(-1, results[c].chains.chain.shape[-1]) for c in channels]
     separate = {c: results[c].draws for c in channels}
@@ -386,7 +405,6 @@ def fit_cfa(
             "channel scaling in the RAW, crosstalk or a wrong black level; the shared K describes none of them, "
             "read the separate fits"
         )
-    summaries = {c: results[c].parameter_summary() for c in channels}
     every = [c for c in SHARED_COORDS if all(c in m.idx for m in models)]
     # a coordinate some channel's data leave unconstrained (an upper limit) is not combined: the
     # product of prior-dominated marginals would pass for a measurement
@@ -441,6 +459,7 @@ def fit_cfa(
         seed=int(seed),
         seconds=time.perf_counter() - t_start,
         results=results,
+        summaries=summaries,
         notes=notes,
     )
 

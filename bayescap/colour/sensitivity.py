@@ -58,6 +58,8 @@ CS_DEFINITION = (
     "(G = mean of Gr and Gb; D: each output channel in 2^out_bits levels from 0 to white)"
 )
 _DRAW_CHUNK = 256
+#: draws whose (draw, node, node) arrays are computed at once (n_grid = 40: ~200 kB an array)
+_NODE_CHUNK = 16
 
 
 @dataclass(frozen=True)
@@ -115,18 +117,26 @@ def _per_draw(x, n, shape, name):
 
 
 def _inverse_tonal(a, b, c, lo, t):
-    """s ≥ lo with ∫_lo^s dS/√(a + bS + cS²) = t (vectorised; t ≥ 0). Newton from the c = 0
-    solution, which lies left of the root (F is concave and c only slows it), so the iteration
-    increases monotonically to the root."""
-    q_lo = a + b * lo + c * lo * lo
-    r_lo = np.sqrt(q_lo)
-    with np.errstate(divide="ignore", invalid="ignore"):
-        s0 = np.where(b > 0, lo + (r_lo * t + b * t * t / 4.0), lo + r_lo * t)
-    s = s0
+    """s ≥ lo with ∫_lo^s dS/√(a + bS + cS²) = t (vectorised; t ≥ 0): the closed-form inverse of
+    the integral, polished by Newton's method to 1e-13 relative.
+
+    With e = √c the integral is ln((2e·σ(s) + 2c·s + b)/(2e·σ(lo) + 2c·lo + b))/e; solved for s,
+
+        s = (D² − 4a) / (4(b + e·D)),   D = 2(σ(lo) + e·lo)·exp(e·t) + b·t·expm1(e·t)/(e·t),
+
+    which has no division by c and tends to the c = 0 solution lo + σ(lo)·t + b·t²/4 as c → 0."""
+    r_lo = np.sqrt(a + b * lo + c * lo * lo)
+    e = np.sqrt(c)
+    x = e * t
+    with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
+        g = np.where(x > 1e-8, np.expm1(x) / np.where(x > 1e-8, x, 1.0), 1.0 + x / 2.0)
+        big_d = 2.0 * (r_lo + e * lo) * np.exp(x) + b * t * g
+        s = np.where((b > 0) | (c > 0), (big_d * big_d - 4.0 * a) / (4.0 * (b + e * big_d)), lo + r_lo * t)
+    s = np.maximum(s, lo)
     for _ in range(60):
         f = integral_inv_sqrt_quadratic(a, b, c, lo, s)
         step = (t - f) * np.sqrt(a + b * s + c * s * s)
-        s = s + np.maximum(step, 0.0)
+        s = np.maximum(s + step, lo)
         if np.all(np.abs(step) <= 1e-13 * np.maximum(s, 1.0)):
             break
     return s
@@ -153,26 +163,50 @@ def _cone_halfspaces(directions):
     return np.array(normals)
 
 
-def _interval_b(coef_r, coef_g, coef_b, rhs, s_r, s_g, lo, hi):
-    """Tighten [lo, hi] on s_B by the constraints coef_r·s_R + coef_g·s_G + coef_b·s_B ≥ rhs.
+def _interval_b(coef_r, coef_g, coef_b, rhs, s_r, s_g, lo, hi, lo_min, hi_max):
+    """Tighten the B interval ``[lo, hi]`` of every node, in place, by the constraints
+    coef_r·s_R + coef_g·s_G + coef_b·s_B ≥ rhs.
 
-    coef_*: (n, m); rhs: (n, m); s_r: (n, p, 1), s_g: (n, 1, p); lo, hi: (n, p, p). A constraint
-    with coef_b > 0 bounds s_B below by (rhs − coef_r·s_R − coef_g·s_G)/coef_b, one with
-    coef_b < 0 above; the division is done on the (n, m) coefficients, and a constraint that does
-    not bound a side is an infinite bound there (no per-node selection)."""
+    coef_*, rhs: (n, m); s_r, s_g: (n, p), the nodes' raw R and G; lo, hi: (n, p, p) (node (i, k)
+    at s_R = s_r[:, i], s_G = s_g[:, k]); lo_min, hi_max: (n,), bounds on every node's ``lo`` and
+    ``hi`` (the interval before any constraint). A constraint with coef_b > 0 bounds s_B below by
+    (rhs − coef_r·s_R − coef_g·s_G)/coef_b, one with coef_b < 0 above; the division is done on the
+    (n, m) coefficients, the R and G terms on the (n, p) nodes, and a constraint that does not bound
+    a side is an infinite bound there. A constraint whose bound is nowhere inside
+    ``[lo_min, hi_max]`` on the grid (its largest lower or smallest upper bound, from the (n, p)
+    terms) is skipped: it would change no node."""
+    n, p = s_r.shape
     pos, neg = coef_b > 0, coef_b < 0
     with np.errstate(divide="ignore", invalid="ignore"):
         u, v, w = rhs / coef_b, coef_r / coef_b, coef_g / coef_b
+    buf = None
     for side, inf in ((pos, -np.inf), (neg, np.inf)):
         uu, vv, ww = np.where(side, u, inf), np.where(side, v, 0.0), np.where(side, w, 0.0)
         for j in np.flatnonzero(side.any(axis=0)):
-            bound = uu[:, j, None, None] - vv[:, j, None, None] * s_r - ww[:, j, None, None] * s_g
-            lo, hi = (np.maximum(lo, bound), hi) if inf < 0 else (lo, np.minimum(hi, bound))
+            r_part = uu[:, j, None] - vv[:, j, None] * s_r  # (n, p)
+            g_part = ww[:, j, None] * s_g
+            # the bound at node (i, k) is r_part[i] − g_part[k]: its extreme over the grid is that
+            # of the (n, p) terms (rounding is monotonic)
+            if inf < 0 and not np.any(r_part.max(axis=1) - g_part.min(axis=1) > lo_min):
+                continue
+            if inf > 0 and not np.any(r_part.min(axis=1) - g_part.max(axis=1) < hi_max):
+                continue
+            if buf is None:
+                buf = np.empty((n, p, p))
+            np.subtract(r_part[:, :, None], g_part[:, None, :], out=buf)
+            if inf < 0:
+                np.maximum(lo, buf, out=lo)
+            else:
+                np.minimum(hi, buf, out=hi)
     for j in np.flatnonzero((coef_b == 0).any(axis=0)):
         zero = (coef_b[:, j] == 0)[:, None, None]
-        rest = rhs[:, j, None, None] - coef_r[:, j, None, None] * s_r - coef_g[:, j, None, None] * s_g
-        hi = np.where(zero & (rest > 0), lo, hi)  # violated whatever s_B is: empty
-    return lo, np.maximum(hi, lo)
+        rest = (
+            rhs[:, j, None, None]
+            - coef_r[:, j, None, None] * s_r[:, :, None]
+            - coef_g[:, j, None, None] * s_g[:, None, :]
+        )
+        np.copyto(hi, lo, where=zero & (rest > 0))  # violated whatever s_B is: empty
+    np.maximum(hi, lo, out=hi)
 
 
 def _cs_chunk(rgb, clip3, ccm, wb, floor, n_levels, clip_output, cone, nodes, lower):
@@ -182,7 +216,6 @@ def _cs_chunk(rgb, clip3, ccm, wb, floor, n_levels, clip_output, cone, nodes, lo
     lo = np.minimum(lo, clip3)
     t_max = integral_inv_sqrt_quadratic(a, b, c, lo, clip3)  # (n, 3): each channel's TR, no floor
     u, wu = nodes
-    n_grid = u.size
     # nodes per draw on the R and G axes
     tr = t_max[:, 0, None] * u  # (n, p)
     tg = t_max[:, 1, None] * u
@@ -196,61 +229,59 @@ def _cs_chunk(rgb, clip3, ccm, wb, floor, n_levels, clip_output, cone, nodes, lo
     d = n_levels / (l_w[:, None] * m1)  # (n, 3)
     amat = d[:, :, None] * ccm * wb[:, None, :]  # A = D M W
     det_a = np.abs(np.linalg.det(amat))  # (n,)
-    SR = s_r[:, :, None]  # (n, p, 1)
-    SG = s_g[:, None, :]  # (n, 1, p)
-    lo_b = np.broadcast_to(lo[:, 2, None, None], (n, n_grid, n_grid))
-    hi_b = np.broadcast_to(clip3[:, 2, None, None], (n, n_grid, n_grid))
+    inner_sum = np.empty(n)
+    per_draw = (a, b, c, lo, clip3, t_max, s_r, s_g, sig_r, sig_g, amat, det_a)
+    # the (draw, node, node) arrays a few draws at a time: they stay in the core's cache (the closed
+    # form's ~30 elementwise passes over 256 draws' nodes at once took twice as long)
+    for i in range(0, n, _NODE_CHUNK):
+        sl = slice(i, i + _NODE_CHUNK)
+        inner = _b_axis(*(x[sl] for x in per_draw), floor, n_levels, clip_output, cone)
+        inner_sum[sl] = np.einsum("npq,p,q->n", inner, wu, wu)
+    total = inner_sum * t_max[:, 0] * t_max[:, 1]
+    with np.errstate(divide="ignore"):
+        return np.log2(total)
+
+
+def _b_axis(a, b, c, lo, clip3, t_max, s_r, s_g, sig_r, sig_g, amat, det_a, floor, n_levels, clip_output, cone):
+    """The B axis's integral at every node of the (t_R, t_G) plane, (n, p, p): Eq. 7's closed form
+    between the B interval's ends that the domain leaves, with the floor ``1/(|det A| σ_R σ_G)``."""
+    n, n_grid = s_r.shape
+    shape = (n, n_grid, n_grid)
+    lo_b = np.empty(shape)
+    lo_b[...] = lo[:, 2, None, None]
+    hi_b = np.empty(shape)
+    hi_b[...] = clip3[:, 2, None, None]
     if clip_output:
         # 0 ≤ (A s)_i ≤ n_levels  ⇔  A_i·s ≥ 0 and −A_i·s ≥ −n_levels
         cr = np.concatenate([amat[:, :, 0], -amat[:, :, 0]], axis=1)
         cg = np.concatenate([amat[:, :, 1], -amat[:, :, 1]], axis=1)
         cb = np.concatenate([amat[:, :, 2], -amat[:, :, 2]], axis=1)
         rhs = np.concatenate([np.zeros((n, 3)), -n_levels * np.ones((n, 3))], axis=1)
-        lo_b, hi_b = _interval_b(cr, cg, cb, rhs, SR, SG, lo_b, hi_b)
+        _interval_b(cr, cg, cb, rhs, s_r, s_g, lo_b, hi_b, lo[:, 2], clip3[:, 2])
     if cone is not None:
         m = cone.shape[0]
         cn = np.broadcast_to(cone, (n, m, 3))
-        lo_b, hi_b = _interval_b(cn[..., 0], cn[..., 1], cn[..., 2], np.zeros((n, m)), SR, SG, lo_b, hi_b)
-    shape = (n, n_grid, n_grid)
-    fl = 1.0 / (det_a[:, None, None] * sig_r[:, :, None] * sig_g[:, None, :]) if floor else np.zeros(shape)
-    a_b, b_b, c_b = (np.broadcast_to(x[:, 2, None, None], shape) for x in (a, b, c))
+        _interval_b(cn[..., 0], cn[..., 1], cn[..., 2], np.zeros((n, m)), s_r, s_g, lo_b, hi_b, lo[:, 2], clip3[:, 2])
+    if floor:
+        fl = (det_a[:, None] * sig_r)[:, :, None] * sig_g[:, None, :]
+        np.divide(1.0, fl, out=fl)
+    else:
+        fl = np.zeros((n, 1, 1))
+    a_b, b_b, c_b = (x[:, 2, None, None] for x in (a, b, c))
     # the closed form only where it is not known without it: an empty B interval (cut away by
-    # the constraints) contributes 0; over the full cube, a node where the floor does not bind
-    # anywhere on the B axis (σ_B(lo) ≥ floor, σ_B increasing) contributes the B channel's TR
+    # the constraints: three quarters of the nodes where the colours are clipped after a typical M)
+    # contributes 0; over the full cube, a node where the floor does not bind anywhere on the B axis
+    # (σ_B(lo) ≥ floor, σ_B increasing) contributes the B channel's TR
     need = hi_b > lo_b
     inner = np.zeros(shape)
     if not clip_output and cone is None:
         free = need & (np.sqrt(a_b + b_b * lo_b + c_b * lo_b * lo_b) >= fl)
-        inner = np.where(free, t_max[:, 2, None, None], 0.0)
+        inner[free] = np.broadcast_to(t_max[:, 2, None, None], shape)[free]
         need &= ~free
-    lo_b, hi_b = np.broadcast_to(lo_b, shape), np.broadcast_to(hi_b, shape)
     inner[need] = integral_inv_sqrt_quadratic(
-        a_b[need], b_b[need], c_b[need], lo_b[need], hi_b[need], floor=fl[need]
-    )  # (n, p, p)
-    total = np.einsum("npq,p,q->n", inner, wu, wu) * t_max[:, 0] * t_max[:, 1]
-    with np.errstate(divide="ignore"):
-        return np.log2(total)
-
-
-def _each_chunk(fn, starts) -> None:
-    """``fn(i)`` for every chunk start ``i``: on two threads where this process may use two
-    (:func:`bayescap.model.threads.n_threads`; numpy's ufuncs release the GIL), else one after the
-    other. Each chunk's draws are computed alone, so the numbers do not depend on the threads."""
-    from bayescap.model.threads import n_threads
-
-    starts = list(starts)
-    k = min(n_threads(), len(starts))
-    if k < 2:
-        for i in starts:
-            fn(i)
-        return
-    import contextvars
-    from concurrent.futures import ThreadPoolExecutor
-
-    # each chunk runs in a copy of this context: numpy's errstate (a context variable) goes with it
-    with ThreadPoolExecutor(k, thread_name_prefix="bayescap-cs") as ex:
-        for fut in [ex.submit(contextvars.copy_context().run, fn, i) for i in starts]:
-            fut.result()
+        *(np.broadcast_to(x, shape)[need] for x in (a_b, b_b, c_b, lo_b, hi_b, fl))
+    )
+    return inner
 
 
 def colour_sensitivity(
@@ -307,11 +338,11 @@ def colour_sensitivity(
     nodes = (0.5 * (x + 1.0), 0.5 * w)  # on [0, 1]
     bits = np.empty(n)
 
-    def chunk(i):
+    # one thread: on two threads (numpy releasing the GIL) the same CS took 1.5x the wall time on the
+    # project's 2-core VM, the node arrays being small enough to stay in the core's cache
+    for i in range(0, n, _DRAW_CHUNK):
         sl = slice(i, i + _DRAW_CHUNK)
         bits[sl] = _cs_chunk(rgb[sl], clip3[sl], ccm_d[sl], wb_d[sl], floor, n_levels, clip_output, cone, nodes, lower)
-
-    _each_chunk(chunk, range(0, n, _DRAW_CHUNK))
     choices = {
         "definition": CS_DEFINITION,
         "colour_space": colour_space,
