@@ -316,6 +316,13 @@ def test_colour_command_json_and_files(colour_json):
     text = (colour_json / "colour.txt").read_text()
     for needle in ("Colour sensitivity CS", "K check", "Definitions:", "noise gain"):
         assert needle in text
+    # each channel fit's own caveats reach the JSON, and the text once per caveat with its channels
+    # (those the colour result already says, once)
+    assert set(f["separate_notes"]) == set(f["separate_flags"]) == {"R", "Gr", "Gb", "B"}
+    shown = [ln for ln in text.splitlines() if ln.startswith("  note (")]
+    every = {n for notes in f["separate_notes"].values() for n in notes} - set(f["notes"] + c["notes"])
+    assert every and len(shown) == len(every)
+    assert all(any(ln.endswith(": " + n) for ln in shown) for n in every)
 
 
 def _one_line_error(capsys, argv, *, must=()):

@@ -268,6 +268,10 @@ def colour_text(doc: dict) -> str:
         )
     for n in f["notes"] + c.get("notes", []):
         lines.append(f"  note: {n}")
+    said = set(f["notes"] + c.get("notes", []))
+    for n, chs in _by_note(f.get("separate_notes", {})).items():
+        if n not in said:
+            lines.append(f"  note ({'all channels' if len(chs) == len(f['channels']) else ', '.join(chs)}): {n}")
     lines += ["", "Definitions:"]
     lines.append(f"  CS: {c['choices']['definition']}")
     lines.append(f"  domain: {c['choices']['domain']}; floor: {c['choices']['floor']}")
@@ -276,6 +280,15 @@ def colour_text(doc: dict) -> str:
     for k, v in c["definitions"].items():
         lines.append(f"  {k}: {v}")
     return "\n".join(lines) + "\n"
+
+
+def _by_note(notes: dict) -> dict:
+    """{note: [channels]} from {channel: [notes]}: a caveat the channels share is printed once."""
+    out: dict = {}
+    for ch, ns in notes.items():
+        for n in ns:
+            out.setdefault(n, []).append(ch)
+    return out
 
 
 def run_colour(args) -> int:

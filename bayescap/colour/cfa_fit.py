@@ -221,6 +221,9 @@ class CFAFit:
             if self.results
             else block(self.separate),
             "separate_converged": {c: bool(r.diag.get("converged")) for c, r in self.results.items()},
+            # each channel fit's own caveats (rows, shape, fallbacks, limits), as its monochrome fit reports them
+            "separate_notes": {c: list(r.notes) for c, r in self.results.items()},
+            "separate_flags": {c: dict(r.flags) for c, r in self.results.items()},
             "k_check": dict(self.k_check),
             "consistency": dict(self.consistency),
             "notes": list(self.notes),
