@@ -2,8 +2,12 @@
 intervals and the ranks of the truth (a small SBC) on 30 sensors drawn from the prior, the fast
 path's gain intervals on 48 small ROIs against a reference, the coverage of the MTF's bootstrap
 intervals on 40 synthetic edges, the standard preset's move mix on a skewed, bounded target (6 seeds),
-emcee's DESnookerMove on a correlated Gaussian (a known defect: expected to fail), and a slow burn-in
-transient (sim00 from a poor start) found by the time-split R-hat and discarded. They take minutes, so the default ``pytest`` run leaves them out; this runs them
+emcee's DESnookerMove on a correlated Gaussian (a known defect: expected to fail), a slow burn-in
+transient (sim00 from a poor start) found by the time-split R-hat and discarded, and single fits whose
+95 % intervals must hold the truth: K of a 4 % compressive sensor on all rows and below 70 % of
+saturation, the dark noise with the pixels' offsets spread across the rounding boundary, PRNU and DSNU
+from one frame's spatial variance, and the extreme case of noise below 1 DN (a known failure that
+passes or fails by chance). They take minutes, so the default ``pytest`` run leaves them out; this runs them
 and writes ``benchmarks/results/statistical_tests.md`` (each test's outcome and time).
 
     python benchmarks/run.py statistical_tests

@@ -26,7 +26,9 @@ ROOT = Path(__file__).resolve().parents[1]
 @pytest.fixture(scope="module")
 def csvs(tmp_path_factory):
     d = tmp_path_factory.mktemp("roi")
-    datas, _ = gpixel_sensors(n_max=3, seed=5)
+    # three ROIs whose fast fits all pass their check (at seed 5 the first fell back to MCMC in each
+    # of the five fits below that read it: seconds each, and not what these tests are about)
+    datas, _ = gpixel_sensors(n_max=3, seed=2)
     paths = [d / f"roi{i}.csv" for i in range(3)]
     for x, p in zip(datas, paths):
         write_ptc_csv(x, p)

@@ -254,4 +254,4 @@ def test_bad_csv_exits_2(tmp_path, capsys):
 
 # ------------------------------------------------------------------------------ HTML
 # the HTML report's structure (sections, inline PNGs, self-contained, atomic write) is checked on
-# the five-sensor report of tests/test_html_browser.py, which this module's fits would repeat
+# the two-sensor report of tests/test_html_browser.py, which this module's fits would repeat

@@ -117,7 +117,9 @@ SHARED = {
 
 
 def _case_param(c):
-    marks = ([pytest.mark.slow] if c in SLOWEST else []) + ([KNOWN[c]] if c in KNOWN else [])
+    # a known failure passes or fails by chance: its check is a benchmark (benchmarks/statistical_tests.py);
+    # what holds regardless (finite, no warning storm, the report renders) the case's own test checks below
+    marks = ([pytest.mark.slow] if c in SLOWEST else []) + ([KNOWN[c], pytest.mark.statistical] if c in KNOWN else [])
     return pytest.param(c, marks=marks + ([SHARED[c]] if c in SHARED else []))
 
 
@@ -147,7 +149,11 @@ def test_noise_below_one_dn_gives_upper_limit_not_detection():
     never claims a detection. The fast path rejects its own approximation here (K sits where the
     rounded variances stop growing), and rejected draws carry no calibrated upper limit: then it
     must say so first thing; only an accepted result's upper limit must cover the truth."""
-    truth, d, r, _ = fitted("noise_below_one_dn_everywhere")
+    truth, d, r, w = fitted("noise_below_one_dn_everywhere")
+    assert _all_finite(r) == []
+    assert len(w) <= 2, [str(x.message)[:120] for x in w]
+    txt = format_text(r)
+    assert ("capacity C =" in txt) != ("capacity C >" in txt)
     rn = r.to_dict()["parameters"]["read_noise_e"]
     assert rn["constrained"] is False and "upper limit" in rn["note"]
     if r.diag["converged"]:

@@ -1,7 +1,9 @@
-"""The HTML report of the five bundled benchmark sensors, opened in a real headless browser
-(chromium): the page loads without console errors, its DOM is complete, every image decodes to a
-non-empty picture, the tables speak in names and units rather than the contract's identifiers, and
-the file stays small.
+"""The HTML report of two of the bundled benchmark sensors (the first and the last of the five),
+opened in a real headless browser (chromium): the page loads without console errors, its DOM is
+complete, every image decodes to a non-empty picture, the tables speak in names and units rather
+than the contract's identifiers, and the file stays within a per-sensor share of the five-sensor
+budget. Every check is per sensor or on the shared sections, so two sensors (one per manufacturer)
+exercise what five did; the five-sensor report costs 2.5 times the plots.
 
 Without chromium on the machine the browser checks are skipped with the install hint in the
 skip summary (``apt-get install chromium``), so a fresh machine's suite still passes;
@@ -27,7 +29,9 @@ from bayescap.cli import main
 from bayescap.report.html import CONVENTION_NAMES, QUANTITY_NAMES, SECTION_IDS
 
 ROOT = Path(__file__).resolve().parents[1]
-SENSORS = sorted((ROOT / "data" / "benchmark").glob("M*.csv"))
+ALL_SENSORS = sorted((ROOT / "data" / "benchmark").glob("M*.csv"))
+SENSORS = [ALL_SENSORS[0], ALL_SENSORS[-1]]
+#: the budget of the five bundled sensors' report
 MAX_BYTES = 1_500_000
 
 #: appended to a copy of the page: the browser reports how many images it decoded, and logs a
@@ -102,7 +106,7 @@ class _Text(html.parser.HTMLParser):
 
 @pytest.fixture(scope="module")
 def report(tmp_path_factory):
-    assert len(SENSORS) == 5
+    assert len(ALL_SENSORS) == 5 and SENSORS[0].stem.startswith("M1") and SENSORS[1].stem.startswith("M2")
     path = tmp_path_factory.mktemp("report") / "report.html"
     rc = main(["report", *map(str, SENSORS), "--quality", "fast", "--seed", "0", "-o", str(path)])
     assert rc in (0, None) and path.exists()
@@ -110,8 +114,14 @@ def report(tmp_path_factory):
 
 
 def test_report_is_small(report):
+    """Within its sensors' share of the five-sensor budget. The page grows by about one sensor's
+    section (a PTC, an SNR and a corner PNG, ~0.15 MB) per sensor, the shared figures barely (the
+    two comparison matrices are n x n tables: 13 kB each at two sensors, 31 kB at five), so a
+    two-sensor page under 2/5 of the budget leaves the five-sensor page under the whole of it
+    (measured: 0.42 MB for these two, 0.95 MB for all five)."""
     size = report.stat().st_size
-    assert size < MAX_BYTES, f"five-sensor report is {size / 1e6:.2f} MB"
+    budget = MAX_BYTES * len(SENSORS) / len(ALL_SENSORS)
+    assert size < budget, f"{len(SENSORS)}-sensor report is {size / 1e6:.2f} MB (budget {budget / 1e6:.2f} MB)"
 
 
 def test_report_images_are_pngs_of_nonzero_size(report):

@@ -13,6 +13,20 @@ HEADER = "exposure_time_s,mean_dn,temporal_var_dn2,dark_mean_dn,dark_temporal_va
 GOOD_ROWS = ["0.001,100,30,10,5,10000", "0.002,200,55,10,5,10000", "0.003,300,80,10,5,10000"]
 
 
+def _cli(argv, capsys, fresh_process=False):
+    """``bayescap ARGV``: (exit status, stdout, stderr), in a fresh ``python -m bayescap.cli``
+    process or through the CLI's main in this one (where an uncaught exception fails the test)."""
+    if fresh_process:
+        r = subprocess.run([sys.executable, "-m", "bayescap.cli", *argv], capture_output=True, text=True)
+        return r.returncode, r.stdout, r.stderr
+    from bayescap.cli import main
+
+    capsys.readouterr()
+    code = main(list(argv))
+    cap = capsys.readouterr()
+    return code, cap.out, cap.err
+
+
 def _write(tmp_path, text, name="s.csv"):
     p = tmp_path / name
     p.write_text(text)
@@ -122,18 +136,18 @@ def test_malformed_csv_refused_with_location(tmp_path, case):
 @pytest.mark.parametrize(
     "case", ["missing column", "text in a number", "NaN", "negative variance", "one row", "empty file"]
 )
-def test_cli_refuses_bad_csv_exit_2_one_line_no_traceback(tmp_path, case):
+def test_cli_refuses_bad_csv_exit_2_one_line_no_traceback(tmp_path, case, capsys):
+    """The first case in a fresh process (the exit status and stderr a shell sees), the others through
+    the CLI's main in this process."""
     text, fragments = BAD[case]
     p = _write(tmp_path, text)
     out = tmp_path / "out"
-    r = subprocess.run(
-        [sys.executable, "-m", "bayescap.cli", "fit", str(p), "--out", str(out)], capture_output=True, text=True
-    )
-    assert r.returncode == 2
-    assert r.stdout == ""
-    lines = r.stderr.strip().splitlines()
-    assert len(lines) == 1 and lines[0].startswith("bayescap: error:"), r.stderr
-    assert "Traceback" not in r.stderr
+    code, stdout, stderr = _cli(["fit", str(p), "--out", str(out)], capsys, fresh_process=case == "missing column")
+    assert code == 2
+    assert stdout == ""
+    lines = stderr.strip().splitlines()
+    assert len(lines) == 1 and lines[0].startswith("bayescap: error:"), stderr
+    assert "Traceback" not in stderr
     assert not out.exists()  # nothing half-written
 
 
@@ -164,22 +178,19 @@ def _basler_variant(basler_csv, tmp_path, edit, meta=""):
     return p
 
 
-def _cli_fit_refuses(p, tmp_path, fragments):
+def _cli_fit_refuses(p, tmp_path, fragments, capsys, fresh_process=False):
     out = tmp_path / "out"
-    r = subprocess.run(
-        [sys.executable, "-m", "bayescap.cli", "fit", str(p), "--quality", "fast", "--seed", "1", "--out", str(out)],
-        capture_output=True,
-        text=True,
-    )
-    assert r.returncode == 2, r.stderr
-    assert r.stdout == "" and "Traceback" not in r.stderr and not out.exists()
-    lines = r.stderr.strip().splitlines()
-    assert len(lines) == 1 and lines[0].startswith("bayescap: error:"), r.stderr
+    argv = ["fit", str(p), "--quality", "fast", "--seed", "1", "--out", str(out)]
+    code, stdout, stderr = _cli(argv, capsys, fresh_process)
+    assert code == 2, stderr
+    assert stdout == "" and "Traceback" not in stderr and not out.exists()
+    lines = stderr.strip().splitlines()
+    assert len(lines) == 1 and lines[0].startswith("bayescap: error:"), stderr
     for frag in fragments:
         assert frag in lines[0], (frag, lines[0])
 
 
-def test_value_no_parameter_can_explain_is_refused_with_its_row(tmp_path, basler_csv):
+def test_value_no_parameter_can_explain_is_refused_with_its_row(tmp_path, basler_csv, capsys):
     """A spatial variance of 0 on an unsaturated row (the reader accepts it: a dark one can be 0)
     has no finite likelihood anywhere; the optimiser had stopped with a RuntimeError and a
     traceback. Now: exit 2, the file, the row and the column (inference.starts._no_finite_start)."""
@@ -188,14 +199,16 @@ def test_value_no_parameter_can_explain_is_refused_with_its_row(tmp_path, basler
         rows[17][header.index("spatial_var_dn2")] = "0"  # file row 18
 
     p = _basler_variant(basler_csv, tmp_path, zero_spatial)
-    _cli_fit_refuses(p, tmp_path, [str(p), "row 18", "column 'spatial_var_dn2'", "no finite likelihood"])
+    _cli_fit_refuses(
+        p, tmp_path, [str(p), "row 18", "column 'spatial_var_dn2'", "no finite likelihood"], capsys, fresh_process=True
+    )
 
 
-def test_mtf_zero_at_every_frequency_is_refused_before_fitting(tmp_path, basler_csv):
+def test_mtf_zero_at_every_frequency_is_refused_before_fitting(tmp_path, basler_csv, capsys):
     """A crosstalk σ of 10⁶ px makes the MTF zero across the band: Δs = −∞; a ValueError with a
     traceback before, after the fit. Now refused up front with where the MTF came from."""
     p = _basler_variant(basler_csv, tmp_path, lambda h, r: None, meta="# crosstalk_sigma_px: 1e6")
-    _cli_fit_refuses(p, tmp_path, [str(p), "MTF is zero at every frequency", "crosstalk_sigma_px"])
+    _cli_fit_refuses(p, tmp_path, [str(p), "MTF is zero at every frequency", "crosstalk_sigma_px"], capsys)
 
 
 def test_batch_names_an_input_error_once(tmp_path, basler_csv):
@@ -219,34 +232,20 @@ def test_batch_names_an_input_error_once(tmp_path, basler_csv):
         assert ln.count(str(p)) == 1
 
 
-def test_mtf_above_one_is_flagged_and_an_all_zero_table_refused(tmp_path, basler_csv):
+def test_mtf_above_one_is_flagged_and_an_all_zero_table_refused(tmp_path, basler_csv, capsys):
     """A sharpened MTF (above 1 over the band) gives Δs > 0, which Eq. 9 does not allow for: the
-    result carries the flag and a note. An all-zero MTF table without a 0 cy/px row is refused
-    before fitting, naming the table."""
+    result carries the flag and a note (the fit's JSON, through the CLI's main in this process). An
+    all-zero MTF table without a 0 cy/px row is refused before fitting, naming the table (a fresh
+    process)."""
     import json
 
     sharp = tmp_path / "sharp.csv"
     sharp.write_text("freq_cy_per_px,mtf\n0.05,1.6\n0.5,1.4\n")
-    r = subprocess.run(
-        [
-            sys.executable,
-            "-m",
-            "bayescap.cli",
-            "fit",
-            str(basler_csv),
-            "--quality",
-            "fast",
-            "--seed",
-            "1",
-            "--mtf",
-            str(sharp),
-            "--json",
-        ],
-        capture_output=True,
-        text=True,
+    code, stdout, stderr = _cli(
+        ["fit", str(basler_csv), "--quality", "fast", "--seed", "1", "--mtf", str(sharp), "--json"], capsys
     )
-    assert r.returncode == 0, r.stderr
-    d = json.loads(r.stdout)
+    assert code == 0, stderr
+    d = json.loads(stdout)
     assert d["flags"].get("mtf_above_one") is True
     assert any(n.startswith("the MTF exceeds 1") for n in d["notes"])
     zeros = tmp_path / "zeros.csv"

@@ -49,6 +49,16 @@ def test_linear_sensor_leaves_the_term_out():
     assert not t.nonlinearity and "linear" in t.reasons["response_nonlinearity"]
 
 
+def test_compressive_sensor_brings_in_the_term_on_all_rows_and_below_70_percent():
+    """The statistical check's input below: the 4 % compressive response is chosen from the means'
+    bend against the photons on all rows and on the rows below 70 % of saturation."""
+    d = simulate_ptc(TRUTH, n_levels=24, shape=(64, 64), seed=3)
+    s = d.mean_dn - d.dark_mean_dn
+    for keep in (np.ones(s.size, bool), s < 0.7 * s.max()):
+        assert select_terms(_rows(d, keep)).nonlinearity
+
+
+@pytest.mark.statistical  # two fits whose 95 % intervals must hold K; benchmarks/statistical_tests.py runs it
 def test_compressive_sensor_k_unbiased_and_stable_to_rows():
     """A 4 % compressive response: K's truth (its small-signal gain) inside the 95 % interval on all
     rows and on the rows below 70 % of saturation, the two intervals overlapping, LE reported.

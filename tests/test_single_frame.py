@@ -2,20 +2,38 @@
 temporal variance it shares its noise with (PTCModel._spatial_block)."""
 
 import numpy as np
+import pytest
 
 import bayescap
-from bayescap.model import PTCModel
+from bayescap.model import PTCModel, select_terms
 from bayescap.simulate import SensorTruth, simulate_ptc
 
 TRUTH = SensorTruth(5.0, 5.0, 20000, adc_bits=12, prnu_frac=0.01, dsnu_e=10.0)
 
 
+def _one_frame_table(tmp_path):
+    return simulate_ptc(
+        TRUTH, n_levels=16, shape=(64, 64), spatial_frames=1, spatial_every=2, seed=2, path=tmp_path / "one.csv"
+    )
+
+
+def test_single_frame_table_reads_as_one_frame_and_carries_prnu_and_dsnu(tmp_path):
+    """The one-frame table (the statistical check's input) reads back with n_frames = 1 and its
+    spatial columns bring the PRNU and DSNU terms into the model."""
+    d = _one_frame_table(tmp_path)
+    assert np.nanmax(d.n_frames) == 1
+    t = select_terms(d)
+    assert t.prnu and t.dsnu
+    m = PTCModel(d, terms=t)
+    assert {"log_prnu", "log_dsnu"} <= set(m.names)
+    assert np.isfinite(m.log_prob(np.atleast_2d(m.initial_guess()))).all()
+
+
+@pytest.mark.statistical  # a fit whose 95 % intervals must hold the truths; benchmarks/statistical_tests.py runs it
 def test_single_frame_spatial_variance_recovers_prnu_and_dsnu(tmp_path):
     """A frame-level simulation whose spatial columns are one frame's spatial variance
     (n_frames = 1) is read and fitted; PRNU and DSNU truths lie inside their 95 % intervals."""
-    d = simulate_ptc(
-        TRUTH, n_levels=16, shape=(64, 64), spatial_frames=1, spatial_every=2, seed=2, path=tmp_path / "one.csv"
-    )
+    d = _one_frame_table(tmp_path)
     assert np.nanmax(d.n_frames) == 1
     p = bayescap.fit(d, quality="fast", seed=1).to_dict()["parameters"]
     lo, hi = p["prnu_percent"]["ci95"]
