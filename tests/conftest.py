@@ -1,3 +1,4 @@
+import contextlib
 import json
 import os
 import sys
@@ -89,17 +90,80 @@ def basler_csv():
     return DATA / "emva1288_basler_ccd12.csv"
 
 
+#: the README's quick-start fit: ``bayescap fit data/emva1288_basler_ccd12.csv --seed 1`` (from the
+#: repository's root, or a folder with the same ``data``)
+BASLER_README_ARGS = ["fit", "data/emva1288_basler_ccd12.csv", "--seed", "1"]
+
+#: the keyword arguments with which that command calls :func:`bayescap.api.fit` (bayescap/cli/fit.py:
+#: no --scene, --mtf, --fast-tolerance; progress off when the output is not a terminal)
+_BASLER_FIT_KWARGS = {"seed": 1, "quality": "standard", "scene": None, "progress": False, "mtf": None, "fast_settings": None}
+
+
+def _fit_basler_standard():
+    """The call :data:`BASLER_README_ARGS` makes: the table read by :func:`bayescap.api.load` from
+    the same relative path (its ``source``, printed and in the JSON, is that path), then
+    :func:`bayescap.api.fit` with :data:`_BASLER_FIT_KWARGS`."""
+    import contextlib
+
+    from bayescap.api import fit, load
+
+    with contextlib.chdir(ROOT):
+        data = load(BASLER_README_ARGS[1])
+    return fit(data, **_BASLER_FIT_KWARGS)
+
+
+def _same_table(a, b) -> bool:
+    """Two PTCData equal field by field (arrays element by element, NaN equal to NaN)."""
+    import dataclasses
+
+    import numpy as np
+
+    for f in dataclasses.fields(a):
+        x, y = getattr(a, f.name), getattr(b, f.name)
+        if isinstance(x, np.ndarray) or isinstance(y, np.ndarray):
+            if x is None or y is None or not np.array_equal(x, y, equal_nan=x.dtype.kind == "f"):
+                return False
+        elif x != y:
+            return False
+    return True
+
+
+@contextlib.contextmanager
+def cli_fit_from(result):
+    """Within it, :func:`bayescap.api.fit` (the function ``bayescap fit`` calls) returns ``result``,
+    the session's :func:`basler_standard_fit`, when it is called exactly as :func:`_fit_basler_standard`
+    called it: the same table (field by field, ``source`` included) and the same keyword arguments.
+    ``bayescap.cli.main(BASLER_README_ARGS + ...)`` then parses, reads the CSV, calls the fit and prints
+    the result as the command does, without fitting the same seed a second time. Any other call of
+    the fit fails the test (the command no longer makes the call the fixture made). Yields the
+    calls seen."""
+    import bayescap.api
+
+    calls = []
+
+    def fit(data, **kw):
+        calls.append(kw)
+        assert kw == _BASLER_FIT_KWARGS, f"bayescap fit called the fit with {kw}, not {_BASLER_FIT_KWARGS}"
+        assert _same_table(data, result.model.data), "bayescap fit read another table than the fixture's"
+        return result
+
+    with pytest.MonkeyPatch.context() as mp:
+        mp.setattr(bayescap.api, "fit", fit)
+        yield calls
+
+
 @pytest.fixture(scope="session")
 def basler_standard_fit(basler_csv, tmp_path_factory):
-    """``bayescap.fit(basler_csv, seed=1)``: the README's and the docs' fit (what ``bayescap fit
-    data/emva1288_basler_ccd12.csv --seed 1`` prints and plots), fitted once per test run. Under
+    """The README's and the docs' fit, ``bayescap fit data/emva1288_basler_ccd12.csv --seed 1``
+    (:data:`BASLER_README_ARGS`): the table loaded from that relative path and fitted with the keyword
+    arguments the command passes (:func:`_fit_basler_standard`), once per test run. tests/test_golden.py
+    compares its JSON with the golden file of that command, and the README's tests print it through
+    the command's own code (:func:`cli_fit_from`). Under
     ``pytest -n`` the first worker to ask fits it and pickles it beside the workers' temporary
     folders; the other waits for the pickle (a lock) and loads it (tests/test_results.py checks that
     a result pickles and comes back the same). Read-only: a test that changes it copies it first."""
     import fcntl
     import pickle
-
-    import bayescap
 
     root = tmp_path_factory.getbasetemp()
     if os.environ.get("PYTEST_XDIST_WORKER"):
@@ -111,7 +175,7 @@ def basler_standard_fit(basler_csv, tmp_path_factory):
             return pickle.loads(path.read_bytes())
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")
-            result = bayescap.fit(basler_csv, seed=1)
+            result = _fit_basler_standard()
         tmp = path.with_name(path.name + f".{os.getpid()}.tmp")
         tmp.write_bytes(pickle.dumps(result))
         os.replace(tmp, path)
