@@ -96,7 +96,14 @@ BASLER_README_ARGS = ["fit", "data/emva1288_basler_ccd12.csv", "--seed", "1"]
 
 #: the keyword arguments with which that command calls :func:`bayescap.api.fit` (bayescap/cli/fit.py:
 #: no --scene, --mtf, --fast-tolerance; progress off when the output is not a terminal)
-_BASLER_FIT_KWARGS = {"seed": 1, "quality": "standard", "scene": None, "progress": False, "mtf": None, "fast_settings": None}
+_BASLER_FIT_KWARGS = {
+    "seed": 1,
+    "quality": "standard",
+    "scene": None,
+    "progress": False,
+    "mtf": None,
+    "fast_settings": None,
+}
 
 
 def _fit_basler_standard():
