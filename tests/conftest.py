@@ -94,9 +94,13 @@ def basler_csv():
 #: repository's root, or a folder with the same ``data``)
 BASLER_README_ARGS = ["fit", "data/emva1288_basler_ccd12.csv", "--seed", "1"]
 
-#: the keyword arguments with which that command calls :func:`bayescap.api.fit` (bayescap/cli/fit.py:
-#: no --scene, --mtf, --fast-tolerance; progress off when the output is not a terminal)
-_BASLER_FIT_KWARGS = {
+#: the bundled simulated phone sensor's table (tests/test_results.py, tests/test_golden.py)
+PHONE_CSV = "data/simulated/sim_phone_1p75um_10bit.csv"
+
+#: the keyword arguments with which ``bayescap fit CSV --seed 1`` calls :func:`bayescap.api.fit`
+#: (bayescap/cli/fit.py: standard quality; no --scene, --mtf, --fast-tolerance; progress off when the
+#: output is not a terminal or with --no-progress)
+_STANDARD_SEED1_KWARGS = {
     "seed": 1,
     "quality": "standard",
     "scene": None,
@@ -106,17 +110,15 @@ _BASLER_FIT_KWARGS = {
 }
 
 
-def _fit_basler_standard():
-    """The call :data:`BASLER_README_ARGS` makes: the table read by :func:`bayescap.api.load` from
-    the same relative path (its ``source``, printed and in the JSON, is that path), then
-    :func:`bayescap.api.fit` with :data:`_BASLER_FIT_KWARGS`."""
-    import contextlib
-
+def _fit_standard_seed1(relpath):
+    """The call ``bayescap fit RELPATH --seed 1`` makes from the repository's root: the table read by
+    :func:`bayescap.api.load` from that relative path (its ``source``, printed and in the JSON, is
+    that path), then :func:`bayescap.api.fit` with :data:`_STANDARD_SEED1_KWARGS`."""
     from bayescap.api import fit, load
 
     with contextlib.chdir(ROOT):
-        data = load(BASLER_README_ARGS[1])
-    return fit(data, **_BASLER_FIT_KWARGS)
+        data = load(relpath)
+    return fit(data, **_STANDARD_SEED1_KWARGS)
 
 
 def _same_table(a, b) -> bool:
@@ -138,19 +140,19 @@ def _same_table(a, b) -> bool:
 @contextlib.contextmanager
 def cli_fit_from(result):
     """Within it, :func:`bayescap.api.fit` (the function ``bayescap fit`` calls) returns ``result``,
-    the session's :func:`basler_standard_fit`, when it is called exactly as :func:`_fit_basler_standard`
-    called it: the same table (field by field, ``source`` included) and the same keyword arguments.
-    ``bayescap.cli.main(BASLER_README_ARGS + ...)`` then parses, reads the CSV, calls the fit and prints
-    the result as the command does, without fitting the same seed a second time. Any other call of
-    the fit fails the test (the command no longer makes the call the fixture made). Yields the
-    calls seen."""
+    a session fixture's fit (:func:`basler_standard_fit`, :func:`phone_standard_fit`), when it is
+    called exactly as :func:`_fit_standard_seed1` called it for that fixture: the same table (field by
+    field, ``source`` included) and the same keyword arguments. ``bayescap.cli.main(["fit", RELPATH,
+    "--seed", "1", ...])`` then parses, reads the CSV, calls the fit and prints the result as the
+    command does, without fitting the same table and seed a second time. Any other call of the fit
+    fails the test (the command no longer makes the call the fixture made). Yields the calls seen."""
     import bayescap.api
 
     calls = []
 
     def fit(data, **kw):
         calls.append(kw)
-        assert kw == _BASLER_FIT_KWARGS, f"bayescap fit called the fit with {kw}, not {_BASLER_FIT_KWARGS}"
+        assert kw == _STANDARD_SEED1_KWARGS, f"bayescap fit called the fit with {kw}, not {_STANDARD_SEED1_KWARGS}"
         assert _same_table(data, result.model.data), "bayescap fit read another table than the fixture's"
         return result
 
@@ -159,34 +161,47 @@ def cli_fit_from(result):
         yield calls
 
 
-@pytest.fixture(scope="session")
-def basler_standard_fit(basler_csv, tmp_path_factory):
-    """The README's and the docs' fit, ``bayescap fit data/emva1288_basler_ccd12.csv --seed 1``
-    (:data:`BASLER_README_ARGS`): the table loaded from that relative path and fitted with the keyword
-    arguments the command passes (:func:`_fit_basler_standard`), once per test run. tests/test_golden.py
-    compares its JSON with the golden file of that command, and the README's tests print it through
-    the command's own code (:func:`cli_fit_from`). Under
-    ``pytest -n`` the first worker to ask fits it and pickles it beside the workers' temporary
-    folders; the other waits for the pickle (a lock) and loads it (tests/test_results.py checks that
-    a result pickles and comes back the same). Read-only: a test that changes it copies it first."""
+def _session_fit(tmp_path_factory, name, relpath):
+    """:func:`_fit_standard_seed1` of ``relpath``, once per test run. Under ``pytest -n`` the first
+    worker to ask fits it and pickles it beside the workers' temporary folders; the other waits for
+    the pickle (a lock) and loads it (tests/test_results.py checks that a result pickles and comes
+    back the same)."""
     import fcntl
     import pickle
 
     root = tmp_path_factory.getbasetemp()
     if os.environ.get("PYTEST_XDIST_WORKER"):
         root = root.parent  # this run's folder, shared by its workers
-    path = root / "basler_standard_seed1.pickle"
-    with open(root / "basler_standard_seed1.lock", "w") as lock:
+    path = root / f"{name}.pickle"
+    with open(root / f"{name}.lock", "w") as lock:
         fcntl.flock(lock, fcntl.LOCK_EX)
         if path.exists():
             return pickle.loads(path.read_bytes())
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")
-            result = _fit_basler_standard()
+            result = _fit_standard_seed1(relpath)
         tmp = path.with_name(path.name + f".{os.getpid()}.tmp")
         tmp.write_bytes(pickle.dumps(result))
         os.replace(tmp, path)
         return result
+
+
+@pytest.fixture(scope="session")
+def basler_standard_fit(tmp_path_factory):
+    """The README's and the docs' fit, ``bayescap fit data/emva1288_basler_ccd12.csv --seed 1``
+    (:data:`BASLER_README_ARGS`; :func:`_fit_standard_seed1`), once per test run (:func:`_session_fit`).
+    tests/test_golden.py compares its JSON with the golden file of that command, and the README's
+    tests print it through the command's own code (:func:`cli_fit_from`). Read-only: a test that
+    changes it copies it first."""
+    return _session_fit(tmp_path_factory, "basler_standard_seed1", BASLER_README_ARGS[1])
+
+
+@pytest.fixture(scope="session")
+def phone_standard_fit(tmp_path_factory):
+    """``bayescap fit data/simulated/sim_phone_1p75um_10bit.csv --seed 1`` (:func:`_fit_standard_seed1`),
+    once per test run: tests/test_results.py's standard result and tests/test_golden.py's
+    fit_phone_standard (through :func:`cli_fit_from`). Read-only: a test that changes it copies it first."""
+    return _session_fit(tmp_path_factory, "phone_standard_seed1", PHONE_CSV)
 
 
 def standard_recipe_gain(result):

@@ -58,24 +58,24 @@ def run_case(args):
     return _strip_timings(json.loads(out.getvalue()))
 
 
-#: the case whose fit is the session fixture ``basler_standard_fit`` (tests/conftest.py): the same
-#: command, ``bayescap fit data/emva1288_basler_ccd12.csv --seed 1`` (standard is the default), whose
-#: fit call the fixture makes with the same table and keyword arguments. The command runs here through
-#: the CLI as the other cases do, its fit call checked to be the fixture's and answered by the fixture's
-#: result (conftest.cli_fit_from), so the seed-1 standard fit of the Basler table runs once per test run.
-FROM_FIXTURE = "fit_basler_standard"
+#: the cases whose fit is a session fixture of tests/conftest.py that other tests share: the fixture
+#: makes the call this command makes (the table loaded from the same relative path, the command's
+#: keyword arguments; standard is the default quality). The command runs here through the CLI as the
+#: other cases do, its fit call checked to be the fixture's and answered by the fixture's result
+#: (conftest.cli_fit_from), so each of these seed-1 standard fits runs once per test run.
+FROM_FIXTURE = {"fit_basler_standard": "basler_standard_fit", "fit_phone_standard": "phone_standard_fit"}
 
 
 @pytest.mark.parametrize("case", sorted(CASES))
 def test_golden(case, request):
     expected = json.loads((GOLDEN / f"{case}.json").read_text())
-    if case != FROM_FIXTURE:
+    if case not in FROM_FIXTURE:
         assert run_case(CASES[case]) == expected
         return
-    from conftest import BASLER_README_ARGS, cli_fit_from
+    from conftest import cli_fit_from
 
-    assert CASES[case] == BASLER_README_ARGS + ["--quality", "standard", "--json"]
-    with cli_fit_from(request.getfixturevalue("basler_standard_fit")) as calls:
+    assert CASES[case][2:] == ["--seed", "1", "--quality", "standard", "--json"]
+    with cli_fit_from(request.getfixturevalue(FROM_FIXTURE[case])) as calls:
         got = run_case(CASES[case])
     assert len(calls) == 1
     assert got == expected
