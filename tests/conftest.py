@@ -97,28 +97,23 @@ BASLER_README_ARGS = ["fit", "data/emva1288_basler_ccd12.csv", "--seed", "1"]
 #: the bundled simulated phone sensor's table (tests/test_results.py, tests/test_golden.py)
 PHONE_CSV = "data/simulated/sim_phone_1p75um_10bit.csv"
 
-#: the keyword arguments with which ``bayescap fit CSV --seed 1`` calls :func:`bayescap.api.fit`
-#: (bayescap/cli/fit.py: standard quality; no --scene, --mtf, --fast-tolerance; progress off when the
-#: output is not a terminal or with --no-progress)
-_STANDARD_SEED1_KWARGS = {
-    "seed": 1,
-    "quality": "standard",
-    "scene": None,
-    "progress": False,
-    "mtf": None,
-    "fast_settings": None,
-}
+
+def _seed1_kwargs(quality):
+    """The keyword arguments with which ``bayescap fit CSV --seed 1 [--quality QUALITY]`` calls
+    :func:`bayescap.api.fit` (bayescap/cli/fit.py: no --scene, --mtf, --fast-tolerance; progress off
+    when the output is not a terminal or with --no-progress)."""
+    return {"seed": 1, "quality": quality, "scene": None, "progress": False, "mtf": None, "fast_settings": None}
 
 
-def _fit_standard_seed1(relpath):
-    """The call ``bayescap fit RELPATH --seed 1`` makes from the repository's root: the table read by
-    :func:`bayescap.api.load` from that relative path (its ``source``, printed and in the JSON, is
-    that path), then :func:`bayescap.api.fit` with :data:`_STANDARD_SEED1_KWARGS`."""
+def _fit_seed1(relpath, quality="standard"):
+    """The call ``bayescap fit RELPATH --seed 1 --quality QUALITY`` makes from the repository's root:
+    the table read by :func:`bayescap.api.load` from that relative path (its ``source``, printed and
+    in the JSON, is that path), then :func:`bayescap.api.fit` with :func:`_seed1_kwargs`."""
     from bayescap.api import fit, load
 
     with contextlib.chdir(ROOT):
         data = load(relpath)
-    return fit(data, **_STANDARD_SEED1_KWARGS)
+    return fit(data, **_seed1_kwargs(quality))
 
 
 def _same_table(a, b) -> bool:
@@ -140,19 +135,21 @@ def _same_table(a, b) -> bool:
 @contextlib.contextmanager
 def cli_fit_from(result):
     """Within it, :func:`bayescap.api.fit` (the function ``bayescap fit`` calls) returns ``result``,
-    a session fixture's fit (:func:`basler_standard_fit`, :func:`phone_standard_fit`), when it is
-    called exactly as :func:`_fit_standard_seed1` called it for that fixture: the same table (field by
-    field, ``source`` included) and the same keyword arguments. ``bayescap.cli.main(["fit", RELPATH,
-    "--seed", "1", ...])`` then parses, reads the CSV, calls the fit and prints the result as the
-    command does, without fitting the same table and seed a second time. Any other call of the fit
-    fails the test (the command no longer makes the call the fixture made). Yields the calls seen."""
+    a session fixture's fit (:func:`basler_standard_fit`, :func:`phone_standard_fit`,
+    :func:`basler_fast_fit`), when it is called exactly as :func:`_fit_seed1` called it for that
+    fixture: the same table (field by field, ``source`` included) and the same keyword arguments.
+    ``bayescap.cli.main(["fit", RELPATH, "--seed", "1", "--quality", QUALITY, ...])`` then parses,
+    reads the CSV, calls the fit and prints the result as the command does, without fitting the same
+    table and seed a second time. Any other call of the fit fails the test (the command no longer
+    makes the call the fixture made). Yields the calls seen."""
     import bayescap.api
 
     calls = []
+    expected = _seed1_kwargs(result.diag["quality"])
 
     def fit(data, **kw):
         calls.append(kw)
-        assert kw == _STANDARD_SEED1_KWARGS, f"bayescap fit called the fit with {kw}, not {_STANDARD_SEED1_KWARGS}"
+        assert kw == expected, f"bayescap fit called the fit with {kw}, not {expected}"
         assert _same_table(data, result.model.data), "bayescap fit read another table than the fixture's"
         return result
 
@@ -161,8 +158,8 @@ def cli_fit_from(result):
         yield calls
 
 
-def _session_fit(tmp_path_factory, name, relpath):
-    """:func:`_fit_standard_seed1` of ``relpath``, once per test run. Under ``pytest -n`` the first
+def _session_fit(tmp_path_factory, name, relpath, quality="standard"):
+    """:func:`_fit_seed1` of ``relpath``, once per test run. Under ``pytest -n`` the first
     worker to ask fits it and pickles it beside the workers' temporary folders; the other waits for
     the pickle (a lock) and loads it (tests/test_results.py checks that a result pickles and comes
     back the same)."""
@@ -179,7 +176,7 @@ def _session_fit(tmp_path_factory, name, relpath):
             return pickle.loads(path.read_bytes())
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")
-            result = _fit_standard_seed1(relpath)
+            result = _fit_seed1(relpath, quality)
         tmp = path.with_name(path.name + f".{os.getpid()}.tmp")
         tmp.write_bytes(pickle.dumps(result))
         os.replace(tmp, path)
@@ -189,7 +186,7 @@ def _session_fit(tmp_path_factory, name, relpath):
 @pytest.fixture(scope="session")
 def basler_standard_fit(tmp_path_factory):
     """The README's and the docs' fit, ``bayescap fit data/emva1288_basler_ccd12.csv --seed 1``
-    (:data:`BASLER_README_ARGS`; :func:`_fit_standard_seed1`), once per test run (:func:`_session_fit`).
+    (:data:`BASLER_README_ARGS`; :func:`_fit_seed1`), once per test run (:func:`_session_fit`).
     tests/test_golden.py compares its JSON with the golden file of that command, and the README's
     tests print it through the command's own code (:func:`cli_fit_from`). Read-only: a test that
     changes it copies it first."""
@@ -198,10 +195,18 @@ def basler_standard_fit(tmp_path_factory):
 
 @pytest.fixture(scope="session")
 def phone_standard_fit(tmp_path_factory):
-    """``bayescap fit data/simulated/sim_phone_1p75um_10bit.csv --seed 1`` (:func:`_fit_standard_seed1`),
+    """``bayescap fit data/simulated/sim_phone_1p75um_10bit.csv --seed 1`` (:func:`_fit_seed1`),
     once per test run: tests/test_results.py's standard result and tests/test_golden.py's
     fit_phone_standard (through :func:`cli_fit_from`). Read-only: a test that changes it copies it first."""
     return _session_fit(tmp_path_factory, "phone_standard_seed1", PHONE_CSV)
+
+
+@pytest.fixture(scope="session")
+def basler_fast_fit(tmp_path_factory):
+    """``bayescap fit data/emva1288_basler_ccd12.csv --seed 1 --quality fast`` (:func:`_fit_seed1`),
+    once per test run: tests/test_emva.py, tests/test_datasheet_page.py and tests/test_golden.py's
+    fit_basler_fast (through :func:`cli_fit_from`). Read-only: a test that changes it copies it first."""
+    return _session_fit(tmp_path_factory, "basler_fast_seed1", BASLER_README_ARGS[1], "fast")
 
 
 def standard_recipe_gain(result):
