@@ -204,7 +204,7 @@ def phone_standard_fit(tmp_path_factory):
 @pytest.fixture(scope="session")
 def basler_fast_fit(tmp_path_factory):
     """``bayescap fit data/emva1288_basler_ccd12.csv --seed 1 --quality fast`` (:func:`_fit_seed1`),
-    once per test run: tests/test_emva.py, tests/test_emva_gain.py, tests/test_datasheet_page.py and tests/test_golden.py's
+    once per test run: tests/test_emva.py, tests/test_emva_gain.py, tests/test_datasheet_page.py, tests/test_cli_strict.py and tests/test_golden.py's
     fit_basler_fast (through :func:`cli_fit_from`). Read-only: a test that changes it copies it first."""
     return _session_fit(tmp_path_factory, "basler_fast_seed1", BASLER_README_ARGS[1], "fast")
 
