@@ -1,3 +1,4 @@
+import contextlib
 import json
 import os
 import sys
@@ -89,33 +90,123 @@ def basler_csv():
     return DATA / "emva1288_basler_ccd12.csv"
 
 
-@pytest.fixture(scope="session")
-def basler_standard_fit(basler_csv, tmp_path_factory):
-    """``bayescap.fit(basler_csv, seed=1)``: the README's and the docs' fit (what ``bayescap fit
-    data/emva1288_basler_ccd12.csv --seed 1`` prints and plots), fitted once per test run. Under
-    ``pytest -n`` the first worker to ask fits it and pickles it beside the workers' temporary
-    folders; the other waits for the pickle (a lock) and loads it (tests/test_results.py checks that
-    a result pickles and comes back the same). Read-only: a test that changes it copies it first."""
+#: the README's quick-start fit: ``bayescap fit data/emva1288_basler_ccd12.csv --seed 1`` (from the
+#: repository's root, or a folder with the same ``data``)
+BASLER_README_ARGS = ["fit", "data/emva1288_basler_ccd12.csv", "--seed", "1"]
+
+#: the bundled simulated phone sensor's table (tests/test_results.py, tests/test_golden.py)
+PHONE_CSV = "data/simulated/sim_phone_1p75um_10bit.csv"
+
+
+def _seed1_kwargs(quality):
+    """The keyword arguments with which ``bayescap fit CSV --seed 1 [--quality QUALITY]`` calls
+    :func:`bayescap.api.fit` (bayescap/cli/fit.py: no --scene, --mtf, --fast-tolerance; progress off
+    when the output is not a terminal or with --no-progress)."""
+    return {"seed": 1, "quality": quality, "scene": None, "progress": False, "mtf": None, "fast_settings": None}
+
+
+def _fit_seed1(relpath, quality="standard"):
+    """The call ``bayescap fit RELPATH --seed 1 --quality QUALITY`` makes from the repository's root:
+    the table read by :func:`bayescap.api.load` from that relative path (its ``source``, printed and
+    in the JSON, is that path), then :func:`bayescap.api.fit` with :func:`_seed1_kwargs`."""
+    from bayescap.api import fit, load
+
+    with contextlib.chdir(ROOT):
+        data = load(relpath)
+    return fit(data, **_seed1_kwargs(quality))
+
+
+def _same_table(a, b) -> bool:
+    """Two PTCData equal field by field (arrays element by element, NaN equal to NaN)."""
+    import dataclasses
+
+    import numpy as np
+
+    for f in dataclasses.fields(a):
+        x, y = getattr(a, f.name), getattr(b, f.name)
+        if isinstance(x, np.ndarray) or isinstance(y, np.ndarray):
+            if x is None or y is None or not np.array_equal(x, y, equal_nan=x.dtype.kind == "f"):
+                return False
+        elif x != y:
+            return False
+    return True
+
+
+@contextlib.contextmanager
+def cli_fit_from(result):
+    """Within it, :func:`bayescap.api.fit` (the function ``bayescap fit`` calls) returns ``result``,
+    a session fixture's fit (:func:`basler_standard_fit`, :func:`phone_standard_fit`,
+    :func:`basler_fast_fit`), when it is called exactly as :func:`_fit_seed1` called it for that
+    fixture: the same table (field by field, ``source`` included) and the same keyword arguments.
+    ``bayescap.cli.main(["fit", RELPATH, "--seed", "1", "--quality", QUALITY, ...])`` then parses,
+    reads the CSV, calls the fit and prints the result as the command does, without fitting the same
+    table and seed a second time. Any other call of the fit fails the test (the command no longer
+    makes the call the fixture made). Yields the calls seen."""
+    import bayescap.api
+
+    calls = []
+    expected = _seed1_kwargs(result.diag["quality"])
+
+    def fit(data, **kw):
+        calls.append(kw)
+        assert kw == expected, f"bayescap fit called the fit with {kw}, not {expected}"
+        assert _same_table(data, result.model.data), "bayescap fit read another table than the fixture's"
+        return result
+
+    with pytest.MonkeyPatch.context() as mp:
+        mp.setattr(bayescap.api, "fit", fit)
+        yield calls
+
+
+def _session_fit(tmp_path_factory, name, relpath, quality="standard"):
+    """:func:`_fit_seed1` of ``relpath``, once per test run. Under ``pytest -n`` the first
+    worker to ask fits it and pickles it beside the workers' temporary folders; the other waits for
+    the pickle (a lock) and loads it (tests/test_results.py checks that a result pickles and comes
+    back the same)."""
     import fcntl
     import pickle
-
-    import bayescap
 
     root = tmp_path_factory.getbasetemp()
     if os.environ.get("PYTEST_XDIST_WORKER"):
         root = root.parent  # this run's folder, shared by its workers
-    path = root / "basler_standard_seed1.pickle"
-    with open(root / "basler_standard_seed1.lock", "w") as lock:
+    path = root / f"{name}.pickle"
+    with open(root / f"{name}.lock", "w") as lock:
         fcntl.flock(lock, fcntl.LOCK_EX)
         if path.exists():
             return pickle.loads(path.read_bytes())
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")
-            result = bayescap.fit(basler_csv, seed=1)
+            result = _fit_seed1(relpath, quality)
         tmp = path.with_name(path.name + f".{os.getpid()}.tmp")
         tmp.write_bytes(pickle.dumps(result))
         os.replace(tmp, path)
         return result
+
+
+@pytest.fixture(scope="session")
+def basler_standard_fit(tmp_path_factory):
+    """The README's and the docs' fit, ``bayescap fit data/emva1288_basler_ccd12.csv --seed 1``
+    (:data:`BASLER_README_ARGS`; :func:`_fit_seed1`), once per test run (:func:`_session_fit`).
+    tests/test_golden.py compares its JSON with the golden file of that command, and the README's
+    tests print it through the command's own code (:func:`cli_fit_from`). Read-only: a test that
+    changes it copies it first."""
+    return _session_fit(tmp_path_factory, "basler_standard_seed1", BASLER_README_ARGS[1])
+
+
+@pytest.fixture(scope="session")
+def phone_standard_fit(tmp_path_factory):
+    """``bayescap fit data/simulated/sim_phone_1p75um_10bit.csv --seed 1`` (:func:`_fit_seed1`),
+    once per test run: tests/test_results.py's standard result and tests/test_golden.py's
+    fit_phone_standard (through :func:`cli_fit_from`). Read-only: a test that changes it copies it first."""
+    return _session_fit(tmp_path_factory, "phone_standard_seed1", PHONE_CSV)
+
+
+@pytest.fixture(scope="session")
+def basler_fast_fit(tmp_path_factory):
+    """``bayescap fit data/emva1288_basler_ccd12.csv --seed 1 --quality fast`` (:func:`_fit_seed1`),
+    once per test run: tests/test_emva.py, tests/test_emva_gain.py, tests/test_datasheet_page.py, tests/test_cli_strict.py and tests/test_golden.py's
+    fit_basler_fast (through :func:`cli_fit_from`). Read-only: a test that changes it copies it first."""
+    return _session_fit(tmp_path_factory, "basler_fast_seed1", BASLER_README_ARGS[1], "fast")
 
 
 def standard_recipe_gain(result):

@@ -46,8 +46,13 @@ def test_mtf_command_json_and_table(tmp_path):
 def test_mtf_command_bad_input_exit_2(tmp_path):
     flat = tmp_path / "flat.npy"
     np.save(flat, np.full((60, 60), 0.5))
-    for args in (("mtf", tmp_path / "missing.tif"), ("mtf", flat), ("mtf", EDGE, "--roi", "1,2,3")):
-        r = _run(*args)
+    # the missing file in a fresh process, the others through main in this process (same checks)
+    for args, run in (
+        (("mtf", tmp_path / "missing.tif"), _run),
+        (("mtf", flat), _main),
+        (("mtf", EDGE, "--roi", "1,2,3"), _main),
+    ):
+        r = run(*args)
         assert r.returncode == 2, (args, r.stderr)
         assert len(r.stderr.strip().splitlines()) == 1 and "Traceback" not in r.stderr
 
@@ -112,7 +117,7 @@ def test_fit_many_csvs_as_a_batch(tmp_path):
     r = _run("fit", paths[0], tmp_path / "missing.csv", "--quality", "fast", "--out", out2)
     assert r.returncode == 2 and "missing.csv" in r.stderr and "Traceback" not in r.stderr
     assert not out2.exists()
-    r = _run("fit", paths[0], paths[1], "--select-model")
+    r = _main("fit", paths[0], paths[1], "--select-model")  # (a refusal in a fresh process: the one above)
     assert r.returncode == 2 and "one CSV at a time" in r.stderr
 
 
@@ -178,7 +183,9 @@ def test_fast_tolerance_and_confidence_flags(tmp_path):
 def test_sweep_bad_numbers_exit_2_one_line(args, fragment):
     """A zero or NaN f-number, --draws 0, or an f/1e308 lens (whose capacities are all zero, so no
     optimal pitch) is a usage error: exit 2 and one line, no traceback."""
-    r = _run("sweep", "pixel-size", "--draws", "50", *args)
+    # the first case in a fresh process, the others through main in this process (same checks)
+    run = _run if args == ["--f-number", "0"] else _main
+    r = run("sweep", "pixel-size", "--draws", "50", *args)
     assert r.returncode == 2 and r.stdout == ""
     lines = r.stderr.strip().splitlines()
     assert len(lines) == 1 and lines[0].startswith("bayescap: error:") and fragment in lines[0], r.stderr
@@ -191,8 +198,9 @@ BASLER = Path(__file__).parents[1] / "data" / "emva1288_basler_ccd12.csv"
     "cmd", [["fit", BASLER], ["compare", BASLER, BASLER], ["report", BASLER], ["sweep", "pixel-size"], ["mtf", EDGE]]
 )
 def test_negative_seed_is_a_usage_error_not_a_traceback(cmd):
-    """--seed -1 is refused by the parser, before it reaches numpy's SeedSequence."""
-    r = _run(*cmd, "--seed", "-1")
+    """--seed -1 is refused by the parser, before it reaches numpy's SeedSequence (fit in a fresh
+    process, the other commands through main in this process: argparse's exit, same checks)."""
+    r = (_run if cmd[0] == "fit" else _main)(*cmd, "--seed", "-1")
     assert r.returncode == 2 and "Traceback" not in r.stderr
     assert "argument --seed: expected a whole number >= 0, got -1" in r.stderr
 

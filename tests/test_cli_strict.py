@@ -5,7 +5,6 @@ output says NOT CONVERGED). The fit is the Basler CCD's fast one (fitted once), 
 from __future__ import annotations
 
 import copy
-import warnings
 
 import pytest
 
@@ -15,10 +14,10 @@ from bayescap.cli.common import EXIT_NOT_CONVERGED
 
 
 @pytest.fixture(scope="module")
-def basler_fast(basler_csv):
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore")
-        return bayescap.api.fit(basler_csv, seed=1, quality="fast")
+def basler_fast(basler_fast_fit):
+    """``bayescap.api.fit`` of the Basler table at seed 1, fast: the session's (tests/conftest.py),
+    never changed here (:func:`_fit_returns` marks a copy)."""
+    return basler_fast_fit
 
 
 def _fit_returns(monkeypatch, result, converged):

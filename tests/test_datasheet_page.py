@@ -19,10 +19,8 @@ from bayescap.report.datasheet import _fmt, datasheet_html, emva_limits, operati
 
 
 @pytest.fixture(scope="module")
-def basler(basler_csv):
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore")
-        r = bayescap.fit(basler_csv, seed=1, quality="fast")
+def basler(basler_fast_fit):
+    r = basler_fast_fit  # bayescap.fit of the Basler table, seed 1, fast: the session's (tests/conftest.py)
     return r, emva1288_view(r)
 
 

@@ -72,11 +72,11 @@ def test_view_is_json_with_names_symbols_units(view):
     assert q["K"]["bayescap"] == "1 / conversion_gain_e_per_dn"
 
 
-def test_response_term_gives_le_an_interval(basler_csv, ref):
+def test_response_term_gives_le_an_interval(basler_fast_fit, ref):
     """The Basler set's means bend against the photons (about −2 % at the top): the response term
     is selected and the view's LE carries the fitted response's interval, beside the standard's
-    value from the rows as its recipe."""
-    r = bayescap.fit(basler_csv, seed=1, quality="fast")
+    value from the rows as its recipe. (The fast fit at seed 1: the session's, tests/conftest.py.)"""
+    r = basler_fast_fit
     assert r.model.terms.nonlinearity
     le = emva1288_view(r)["quantities"]["LE"]
     lo, hi = le["ci95"]

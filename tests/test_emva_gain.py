@@ -33,8 +33,8 @@ def _recipe_inverse_k_se(sw):
     return float(np.sqrt(s2 / np.sum(x * x)) / K**2)
 
 
-def test_basler_gain_is_the_standards_average_not_the_small_signal_gain(basler_csv):
-    r = _fast_fit(basler_csv)
+def test_basler_gain_is_the_standards_average_not_the_small_signal_gain(basler_fast_fit):
+    r = basler_fast_fit  # the Basler table's fast fit at seed 1 (_fast_fit's call): the session's, tests/conftest.py
     assert r.model.terms.nonlinearity  # the set's compressive response (a ≈ −0.02) is selected
     view = emva1288_view(r)
     q = view["quantities"]

@@ -43,6 +43,14 @@ def saved_result(small_csv, tmp_path_factory):
     return r.save(tmp_path_factory.mktemp("nc") / "fit.nc")
 
 
+@pytest.fixture(scope="module")
+def saved_idata(saved_result):
+    """``saved_result`` as ArviZ reads it (read-only: a test that edits it edits a copy)."""
+    import arviz as az
+
+    return az.from_netcdf(str(saved_result)).load()
+
+
 def _run_limited(code: str, limit_bytes: int):
     """``code`` in a fresh interpreter whose files may not grow beyond ``limit_bytes`` (``ulimit
     -f``; Python ignores SIGXFSZ, so a write past it fails with EFBIG)."""
@@ -78,14 +86,14 @@ def test_save_and_out_under_a_file_size_limit_fail_cleanly(saved_result, tmp_pat
     assert os.listdir(tmp_path) == ["o"] and os.listdir(out) == ["result.json"]
 
 
-def test_saved_posterior_reads_back_identical(saved_result, tmp_path):
+def test_saved_posterior_reads_back_identical(saved_idata, tmp_path):
     """The in-memory netCDF writer gives the content ArviZ's own writer gives."""
     import arviz as az
     import xarray.testing as xt
 
     from bayescap.posterior.storage import netcdf_bytes
 
-    idata = az.from_netcdf(str(saved_result)).load()
+    idata = saved_idata
     (tmp_path / "a.nc").write_bytes(netcdf_bytes(idata))
     idata.to_netcdf(str(tmp_path / "b.nc"))
     a, b = (az.from_netcdf(str(tmp_path / n)) for n in ("a.nc", "b.nc"))
@@ -95,13 +103,12 @@ def test_saved_posterior_reads_back_identical(saved_result, tmp_path):
     assert a.attrs == b.attrs
 
 
-def _crafted(saved_result, tmp_path, edit):
+def _crafted(saved_idata, tmp_path, edit):
     """A copy of the saved result whose ``bayescap_result`` state went through ``edit``."""
-    import arviz as az
-
     from bayescap.posterior.storage import netcdf_bytes
 
-    idata = az.from_netcdf(str(saved_result)).load()
+    idata = saved_idata.copy()  # its own attrs: the module's saved_idata stays as read
+    assert idata.attrs is not saved_idata.attrs
     state = json.loads(idata.attrs["bayescap_result"])
     edit(state)
     idata.attrs["bayescap_result"] = json.dumps(state)
@@ -110,25 +117,25 @@ def _crafted(saved_result, tmp_path, edit):
     return p
 
 
-def test_load_refuses_an_mtf_class_bayescap_does_not_write(saved_result, tmp_path):
+def test_load_refuses_an_mtf_class_bayescap_does_not_write(saved_idata, tmp_path):
     """Was: ``"mtf": {"class": ...}`` built any attribute of the optics module (a module function,
     an imported class) with the file's arguments."""
 
     def edit(s):
         s["mtf"] = {"class": "np", "x": 1}
 
-    p = _crafted(saved_result, tmp_path, edit)
+    p = _crafted(saved_idata, tmp_path, edit)
     with pytest.raises(ValueError, match="not a bayescap MTF class"):
         bayescap.FitResult.load(p)
 
 
-def test_load_refuses_a_crafted_chain_shape_before_allocating(saved_result, tmp_path):
+def test_load_refuses_a_crafted_chain_shape_before_allocating(saved_idata, tmp_path):
     """Was: a crafted ``chains.shape`` asked numpy for 30 GiB (MemoryError, or the machine's swap)."""
 
     def edit(s):
         s["chains"]["shape"] = [1, 1_000_000, 4000, s["chains"]["shape"][3]]
 
-    p = _crafted(saved_result, tmp_path, edit)
+    p = _crafted(saved_idata, tmp_path, edit)
     with pytest.raises(ValueError, match="shape"):
         bayescap.FitResult.load(p)
 

@@ -112,12 +112,22 @@ def _main_in_process(args: list[str], workdir: Path) -> subprocess.CompletedProc
     return subprocess.CompletedProcess(args, code or 0, out.getvalue(), err.getvalue())
 
 
-def _bayescap(args: list[str], workdir: Path) -> subprocess.CompletedProcess:
+def _bayescap(args: list[str], workdir: Path, request) -> subprocess.CompletedProcess:
     """``bayescap ARGS`` (a fit that writes no file) in this process, once per argument list in this
-    session (the shared fit)."""
+    session (the shared fit). The quick start's Basler fit (conftest.BASLER_README_ARGS) is the
+    session fixture ``basler_standard_fit``: the command runs (arguments, reading the CSV from the
+    working folder, printing), its fit call checked to be the fixture's and answered by its result
+    (conftest.cli_fit_from); tests/test_golden.py holds that fit's numbers to the golden file."""
+    from conftest import BASLER_README_ARGS, cli_fit_from
+
     key = tuple(args)
     if key not in _RUNS:
-        _RUNS[key] = _main_in_process(args, workdir)
+        if args == BASLER_README_ARGS:
+            with cli_fit_from(request.getfixturevalue("basler_standard_fit")) as calls:
+                _RUNS[key] = _main_in_process(args, workdir)
+            assert len(calls) == 1, calls
+        else:
+            _RUNS[key] = _main_in_process(args, workdir)
     return _RUNS[key]
 
 
@@ -160,12 +170,12 @@ def test_ci_runs_the_readme_commands_and_the_test_command_installs_nothing():
 
 @pytest.mark.xdist_group("readme_fit")  # with the output test: the shared Basler fit runs once
 @pytest.mark.parametrize("cmd", BAYESCAP_COMMANDS)
-def test_readme_command(cmd, workdir):
+def test_readme_command(cmd, workdir, request):
     argv = shlex.split(cmd)
     # the shell's glob expansion (data/benchmark/M*.csv), in the working folder
     args = [x for a in argv[1:] for x in (sorted(glob.glob(a, root_dir=workdir)) if "*" in a else [a])]
     # the quick start's .venv/bin/bayescap is this interpreter's bayescap
-    proc = _bayescap(args, workdir) if _shared_fit(args) else _run_bayescap(args, workdir)
+    proc = _bayescap(args, workdir, request) if _shared_fit(args) else _run_bayescap(args, workdir)
     assert proc.returncode == 0, proc.stdout[-2000:] + proc.stderr[-3000:]
     if argv[1] == "fit" and "--json" not in argv:
         # the parameters the README's abridged output lists
@@ -214,11 +224,11 @@ def _output_blocks() -> list[tuple[str, list[str]]]:
 
 @pytest.mark.xdist_group("readme_fit")
 @pytest.mark.parametrize("csv, lines", _output_blocks(), ids=[c for c, _ in _output_blocks()])
-def test_readme_output_is_what_the_fit_prints(csv, lines, workdir):
+def test_readme_output_is_what_the_fit_prints(csv, lines, workdir, request):
     """Every line of an abridged output in the README is a line the command prints now (``...``
     marks lines left out, ``…`` a part that changes from run to run: the time), so the README's
     numbers are the program's."""
-    proc = _bayescap(["fit", csv, "--seed", "1"], workdir)
+    proc = _bayescap(["fit", csv, "--seed", "1"], workdir, request)
     assert proc.returncode == 0, proc.stderr[-2000:]
     printed = [line.rstrip() for line in proc.stdout.splitlines()]
     for line in lines:

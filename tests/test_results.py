@@ -22,8 +22,10 @@ def fast_result():
 
 
 @pytest.fixture(scope="module")
-def standard_result():
-    return bayescap.fit(PHONE, seed=1, quality="standard", n_jobs=1)
+def standard_result(phone_standard_fit):
+    """``bayescap.fit`` of PHONE at seed 1, standard quality: the session's fit (tests/conftest.py),
+    which tests/test_golden.py's fit_phone_standard also reads."""
+    return phone_standard_fit
 
 
 @pytest.mark.parametrize("which", ["fast_result", "standard_result"])
