@@ -527,11 +527,10 @@ class _ParametersMixin:
         the rows ``lin`` (below 70 % of the largest), weighted by 1/variance (each variance's
         sampling error is proportional to it): the read noise is the curve's intercept (read²/K² +
         1/12), K the inverse of its slope at 0 and the bend its curvature (the model's shot noise
-        S/K · (e^z − 1)/z, z = 2·bf·S/S_ref, is S/K + bf·S²/(K·S_ref) to first order). The straight
-        line of the tables with dark rows put the start 10–70 posterior sd from the mode on
-        simulated focal-plane amplifiers (a bend of −10 to −20 % biases its slope, and without dark
-        rows the dark noise was set at 0.05 DN), and Newton took 10–16 iterations to get there.
-        None where the fit is not usable (fewer than 4 rows, a slope ≤ 0)."""
+        S/K · (e^z − 1)/z, z = 2·bf·S/S_ref, is S/K + bf·S²/(K·S_ref) to first order). A straight
+        line would not do here: a brighter-fatter bend of −10 to −20 % biases its slope, and without
+        dark rows nothing else gives the read noise. None where the fit is not usable (fewer than 4
+        rows, a slope ≤ 0)."""
         x, y = self.s_obs[lin], self.v[lin]
         if x.size < 4:
             return None
@@ -551,8 +550,9 @@ class _ParametersMixin:
         """Start values of the response, brighter-fatter and pixel-offset terms: the response's
         log-slope from the means against the photons (:func:`~bayescap.model.response.shape_start`,
         with the responsivity it implies for QE; without photons 0, the linear response), the
-        brighter-fatter coordinate ``bf0`` (0 but for a mean/variance table, :meth:`_mean_variance_start`), and an offset spread of 0.3 DN (mid-way between one offset and a fully
-        averaged grid)."""
+        brighter-fatter coordinate ``bf0`` (0 but for a mean/variance table,
+        :meth:`_mean_variance_start`), and an offset spread of 0.3 DN (mid-way between one offset
+        and a fully averaged grid)."""
         x = np.array(x, float)
         if "nl_1" in self.idx:
             from bayescap.model.response import shape_start
