@@ -28,9 +28,10 @@ check should pass on about 99 % of the cameras (its threshold p ≥ 0.01).
 
 The truth is the population the camera is drawn from (its ``prnu_frac``, ``channel_qe``): what the
 model's PRNU and QE estimate, the pixels' pattern being one sample of it (the model's ROI latents).
-Why a CS interval misses is shown per miss: the truth's distance from the median in half-widths of
-the interval, and what moves CS from the posterior medians to the truth, per input (K, read noise,
-PRNU, clip), in the same half-widths. A diagnostic, not a target: CS at the drawn pattern's own PRNU
+Why a CS interval misses is shown per miss: the truth's distance z from the median in units of the
+median's distance to the interval's end on the truth's side (|z| > 1: outside), and what moves CS
+from the posterior medians to the truth, per input (K, read noise, PRNU, clip), in half-widths of
+the interval. A diagnostic, not a target: CS at the drawn pattern's own PRNU
 (``truth["realized"]``), which the data pin more tightly than the population's.
 """
 
@@ -68,6 +69,12 @@ def _camera(seed):
 def _inside(draws, truth):
     lo, hi = np.quantile(draws, [0.025, 0.975])
     return bool(lo <= truth <= hi), float(lo), float(hi)
+
+
+def _z(x, lo, med, hi) -> float:
+    """x's distance from the median in units of the median's distance to the interval's end on x's
+    side: |z| > 1 exactly when x is outside [lo, hi]."""
+    return float((x - med) / ((hi - med) if x >= med else (med - lo)))
 
 
 def _rate(a: int, b: int) -> str:
@@ -201,7 +208,7 @@ def main() -> int:
         }
         j_lo, j_med, j_hi = np.quantile(j_cs, [0.025, 0.5, 0.975])
         j_hw = (j_hi - j_lo) / 2
-        j_z.append(float((cs_true - j_med) / j_hw))
+        j_z.append(_z(cs_true, j_lo, j_med, j_hi))
         j_ranks.append(float(np.mean(j_cs < cs_true)))
         if not j_ok["CS"][0]:
 
@@ -210,7 +217,7 @@ def main() -> int:
 
             misses.append(
                 f"- camera {seed} ({cam.sensitivities.split()[0]} / {cam.illuminant}, K {cam.k_e_per_dn:.2f}, read "
-                f"{cam.read_noise_e:.1f} e⁻): truth {j_z[-1]:+.2f} half-widths from the median (rank "
+                f"{cam.read_noise_e:.1f} e⁻): truth at z = {j_z[-1]:+.2f} (rank "
                 f"{j_ranks[-1]:.3f}); from the medians to the truth: "
                 + _drivers(
                     cs_one,
@@ -220,7 +227,7 @@ def main() -> int:
                     truth["clip_dn"],
                     j_hw,
                 )
-                + f"; at the drawn pattern's PRNU {(cs_true_real - j_med) / j_hw:+.2f}"
+                + f"; at the drawn pattern's PRNU z = {_z(cs_true_real, j_lo, j_med, j_hi):+.2f}"
             )
         for name, oks in j_ok.items():
             joint[name][0] += sum(oks)
@@ -273,13 +280,14 @@ The truth's position among the CS draws (fraction of draws below it; uniform, me
 quartiles 0.25/0.5/0.75, if the intervals are calibrated): separate fits mean {np.mean(ranks):.2f},
 quartiles {np.round(np.quantile(ranks, [0.25, 0.5, 0.75]), 2).tolist()}; joint fit mean {np.mean(j_ranks):.2f},
 quartiles {np.round(np.quantile(j_ranks, [0.25, 0.5, 0.75]), 2).tolist()}. The joint CS truth's distance from
-the median in half-widths of the 95 % interval (about 0.34, 0.67 and 1.0 at the 25th, 50th and 95th
-percentiles if Gaussian and calibrated): quantiles 25/50/95 % of |z| {np.round(np.quantile(j_z_abs, [0.25, 0.5, 0.95]), 2).tolist()}; the misses
-between 1 and 1.1 half-widths out (within a few Monte Carlo errors of the interval's ends, ~0.05 half-width
-with 1000 draws): {int(np.sum((j_z_abs > 1) & (j_z_abs <= 1.1)))} of {int(np.sum(j_z_abs > 1))}.
+the median, z, in units of the median's distance to the interval's end on its side (|z| about
+0.34, 0.67 and 1.0 at the 25th, 50th and 95th percentiles if Gaussian and calibrated; |z| > 1:
+outside): quantiles 25/50/95 % of |z| {np.round(np.quantile(j_z_abs, [0.25, 0.5, 0.95]), 2).tolist()}; the misses
+at most 1.1 out (within a few Monte Carlo errors of the interval's ends, ~0.05 of the half-width
+with 1000 draws): {int(np.sum((j_z_abs > 1) & (j_z_abs <= 1.1)))} of {int(np.sum(j_z_abs > 1))}; the largest |z| {np.max(j_z_abs):.2f}.
 
-Why the joint CS intervals that miss miss (half-widths of the interval; the inputs' moves do not add
-exactly, CS being non-linear in them):
+Why the joint CS intervals that miss miss (the inputs' moves in half-widths of the interval; they do
+not add exactly, CS being non-linear in them):
 
 {chr(10).join(misses) or "- none"}
 
@@ -291,7 +299,7 @@ the floor: its Jacobian cancels); with clipping after M (output volume fixed): m
 Spectral CCMs (ColorChecker N Ohta → linear sRGB):
 {chr(10).join(ccm_lines)}
 
-| seed | sensitivities / illuminant | K e⁻/DN | read e⁻ | K inside | QE inside | CS truth (bits) | CS 95 % | inside | CS width, CCM uncertain | CS clipped after M (median ± half 95 %) | joint: K / read / QE / PRNU / CS (z, half-widths) / CS clipped inside, K check p | notes |
+| seed | sensitivities / illuminant | K e⁻/DN | read e⁻ | K inside | QE inside | CS truth (bits) | CS 95 % | inside | CS width, CCM uncertain | CS clipped after M (median ± half 95 %) | joint: K / read / QE / PRNU / CS (z) / CS clipped inside, K check p | notes |
 | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- |
 """
         + "\n".join(rows)
