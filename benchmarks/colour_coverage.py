@@ -281,7 +281,7 @@ quartiles 0.25/0.5/0.75, if the intervals are calibrated): separate fits mean {n
 quartiles {np.round(np.quantile(ranks, [0.25, 0.5, 0.75]), 2).tolist()}; joint fit mean {np.mean(j_ranks):.2f},
 quartiles {np.round(np.quantile(j_ranks, [0.25, 0.5, 0.75]), 2).tolist()}. The joint CS truth's distance from
 the median, z, in units of the median's distance to the interval's end on its side (|z| about
-0.34, 0.67 and 1.0 at the 25th, 50th and 95th percentiles if Gaussian and calibrated; |z| > 1:
+0.17, 0.34 and 1.0 at the 25th, 50th and 95th percentiles if Gaussian and calibrated; |z| > 1:
 outside): quantiles 25/50/95 % of |z| {np.round(np.quantile(j_z_abs, [0.25, 0.5, 0.95]), 2).tolist()}; the misses
 at most 1.1 out (within a few Monte Carlo errors of the interval's ends, ~0.05 of the half-width
 with 1000 draws): {int(np.sum((j_z_abs > 1) & (j_z_abs <= 1.1)))} of {int(np.sum(j_z_abs > 1))}; the largest |z| {np.max(j_z_abs):.2f}.
