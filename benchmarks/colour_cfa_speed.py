@@ -12,7 +12,10 @@ tables. Timed, per camera and preset, after one warm-up fit:
 * the same colour run with ``n_jobs=1`` (every channel fit in this process, the same numbers).
 
 Wall time is the target's measure; CPU time (this process and its finished workers) is recorded
-beside it, and the load average, since the machine may be shared: the colour fit spreads four
+beside it, and the load average, since the machine may be shared. The colour run's *critical path*
+in CPU seconds (the longer of this process's and its worker's channel fits, then CS etc.) estimates
+its wall time on otherwise idle cores, against the monochrome fast fit's CPU time (one process);
+wall times on a machine other jobs load say more about the load than about the code: the colour fit spreads four
 fits over the cores, so it gains less where other jobs hold them (the one-process run shows what
 the processes gain or cost as the machine is loaded).
 
@@ -72,6 +75,12 @@ def cpu_s() -> float:
     return a.ru_utime + a.ru_stime + b.ru_utime + b.ru_stime
 
 
+def children_cpu_s() -> float:
+    """CPU time of this process's children that have ended."""
+    b = resource.getrusage(resource.RUSAGE_CHILDREN)
+    return b.ru_utime + b.ru_stime
+
+
 def reap_workers() -> None:
     """Wait for this process's worker processes to end (so that their CPU time is counted)."""
     import multiprocessing as mp
@@ -81,9 +90,9 @@ def reap_workers() -> None:
 
 
 def colour_run(tb, seed, quality, times=None, n_jobs=None):
-    t0 = time.perf_counter()
+    t0, c0 = time.perf_counter(), time.process_time()
     f = fit_cfa(tb, seed=seed, quality=quality, n_jobs=n_jobs)
-    t1 = time.perf_counter()
+    t1, c1 = time.perf_counter(), time.process_time()
     ccm = ccm_from_matrix(CCM, source="D850 DNG", rel_sd=0.02, n_draws=f.n_draws, seed=seed)
     t = float(np.median(tb["Gr"].exposure_time_s))
     md = tb["Gr"].metadata
@@ -92,6 +101,8 @@ def colour_run(tb, seed, quality, times=None, n_jobs=None):
     )
     if times is not None:
         times["fits"], times["summary"] = t1 - t0, time.perf_counter() - t1
+        # CPU seconds of this process alone: its share of the channel fits, then CS etc.
+        times["fits_cpu_self"], times["summary_cpu"] = c1 - c0, time.process_time() - c1
     return f, s
 
 
@@ -101,13 +112,18 @@ def measure(tb, seed, q) -> dict:
     out = {}
     t0, c0 = time.perf_counter(), cpu_s()
     bayescap.fit(tb["Gr"], seed=seed, quality=q)
-    out["mono"], out["monocpu"] = time.perf_counter() - t0, cpu_s() - c0
-    t0, c0 = time.perf_counter(), cpu_s()
+    out["mono"] = time.perf_counter() - t0
+    reap_workers()
+    out["monocpu"] = cpu_s() - c0
+    t0, c0, k0 = time.perf_counter(), cpu_s(), children_cpu_s()
     parts: dict = {}
     f, s = colour_run(tb, seed, q, parts)
     out["colour"] = time.perf_counter() - t0
     reap_workers()  # (fit_cfa does not wait for its workers to exit: their CPU counts once ended)
     out["colourcpu"] = cpu_s() - c0
+    # the colour run's critical path in CPU seconds, what its wall time would be on otherwise idle
+    # cores: the longer of this process's channel fits and its worker's, then CS etc. (one process)
+    out["colourcrit"] = max(parts["fits_cpu_self"], children_cpu_s() - k0) + parts["summary_cpu"]
     t0 = time.perf_counter()
     f1, _ = colour_run(tb, seed, q, n_jobs=1)  # the same numbers, every fit in this process
     out["colour1"] = time.perf_counter() - t0
@@ -167,7 +183,9 @@ def main(argv=None) -> int:
         "process in turn, so that a burst of other jobs on the shared machine does not decide a row; the ratios "
         "with the median of the runs are listed below the table); 'fits' and 'CS etc.' split the fastest colour "
         "run's wall time; CPU: this process and its ended "
-        "workers (the monochrome MCMC's ensemble processes, the colour fit's channel processes). 'Colour in one "
+        "workers (the monochrome MCMC's ensemble processes, the colour fit's channel processes); critical path: "
+        "the longer of this process's and its worker's CPU seconds in the channel fits, plus CS etc., the colour "
+        "run's wall time on otherwise idle cores. 'Colour in one "
         "process': the same colour run with `n_jobs=1` (the same numbers, checked), every channel fit in this "
         "process one after the other: what the processes gain or cost on the machine as loaded.",
         "",
@@ -176,9 +194,9 @@ def main(argv=None) -> int:
         "whose fast path runs in one process.",
         "",
         "| seed | preset | monochrome (s) | colour (s) | fits (s) | CS etc. (s) | ratio | fits / mono | CPU mono (s) "
-        "| CPU colour (s) | CPU ratio | colour in one process (s) | its ratio | K check | true K in joint 95 % "
-        "| converged | CS (bits) |",
-        "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|",
+        "| CPU colour (s) | CPU ratio | critical path (CPU s) | its ratio | colour in one process (s) | its ratio "
+        "| K check | true K in joint 95 % | converged | CS (bits) |",
+        "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|",
     ]
     for r in rows:
         for q in presets:
@@ -187,7 +205,8 @@ def main(argv=None) -> int:
                 f"| {r['seed']} | {q} | {r[f'mono_{q}']:.2f} | {r[f'colour_{q}']:.2f} | {r[f'fits_{q}']:.2f} | "
                 f"{r[f'summary_{q}']:.2f} | {r[f'colour_{q}'] / r[f'mono_{q}']:.2f} | "
                 f"{r[f'fits_{q}'] / r[f'mono_{q}']:.2f} | {r[f'monocpu_{q}']:.2f} | {r[f'colourcpu_{q}']:.2f} | "
-                f"{r[f'colourcpu_{q}'] / r[f'monocpu_{q}']:.2f} | {r[f'colour1_{q}']:.2f} | "
+                f"{r[f'colourcpu_{q}'] / r[f'monocpu_{q}']:.2f} | {r[f'colourcrit_{q}']:.2f} | "
+                f"{r[f'colourcrit_{q}'] / r[f'monocpu_{q}']:.2f} | {r[f'colour1_{q}']:.2f} | "
                 f"{r[f'colour1_{q}'] / r[f'mono_{q}']:.2f} | {'pass' if kc else 'FAIL'} | {'yes' if kin else 'no'} | "
                 f"{conv} | {r[f'cs_{q}']:.3f} |"
             )
@@ -216,10 +235,21 @@ def main(argv=None) -> int:
                 f"({q}): median {np.median(rr):.2f}x (range {min(rr):.2f}-{max(rr):.2f}x)."
             )
     for q in presets:
+        rr = [r[f"colourcpu_{q}"] / r[f"monocpu_{q}"] for r in rows]
         lines.append(
-            f"- CPU time, colour ({q}) / monochrome ({q}): total {total(f'colourcpu_{q}', f'monocpu_{q}'):.2f}x "
-            "(not the target's measure: what the colour fit costs the machine)."
+            f"- CPU time, colour ({q}) / monochrome ({q}): median {np.median(rr):.2f}x (range "
+            f"{min(rr):.2f}-{max(rr):.2f}x), total {total(f'colourcpu_{q}', f'monocpu_{q}'):.2f}x (not the "
+            "target's measure: what the colour fit costs the machine, four channel fits' worth; steadier than wall "
+            "time on a shared machine)."
         )
+    rr = [r["colourcrit_fast"] / r["monocpu_fast"] for r in rows]
+    lines.append(
+        f"- critical path in CPU seconds, colour (fast) / monochrome (fast, one process): median "
+        f"{np.median(rr):.2f}x (range {min(rr):.2f}-{max(rr):.2f}x), total "
+        f"{total('colourcrit_fast', 'monocpu_fast'):.2f}x: {'meets' if max(np.median(rr), total('colourcrit_fast', 'monocpu_fast')) <= 3.0 else 'MISSES'} "
+        f"the 3x target on {os.cpu_count()} otherwise idle cores (an estimate of the wall time there: the longer "
+        "of the two processes' channel fits, then CS etc.; the fork and the results' transfer are in it)."
+    )
     lines.append("")
     emit(lines, HERE / "results" / "colour_cfa_speed.md")
     return 0

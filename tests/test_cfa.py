@@ -206,6 +206,31 @@ def test_joint_fit_holds_the_truth_and_narrows_k(joint_fit):
     np.testing.assert_allclose(np.median(coeffs[:, :, 1], axis=0), 1 / 2.5, rtol=0.01)
 
 
+def test_joint_noise_coefficients_are_the_monochrome_ones(joint_fit):
+    """The joint draws' σ²(S) in DN is Eq. 1 as the monochrome fit computes it
+    (``NoiseCoefficients.from_parameters``: dark noise, DSNU and rounding in a; PRNU² in c), over K²."""
+    from bayescap.physics.noise import NoiseCoefficients
+
+    f = joint_fit
+    t = 0.01
+    got = f.var_coeffs_dn2(t)
+    for j, c in enumerate(f.channels):
+        d = f.draws[c]
+        assert "dsnu_e" in d
+        k = d["conversion_gain_e_per_dn"]
+        nc = NoiseCoefficients.from_parameters(
+            read_noise_e=d["read_noise_e"],
+            dark_current_e_per_s=d.get("dark_current_e_per_s", 0.0),
+            exposure_time_s=t,
+            dsnu_e=d["dsnu_e"],
+            prnu_frac=d["prnu_percent"] / 100.0,
+            conversion_gain_e_per_dn=k,
+        )
+        np.testing.assert_allclose(got[:, j, 0], nc.a / k**2, rtol=1e-12)
+        np.testing.assert_allclose(got[:, j, 1], nc.b / k, rtol=1e-12)
+        np.testing.assert_allclose(got[:, j, 2], nc.c, rtol=1e-12)
+
+
 def test_consensus_agrees_with_the_mode_of_the_exact_joint_density(joint_fit):
     """The four models' densities with K and read noise tied (JointCFAModel), maximised from the
     channels' medians: its shared coordinates land within half a consensus sd of the consensus."""

@@ -86,3 +86,28 @@ def test_white_patch_response_is_the_flat_qe():
 def test_odd_mosaic_refused():
     with pytest.raises(ValueError, match="even"):
         CFACamera(width_px=7)
+
+
+def test_realized_pattern_is_the_drawn_one(sim):
+    """The realised PRNU is the simulated planes' own: the flats' spatial variance at the brightest
+    unclipped row is (PRNU·S)² + the pair average's temporal variance τ = (S/K + read²/K² + 1/12)/2,
+    to its sampling error given the pattern (the temporal part's: sd √((4·(PRNU·S)²·τ + 2τ²)/n));
+    and it differs from the population's by the pattern's sampling (relative sd 1/√(2n))."""
+    t = sim["truth"]
+    real = t["realized"]
+    for j, c in enumerate(CHANNELS):
+        r = sim[c]["rows"]
+        i = np.flatnonzero((r["frac_saturated"] == 0) & (r["mean_dn"] < 0.8 * (2**12 - 1)))[-1]
+        s = r["mean_dn"][i] - r["dark_mean_dn"][i]
+        c0, c1, _ = t["var_coeffs_dn2"][j]
+        temporal = (c0 + c1 * s) / 2.0
+        p_real = real["prnu_frac"][c]
+        pattern = (p_real * s) ** 2
+        n = r["n_pixels"][i]
+        sd = np.sqrt((4 * pattern * temporal + 2 * temporal**2) / n)
+        assert abs(r["spatial_var_dn2"][i] - pattern - temporal) < 5 * sd, c
+        rel = p_real / t["prnu_frac"][c] - 1.0
+        assert abs(rel) < 5 / np.sqrt(2.0 * n), c
+        assert real["quantum_efficiency"][c] == pytest.approx(
+            t["quantum_efficiency"][c], rel=5 * t["prnu_frac"][c] / np.sqrt(n)
+        )

@@ -171,9 +171,10 @@ class CFAFit:
         return out
 
     def var_coeffs_dn2(self, exposure_time_s: float) -> np.ndarray:
-        """Per draw and channel the temporal noise σ²(S) = c0 + c1·S + c2·S² (DN², S in DN above
-        dark) at ``exposure_time_s``: c0 = (σ_read² + D·t)/K² + 1/12, c1 = 1/K, c2 = PRNU². Shape
-        (n_draws, 4, 3), channels in :attr:`channels` order (Eq. 1 in DN)."""
+        """Per draw and channel the noise σ²(S) = c0 + c1·S + c2·S² (DN², S in DN above dark) at
+        ``exposure_time_s``: c0 = (σ_read² + D·t + DSNU²)/K² + 1/12, c1 = 1/K, c2 = PRNU². Shape
+        (n_draws, 4, 3), channels in :attr:`channels` order: Eq. 1 in DN, the monochrome fit's
+        noise coefficients (``FitResult._noise_coefficients``; the fixed patterns count as noise)."""
         out = np.empty((self.n_draws, len(self.channels), 3))
         for j, c in enumerate(self.channels):
             d = self.draws[c]
@@ -182,6 +183,8 @@ class CFAFit:
                 dark_e2 = d["read_noise_e"] ** 2 + d.get("dark_current_e_per_s", 0.0) * float(exposure_time_s)
             else:
                 dark_e2 = d["dark_noise_e"] ** 2
+            if "dsnu_e" in d:
+                dark_e2 = dark_e2 + d["dsnu_e"] ** 2
             prnu = d["prnu_percent"] / 100.0 if "prnu_percent" in d else np.zeros(self.n_draws)
             out[:, j, 0] = dark_e2 / k**2 + 1.0 / 12.0
             out[:, j, 1] = 1.0 / k

@@ -27,7 +27,10 @@ computes the photon-transfer statistics per plane as EMVA 1288 does (the columns
 
 The truth it returns per channel is the noise model the capacity code uses, in DN at the raw signal S
 (DN above black): ``σ²(S) = c0 + c1·S + c2·S²`` with ``c0 = read²/K² + 1/12 + D·t/K²``, ``c1 = 1/K``,
-``c2 = PRNU_c²``, and the clip level ``min(W/K, 2^bits − 1 − black)``.
+``c2 = PRNU_c²``, and the clip level ``min(W/K, 2^bits − 1 − black)``. PRNU and QE there are the
+values the pattern is drawn from (the population, what the model estimates); the drawn pattern's own
+values (``truth["realized"]``, :func:`realized_pattern`) differ from them by its sampling, a PRNU by
+about ``1/√(2n)`` relative over n pixels (0.9 % for a 160 × 160 mosaic's planes).
 """
 
 from __future__ import annotations
@@ -42,6 +45,7 @@ __all__ = [
     "CFACamera",
     "CFAAcquisition",
     "channel_qe",
+    "realized_pattern",
     "reflectance_responses",
     "simulate_cfa_pairs",
     "simulate_cfa_ptc",
@@ -209,12 +213,31 @@ class _Mosaic:
         return np.clip(x, 0.0, float(cam.adc_max_dn)).astype(np.uint16)
 
 
+def _seeds(seed: int):
+    """The fixed pattern's and the frames' seed sequences of ``seed``."""
+    return np.random.SeedSequence(seed).spawn(2)
+
+
+def realized_pattern(camera: CFACamera, seed: int) -> dict:
+    """The fixed pattern :func:`simulate_cfa_pairs` draws for ``seed``, per channel plane: its mean QE
+    and its PRNU (the sample sd of the plane's QE map over its mean, ddof 1): {"quantum_efficiency":
+    {c: ...}, "prnu_frac": {c: ...}}. These are the realisation on the simulated pixels; the camera's
+    ``prnu_frac`` and :func:`channel_qe` are the values it is drawn from (the population), which the
+    model's ``prnu_percent`` and QE estimate (the model treats the pixels' pattern as one sample of
+    it: ``bayescap.model.prediction``'s ROI latents)."""
+    mosaic = _Mosaic(camera, np.random.default_rng(_seeds(seed)[0]))
+    planes = split_planes(mosaic.qe_map)
+    return {
+        "quantum_efficiency": {c: float(planes[c].mean()) for c in CHANNELS},
+        "prnu_frac": {c: float(np.std(planes[c], ddof=1) / planes[c].mean()) for c in CHANNELS},
+    }
+
+
 def simulate_cfa_pairs(camera: CFACamera, acq: CFAAcquisition, seed: int) -> list[dict]:
     """Flat and dark mosaic pairs per exposure: a list of {"photons_per_pixel", "exposure_time_s",
     "flat": (A, B), "dark": (A, B)} with uint16 (H, W) RGGB mosaics. The fixed pattern (PRNU) is
-    drawn once from ``seed``; same seed, same frames."""
-    ss = np.random.SeedSequence(seed)
-    map_seq, frame_seq = ss.spawn(2)
+    drawn once from ``seed`` (:func:`realized_pattern`); same seed, same frames."""
+    map_seq, frame_seq = _seeds(seed)
     mosaic = _Mosaic(camera, np.random.default_rng(map_seq))
     out = []
     for mu, seq in zip(acq.photons_per_pixel, frame_seq.spawn(len(acq.photons_per_pixel))):
@@ -237,6 +260,7 @@ def simulate_cfa_ptc(seed: int, camera: CFACamera | None = None, acq: CFAAcquisi
     """Photon-transfer rows per CFA channel from simulated mosaics, with the truth.
 
     Returns ``{"R"|"Gr"|"Gb"|"B": {"rows": {column: np.ndarray}, "metadata": {...}}, "truth": truth_of(...)}``;
+    ``truth["realized"]`` is the drawn pattern's own QE and PRNU per plane (:func:`realized_pattern`);
     each channel's ``rows`` + ``metadata`` make a contract table
     (``bayescap.io.ptc_csv.write_ptc_csv(rows, path, metadata=metadata)``), with the spatial columns
     (the pair's average, ``n_frames`` = 2) on every row so that PRNU is measurable.
@@ -293,4 +317,5 @@ def simulate_cfa_ptc(seed: int, camera: CFACamera | None = None, acq: CFAAcquisi
         }
     out["truth"] = truth_of(camera, acq.exposure_time_s)
     out["truth"]["seed"] = seed
+    out["truth"]["realized"] = realized_pattern(camera, seed)
     return out
