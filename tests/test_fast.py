@@ -572,28 +572,21 @@ def test_end_mcse_gate_tops_up_the_draws_until_the_ends_are_accurate(topup):
         target = 0.6 * max(d0["end_mcse"].values())  # out of reach of the default draws
         ch, dg = fast_posterior(model, seed=seed, settings=replace(base, end_mcse_max=target))
         assert dg["accepted"], dg["reason"]
-        # (with a target the first stage is a third of n_proposals, all of them where its check failed)
-        initial = base.n_proposals if dg["first_stage_grown"] else dg["n_first_stage"]
-        assert dg["n_topup"] > 0 and dg["n_proposals"] == initial + dg["n_topup"] <= base.max_proposals
+        assert dg["n_topup"] > 0 and dg["n_proposals"] == base.n_proposals + dg["n_topup"] <= base.max_proposals
         assert max(dg["end_mcse"].values()) <= target
         assert dg["n_draws"] > base.n_draws
         _assert_ends_near_exact(model, ch.chain.reshape(-1, 3), lambda j: 4 * target, seed)
 
 
-def test_targeted_top_up_needs_fewer_draws_and_aims_beyond_the_ends(monkeypatch):
+def test_targeted_top_up_needs_fewer_draws_and_aims_beyond_the_ends():
     """The targeted top-up (FastSettings.topup, the default) reaches a gate that the default draws
-    miss with fewer draws than more moment-matched ones (seeds 1-3, the same first 6 000 draws: the
-    first stage switched off, as the comparison is of the top-ups from the same draws; from the
-    2 000 of a first stage both need about the same on this Gaussian, 44 685 and 46 199 draws over
-    the three seeds, as they grow by the same factor each round), and its proposals sit beyond the ends
-    they aim at: the lower end's component at a location below the weighted 5 % quantile of its
-    quantity, the upper end's above the 95 % one."""
-    import bayescap.inference.fast as fast
+    miss with fewer draws than more moment-matched ones (seeds 1-3, the same first 6 000 draws), and
+    its proposals sit beyond the ends they aim at: the lower end's component at a location below the
+    weighted 5 % quantile of its quantity, the upper end's above the 95 % one."""
     from bayescap.inference.end_errors import _end_table, _end_values, interval_end_mcse
     from bayescap.inference.importance import psis_weights
     from bayescap.inference.proposals import _end_components
 
-    monkeypatch.setattr(fast, "FIRST_STAGE_FRACTION", 1.0)
     model = _gaussian_target()
     base = FastSettings(retry_restarts=0, end_mcse_max=None)
     used = {"targeted": 0, "global": 0}

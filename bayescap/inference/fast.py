@@ -15,15 +15,14 @@
 3. **Weights.** ``log p(x) − log q_mix(x)`` over all draws, against the mixture of all proposals
    (the balance heuristic), smoothed by PSIS (Vehtari, Simpson, Gelman, Yao & Gabry 2024, JMLR
    25(72); :func:`bayescap.inference.importance.psis_weights`), which also gives k̂.
-   **In stages.** When the top-up (4.) may add draws and the model has physical parameters to
-   judge, only ``FIRST_STAGE_FRACTION`` (a third) of ``n_proposals`` is drawn first, with the same
-   shares and rounds, and topped up as the whole set would be. Where those draws, or the top-up's,
-   fail the proposal's check (k̂, IS ESS), the attempt starts again with all ``n_proposals``, exactly
-   as without stages (same seed, same draws: the stage's draws are lost, ``n_first_stage`` and
-   ``first_stage_grown`` in the diagnostics); the stage alone is not trusted with a rejection or
-   with more rounds (more moment-matched rounds on a proposal that misses a tail lower k̂ without
-   reaching the tail: measured on a one-sided tail without the tail components). On the focal-plane
-   amplifiers 2 500–3 900 draws in all instead of 6 000–9 400, at the same targets.
+   **In stages** (off by default: ``fast_stages.FIRST_STAGE_FRACTION`` 1). With a fraction below 1,
+   when the top-up (4.) may add draws and the model has physical parameters to judge, only that
+   share of ``n_proposals`` is drawn first, with the same shares and rounds, and topped up as the
+   whole set would be; where those draws, or the top-up's, fail the proposal's check (k̂, IS ESS),
+   the attempt starts again with all ``n_proposals``, exactly as without stages (same seed, same
+   draws; ``n_first_stage`` and ``first_stage_grown`` in the diagnostics). A third cut the
+   focal-plane amplifiers' draws by ~60 % but narrowed the zoo's intervals by 1.8 % on average (the
+   fewer draws see less of the tails), so it is not used.
 4. **Top-up.** Each 95 % interval end's predicted Monte Carlo error is computed for every physical
    parameter and derived quantity (:mod:`bayescap.inference.end_errors`). While the worst is above
    the target, more draws are added, up to ``max_proposals``: by default t components aimed at the
@@ -61,7 +60,7 @@ import numpy as np
 from bayescap._blas import one_blas_thread
 from bayescap.inference.chains import ChainResult
 from bayescap.inference.coordinates import SamplerCoordinates, _sampler_coordinates
-from bayescap.inference.curvature import _proposal_cov, laplace_covariance, refine_covariance
+from bayescap.inference.curvature import laplace_covariance, refine_covariance
 from bayescap.inference.end_errors import (
     _END_PROBS,
     PerDrawValues,
@@ -69,30 +68,31 @@ from bayescap.inference.end_errors import (
     _end_table,
     _end_values,
     _joint_target,
-    _kept,
     _physical_fn,
     _weighted_kept,
     _within_logprob,
     _worst_end_mcse,
 )
-from bayescap.inference.importance import (
-    _systematic_resample,
-    _t_logpdf,
-    psis_weights,
-    student_t_draws,
-    student_t_logpdf,
+from bayescap.inference.fast_stages import (
+    _SAME_COV,
+    _SAME_SD,
+    _first_stage,
+    _initial_mixture,
+    _khat_limit,
+    _passes,
+    _resample,
+    _same_start,
+    _sorted_end_errors,
 )
-from bayescap.inference.mixture import _adaptive_rounds, _add_components, _DensityCache
+from bayescap.inference.importance import (
+    psis_weights,
+)
+from bayescap.inference.mixture import _adaptive_rounds, _add_components
 from bayescap.inference.optimize import find_map, laplace_start
 from bayescap.inference.presets import QUALITY_PRESETS, FastSettings
 from bayescap.inference.proposals import (
-    _clip_floor_proposal,
     _end_components,
-    _floor_top,
-    _pair_proposal,
     _tail_entry,
-    _tail_probe,
-    _tail_proposal,
 )
 from bayescap.model.ptc_model import PTCModel
 
@@ -176,125 +176,6 @@ def _mode_and_covariance(model, settings, x_map, cov, t0):
         cov = laplace_covariance(model, x_map)
         cov = refine_covariance(model, x_map, cov, max_iter=settings.refine_iter)
     return x_map, lp_map, cov, t_map
-
-
-def _initial_mixture(model, settings, rng, x_map, lp_map, cov):
-    """The first ``n_proposals`` draws: the Laplace t, the defensive components (wide t, clip floor,
-    long tails and a tail paired with the floor) and the adaptive rounds. Returns (draws, log p,
-    log q of the mixture, its components or None, the density cache, the tails, the pairs, the
-    draws of each tail or pair component)."""
-    nu = settings.nu
-    n2 = int(round(settings.adapt_fraction * settings.n_proposals))
-    n1 = settings.n_proposals - n2
-    c1 = _proposal_cov(cov, settings.scale)
-    # adapt_fraction 1 leaves nothing to adapt from: then every draw comes from the Laplace t
-    floor = (
-        isinstance(model, SamplerCoordinates)
-        and model.j is not None
-        and settings.clip_floor_fraction > 0
-        and n1 > 0
-        and n2 > 0
-    )
-    n_floor = int(round(settings.clip_floor_fraction * settings.n_proposals)) if floor else 0
-    # defensive components: the clip floor, and each long one-sided tail the probe finds
-    extra = []  # [(logpdf, draws)]
-    tails, pairs, n_each = [], [], 0
-    if n1 > 0 and n2 > 0 and settings.tail_fraction > 0:
-        skip = {(model.j, -1.0)} if floor else set()  # the clip floor covers that one
-        tails = _tail_probe(model, x_map, lp_map, c1, skip)
-        # the clip floor meets the farthest-reaching other tail (a sharp clip edge lets the clip
-        # level sit anywhere down to its bound while the clip spread is in its lower tail)
-        others = [t for t in tails if n_floor and t[0] != model.j]
-        pairs = [max(others, key=lambda t: t[3])] if others and settings.floor_pair else []
-        n_comp = max(len(tails) + len(pairs), 1)
-        n_each = min(
-            int(round(settings.tail_fraction * settings.n_proposals)),
-            int(settings.tail_max_fraction * settings.n_proposals) // n_comp,
-            (n2 // 2) // n_comp,
-        )
-        if n_each <= 0:
-            tails, pairs = [], []
-        n2 -= n_each * (len(tails) + len(pairs))  # the same number of draws in all
-    # a defensive t, wide_scale × wider than the Laplace t (Hesterberg 1995): it bounds the weights
-    # where the posterior reaches further than the Laplace and the moment-matched rounds, whose
-    # weighted moments cannot see draws they never made (on small ROIs the heaviest weights can sit
-    # 2–3 Laplace sds out, where only a much larger sample finds them)
-    n_wide = min(int(round(settings.wide_fraction * settings.n_proposals)), n2 // 2) if n1 > 0 and n2 > 0 else 0
-    n2 -= n_wide  # (at most half of what the rounds have left)
-    x1, _ = student_t_draws(x_map, c1, nu, (n1 - n_floor) if n1 > 0 else n2, rng)
-    if n_wide:
-        c_w = c1 * float(settings.wide_scale) ** 2
-        extra.append((_t_logpdf(x_map, c_w, nu), student_t_draws(x_map, c_w, nu, n_wide, rng)[0]))
-    if n_floor:
-        draw_f, pdf_f = _clip_floor_proposal(model, x_map, c1, nu)
-        extra.append((pdf_f, draw_f(n_floor, rng)[0]))
-    for j, _, v, reach in tails:
-        draw_t, pdf_t = _tail_proposal(x_map, c1, nu, j, v, reach)
-        extra.append((pdf_t, draw_t(n_each, rng)[0]))
-    for j, side, _, reach in pairs:
-        draw_p, pdf_p = _pair_proposal(x_map, c1, nu, (j, side, reach), (model.j, _floor_top(x_map, c1, model.j)))
-        extra.append((pdf_p, draw_p(n_each, rng)[0]))
-    n_t = x1.shape[0]
-    x1 = np.vstack([x1] + [xe for _, xe in extra])  # one log_prob call for all
-    with np.errstate(all="ignore"):
-        lp1 = model.log_prob(x1)
-    cache = _DensityCache()
-    if n1 > 0 and n2 > 0:
-        comps = [(_t_logpdf(x_map, c1, nu), x1[:n_t], lp1[:n_t], (x_map, c1))]
-        at = n_t
-        for pdf_e, xe in extra:
-            comps.append((pdf_e, x1[at : at + len(xe)], lp1[at : at + len(xe)], None))
-            at += len(xe)
-        x, logp, logq, comps = _adaptive_rounds(model, settings, rng, comps, n2, cache)
-    else:
-        x, logp, logq, comps = x1, lp1, student_t_logpdf(x1, x_map, c1, nu), None
-    return x, logp, logq, comps, cache, tails, pairs, n_each
-
-
-def _resample(w, n, rng, values=None):
-    """Indices of ``n`` equally weighted draws from weights ``w`` (systematic resampling), shuffled.
-    ``values``: a quantity's values on the kept draws (:func:`_kept`): the kept draws are then
-    resampled in its order, so that the count of resampled draws at or below each of its values is
-    n times their weight to within one draw (:func:`_sorted_end_errors`)."""
-    if values is None:
-        idx = _systematic_resample(w, n, rng)
-    else:
-        kept = np.flatnonzero(_kept(w))
-        o = np.argsort(values, kind="stable")
-        wo = w[kept][o]
-        idx = kept[o][_systematic_resample(wo / np.sum(wo), n, rng)]
-    return idx[rng.permutation(n)]
-
-
-def _sorted_end_errors(values, w, n_resampled):
-    """:func:`bayescap.inference.end_errors._end_errors` of a quantity whose draws are resampled in the
-    order of its own values (systematic resampling): the count of the ``n_resampled`` draws below
-    an end is then n·F̂ to within one draw (not the random count whose variance ~p(1 − p)/n
-    :func:`_end_errors` adds), so the resampling adds at most (1/n)² to the variance of F̂ (taken
-    whole). Where a long tail lies beyond an end the random count's error dominates: on focal-plane
-    amplifiers the clip level's upper end stayed at 0.03–0.06 of the width through 4 000–21 000
-    draws for it alone. None when the values are not all finite."""
-    v = np.asarray(values, float)
-    if not np.all(np.isfinite(v)):
-        return None
-    o = np.argsort(v)
-    v, ws = v[o], w[o]
-    F = np.cumsum(ws)
-    F /= F[-1]
-    ws = ws / np.sum(ws)
-    width = np.interp(0.975, F, v) - np.interp(0.025, F, v)
-    if not width > 0:
-        return [0.0 for _ in _END_PROBS]
-    c2 = np.cumsum(ws * ws)
-    out = []
-    for p in _END_PROBS:
-        q = np.interp(p, F, v)
-        k = int(np.searchsorted(v, q, side="right")) - 1
-        below = c2[k] if k >= 0 else 0.0
-        var = (1.0 - p) ** 2 * below + p * p * (c2[-1] - below) + (1.0 / float(n_resampled)) ** 2
-        se = float(np.sqrt(max(var, 0.0)))
-        out.append(float(0.5 * (np.interp(min(p + se, 1.0), F, v) - np.interp(max(p - se, 0.0), F, v)) / width))
-    return out
 
 
 def _top_up(model, settings, rng, derived_fn, x, logp, logq, comps, cache, n_draws, default_n):
@@ -413,35 +294,6 @@ def _top_up(model, settings, rng, derived_fn, x, logp, logq, comps, cache, n_dra
         xk, wk, vals, mcse, ends, worst, target = full_table()
     order = None if key is None else (key, np.asarray(vals[key], float))
     return x, logp, w, khat, ess, mcse, ends, worst, target, n_out, n_topup, comps, order
-
-
-#: the first stage's share of ``n_proposals`` (:func:`_first_stage`), and its least number of draws
-FIRST_STAGE_FRACTION, FIRST_STAGE_MIN = 1 / 3, 1000
-
-
-def _first_stage(settings):
-    """The draws of the first stage: ``FIRST_STAGE_FRACTION`` of ``n_proposals`` (at least
-    ``FIRST_STAGE_MIN``) when the top-up may add draws towards an interval-end target (the stage's
-    draws then grow only where that target or the proposal's check asks for more); else all
-    ``n_proposals`` at once (and so too for a model without physical parameters, whose draws no
-    interval end judges: :func:`_fast_once`)."""
-    n = int(settings.n_proposals)
-    if settings.end_mcse_max is None or settings.max_proposals <= n:
-        return n
-    return min(n, max(int(FIRST_STAGE_MIN), int(round(FIRST_STAGE_FRACTION * n))))
-
-
-def _passes(settings, khat, ess, n):
-    """The proposal's own check on ``n`` draws: k̂ below :func:`_khat_limit` and the IS ESS at least
-    ``min_ess_is``."""
-    return bool(khat < _khat_limit(settings, n) and ess >= settings.min_ess_is)
-
-
-def _khat_limit(settings, n):
-    """The largest k̂ accepted for ``n`` draws: ``khat_max``, and at most the PSIS paper's
-    sample-size threshold 1 − 1/log₁₀ n (Vehtari et al. 2024, §3.2.1: below it, k̂ < 0.7 is not
-    enough for n < 2 155 draws)."""
-    return min(float(settings.khat_max), 1.0 - 1.0 / np.log10(max(n, 11)))
 
 
 def _fast_once(model, seed, n_draws, settings, x_map, cov, derived_fn=None):
@@ -585,11 +437,6 @@ def _fast_once(model, seed, n_draws, settings, x_map, cov, derived_fn=None):
     return chains, diag
 
 
-#: the retry's start is the first attempt's when its MAP is within this many posterior sds
-#: (Mahalanobis, the first covariance) and its whitened covariance within this of the identity
-_SAME_SD, _SAME_COV = 0.02, 0.05
-
-
 def _attempt_start(model, settings):
     """Where an attempt of the fast path starts: (sampler coordinates or None, MAP, log p there,
     Laplace covariance, both in those coordinates, seconds taken)."""
@@ -617,25 +464,6 @@ def _attempt(model, seed, n_draws, settings, x_map, cov, derived_fn, start):
     diag["wall_s"] += t
     chains.wall_s += t
     return chains, diag
-
-
-def _same_start(a, b):
-    """Whether two :func:`_attempt_start` results are one start (module constants ``_SAME_SD``,
-    ``_SAME_COV``): the same coordinates, MAP and covariance to well within the Monte Carlo noise."""
-    if a is None or b is None or (a[0] is None) != (b[0] is None):
-        return False
-    x1, c1, x2, c2 = a[1], a[3], b[1], b[3]
-    if not (np.all(np.isfinite(x1)) and np.all(np.isfinite(x2)) and np.isfinite(a[2]) and np.isfinite(b[2])):
-        return False
-    try:
-        L = np.linalg.cholesky(c1)
-    except np.linalg.LinAlgError:
-        return False
-    d = np.linalg.solve(L, x2 - x1)
-    W = np.linalg.solve(L, np.linalg.solve(L, c2).T)  # L⁻¹ C₂ L⁻ᵀ
-    if not np.all(np.isfinite(W)):
-        return False
-    return bool(np.sqrt(d @ d) <= _SAME_SD and np.max(np.abs(W - np.eye(W.shape[0]))) <= _SAME_COV)
 
 
 @one_blas_thread
