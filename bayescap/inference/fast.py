@@ -221,7 +221,8 @@ def _top_up(model, settings, rng, derived_fn, x, logp, logq, comps, cache, n_dra
         xk_, wk_, vals_ = _end_values(model, x, w, derived_fn, phys=phys)
         key = None
         mcse_, ends_ = table(vals_, wk_)
-        cand = [n for n in mcse_ if n in params and np.isfinite(mcse_[n])]
+        # (only with a gate on the ends: without one, as for the MCMC's start, the order is not needed)
+        cand = [n for n in mcse_ if gate is not None and n in params and np.isfinite(mcse_[n])]
         if cand:
             key = max(cand, key=lambda n: mcse_[n])
             mcse_, ends_ = table(vals_, wk_, mcse_, ends_)
