@@ -4,6 +4,7 @@
 
     python benchmarks/run.py focal_plane                 # writes benchmarks/results/focal_plane.md
     python benchmarks/focal_plane.py --n-tables 64       # a small run (the file gives the command)
+    python benchmarks/focal_plane.py --n-tables 192 --runs pool   # the local pool only (no comparison)
 
 The tables come from :func:`bayescap.validation.astro.focal_plane` (gain 0.6–1.8 e⁻/ADU, read noise
 3–10 e⁻, brighter-fatter a₀₀ −(1–3)·10⁻⁶ per e⁻, 40–400 flat pairs, 32 × 32 pixels per amplifier,
@@ -98,7 +99,15 @@ def main(argv=None):
     ap.add_argument("--workers", type=int, default=2, help="--dask and --jobs workers (default 2)")
     ap.add_argument("--gen-jobs", type=int, default=2, help="processes simulating the tables (default 2)")
     ap.add_argument("--keep", default=None, help="keep the two output folders under this folder")
+    ap.add_argument(
+        "--runs",
+        default="dask,pool",
+        help="which runs: dask, pool or both (default dask,pool; with one, no comparison between them)",
+    )
     a = ap.parse_args(argv)
+    runs = [r for r in ("dask", "pool") if r in a.runs.split(",")]
+    if not runs:
+        ap.error("--runs: dask, pool or dask,pool")
     from _machine import describe_machine, emit
     from astro_tables import check_supported
 
@@ -118,15 +127,16 @@ def main(argv=None):
     try:
         for sub in ("dask", "pool"):
             shutil.rmtree(tmp / sub, ignore_errors=True)
-        t_dask, cpu_dask, c_dask = run_cli(paths, tmp / "dask", ["--dask", str(a.workers)], tmp / "dask.log")
-        t_pool, cpu_pool, c_pool = run_cli(paths, tmp / "pool", ["--jobs", str(a.workers)], tmp / "pool.log")
+        flag = {"dask": "--dask", "pool": "--jobs"}
+        timed = {sub: run_cli(paths, tmp / sub, [flag[sub], str(a.workers)], tmp / f"{sub}.log") for sub in runs}
         load1 = _load()
         recs, same, both = [], 0, 0
-        missing = {"dask": 0, "pool": 0}
+        missing = {sub: 0 for sub in runs}
+        scored = runs[0]  # the run scored against the truths
         for p in paths:
             name = p.stem
             docs = {}
-            for sub in ("dask", "pool"):
+            for sub in runs:
                 f = tmp / sub / name / "result.json"
                 if f.exists():
                     docs[sub] = json.loads(f.read_text())
@@ -135,14 +145,14 @@ def main(argv=None):
             if len(docs) == 2:
                 both += 1
                 same += _numbers(docs["dask"]) == _numbers(docs["pool"])
-            if "dask" in docs:
+            if scored in docs:
                 amp = name.rsplit("-", 1)[0]
-                sc = score_astro(truths[amp], docs["dask"])
+                sc = score_astro(truths[amp], docs[scored])
                 sc["name"] = amp
-                sc["converged"] = bool(docs["dask"].get("diagnostics", {}).get("converged"))
-                sc["laplace_is"] = docs["dask"].get("diagnostics", {}).get("method") == "laplace-is"
+                sc["converged"] = bool(docs[scored].get("diagnostics", {}).get("converged"))
+                sc["laplace_is"] = docs[scored].get("diagnostics", {}).get("method") == "laplace-is"
                 recs.append(sc)
-        tails = {sub: (tmp / f"{sub}.log").read_text().strip().splitlines()[-3:] for sub in ("dask", "pool")}
+        tails = {sub: (tmp / f"{sub}.log").read_text().strip().splitlines()[-3:] for sub in runs}
     finally:
         if not a.keep:
             shutil.rmtree(tmp, ignore_errors=True)
@@ -156,6 +166,17 @@ def main(argv=None):
         ["git", "rev-parse", "--short", "HEAD"], cwd=ROOT, capture_output=True, text=True
     ).stdout.strip()
     cmd = f"python benchmarks/focal_plane.py --n-tables {a.n_tables} --workers {a.workers}"
+    if runs != ["dask", "pool"]:
+        cmd += f" --runs {','.join(runs)}"
+    label = {
+        "dask": f"`--dask {a.workers}` (a new LocalCluster, its start-up included)",
+        "pool": f"`--jobs {a.workers}` (the local process pool)",
+    }
+    rows = [
+        f"| {label[sub]} | {t:.1f} | {n / t:.1f} | {cpu:.0f} | {cpu / n:.2f} | {code} | {n - missing[sub]}/{n} "
+        f"| {_verdict(t, n)} |"
+        for sub, (t, cpu, code) in timed.items()
+    ]
     L = [
         "# A focal plane as one batch: amplifier PTC tables through `bayescap fit --dask` and the local pool",
         "",
@@ -171,19 +192,20 @@ def main(argv=None):
         "",
         "| run | wall (s) | tables/s | CPU (s) | CPU per table (s) | exit | result.json written | target: 3 024 tables ≤ 300 s |",
         "|---|---:|---:|---:|---:|---|---|---|",
-        f"| `--dask {a.workers}` (a new LocalCluster, its start-up included) | {t_dask:.1f} | {n / t_dask:.1f} "
-        f"| {cpu_dask:.0f} | {cpu_dask / n:.2f} | {c_dask} | {n - missing['dask']}/{n} | {_verdict(t_dask, n)} |",
-        f"| `--jobs {a.workers}` (the local process pool) | {t_pool:.1f} | {n / t_pool:.1f} "
-        f"| {cpu_pool:.0f} | {cpu_pool / n:.2f} | {c_pool} | {n - missing['pool']}/{n} | {_verdict(t_pool, n)} |",
+        *rows,
         "",
         "CPU: user + system seconds of the command and every process it started (workers, Dask's "
         "scheduler and nannies), from `getrusage(RUSAGE_CHILDREN)`: less sensitive than the wall time to other "
         f"work on the machine. On {a.workers} cores the wall time cannot fall below CPU / {a.workers}.",
         "",
-        f"Same numbers: {same} of {both} amplifiers' `result.json` identical between the two runs (wall times "
-        "and the `batch` entry aside).",
+        (
+            f"Same numbers: {same} of {both} amplifiers' `result.json` identical between the two runs (wall times "
+            "and the `batch` entry aside)."
+            if len(runs) == 2
+            else f"Only the `{runs[0]}` run (`--runs {runs[0]}`): no comparison between the two."
+        ),
         "",
-        "## Against the truths (the `--dask` run)",
+        f"## Against the truths (the `{'--dask' if scored == 'dask' else '--jobs'}` run)",
         "",
         "| check | result |",
         "|---|---|",
@@ -210,7 +232,7 @@ def main(argv=None):
             f"{100 * np.median(kerr):.2f} % | {sum(abs(r['read_rel_err']) < 0.1 for r in rs)} | "
             f"{100 * np.nanmax([abs(r['read_rel_err']) for r in rs]):.1f} % |"
         )
-    if c_dask or c_pool:
+    if any(code for _, _, code in timed.values()):
         L += ["", "Last lines of the runs' output:", ""]
         for sub, lines in tails.items():
             L += [f"- `{sub}`: " + " / ".join(x.strip() for x in lines)]

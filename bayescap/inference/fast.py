@@ -15,6 +15,14 @@
 3. **Weights.** ``log p(x) − log q_mix(x)`` over all draws, against the mixture of all proposals
    (the balance heuristic), smoothed by PSIS (Vehtari, Simpson, Gelman, Yao & Gabry 2024, JMLR
    25(72); :func:`bayescap.inference.importance.psis_weights`), which also gives k̂.
+   **In stages** (off by default: ``fast_stages.FIRST_STAGE_FRACTION`` 1). With a fraction below 1,
+   when the top-up (4.) may add draws and the model has physical parameters to judge, only that
+   share of ``n_proposals`` is drawn first, with the same shares and rounds, and topped up as the
+   whole set would be; where those draws, or the top-up's, fail the proposal's check (k̂, IS ESS),
+   the attempt starts again with all ``n_proposals``, exactly as without stages (same seed, same
+   draws; ``n_first_stage`` and ``first_stage_grown`` in the diagnostics). A third cut the
+   focal-plane amplifiers' draws by ~60 % but narrowed the zoo's intervals by 1.8 % on average (the
+   fewer draws see less of the tails), so it is not used.
 4. **Top-up.** Each 95 % interval end's predicted Monte Carlo error is computed for every physical
    parameter and derived quantity (:mod:`bayescap.inference.end_errors`). While the worst is above
    the target, more draws are added, up to ``max_proposals``: by default t components aimed at the
@@ -25,11 +33,14 @@
    are weighted draws after a top-up, unless the caller set ``n_draws``), shuffled.
 
 **Its own diagnostic.** The draws are accepted when k̂ < ``khat_max`` (0.7, the PSIS paper's
-threshold for a few thousand draws), the importance-sampling ESS ``1/Σw²`` ≥ ``min_ess_is`` (200)
+threshold for a few thousand draws; below 2 155 draws its 1 − 1/log₁₀ n, which is lower), the importance-sampling ESS ``1/Σw²`` ≥ ``min_ess_is`` (200)
 and the interval-end target is met. Otherwise they must not be used: ``diag["accepted"]`` is False
 with the reason, and ``bayescap.fit(quality="fast")`` falls back to MCMC. A rejection by k̂ or the
 ESS is retried once with ``retry_restarts`` optimiser starts, optimising in the model's
-coordinates first (``polish_both``); one by the interval-end target alone is not.
+coordinates first (``polish_both``); one by the interval-end target alone is not. When the restarts
+end at the first attempt's MAP and covariance (within 0.02 posterior sd and 0.05 of the whitened
+covariance), the importance sampling is not repeated: the same proposals and seed give the same
+draws and verdict (``diag["retry_skipped"]`` says so).
 
 The draws come back as a :class:`bayescap.inference.chains.ChainResult` with ``chain`` shaped
 ``(1, n_draws, 1, ndim)`` (one "ensemble", one "walker") and ``extra = {"method": "laplace-is",
@@ -49,8 +60,9 @@ import numpy as np
 from bayescap._blas import one_blas_thread
 from bayescap.inference.chains import ChainResult
 from bayescap.inference.coordinates import SamplerCoordinates, _sampler_coordinates
-from bayescap.inference.curvature import _proposal_cov, laplace_covariance, refine_covariance
+from bayescap.inference.curvature import laplace_covariance, refine_covariance
 from bayescap.inference.end_errors import (
+    _END_PROBS,
     PerDrawValues,
     _all_ends,
     _end_table,
@@ -61,24 +73,26 @@ from bayescap.inference.end_errors import (
     _within_logprob,
     _worst_end_mcse,
 )
-from bayescap.inference.importance import (
-    _systematic_resample,
-    _t_logpdf,
-    psis_weights,
-    student_t_draws,
-    student_t_logpdf,
+from bayescap.inference.fast_stages import (
+    _SAME_COV,
+    _SAME_SD,
+    _first_stage,
+    _initial_mixture,
+    _khat_limit,
+    _passes,
+    _resample,
+    _same_start,
+    _sorted_end_errors,
 )
-from bayescap.inference.mixture import _adaptive_rounds, _add_components, _DensityCache
+from bayescap.inference.importance import (
+    psis_weights,
+)
+from bayescap.inference.mixture import _adaptive_rounds, _add_components
 from bayescap.inference.optimize import find_map, laplace_start
 from bayescap.inference.presets import QUALITY_PRESETS, FastSettings
 from bayescap.inference.proposals import (
-    _clip_floor_proposal,
     _end_components,
-    _floor_top,
-    _pair_proposal,
     _tail_entry,
-    _tail_probe,
-    _tail_proposal,
 )
 from bayescap.model.ptc_model import PTCModel
 
@@ -87,12 +101,11 @@ __all__ = ["fast_posterior", "METHOD"]
 METHOD = "laplace-is"
 
 
-def _fast_in_coordinates(model, wrapped, seed, n_draws, settings, derived_fn):
-    """:func:`_fast_once` in the sampler coordinates ``wrapped``: Newton from every start mapped into
-    them (:func:`laplace_start`'s ``coords``), the importance draws there, and the result mapped back
-    to the model's coordinates (draws, their log p without the Jacobian, the MAP)."""
+def _start_in_coordinates(model, wrapped, settings):
+    """The MAP, its log p and the Laplace covariance in the sampler coordinates ``wrapped``: Newton
+    from every start mapped into them (:func:`laplace_start`'s ``coords``), and the seconds taken."""
     t0 = time.perf_counter()
-    z0, _, cz, _ = laplace_start(
+    z0, lp0, cz, _ = laplace_start(
         model,
         n_restarts=settings.n_restarts,
         refine_iter=settings.refine_iter,
@@ -100,7 +113,14 @@ def _fast_in_coordinates(model, wrapped, seed, n_draws, settings, derived_fn):
         coords=wrapped,
         polish_both=settings.polish_both,
     )
-    t_start = time.perf_counter() - t0
+    return z0, lp0, cz, time.perf_counter() - t0
+
+
+def _fast_in_coordinates(model, wrapped, seed, n_draws, settings, derived_fn, start=None):
+    """:func:`_fast_once` in the sampler coordinates ``wrapped``: from :func:`_start_in_coordinates`
+    (``start``: its result, computed here when None), the importance draws there, and the result
+    mapped back to the model's coordinates (draws, their log p without the Jacobian, the MAP)."""
+    z0, _, cz, t_start = _start_in_coordinates(model, wrapped, settings) if start is None else start
     d_fn = None if derived_fn is None else _InCoordinates(derived_fn, wrapped)
     chains, diag = _fast_once(wrapped, seed, n_draws, settings, z0, cz, d_fn)
     diag["wall_map_s"] += t_start
@@ -158,84 +178,12 @@ def _mode_and_covariance(model, settings, x_map, cov, t0):
     return x_map, lp_map, cov, t_map
 
 
-def _initial_mixture(model, settings, rng, x_map, lp_map, cov):
-    """The first ``n_proposals`` draws: the Laplace t, the defensive components (wide t, clip floor,
-    long tails and a tail paired with the floor) and the adaptive rounds. Returns (draws, log p,
-    log q of the mixture, its components or None, the density cache, the tails, the pairs, the
-    draws of each tail or pair component)."""
-    nu = settings.nu
-    n2 = int(round(settings.adapt_fraction * settings.n_proposals))
-    n1 = settings.n_proposals - n2
-    c1 = _proposal_cov(cov, settings.scale)
-    # adapt_fraction 1 leaves nothing to adapt from: then every draw comes from the Laplace t
-    floor = (
-        isinstance(model, SamplerCoordinates)
-        and model.j is not None
-        and settings.clip_floor_fraction > 0
-        and n1 > 0
-        and n2 > 0
-    )
-    n_floor = int(round(settings.clip_floor_fraction * settings.n_proposals)) if floor else 0
-    # defensive components: the clip floor, and each long one-sided tail the probe finds
-    extra = []  # [(logpdf, draws)]
-    tails, pairs, n_each = [], [], 0
-    if n1 > 0 and n2 > 0 and settings.tail_fraction > 0:
-        skip = {(model.j, -1.0)} if floor else set()  # the clip floor covers that one
-        tails = _tail_probe(model, x_map, lp_map, c1, skip)
-        # the clip floor meets the farthest-reaching other tail (a sharp clip edge lets the clip
-        # level sit anywhere down to its bound while the clip spread is in its lower tail)
-        others = [t for t in tails if n_floor and t[0] != model.j]
-        pairs = [max(others, key=lambda t: t[3])] if others and settings.floor_pair else []
-        n_comp = max(len(tails) + len(pairs), 1)
-        n_each = min(
-            int(round(settings.tail_fraction * settings.n_proposals)),
-            int(settings.tail_max_fraction * settings.n_proposals) // n_comp,
-            (n2 // 2) // n_comp,
-        )
-        if n_each <= 0:
-            tails, pairs = [], []
-        n2 -= n_each * (len(tails) + len(pairs))  # the same number of draws in all
-    # a defensive t, wide_scale × wider than the Laplace t (Hesterberg 1995): it bounds the weights
-    # where the posterior reaches further than the Laplace and the moment-matched rounds, whose
-    # weighted moments cannot see draws they never made (on small ROIs the heaviest weights can sit
-    # 2–3 Laplace sds out, where only a much larger sample finds them)
-    n_wide = min(int(round(settings.wide_fraction * settings.n_proposals)), n2 // 2) if n1 > 0 and n2 > 0 else 0
-    n2 -= n_wide  # (at most half of what the rounds have left)
-    x1, _ = student_t_draws(x_map, c1, nu, (n1 - n_floor) if n1 > 0 else n2, rng)
-    if n_wide:
-        c_w = c1 * float(settings.wide_scale) ** 2
-        extra.append((_t_logpdf(x_map, c_w, nu), student_t_draws(x_map, c_w, nu, n_wide, rng)[0]))
-    if n_floor:
-        draw_f, pdf_f = _clip_floor_proposal(model, x_map, c1, nu)
-        extra.append((pdf_f, draw_f(n_floor, rng)[0]))
-    for j, _, v, reach in tails:
-        draw_t, pdf_t = _tail_proposal(x_map, c1, nu, j, v, reach)
-        extra.append((pdf_t, draw_t(n_each, rng)[0]))
-    for j, side, _, reach in pairs:
-        draw_p, pdf_p = _pair_proposal(x_map, c1, nu, (j, side, reach), (model.j, _floor_top(x_map, c1, model.j)))
-        extra.append((pdf_p, draw_p(n_each, rng)[0]))
-    n_t = x1.shape[0]
-    x1 = np.vstack([x1] + [xe for _, xe in extra])  # one log_prob call for all
-    with np.errstate(all="ignore"):
-        lp1 = model.log_prob(x1)
-    cache = _DensityCache()
-    if n1 > 0 and n2 > 0:
-        comps = [(_t_logpdf(x_map, c1, nu), x1[:n_t], lp1[:n_t], (x_map, c1))]
-        at = n_t
-        for pdf_e, xe in extra:
-            comps.append((pdf_e, x1[at : at + len(xe)], lp1[at : at + len(xe)], None))
-            at += len(xe)
-        x, logp, logq, comps = _adaptive_rounds(model, settings, rng, comps, n2, cache)
-    else:
-        x, logp, logq, comps = x1, lp1, student_t_logpdf(x1, x_map, c1, nu), None
-    return x, logp, logq, comps, cache, tails, pairs, n_each
-
-
 def _top_up(model, settings, rng, derived_fn, x, logp, logq, comps, cache, n_draws, default_n):
     """PSIS weights of the draws and, where an interval end's predicted Monte Carlo error is above
     the target, more draws until it is not (at most ``max_proposals`` in all). Returns (draws, log p,
     weights, k̂, IS ESS, {name: worst end's error}, {name: ends' errors}, the worst, the target,
-    the draws to resample, the draws added)."""
+    the draws to resample, the draws added, the mixture's components, the resampling's order: None or
+    (a parameter's name, its values on the kept draws))."""
     w, khat, ess = psis_weights(logp - logq)
     khat, ess = float(khat), float(ess)
     gate, tol, conf = settings.end_mcse_max, settings.end_tolerance, settings.end_confidence
@@ -249,12 +197,37 @@ def _top_up(model, settings, rng, derived_fn, x, logp, logq, comps, cache, n_dra
     if derived_fn is not None and getattr(derived_fn, "per_draw", False):
         derived_fn = PerDrawValues(derived_fn)
 
+    # the physical parameters (their errors are this path's; a derived quantity's FitResult computes
+    # again, for randomly ordered resampling): one of them may be the resampling's order
+    params = set(_end_values(model, x, w, None, phys=phys)[2]) if phys is not None else set()
+    key = None  # the parameter the draws are resampled in the order of (_sorted_end_errors)
+
+    def table(vals_, wk_, mcse_=None, ends_=None):
+        """:func:`_end_table` of ``vals_`` (given: only the resampling order's entry), the
+        resampling-order parameter's by :func:`_sorted_end_errors`."""
+        if mcse_ is None:
+            mcse_, ends_ = _end_table(vals_, wk_, n_out)
+        if key in vals_:
+            errs = _sorted_end_errors(vals_[key], wk_, n_out)
+            ends_[key] = [float("nan")] * len(_END_PROBS) if errs is None else errs
+            mcse_[key] = float("nan") if errs is None else max(errs)
+        return mcse_, ends_
+
     def full_table():
         """Every quantity's interval-end errors on the current draws: (kept draws, weights, values,
-        {name: worst end}, {name: ends}, the worst, the per-end target)."""
+        {name: worst end}, {name: ends}, the worst, the per-end target). The parameter whose ends are
+        worst for randomly ordered resampling becomes the resampling's order (``key``)."""
+        nonlocal key
         xk_, wk_, vals_ = _end_values(model, x, w, derived_fn, phys=phys)
-        mcse_, ends_ = _end_table(vals_, wk_, n_out)
-        return xk_, wk_, vals_, mcse_, ends_, _worst_end_mcse(mcse_), _joint_target(_all_ends(ends_), tol, conf, gate)
+        key = None
+        mcse_, ends_ = table(vals_, wk_)
+        # (only with a gate on the ends: without one, as for the MCMC's start, the order is not needed)
+        cand = [n for n in mcse_ if gate is not None and n in params and np.isfinite(mcse_[n])]
+        if cand:
+            key = max(cand, key=lambda n: mcse_[n])
+            mcse_, ends_ = table(vals_, wk_, mcse_, ends_)
+        worst_, target_ = _worst_end_mcse(mcse_), _joint_target(_all_ends(ends_), tol, conf, gate)
+        return xk_, wk_, vals_, mcse_, ends_, worst_, target_
 
     xk, wk, vals, mcse, ends, worst, target = full_table()
     # more draws until every interval end's predicted Monte Carlo error is below the target (its
@@ -265,7 +238,7 @@ def _top_up(model, settings, rng, derived_fn, x, logp, logq, comps, cache, n_dra
         target is not None
         and comps is not None
         and worst > target
-        and khat < settings.khat_max
+        and khat < _khat_limit(settings, x.shape[0])
         and x.shape[0] < settings.max_proposals
     ):
         want = x.shape[0] * (1.1 * (worst / target) ** 2 - 1.0)
@@ -301,7 +274,7 @@ def _top_up(model, settings, rng, derived_fn, x, logp, logq, comps, cache, n_dra
             xk, wk, vals, mcse, ends, worst, target = full_table()
             continue
         xk, wk, vals = _end_values(model, x, w, derived_fn, names=watch, phys=phys)
-        part, part_ends = _end_table(vals, wk, n_out)
+        part, part_ends = table(vals, wk)
         partial = not _worst_end_mcse(part) <= target
         if not partial:
             xk, wk, vals, mcse, ends, worst, target = full_table()
@@ -317,9 +290,11 @@ def _top_up(model, settings, rng, derived_fn, x, logp, logq, comps, cache, n_dra
             # rejected with draws to spare
             xk, wk, vals, mcse, ends, worst, target = full_table()
             partial = False
-    if n_topup and partial:  # the rounds stopped above the target: every quantity's error, as reported
+    if (n_topup and partial) or (key is not None and key not in vals):
+        # the rounds stopped above the target: every quantity's error, as reported
         xk, wk, vals, mcse, ends, worst, target = full_table()
-    return x, logp, w, khat, ess, mcse, ends, worst, target, n_out, n_topup
+    order = None if key is None else (key, np.asarray(vals[key], float))
+    return x, logp, w, khat, ess, mcse, ends, worst, target, n_out, n_topup, comps, order
 
 
 def _fast_once(model, seed, n_draws, settings, x_map, cov, derived_fn=None):
@@ -333,23 +308,40 @@ def _fast_once(model, seed, n_draws, settings, x_map, cov, derived_fn=None):
     n_draws = int(settings.n_draws if default_n else n_draws)
     x_map, lp_map, cov, t_map = _mode_and_covariance(model, settings, x_map, cov, t0)
     t_lap = time.perf_counter()
-    rng = np.random.default_rng(np.random.SeedSequence(seed).spawn(1)[0])
-    x, logp, logq, comps, cache, tails, pairs, n_each = _initial_mixture(model, settings, rng, x_map, lp_map, cov)
-    x, logp, w, khat, ess, mcse, ends, worst, target, n_out, n_topup = _top_up(
-        model, settings, rng, derived_fn, x, logp, logq, comps, cache, n_draws, default_n
-    )
+    n_first = _first_stage(settings) if _physical_fn(model) is not None else settings.n_proposals
+    staged = n_first < settings.n_proposals
+    if staged:
+        # the first stage: its draws are judged (k̂, IS ESS) and topped up as the whole set would be
+        first = replace(settings, n_proposals=n_first)
+        rng = np.random.default_rng(np.random.SeedSequence(seed).spawn(1)[0])
+        x, logp, logq, comps, cache, tails, pairs, n_each = _initial_mixture(model, first, rng, x_map, lp_map, cov)
+        ok = comps is not None and _passes(settings, *psis_weights(logp - logq)[1:], x.shape[0])
+        if ok:
+            x, logp, w, khat, ess, mcse, ends, worst, target, n_out, n_topup, _, order = _top_up(
+                model, first, rng, derived_fn, x, logp, logq, comps, cache, n_draws, default_n
+            )
+            ok = _passes(settings, khat, ess, x.shape[0])
+        staged = ok
+    if not staged:
+        # all n_proposals at once (the stage's draws, or the top-up's, failed the proposal's check:
+        # then from the start again, as without stages: the same seed, the same draws)
+        rng = np.random.default_rng(np.random.SeedSequence(seed).spawn(1)[0])
+        x, logp, logq, comps, cache, tails, pairs, n_each = _initial_mixture(model, settings, rng, x_map, lp_map, cov)
+        x, logp, w, khat, ess, mcse, ends, worst, target, n_out, n_topup, _, order = _top_up(
+            model, settings, rng, derived_fn, x, logp, logq, comps, cache, n_draws, default_n
+        )
     gate, tol, conf = settings.end_mcse_max, settings.end_tolerance, settings.end_confidence
     p_within = float(np.exp(_within_logprob(_all_ends(ends), tol)))
     n_draws = n_out
     n_outside = int(np.sum(~np.isfinite(logp)))
     t_is = time.perf_counter()
-    idx = _systematic_resample(w, n_draws, rng)
-    idx = idx[rng.permutation(n_draws)]
+    idx = _resample(w, n_draws, rng, None if order is None else order[1])
     draws = x[idx]
     lp = logp[idx]
     reasons = []
-    if not khat < settings.khat_max:
-        reasons.append(f"Pareto k̂ {khat:.2f} ≥ {settings.khat_max:g}")
+    khat_limit = _khat_limit(settings, x.shape[0])
+    if not khat < khat_limit:
+        reasons.append(f"Pareto k̂ {khat:.2f} ≥ {khat_limit:.3g}")
     if not ess >= settings.min_ess_is:
         reasons.append(f"importance-sampling ESS {ess:.0f} < {settings.min_ess_is:g}")
     if not np.isfinite(lp_map):
@@ -378,6 +370,10 @@ def _fast_once(model, seed, n_draws, settings, x_map, cov, derived_fn=None):
         "ess_is": ess,
         "n_proposals": int(x.shape[0]),
         "n_topup": int(n_topup),
+        # the first stage's draws (0: none), and whether the proposal's check on them asked for
+        # all n_proposals from the start (the stage's draws then add to the cost, not to the draws)
+        "n_first_stage": int(n_first if n_first < settings.n_proposals else 0),
+        "first_stage_grown": bool(n_first < settings.n_proposals and not staged),
         "end_mcse_max": gate,
         "end_tolerance": tol,
         "end_confidence": conf,
@@ -385,7 +381,7 @@ def _fast_once(model, seed, n_draws, settings, x_map, cov, derived_fn=None):
         "rejected_for_mcse_only": bool(reasons) and mcse_only,
         "n_draws": n_draws,
         "n_outside_support": n_outside,
-        "khat_max": settings.khat_max,
+        "khat_max": khat_limit,
         "min_ess_is": settings.min_ess_is,
         "nu": settings.nu,
         "wall_s": wall,
@@ -417,6 +413,8 @@ def _fast_once(model, seed, n_draws, settings, x_map, cov, derived_fn=None):
                 "ess_is",
                 "n_proposals",
                 "n_topup",
+                "n_first_stage",
+                "first_stage_grown",
                 "accepted",
                 "reason",
                 "khat_max",
@@ -437,6 +435,35 @@ def _fast_once(model, seed, n_draws, settings, x_map, cov, derived_fn=None):
     # quantities (capacity, TR, ...) from them, which need the scene and MTF this path has not got
     xk, wk = _weighted_kept(x, w)
     chains.extra["weighted_draws"] = {"x": xk, "w": wk, "n_resampled": n_draws}
+    return chains, diag
+
+
+def _attempt_start(model, settings):
+    """Where an attempt of the fast path starts: (sampler coordinates or None, MAP, log p there,
+    Laplace covariance, both in those coordinates, seconds taken)."""
+    wrapped = _sampler_coordinates(model)
+    if wrapped is not None:
+        z0, lp0, cz, t = _start_in_coordinates(model, wrapped, settings)
+        return wrapped, z0, lp0, cz, t
+    t0 = time.perf_counter()
+    x0, lp0, c0, _ = laplace_start(
+        model, n_restarts=settings.n_restarts, refine_iter=settings.refine_iter, polish=settings.polish
+    )
+    return None, x0, lp0, c0, time.perf_counter() - t0
+
+
+def _attempt(model, seed, n_draws, settings, x_map, cov, derived_fn, start):
+    """One attempt (:func:`_fast_once`) from ``start`` (:func:`_attempt_start`; None: from the
+    given ``x_map`` and ``cov``)."""
+    if start is None:
+        return _fast_once(model, seed, n_draws, settings, x_map, cov, derived_fn)
+    wrapped, x0, lp0, c0, t = start
+    if wrapped is not None:
+        return _fast_in_coordinates(model, wrapped, seed, n_draws, settings, derived_fn, start=(x0, lp0, c0, t))
+    chains, diag = _fast_once(model, seed, n_draws, settings, x0, c0, derived_fn)
+    diag["wall_map_s"] += t
+    diag["wall_s"] += t
+    chains.wall_s += t
     return chains, diag
 
 
@@ -474,22 +501,36 @@ def fast_posterior(
     diagnostics ``{"accepted", "khat", "ess_is", "n_proposals", "khat_max", "min_ess_is",
     "reason", "wall_s", ...}``. ``accepted`` is False when the caller must fall back to MCMC.
     """
-    chains, diag = _fast_once(model, seed, n_draws, settings, x_map, cov, derived_fn)
+    given = x_map is not None or cov is not None
+    start = None if given else _attempt_start(model, settings)
+    chains, diag = _attempt(model, seed, n_draws, settings, x_map, cov, derived_fn, start)
     diag["retried_with_restarts"] = False
     if (
         not diag["accepted"]
         and not diag["rejected_for_mcse_only"]
-        and x_map is None
+        and not given
         and settings.retry_restarts > settings.n_restarts
     ):
         # a single optimiser start can stop at the initial guess (measured on small-frame
         # sensors): retry with restarts before declaring failure
         retry = replace(settings, n_restarts=settings.retry_restarts, polish_both=True)
-        c2, d2 = _fast_once(model, seed, n_draws, retry, None, None, derived_fn)
+        start2 = _attempt_start(model, retry)
         first = {k: diag[k] for k in ("khat", "ess_is", "reason")}
-        wall = d2["wall_s"] + diag["wall_s"]
-        if d2["accepted"] or d2["khat"] < diag["khat"]:  # keep the better of the two attempts
-            chains, diag = c2, d2
+        if _same_start(start, start2):
+            # the restarts end where the first attempt started: the same proposals, the same seed,
+            # so the same draws and the same verdict; the importance sampling is not repeated
+            wall = diag["wall_s"] + start2[4]
+            diag["retry_skipped"] = (
+                f"the {settings.retry_restarts} restarts found the first attempt's MAP and covariance again "
+                f"(within {_SAME_SD:g} posterior sd and {_SAME_COV:g} of the covariance): "
+                "the same proposals would give the same verdict"
+            )
+            chains.extra["retry_skipped"] = diag["retry_skipped"]
+        else:
+            c2, d2 = _attempt(model, seed, n_draws, retry, None, None, derived_fn, start2)
+            wall = d2["wall_s"] + diag["wall_s"]
+            if d2["accepted"] or d2["khat"] < diag["khat"]:  # keep the better of the two attempts
+                chains, diag = c2, d2
         diag["wall_s"] = chains.wall_s = wall
         diag["retried_with_restarts"] = True
         diag["first_attempt"] = first
