@@ -867,3 +867,26 @@ def test_round_checks_compute_the_derived_draws_once_per_chain(monkeypatch, basl
     np.testing.assert_array_equal(d["tonal_range_bits"].ravel(), fresh.derived["tonal_range_bits"])
     derived_fn(chain[:, -10:])
     assert len(calls) == 2  # a new chain: computed again
+
+
+def test_emcee_imported_without_scipy_stats():
+    """The MCMC imports emcee without scipy.stats (inference.moves._import_emcee; emcee's KDE move is
+    its only user: ~1 s of a 2-core machine's process start), and emcee stays whole: its KDEMove,
+    whose scipy.stats import then happens on first use, samples, and scipy.stats imports normally."""
+    import subprocess
+    import sys
+
+    code = (
+        "import sys, numpy as np\n"
+        "import bayescap.inference.moves\n"
+        "print('scipy.stats' in sys.modules)\n"
+        "import emcee\n"
+        "s = emcee.EnsembleSampler(8, 2, lambda x: -0.5 * np.sum(x**2), moves=emcee.moves.KDEMove())\n"
+        "s.run_mcmc(np.random.default_rng(0).standard_normal((8, 2)), 20, progress=False)\n"
+        "print(s.acceptance_fraction.mean() > 0, 'scipy.stats' in sys.modules)\n"
+        "import scipy.stats\n"
+        "print(scipy.stats.norm.cdf(0.0))\n"
+    )
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
+    assert out.returncode == 0, out.stderr
+    assert out.stdout.split() == ["False", "True", "True", "0.5"]
