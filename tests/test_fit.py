@@ -890,3 +890,20 @@ def test_emcee_imported_without_scipy_stats():
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
     assert out.returncode == 0, out.stderr
     assert out.stdout.split() == ["False", "True", "True", "0.5"]
+
+
+def test_burn_in_after_an_importance_start(basler_fit):
+    """Walkers started from accepted Laplace–IS draws run ``n_burn_is_start`` burn-in steps, from the
+    Laplace ball ``n_burn``; the chain and the result's diagnostics record the burn-in run."""
+    from dataclasses import replace
+
+    base = replace(
+        inf_presets.QUALITY_PRESETS["standard"], n_burn=12, n_burn_is_start=4, n_steps=6, max_rounds=1, ess_target=1e12
+    )
+    model = basler_fit.model
+    c_is = inf_mcmc.run_ensembles(model, settings=base, seed=3, n_jobs=1)
+    c_ball = inf_mcmc.run_ensembles(model, settings=replace(base, importance_start=False), seed=3, n_jobs=1)
+    assert c_is.extra["importance_start"] and c_is.extra["n_burn"] == 4
+    assert not c_ball.extra["importance_start"] and c_ball.extra["n_burn"] == 12
+    assert c_is.chain.shape[1] == c_ball.chain.shape[1] == 6
+    assert c_is.chain.shape[2] == max(base.min_walkers, base.walkers_per_dim * model.ndim)

@@ -344,13 +344,6 @@ def run_ensembles(
     nw = max(settings.min_walkers, settings.walkers_per_dim * model.ndim)
     nw += nw % 2
     n_jobs = _default_jobs(settings.n_ensembles) if n_jobs is None else max(1, int(n_jobs))
-    # one bar a round, each with its own fixed total (ensembles × steps), so none ever goes back
-    pbar = bar(
-        progress,
-        total=settings.n_ensembles * (settings.n_burn + settings.n_steps),
-        desc="sampling, round 1",
-        unit="step",
-    )
     is_start = None
     proposal = (x_map, cov)
     if settings.independence_fraction > 0 and settings.importance_start:
@@ -361,8 +354,20 @@ def run_ensembles(
             if coords is None
             else _importance_start(model, z_map, cov_z, is_seed, coords=coords, n_proposals=n_is)
         )
+        if is_start is not None and is_start[0].shape[0] < nw:
+            is_start = None  # too few distinct draws to start every walker at its own: the Laplace ball
         if is_start is not None:
             proposal = (is_start[1], is_start[2])
+    n_burn = settings.n_burn
+    if is_start is not None and settings.n_burn_is_start is not None:
+        n_burn = settings.n_burn_is_start
+    # one bar a round, each with its own fixed total (ensembles × steps), so none ever goes back
+    pbar = bar(
+        progress,
+        total=settings.n_ensembles * (n_burn + settings.n_steps),
+        desc="sampling, round 1",
+        unit="step",
+    )
     tasks = []
     for i, child in enumerate(children):
         rng = np.random.default_rng(child)
@@ -372,7 +377,7 @@ def run_ensembles(
         else:
             p0 = _initial_ball(model, x_map, cov, nw, rng)
         rstate = np.random.RandomState(child.generate_state(1)[0]).get_state()
-        tasks.append((i, p0, None, rstate, settings.n_burn, settings.n_steps, settings, proposal))
+        tasks.append((i, p0, None, rstate, n_burn, settings.n_steps, settings, proposal))
     _WORKER_MODEL = model
     pool = _pool(n_jobs, len(tasks))  # forked after _WORKER_MODEL is set: the workers inherit it
     try:
@@ -445,6 +450,8 @@ def run_ensembles(
         n_rounds=rounds,
         extra={
             "n_jobs": n_jobs,
+            "n_burn": int(n_burn),  # burn-in steps run (n_burn_is_start after an accepted IS start)
+            "importance_start": is_start is not None,
             "walkers_reset": [int(v) for v in walkers_reset],
             # production steps discarded as burn-in after a time-split R-hat failure
             "burn_in_extended": int(discard),

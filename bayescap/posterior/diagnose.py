@@ -294,7 +294,7 @@ class DiagnoseMixin:
             "n_ensembles": E,
             "n_walkers": W,
             "n_steps": S,
-            "n_burn": st.n_burn,
+            "n_burn": int(c.extra.get("n_burn", st.n_burn)),
             # production steps turned into burn-in because the halves of the production disagreed
             # (time-split R-hat, bayescap.inference.mcmc.run_ensembles), and each such event
             "burn_in_extended_steps": int(c.extra.get("burn_in_extended", 0) or 0),
