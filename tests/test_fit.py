@@ -907,3 +907,25 @@ def test_burn_in_after_an_importance_start(basler_fit):
     assert not c_ball.extra["importance_start"] and c_ball.extra["n_burn"] == 12
     assert c_is.chain.shape[1] == c_ball.chain.shape[1] == 6
     assert c_is.chain.shape[2] == max(base.min_walkers, base.walkers_per_dim * model.ndim)
+
+
+@pytest.mark.parametrize(
+    "end, goal, passes", [(0.2, 0.1, False), (0.05, 0.1, True), (float("nan"), 0.1, True), (0.2, None, True)]
+)
+def test_interval_end_goal_extends_the_run(monkeypatch, end, goal, passes):
+    """``end_mcse_goal`` (standard: 0.1, the imprecise-ends flag's threshold): a chain that passes
+    R-hat, ESS and τ with an interval end's Monte Carlo error above the goal is run on, the next
+    round sized from the 1/√n law; an undefined error (draws not all finite) or no goal passes."""
+    from dataclasses import replace
+
+    rng = np.random.default_rng(9)
+    chain = rng.standard_normal((4, 200, 24, 2))
+    settings = replace(inf_presets.QUALITY_PRESETS["standard"], ess_target=100.0, end_mcse_goal=goal)
+    monkeypatch.setattr(inf_mcmc, "_end_mcse_all", lambda quantities, pool=None: {"a": 0.01, "q": end})
+    cache = {}
+    ok = inf_mcmc._default_converged(chain, settings, cache, reported_fn=lambda c: {"a": c[..., 0], "q": c[..., 1]})
+    assert ok is passes
+    if not passes:
+        assert cache["_shortfall"] == ("mcse", end, "q")
+        # (0.2 / 0.1)² − 1 = 3 times the 200 steps, +10 %, capped at 3 n + extend_steps
+        assert inf_mcmc._next_round_steps(200, settings, cache) == min(int(np.ceil(1.1 * 200 * 3)), 3 * 200 + 20)

@@ -325,7 +325,8 @@ def run_ensembles(
     ``converged_fn(chain)`` (default: R-hat/ESS of the parameters and of the quantities
     ``derived_fn(chain)`` returns, e.g. capacity; and length ≥ tau_factor·τ; then, with
     ``reported_fn(chain)`` (every quantity the result gives an interval for), the Monte Carlo
-    error of the 95 % interval ends against ``settings.end_mcse_target``)
+    error of the 95 % interval ends against ``settings.end_mcse_target``, or its goal
+    ``settings.end_mcse_goal``)
     and extended while it fails, up to ``max_rounds``. The ensembles run in ``n_jobs`` forked
     processes (default: one per core, at most one per ensemble; ``BAYESCAP_JOBS`` overrides);
     the numbers do not depend on ``n_jobs``.
@@ -481,7 +482,9 @@ def _default_converged(chain, settings, cache=None, derived_fn=None, pool=None, 
     derived name), so that :class:`bayescap.posterior.FitResult` need not recompute them for the
     final chain. When those pass and ``reported_fn`` is given: the Monte Carlo error of the 95 %
     interval ends of every quantity ``reported_fn(chain)`` returns (:func:`interval_end_mcse_mcmc`,
-    in ``cache["end_mcse"]``), checked against ``settings.end_mcse_target`` when it is set.
+    in ``cache["end_mcse"]``), checked against ``settings.end_mcse_target`` when it is set, else
+    against the goal ``settings.end_mcse_goal`` (its failure extends the run; it is no check of the
+    result: :class:`~bayescap.posterior.FitResult` flags the ends instead).
 
     Without ``pool`` the quantities are checked one after the other, stopping at the first
     failure. With the ensembles' ``pool`` (idle between rounds) every quantity is diagnosed, shared
@@ -534,6 +537,15 @@ def _default_converged(chain, settings, cache=None, derived_fn=None, pool=None, 
                 if cache is not None:
                     cache["_shortfall"] = ("mcse", end[worst], worst)
                 return False
+        goal = settings.end_mcse_goal
+        if target is None and goal is not None and end:
+            # a goal (a flag at the end, not a failed check); an undefined error (draws not all
+            # finite) is not one more steps can fix
+            worst = max(end, key=lambda k: end[k] if np.isfinite(end[k]) else -np.inf)
+            if np.isfinite(end[worst]) and end[worst] > goal:
+                if cache is not None:
+                    cache["_shortfall"] = ("mcse", end[worst], worst)
+                return False
     return True
 
 
@@ -571,7 +583,8 @@ def _next_round_steps(n_done, settings, cache):
     if kind == "tau":
         need = v[0] if np.isfinite(v[0]) else base  # NaN: undefined τ, a walker yet to move
     elif kind == "mcse":  # the error falls as 1/√n
-        need = 1.1 * n_done * ((v[0] / settings.end_mcse_target) ** 2 - 1.0)
+        target = settings.end_mcse_target if settings.end_mcse_target is not None else settings.end_mcse_goal
+        need = 1.1 * n_done * ((v[0] / target) ** 2 - 1.0)
     elif v[1] >= settings.rhat_target:  # R-hat failed: no ESS-based guess
         need = base
     else:
