@@ -425,6 +425,11 @@ def run_ensembles(
                 n_done -= cut
                 cache = {}
             n_next = _next_round_steps(n_done, settings, cache)
+            if drift and drift[-1]["round"] == rounds:
+                # at least the steps just discarded: the chain checked next is no shorter than this
+                # one (with extend_steps alone, repeated cuts on a slow sensor, τ 20-30 steps,
+                # kept it at a few τ until max_rounds)
+                n_next = max(n_next, drift[-1]["steps_discarded"] + (drift[-1]["steps_discarded"] % 2))
             tasks = [t[:5] + (n_next,) + t[6:] for t in tasks]
             pbar.close()
             pbar = bar(progress, total=settings.n_ensembles * n_next, desc=f"sampling, round {rounds + 1}", unit="step")
