@@ -111,16 +111,19 @@ QUALITY_PRESETS = {
     # standard: the issue's targets (R-hat < 1.01, ESS >= 1000 for every parameter and capacity).
     # 70 % of the steps are IndependenceMove proposals (t, ν 4, sd × 1.3) fitted to the burn-in (share
     # cut where they are rarely accepted), the rest DE 0.8 + stretch 0.2; walkers start from Laplace–IS
-    # draws. τ 4–7 steps instead of 16–22. 5 walkers per parameter (at least 48), 80 steps: the τ check
-    # (80 ≥ 10 τ) and not the ESS binds, and 10·D walkers gave ESS 1 900–4 300 where 1 000 is asked
-    # (5·D: 1 300–2 400, half the log-p evaluations; ESS is the ensembles' draws over ~2–3 τ, whatever
-    # the walker count); rounds after the first are sized from the ESS/τ shortfall. Burn-in 40 steps
+    # draws. τ 4–7 steps instead of 16–22. 5 walkers per parameter but at least 80, 80 steps: the τ
+    # check (80 ≥ 10 τ) and not the ESS binds, and 10·D walkers gave ESS 1 900–4 300 where 1 000 is
+    # asked (ESS is the ensembles' draws over ~2–3 τ, whatever the walker count). Not fewer than 80:
+    # with 48–64 walkers the zoo's 8-parameter draw00_8bit mixed with τ 37–61 steps and did not
+    # converge in 16 rounds, with 80 τ 7.6 in one round; rounds after the first are sized from the
+    # ESS/τ shortfall. Burn-in 40 steps
     # after an accepted Laplace–IS start (the walkers are then already spread like the posterior; the
     # burn-in refits the IndependenceMove's t twice and moves stranded walkers), 80 from the Laplace
     # ball; a drift the short burn-in leaves shows in the time-split R-hat, and its steps are then
     # discarded (run_ensembles). One optimiser start (polish_map reaches the 2-restart MAP on 13 sensors).
     "standard": SamplerSettings(
         walkers_per_dim=5,
+        min_walkers=80,
         n_burn=80,
         n_burn_is_start=40,
         n_steps=80,
