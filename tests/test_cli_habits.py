@@ -131,3 +131,21 @@ def test_help_pages_print_percent_signs_once(capsys):
         with pytest.raises(SystemExit):
             main([cmd, "--help"])
         assert "%%" not in capsys.readouterr().out, cmd
+
+
+def test_a_command_imports_only_its_own_module():
+    """``bayescap fit ...`` builds only the fit command's parser (build_parser("fit")): the other
+    commands' modules (frame readers, the sweep's optics, the colour fit) are not imported, and the
+    arguments parse as with the whole parser."""
+    code = (
+        "import sys\n"
+        "from bayescap.cli import build_parser\n"
+        "argv = ['fit', 'a.csv', '--json', '--seed', '3', '--quality', 'fast']\n"
+        "one = vars(build_parser('fit').parse_args(argv))\n"
+        "print(sorted(m for m in sys.modules if m.startswith('bayescap.cli.')))\n"
+        "every = vars(build_parser().parse_args(argv))\n"
+        "print(one == every)\n"
+    )
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
+    assert out.returncode == 0, out.stderr
+    assert out.stdout.splitlines() == ["['bayescap.cli.common', 'bayescap.cli.fit']", "True"]

@@ -478,7 +478,8 @@ def test_slow_burn_in_transient_is_discarded_not_reported(monkeypatch):
 def test_a_drift_moves_the_first_half_of_the_production_to_burn_in(basler_fit, monkeypatch):
     """The drift rule's bookkeeping, on short rounds: when the convergence check fails on R-hat (split
     in time, so a drift every ensemble shares) the first half of the production so far becomes burn-in,
-    the checks run on what follows, and the event is recorded and reported. The convergence check is
+    the checks run on what follows (the next round at least as long as the cut), and the event is
+    recorded and reported. The convergence check is
     scripted here (R-hat 1.05 of log_k after round 1, then passed); the rule on a real slow transient
     is test_slow_burn_in_transient_is_discarded_not_reported (a statistical check)."""
     from dataclasses import replace
@@ -501,8 +502,10 @@ def test_a_drift_moves_the_first_half_of_the_production_to_burn_in(basler_fit, m
         inf_presets.QUALITY_PRESETS["fast"], n_burn=10, n_steps=60, extend_steps=20, adaptive_extend=False
     )
     c = inf_mcmc.run_ensembles(model, settings=settings, seed=3, n_jobs=1)
-    assert seen == [60, 50]  # round 2 checks 60 + 20 steps less the 30 moved to burn-in
-    assert c.chain.shape[1] == c.log_prob.shape[1] == 50 and c.n_rounds == 2
+    # round 2 checks the 30 steps left after the 30 moved to burn-in, plus as many new ones as were
+    # moved (more than extend_steps = 20), so the checked chain does not shrink
+    assert seen == [60, 60]
+    assert c.chain.shape[1] == c.log_prob.shape[1] == 60 and c.n_rounds == 2
     assert c.extra["burn_in_extended"] == 30
     assert c.extra["drift"] == [{"round": 1, "quantity": "log_k", "rhat": 1.05, "steps_discarded": 30}]
     with catch_warnings():
@@ -867,3 +870,65 @@ def test_round_checks_compute_the_derived_draws_once_per_chain(monkeypatch, basl
     np.testing.assert_array_equal(d["tonal_range_bits"].ravel(), fresh.derived["tonal_range_bits"])
     derived_fn(chain[:, -10:])
     assert len(calls) == 2  # a new chain: computed again
+
+
+def test_emcee_imported_without_scipy_stats():
+    """The MCMC imports emcee without scipy.stats (inference.moves._import_emcee; emcee's KDE move is
+    its only user: ~1 s of a 2-core machine's process start), and emcee stays whole: its KDEMove,
+    whose scipy.stats import then happens on first use, samples, and scipy.stats imports normally."""
+    import subprocess
+    import sys
+
+    code = (
+        "import sys, numpy as np\n"
+        "import bayescap.inference.moves\n"
+        "print('scipy.stats' in sys.modules)\n"
+        "import emcee\n"
+        "s = emcee.EnsembleSampler(8, 2, lambda x: -0.5 * np.sum(x**2), moves=emcee.moves.KDEMove())\n"
+        "s.run_mcmc(np.random.default_rng(0).standard_normal((8, 2)), 20, progress=False)\n"
+        "print(s.acceptance_fraction.mean() > 0, 'scipy.stats' in sys.modules)\n"
+        "import scipy.stats\n"
+        "print(scipy.stats.norm.cdf(0.0))\n"
+    )
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
+    assert out.returncode == 0, out.stderr
+    assert out.stdout.split() == ["False", "True", "True", "0.5"]
+
+
+def test_burn_in_after_an_importance_start(basler_fit):
+    """Walkers started from accepted Laplace–IS draws run ``n_burn_is_start`` burn-in steps, from the
+    Laplace ball ``n_burn``; the chain and the result's diagnostics record the burn-in run."""
+    from dataclasses import replace
+
+    base = replace(
+        inf_presets.QUALITY_PRESETS["standard"], n_burn=12, n_burn_is_start=4, n_steps=6, max_rounds=1, ess_target=1e12
+    )
+    model = basler_fit.model
+    c_is = inf_mcmc.run_ensembles(model, settings=base, seed=3, n_jobs=1)
+    c_ball = inf_mcmc.run_ensembles(model, settings=replace(base, importance_start=False), seed=3, n_jobs=1)
+    assert c_is.extra["importance_start"] and c_is.extra["n_burn"] == 4
+    assert not c_ball.extra["importance_start"] and c_ball.extra["n_burn"] == 12
+    assert c_is.chain.shape[1] == c_ball.chain.shape[1] == 6
+    assert c_is.chain.shape[2] == max(base.min_walkers, base.walkers_per_dim * model.ndim)
+
+
+@pytest.mark.parametrize(
+    "end, goal, passes", [(0.2, 0.1, False), (0.05, 0.1, True), (float("nan"), 0.1, True), (0.2, None, True)]
+)
+def test_interval_end_goal_extends_the_run(monkeypatch, end, goal, passes):
+    """``end_mcse_goal`` (standard: 0.1, the imprecise-ends flag's threshold): a chain that passes
+    R-hat, ESS and τ with an interval end's Monte Carlo error above the goal is run on, the next
+    round sized from the 1/√n law; an undefined error (draws not all finite) or no goal passes."""
+    from dataclasses import replace
+
+    rng = np.random.default_rng(9)
+    chain = rng.standard_normal((4, 200, 24, 2))
+    settings = replace(inf_presets.QUALITY_PRESETS["standard"], ess_target=100.0, end_mcse_goal=goal)
+    monkeypatch.setattr(inf_mcmc, "_end_mcse_all", lambda quantities, pool=None: {"a": 0.01, "q": end})
+    cache = {}
+    ok = inf_mcmc._default_converged(chain, settings, cache, reported_fn=lambda c: {"a": c[..., 0], "q": c[..., 1]})
+    assert ok is passes
+    if not passes:
+        assert cache["_shortfall"] == ("mcse", end, "q")
+        # (0.2 / 0.1)² − 1 = 3 times the 200 steps, +10 %, capped at 3 n + extend_steps
+        assert inf_mcmc._next_round_steps(200, settings, cache) == min(int(np.ceil(1.1 * 200 * 3)), 3 * 200 + 20)

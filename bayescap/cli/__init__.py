@@ -15,7 +15,7 @@ import warnings
 from bayescap.cli.common import EXIT_BROKEN_PIPE, EXIT_INPUT
 from bayescap.exceptions import InputError
 
-__all__ = ["main", "build_parser"]
+__all__ = ["main", "build_parser", "COMMANDS"]
 
 EXIT_STATUS_HELP = """exit status:
   0  done (without --strict also when a result is NOT CONVERGED: it says so)
@@ -25,20 +25,20 @@ EXIT_STATUS_HELP = """exit status:
   130 interrupted; 141 standard output closed early (a pipe into 'head')"""
 
 
-def build_parser() -> argparse.ArgumentParser:
+#: the commands, in the order of ``bayescap --help``
+COMMANDS = ("fit", "ingest", "mtf", "compare", "report", "sweep", "datasheet", "colour", "summary")
+
+
+def build_parser(command: str | None = None) -> argparse.ArgumentParser:
+    """The command line's parser; with ``command`` (one of :data:`COMMANDS`) only that command's
+    subparser, so that the other commands' modules (and what they import: frame readers, the sweep's
+    optics, the colour fit) are not imported for it. Each command's own parser, help and errors
+    are the same either way."""
     # each command's module is imported here, not at the top: `bayescap --version` imports none
     from bayescap._version import __version__
-    from bayescap.cli.colour import register as _register_colour
-    from bayescap.cli.common import (
-        _add_metadata_overrides,
-        add_fast_arguments,
-        add_progress_arguments,
-        add_strict_argument,
-        seed_arg,
-    )
-    from bayescap.cli.datasheet import register as _register_datasheet
-    from bayescap.cli.fit import _cmd_fit
-    from bayescap.cli.mtf import _cmd_mtf, add_lens_arguments
+
+    def want(name):
+        return command is None or command == name
 
     parser = argparse.ArgumentParser(
         prog="bayescap",
@@ -48,6 +48,80 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--version", action="version", version=f"bayescap {__version__}")
     sub = parser.add_subparsers(dest="command", metavar="COMMAND")
     sub.required = True
+    if want("fit"):
+        _add_fit(sub)
+    if want("ingest"):
+        from bayescap.cli.ingest import add_ingest_arguments, run_ingest
+
+        p = sub.add_parser(
+            "ingest",
+            help="frames (RAW/DNG/TIFF/PNG/npy) -> photon-transfer CSV",
+            description="Compute a photon-transfer CSV from flat-field and dark frames "
+            "described by a manifest CSV or an EMVA 1288 descriptor "
+            "(docs/ingest.md).",
+        )
+        add_ingest_arguments(p)
+        p.set_defaults(func=run_ingest)
+    if want("mtf"):
+        _add_mtf(sub)
+    if want("compare"):
+        from bayescap.cli.compare import add_compare_arguments, run_compare
+
+        p = sub.add_parser(
+            "compare",
+            help="compare sensors: capacity at full resolution and fixed area, TR at H0, pairwise P(C_A > C_B)",
+            description="Fit each sensor and compare capacities with credible intervals and "
+            "pairwise probabilities (docs/compare.md).",
+        )
+        add_compare_arguments(p)
+        p.set_defaults(func=run_compare)
+    if want("report"):
+        from bayescap.cli.report import add_report_arguments, run_report
+
+        p = sub.add_parser(
+            "report",
+            help="self-contained HTML report of one or more sensors",
+            description="Fit the sensors and write one self-contained HTML page (docs/compare.md).",
+            epilog=EXIT_STATUS_HELP,
+            formatter_class=argparse.RawDescriptionHelpFormatter,
+        )
+        add_report_arguments(p)
+        p.set_defaults(func=run_report)
+    if want("sweep"):
+        from bayescap.cli.sweep import add_sweep_arguments, run_sweep
+
+        p = sub.add_parser(
+            "sweep",
+            help="what-if studies from the paper (capacity vs pixel size, Fig. 4)",
+            description="Capacity vs pixel pitch at a fixed optical format with Table 1's "
+            "parameter ranges drawn (docs/physics.md).",
+        )
+        add_sweep_arguments(p)
+        p.set_defaults(func=run_sweep)
+    if want("datasheet"):
+        from bayescap.cli.datasheet import register as _register_datasheet
+
+        _register_datasheet(sub, epilog=EXIT_STATUS_HELP)  # bayescap datasheet (cli/datasheet.py)
+    if want("colour"):
+        from bayescap.cli.colour import register as _register_colour
+
+        _register_colour(sub, epilog=EXIT_STATUS_HELP)  # bayescap colour (cli/colour.py)
+    if want("summary"):
+        from bayescap.cli.summary import register as _register_summary
+
+        _register_summary(sub)  # bayescap summary DIR (cli/summary.py)
+    return parser
+
+
+def _add_fit(sub):
+    from bayescap.cli.common import (
+        _add_metadata_overrides,
+        add_fast_arguments,
+        add_progress_arguments,
+        add_strict_argument,
+        seed_arg,
+    )
+    from bayescap.cli.fit import _cmd_fit
 
     p = sub.add_parser(
         "fit",
@@ -150,17 +224,10 @@ def build_parser() -> argparse.ArgumentParser:
     _add_metadata_overrides(p)
     p.set_defaults(func=_cmd_fit)
 
-    from bayescap.cli.ingest import add_ingest_arguments, run_ingest
 
-    p = sub.add_parser(
-        "ingest",
-        help="frames (RAW/DNG/TIFF/PNG/npy) -> photon-transfer CSV",
-        description="Compute a photon-transfer CSV from flat-field and dark frames "
-        "described by a manifest CSV or an EMVA 1288 descriptor "
-        "(docs/ingest.md).",
-    )
-    add_ingest_arguments(p)
-    p.set_defaults(func=run_ingest)
+def _add_mtf(sub):
+    from bayescap.cli.common import seed_arg
+    from bayescap.cli.mtf import _cmd_mtf, add_lens_arguments
 
     p = sub.add_parser(
         "mtf",
@@ -186,46 +253,6 @@ def build_parser() -> argparse.ArgumentParser:
     add_lens_arguments(p)
     p.set_defaults(func=_cmd_mtf)
 
-    from bayescap.cli.compare import add_compare_arguments, run_compare
-
-    p = sub.add_parser(
-        "compare",
-        help="compare sensors: capacity at full resolution and fixed area, TR at H0, pairwise P(C_A > C_B)",
-        description="Fit each sensor and compare capacities with credible intervals and "
-        "pairwise probabilities (docs/compare.md).",
-    )
-    add_compare_arguments(p)
-    p.set_defaults(func=run_compare)
-
-    from bayescap.cli.report import add_report_arguments, run_report
-
-    p = sub.add_parser(
-        "report",
-        help="self-contained HTML report of one or more sensors",
-        description="Fit the sensors and write one self-contained HTML page (docs/compare.md).",
-        epilog=EXIT_STATUS_HELP,
-        formatter_class=argparse.RawDescriptionHelpFormatter,
-    )
-    add_report_arguments(p)
-    p.set_defaults(func=run_report)
-
-    from bayescap.cli.sweep import add_sweep_arguments, run_sweep
-
-    p = sub.add_parser(
-        "sweep",
-        help="what-if studies from the paper (capacity vs pixel size, Fig. 4)",
-        description="Capacity vs pixel pitch at a fixed optical format with Table 1's "
-        "parameter ranges drawn (docs/physics.md).",
-    )
-    add_sweep_arguments(p)
-    p.set_defaults(func=run_sweep)
-    _register_datasheet(sub, epilog=EXIT_STATUS_HELP)  # bayescap datasheet (cli/datasheet.py)
-    _register_colour(sub, epilog=EXIT_STATUS_HELP)  # bayescap colour (cli/colour.py)
-    from bayescap.cli.summary import register as _register_summary
-
-    _register_summary(sub)  # bayescap summary DIR (cli/summary.py)
-    return parser
-
 
 def main(argv=None) -> int:
     if list(sys.argv[1:] if argv is None else argv) == ["--version"]:  # without building the parser
@@ -241,7 +268,10 @@ def main(argv=None) -> int:
     from bayescap.exceptions import ConvergenceWarning
 
     warnings.filterwarnings("ignore", category=ConvergenceWarning)  # reported in the output instead
-    parser = build_parser()
+    words = list(sys.argv[1:] if argv is None else argv)
+    # the first word not an option is the command (the top level has no option taking a value)
+    command = next((w for w in words if not w.startswith("-")), None)
+    parser = build_parser(command if command in COMMANDS else None)
     args = parser.parse_args(argv)
     try:
         status = int(args.func(args) or 0)

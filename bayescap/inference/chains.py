@@ -32,9 +32,9 @@ def stuck_threshold(ndim: int) -> float:
     log-probability over a stretch of steps stays below ``lp_max − (½·χ²_D(1 − 10⁻⁶) + 5)`` is lost
     in a region the posterior does not visit (probability < 10⁻⁶ per walker for a Gaussian
     posterior; the 5 nats allow for heavier tails). 29 nats for D = 10."""
-    from scipy.stats import chi2
+    from scipy.special import chdtri  # the χ² quantile from its upper tail, without scipy.stats
 
-    return 0.5 * float(chi2.ppf(1.0 - 1e-6, ndim)) + 5.0
+    return 0.5 * float(chdtri(ndim, 1e-6)) + 5.0
 
 
 def stuck_walkers(log_prob, ndim: int) -> np.ndarray:

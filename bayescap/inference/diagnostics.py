@@ -184,6 +184,19 @@ def _ess_kernel(a):
     return float(np.nan if np.isnan(rho).any() else ess / tau_hat)
 
 
+def _type7_quantiles(srt, probs):
+    """Quantiles of the sorted draws ``srt`` with ArviZ's arithmetic (``scipy.stats.mstats.mquantiles``,
+    alphap = betap = 1: R's type 7, as ``np.quantile``, whose rounding differs): with many repeated
+    draws a quantile a rounding below a repeated value leaves its copies out of the tail indicator,
+    and the tail ESS moved 0.3 % from ArviZ's on a standard fit."""
+    n = srt.size
+    p = np.asarray(probs, float)
+    aleph = n * p + (1.0 - p)
+    k = np.floor(np.clip(aleph, 1, n - 1)).astype(int)
+    gamma = np.clip(aleph - k, 0.0, 1.0)
+    return (1.0 - gamma) * srt[k - 1] + gamma * srt[k]
+
+
 def fast_diagnostics(x_esw):
     """The same numbers as :func:`diagnostics` (rank-normalised split R-hat, bulk and tail ESS, the
     ensembles as chains: ArviZ's algorithms, its ``_rhat``/``_ess`` kernels) with one rank sort
@@ -219,7 +232,7 @@ def fast_diagnostics(x_esw):
         warnings.simplefilter("ignore")
         rhat = float(max(_rhat(_split(z)), _rhat(_split(zf))))
         ess_b = float(_ess(_split(z)))
-        ql, qh = np.quantile(srt, [0.05, 0.95])
+        ql, qh = _type7_quantiles(srt, (0.05, 0.95))
         ess_t = float(min(_ess(_split(ens <= ql)), _ess(_split(ens <= qh))))
     return {"rhat": rhat, "ess_bulk": ess_b, "ess_tail": ess_t}
 

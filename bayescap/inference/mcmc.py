@@ -325,7 +325,8 @@ def run_ensembles(
     ``converged_fn(chain)`` (default: R-hat/ESS of the parameters and of the quantities
     ``derived_fn(chain)`` returns, e.g. capacity; and length ≥ tau_factor·τ; then, with
     ``reported_fn(chain)`` (every quantity the result gives an interval for), the Monte Carlo
-    error of the 95 % interval ends against ``settings.end_mcse_target``)
+    error of the 95 % interval ends against ``settings.end_mcse_target``, or its goal
+    ``settings.end_mcse_goal``)
     and extended while it fails, up to ``max_rounds``. The ensembles run in ``n_jobs`` forked
     processes (default: one per core, at most one per ensemble; ``BAYESCAP_JOBS`` overrides);
     the numbers do not depend on ``n_jobs``.
@@ -344,13 +345,6 @@ def run_ensembles(
     nw = max(settings.min_walkers, settings.walkers_per_dim * model.ndim)
     nw += nw % 2
     n_jobs = _default_jobs(settings.n_ensembles) if n_jobs is None else max(1, int(n_jobs))
-    # one bar a round, each with its own fixed total (ensembles × steps), so none ever goes back
-    pbar = bar(
-        progress,
-        total=settings.n_ensembles * (settings.n_burn + settings.n_steps),
-        desc="sampling, round 1",
-        unit="step",
-    )
     is_start = None
     proposal = (x_map, cov)
     if settings.independence_fraction > 0 and settings.importance_start:
@@ -361,8 +355,20 @@ def run_ensembles(
             if coords is None
             else _importance_start(model, z_map, cov_z, is_seed, coords=coords, n_proposals=n_is)
         )
+        if is_start is not None and is_start[0].shape[0] < nw:
+            is_start = None  # too few distinct draws to start every walker at its own: the Laplace ball
         if is_start is not None:
             proposal = (is_start[1], is_start[2])
+    n_burn = settings.n_burn
+    if is_start is not None and settings.n_burn_is_start is not None:
+        n_burn = settings.n_burn_is_start
+    # one bar a round, each with its own fixed total (ensembles × steps), so none ever goes back
+    pbar = bar(
+        progress,
+        total=settings.n_ensembles * (n_burn + settings.n_steps),
+        desc="sampling, round 1",
+        unit="step",
+    )
     tasks = []
     for i, child in enumerate(children):
         rng = np.random.default_rng(child)
@@ -372,7 +378,7 @@ def run_ensembles(
         else:
             p0 = _initial_ball(model, x_map, cov, nw, rng)
         rstate = np.random.RandomState(child.generate_state(1)[0]).get_state()
-        tasks.append((i, p0, None, rstate, settings.n_burn, settings.n_steps, settings, proposal))
+        tasks.append((i, p0, None, rstate, n_burn, settings.n_steps, settings, proposal))
     _WORKER_MODEL = model
     pool = _pool(n_jobs, len(tasks))  # forked after _WORKER_MODEL is set: the workers inherit it
     try:
@@ -419,6 +425,11 @@ def run_ensembles(
                 n_done -= cut
                 cache = {}
             n_next = _next_round_steps(n_done, settings, cache)
+            if drift and drift[-1]["round"] == rounds:
+                # at least the steps just discarded: the chain checked next is no shorter than this
+                # one (with extend_steps alone, repeated cuts on a slow sensor, τ 20-30 steps,
+                # kept it at a few τ until max_rounds)
+                n_next = max(n_next, drift[-1]["steps_discarded"] + (drift[-1]["steps_discarded"] % 2))
             tasks = [t[:5] + (n_next,) + t[6:] for t in tasks]
             pbar.close()
             pbar = bar(progress, total=settings.n_ensembles * n_next, desc=f"sampling, round {rounds + 1}", unit="step")
@@ -445,6 +456,8 @@ def run_ensembles(
         n_rounds=rounds,
         extra={
             "n_jobs": n_jobs,
+            "n_burn": int(n_burn),  # burn-in steps run (n_burn_is_start after an accepted IS start)
+            "importance_start": is_start is not None,
             "walkers_reset": [int(v) for v in walkers_reset],
             # production steps discarded as burn-in after a time-split R-hat failure
             "burn_in_extended": int(discard),
@@ -474,7 +487,9 @@ def _default_converged(chain, settings, cache=None, derived_fn=None, pool=None, 
     derived name), so that :class:`bayescap.posterior.FitResult` need not recompute them for the
     final chain. When those pass and ``reported_fn`` is given: the Monte Carlo error of the 95 %
     interval ends of every quantity ``reported_fn(chain)`` returns (:func:`interval_end_mcse_mcmc`,
-    in ``cache["end_mcse"]``), checked against ``settings.end_mcse_target`` when it is set.
+    in ``cache["end_mcse"]``), checked against ``settings.end_mcse_target`` when it is set, else
+    against the goal ``settings.end_mcse_goal`` (its failure extends the run; it is no check of the
+    result: :class:`~bayescap.posterior.FitResult` flags the ends instead).
 
     Without ``pool`` the quantities are checked one after the other, stopping at the first
     failure. With the ensembles' ``pool`` (idle between rounds) every quantity is diagnosed, shared
@@ -527,6 +542,15 @@ def _default_converged(chain, settings, cache=None, derived_fn=None, pool=None, 
                 if cache is not None:
                     cache["_shortfall"] = ("mcse", end[worst], worst)
                 return False
+        goal = settings.end_mcse_goal
+        if target is None and goal is not None and end:
+            # a goal (a flag at the end, not a failed check); an undefined error (draws not all
+            # finite) is not one more steps can fix
+            worst = max(end, key=lambda k: end[k] if np.isfinite(end[k]) else -np.inf)
+            if np.isfinite(end[worst]) and end[worst] > goal:
+                if cache is not None:
+                    cache["_shortfall"] = ("mcse", end[worst], worst)
+                return False
     return True
 
 
@@ -564,7 +588,8 @@ def _next_round_steps(n_done, settings, cache):
     if kind == "tau":
         need = v[0] if np.isfinite(v[0]) else base  # NaN: undefined τ, a walker yet to move
     elif kind == "mcse":  # the error falls as 1/√n
-        need = 1.1 * n_done * ((v[0] / settings.end_mcse_target) ** 2 - 1.0)
+        target = settings.end_mcse_target if settings.end_mcse_target is not None else settings.end_mcse_goal
+        need = 1.1 * n_done * ((v[0] / target) ** 2 - 1.0)
     elif v[1] >= settings.rhat_target:  # R-hat failed: no ESS-based guess
         need = base
     else:

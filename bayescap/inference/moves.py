@@ -1,14 +1,51 @@
 """The emcee-based classes of the MCMC (:mod:`bayescap.inference.mcmc`), in a module of their own
 (``bayescap.inference.IndependenceMove`` loads it on first access) so that ``import bayescap`` does not
-import emcee: emcee's moves import scipy.stats (~0.75 s, ``python -X importtime -c "import
-bayescap.cli"``), which a fast-preset fit never needs."""
+import emcee.
+
+emcee is imported here without scipy.stats (:func:`_import_emcee`): emcee's package imports every
+move, and its KDE move alone imports ``scipy.stats`` (0.8–1.3 s of a 2-core machine, most of it
+scipy's docstring parsing; ``python -X importtime -c "import emcee"``), which bayescap never uses."""
 
 from __future__ import annotations
 
-import emcee
+import sys
+
 import numpy as np
 
 from bayescap.inference.curvature import _proposal_cov
+
+
+def _gaussian_kde(*args, **kwargs):
+    """``scipy.stats.gaussian_kde``, imported on the first call (emcee's KDEMove calls it)."""
+    from scipy.stats import gaussian_kde
+
+    return gaussian_kde(*args, **kwargs)
+
+
+def _import_emcee():
+    """``import emcee`` without importing ``scipy.stats``, emcee unchanged for anyone else.
+
+    The only import of ``scipy.stats`` in emcee is ``emcee.moves.kde``'s ``from scipy.stats import
+    gaussian_kde``, guarded by ``except ImportError`` (then ``gaussian_kde = None``). While emcee
+    loads, ``sys.modules["scipy.stats"]`` is ``None`` (Python's documented way to make an import
+    raise ImportError), and afterwards the module's ``gaussian_kde`` is :func:`_gaussian_kde`,
+    which imports scipy.stats on its first call: KDEMove works as before, for bayescap's callers
+    too. When emcee or scipy.stats is already imported this is a plain ``import emcee``."""
+    if "emcee" not in sys.modules and "scipy.stats" not in sys.modules:
+        sys.modules["scipy.stats"] = None
+        try:
+            import emcee.moves.kde as kde
+        finally:
+            if "scipy.stats" in sys.modules and sys.modules["scipy.stats"] is None:
+                del sys.modules["scipy.stats"]
+        if kde.gaussian_kde is None:
+            kde.gaussian_kde = _gaussian_kde
+    import emcee
+
+    return emcee
+
+
+emcee = _import_emcee()
 
 __all__ = ["IndependenceMove"]
 
