@@ -156,6 +156,7 @@ def test_lockstep_a_failing_request_fails_only_its_fit():
     assert isinstance(out[1], FloatingPointError)
 
 
+@pytest.mark.slow
 def test_fit_many_gives_each_sensor_its_own_fit():
     """The batch's draws are those of bayescap.fit with the sensor's seed, whatever stack_size
     (and n_jobs: the stacks are shared out among processes)."""
@@ -179,6 +180,7 @@ def test_fit_many_gives_each_sensor_its_own_fit():
     assert max(groups) >= 2  # some sensors were evaluated stacked
 
 
+@pytest.mark.slow
 def test_fit_many_fallbacks_shared_out_across_processes_are_each_sensors_own():
     """With n_jobs > 1 the MCMC fallbacks run after every process's fast paths, shared out evenly:
     each is still bayescap.fit's own fallback for that sensor and seed (here every fast path is
@@ -200,6 +202,7 @@ def test_fit_many_fallbacks_shared_out_across_processes_are_each_sensors_own():
             assert r["converged"] == own.diag["converged"]
 
 
+@pytest.mark.slow
 def test_fit_many_mcmc_preset_reports_a_bad_sensor_instead_of_stopping():
     """quality="standard" fits one sensor at a time (MCMC); a refused input is reported in its
     place, as with the fast preset."""
