@@ -33,54 +33,97 @@ def pytest_configure(config):
         config.add_cleanup(lambda: Path(path).unlink(missing_ok=True))
 
 
-def pytest_collection_modifyitems(config, items):
-    """Under ``pytest -n 2`` (``--dist loadgroup`` in pyproject's addopts) the tests of one xdist group
-    run on one worker: those marked ``xdist_group(name)``, and every test of a module whose tests share
-    a module-scoped fixture (a fit, a simulated sensor), so the fixture is built once rather than once
-    per worker. The other tests are handed out one by one; the largest groups go first, then the long
-    tests (marked slow), then the rest in order, so that neither worker is left running a long one alone
-    at the end. (pytest-xdist's own loadgroup renames each test ``nodeid@group``, which pytest 9 no
-    longer reads: its groups would be ignored. The groups go to the controller in a file instead, and
-    :func:`pytest_xdist_make_scheduler` schedules by them.)"""
-    shared = set()
+def _module_fixture_groups(items) -> dict:
+    """nodeid -> group for the tests that share a module-scoped fixture (a fit, a simulated sensor):
+    within a module, tests joined by a module fixture they both use (directly or through another
+    fixture), transitively, form one group; a test that uses none is in no group."""
+    parent = {}
+
+    def find(x):
+        while parent.setdefault(x, x) != x:
+            parent[x] = parent[parent[x]]
+            x = parent[x]
+        return x
+
+    uses = {}
     for item in items:
         info = getattr(item, "_fixtureinfo", None)
-        defs = info.name2fixturedefs if info is not None else {}
-        if any(d and d[-1].scope == "module" for d in defs.values()):
-            shared.add(item.module.__name__)
-    groups = {}
+        module = getattr(item, "module", None)
+        if info is None or module is None:
+            continue
+        names = sorted(n for n, d in info.name2fixturedefs.items() if d and d[-1].scope == "module")
+        if names:
+            keys = [f"{module.__name__}:{n}" for n in names]
+            uses[item.nodeid] = keys[0]
+            for k in keys[1:]:
+                parent[find(k)] = find(keys[0])
+    return {nodeid: "module:" + find(key) for nodeid, key in uses.items()}
+
+
+#: the scheduler's estimate of a test's cost, in units of a typical test's (~0.5 CPU-s): a test marked
+#: slow (about 3 CPU-s or more) counts as SLOW_WEIGHT, and a module fixture (a fit, a simulated
+#: sensor) adds FIXTURE_WEIGHT to the group of the tests that share it
+SLOW_WEIGHT = 10
+FIXTURE_WEIGHT = 5
+
+
+def pytest_collection_modifyitems(config, items):
+    """Under ``pytest -n 2`` (``--dist loadgroup`` in pyproject's addopts) the tests of one xdist group
+    run on one worker: those marked ``xdist_group(name)``, and the tests of a module that share a
+    module-scoped fixture (:func:`_module_fixture_groups`), so the fixture is built once rather than
+    once per worker; the module's other tests are free. Each worker is handed the costliest group or
+    test left (longest first: :data:`SLOW_WEIGHT`, :data:`FIXTURE_WEIGHT`), so that the short ones come
+    last and neither worker is left running a long one alone at the end. (pytest-xdist's own
+    loadgroup renames each test ``nodeid@group``, which pytest 9 no longer reads: its groups would be
+    ignored. The groups and costs go to the controller in a file instead, and
+    :func:`pytest_xdist_make_scheduler` schedules by them.)"""
+    groups = _module_fixture_groups(items)
     for item in items:
         mark = item.get_closest_marker("xdist_group")
-        module = getattr(item, "module", None)
         if mark is not None:
             groups[item.nodeid] = "group:" + str(mark.args[0] if mark.args else mark.kwargs.get("name", "default"))
-        elif module is not None and module.__name__ in shared:
-            groups[item.nodeid] = "module:" + module.__name__
-    # ungrouped long tests first; they use no module fixture, so moving them sets up nothing twice
-    items.sort(key=lambda it: not (it.nodeid not in groups and it.get_closest_marker("slow")))
+    weights = {it.nodeid: SLOW_WEIGHT for it in items if it.get_closest_marker("slow")}
     path = os.environ.get(_GROUPS_FILE)
     if path and os.environ.get("PYTEST_XDIST_WORKER") == "gw0":  # every worker collects the same tests
         tmp = f"{path}.{os.getpid()}.tmp"
-        Path(tmp).write_text(json.dumps(groups), encoding="utf-8")
+        Path(tmp).write_text(json.dumps({"groups": groups, "weights": weights}), encoding="utf-8")
         os.replace(tmp, path)
 
 
 @pytest.hookimpl(optionalhook=True)  # pytest-xdist's hook: unknown without it
 def pytest_xdist_make_scheduler(config, log):
     """``--dist loadgroup``: xdist's scope scheduler with the groups the workers wrote (a test without
-    a group is a scope of its own); any other ``--dist`` is xdist's own."""
+    a group is a scope of its own), handing out the costliest scope left first; any other ``--dist``
+    is xdist's own."""
     if config.getvalue("dist") != "loadgroup" or not os.environ.get(_GROUPS_FILE):
         return None
     from xdist.scheduler import LoadScopeScheduling
 
     class GroupScheduling(LoadScopeScheduling):
         _groups = None
+        _weights = None
 
-        def _split_scope(self, nodeid):
+        def _read(self):
             if self._groups is None:  # read once, when the workers have collected (schedule())
                 text = Path(os.environ[_GROUPS_FILE]).read_text(encoding="utf-8")
-                self._groups = json.loads(text) if text else {}
+                doc = json.loads(text) if text else {}
+                self._groups, self._weights = doc.get("groups", {}), doc.get("weights", {})
+
+        def _split_scope(self, nodeid):
+            self._read()
             return self._groups.get(nodeid, nodeid)
+
+        def _cost(self, scope):
+            tests = self.workqueue[scope]
+            fixture = FIXTURE_WEIGHT if scope.startswith("module:") else 0
+            return fixture + sum(self._weights.get(nodeid, 1) for nodeid in tests)
+
+        def _assign_work_unit(self, node):
+            """The costliest scope left (the first of equals, in collection order) goes next."""
+            self._read()
+            best = max(self.workqueue, key=self._cost)
+            self.workqueue.move_to_end(best, last=False)
+            super()._assign_work_unit(node)
 
     return GroupScheduling(config, log)
 

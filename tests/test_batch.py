@@ -57,7 +57,8 @@ def _points(m, n, rng):
 def test_stacked_log_prob_equals_each_models_own_bit_for_bit():
     rng = np.random.default_rng(3)
     n_groups = 0
-    for ms in _stackable_sets():
+    sets = _stackable_sets()
+    for ms in sets:
         for ix in (ix for g in stack_groups(ms) for ix in g):
             if len(ix) < 2:
                 continue
@@ -74,7 +75,7 @@ def test_stacked_log_prob_equals_each_models_own_bit_for_bit():
             # the comparison covers the likelihood: every sensor has draws inside the support
             assert all(np.isfinite(part).any() for part in np.split(lp, starts[1:]))
     assert n_groups >= 4
-    assert any(m.terms.dark_mean for ms in _stackable_sets() for m in ms)  # the dark means' block is covered
+    assert any(m.terms.dark_mean for ms in sets for m in ms)  # the dark means' block is covered
 
 
 def test_a_model_stacked_with_itself_equals_its_own_calls_bit_for_bit():
@@ -82,7 +83,9 @@ def test_a_model_stacked_with_itself_equals_its_own_calls_bit_for_bit():
     instead of gathering copies; each request's log p is still m.log_prob of that request alone,
     bit for bit, with requests of different spreads in one call (the rows near the clip are
     chosen per request: the second request's gains are spread far wider)."""
-    models = [PTCModel(bayescap.load("data/emva1288_basler_ccd12.csv"))] + _stackable_sets()[0][:2]
+    # the first two of _stackable_sets()'s Gpixel ROIs, without simulating the other sets
+    rois = gpixel_sensors(n_max=24, seed=2)[0][:2]
+    models = [PTCModel(bayescap.load("data/emva1288_basler_ccd12.csv"))] + [PTCModel(d) for d in rois]
     for i, m in enumerate(models):
         # a generator per model: its points do not depend on the other models' dimensions
         rng = np.random.default_rng(11 + i)
@@ -153,6 +156,7 @@ def test_lockstep_a_failing_request_fails_only_its_fit():
     assert isinstance(out[1], FloatingPointError)
 
 
+@pytest.mark.slow
 def test_fit_many_gives_each_sensor_its_own_fit():
     """The batch's draws are those of bayescap.fit with the sensor's seed, whatever stack_size
     (and n_jobs: the stacks are shared out among processes)."""
@@ -176,6 +180,7 @@ def test_fit_many_gives_each_sensor_its_own_fit():
     assert max(groups) >= 2  # some sensors were evaluated stacked
 
 
+@pytest.mark.slow
 def test_fit_many_fallbacks_shared_out_across_processes_are_each_sensors_own():
     """With n_jobs > 1 the MCMC fallbacks run after every process's fast paths, shared out evenly:
     each is still bayescap.fit's own fallback for that sensor and seed (here every fast path is
@@ -197,6 +202,7 @@ def test_fit_many_fallbacks_shared_out_across_processes_are_each_sensors_own():
             assert r["converged"] == own.diag["converged"]
 
 
+@pytest.mark.slow
 def test_fit_many_mcmc_preset_reports_a_bad_sensor_instead_of_stopping():
     """quality="standard" fits one sensor at a time (MCMC); a refused input is reported in its
     place, as with the fast preset."""

@@ -66,6 +66,7 @@ def _inodes(out):
     return {p.parent.name: (p.stat().st_ino, p.stat().st_mtime_ns) for p in Path(out).glob("*/result.json")}
 
 
+@pytest.mark.slow
 def test_dask_gives_every_sensor_the_local_runs_numbers(client, sensors, tmp_path):
     """Same seeds, same numbers: the cluster (chunks of 2, on 2 workers) against this process
     (chunks of 128) and against the in-memory batch's FitResult.to_dict()."""
@@ -132,6 +133,7 @@ def test_an_edited_csv_or_another_seed_is_refitted(tmp_path):
     assert {r["status"] for r in fit_many(paths, seed=2, out=out, fallback=False)} == {"fitted"}
 
 
+@pytest.mark.slow
 def test_cli_runs_the_batch_on_a_scheduler_and_resumes(client, tmp_path, capsys):
     """``bayescap fit *.csv --out DIR --scheduler ADDRESS``: the dashboard link on stderr, one
     result.json per CSV with the local run's numbers; rerun, nothing refitted. Without --out, or with
@@ -182,6 +184,7 @@ def test_without_dask_one_line_names_the_extra(monkeypatch):
         import_distributed()
 
 
+@pytest.mark.slow
 def test_a_worker_killed_mid_run_and_the_batch_completes_every_result_once(client, sensors, tmp_path):
     """After the first chunk, the worker running a chunk is killed (os._exit): Dask runs its tasks
     again elsewhere; every sensor is fitted and written exactly once, with the numbers of a run

@@ -442,6 +442,7 @@ def test_datasheet_gains_a_colour_section(frame_set, colour_json, tmp_path, caps
     assert page.count('<section id="colour">') == 1 and "Colour (beyond EMVA 1288)" in page
 
 
+@pytest.mark.slow
 def test_pdf_datasheet_gains_a_colour_page(frame_set, colour_json, tmp_path):
     """The PDF datasheet: one page, and a second with the colour section when --colour is given
     (its table rows are those of the HTML section's quantities)."""

@@ -57,6 +57,7 @@ def test_mtf_command_bad_input_exit_2(tmp_path):
         assert len(r.stderr.strip().splitlines()) == 1 and "Traceback" not in r.stderr
 
 
+@pytest.mark.slow
 def test_fit_with_measured_edge_carries_sharpness_uncertainty(tmp_path):
     from bayescap.simulate import SensorTruth, simulate_ptc
 
@@ -93,6 +94,7 @@ def test_help_lists_every_command():
         assert cmd in r.stdout
 
 
+@pytest.mark.slow
 def test_fit_many_csvs_as_a_batch(tmp_path):
     """``bayescap fit a.csv b.csv ... --quality fast``: one fit JSON per CSV (each the same as that
     CSV fitted alone, by the batch's child seed), outputs in DIR/<name>/; a bad CSV among them
@@ -121,6 +123,7 @@ def test_fit_many_csvs_as_a_batch(tmp_path):
     assert r.returncode == 2 and "one CSV at a time" in r.stderr
 
 
+@pytest.mark.slow
 def test_fast_tolerance_and_confidence_flags(tmp_path):
     """``--fast-tolerance``/``--fast-confidence`` set the fast path's check (FastSettings), are recorded
     in the result JSON, make it stop drawing no later than the default does (the same seed draws the

@@ -60,6 +60,7 @@ def test_progress_and_quiet_options_have_help(command):
         assert o in opts and opts[o].help, (command, o)
 
 
+@pytest.mark.slow
 def test_quiet_fit_with_out_prints_nothing(tmp_path, capsys):
     assert main(["fit", str(SMALL), "--quality", "fast", "--seed", "1", "--out", str(tmp_path / "o"), "-q"]) == 0
     cap = capsys.readouterr()
@@ -88,6 +89,7 @@ class _Recorder:
 
 
 @pytest.mark.parametrize("command", ["datasheet", "report"])
+@pytest.mark.slow
 def test_datasheet_and_report_show_progress(command, tmp_path, monkeypatch, capsys):
     """With ``--progress`` the fit is asked for its bars and a bar for writing the page is made,
     enabled, and reaches its total; with ``--quiet`` no bar is enabled, the fit is asked for none,

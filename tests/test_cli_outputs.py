@@ -25,6 +25,7 @@ def small_csv(tmp_path_factory):
     return p
 
 
+@pytest.mark.slow
 def test_dollar_in_file_name_does_not_reach_math_text(small_csv, tmp_path, capsys):
     out = tmp_path / "o"
     assert main(["fit", str(small_csv), "--quality", "fast", "--seed", "1", "--out", str(out)]) == 0
@@ -132,6 +133,7 @@ def test_disk_full_while_writing_the_set_prints_the_result_and_leaves_nothing(sm
     assert not out.exists() and _leftovers(tmp_path) == []
 
 
+@pytest.mark.slow
 def test_the_out_set_is_replaced_as_a_whole(small_csv, tmp_path, capsys, monkeypatch):
     """A second run into the same folder replaces the first run's set as a whole; a failed run
     leaves the previous set as it was and no temporary files."""

@@ -92,7 +92,7 @@ def _check_sensible(truth, r, *, tol_k_rejected=0.3):
     assert cap["median"] > 0 and np.isfinite(cap["ci95"]).all()
 
 
-SLOWEST = {"read_noise_200e", "gain_0.01e_per_dn_16bit", "full_well_1e6_16bit"}
+SLOWEST = {"read_noise_0.05e", "gain_100e_per_dn_8bit"}  # the fast fits over ~3 CPU-s
 
 #: known failures of the sanity check, each with its diagnosis. Not strict: this one passes or
 #: fails with the last digits of log p (below), so neither outcome says the defect is fixed.
@@ -111,9 +111,7 @@ KNOWN = {
 
 #: cases whose fit (``fitted``'s cache) another test also asserts on: one xdist group each, so under
 #: ``pytest -n 2`` both tests run on one worker and the case is fitted once
-SHARED = {
-    c: pytest.mark.xdist_group(f"test_extremes:{c}") for c in ("single_exposure_time", "noise_below_one_dn_everywhere")
-}
+SHARED = {c: pytest.mark.xdist_group(f"test_extremes:{c}") for c in ("single_exposure_time",)}
 
 
 def _case_param(c):
@@ -143,13 +141,20 @@ def test_single_exposure_time_reports_combined_dark_noise():
     assert "dark_current" in r.model.terms.reasons
 
 
-@SHARED["noise_below_one_dn_everywhere"]
+@pytest.mark.slow
 def test_noise_below_one_dn_gives_upper_limit_not_detection():
     """Read noise of 0.005 DN is invisible (every dark pixel rounds to the black level): the result
     never claims a detection. The fast path rejects its own approximation here (K sits where the
     rounded variances stop growing), and rejected draws carry no calibrated upper limit: then it
-    must say so first thing; only an accepted result's upper limit must cover the truth."""
-    truth, d, r, w = fitted("noise_below_one_dn_everywhere")
+    must say so first thing; only an accepted result's upper limit must cover the truth. The
+    sensor of the case, on 12 exposure levels rather than 50: every level's noise is as far below
+    1 DN, and the fast path's Newton search through the rounded moments costs 4 CPU-s rather than
+    16 (the 50-level case is the statistical check above, a benchmark)."""
+    truth, opt = CASES["noise_below_one_dn_everywhere"]
+    d = simulate(truth, {**opt, "n_levels": 12})
+    with warnings.catch_warnings(record=True) as w:
+        warnings.simplefilter("always")
+        r = fast_fit(d, seed=1, fallback=False)
     assert _all_finite(r) == []
     assert len(w) <= 2, [str(x.message)[:120] for x in w]
     txt = format_text(r)

@@ -60,6 +60,7 @@ def _run_limited(code: str, limit_bytes: int):
     )
 
 
+@pytest.mark.slow
 def test_save_and_out_under_a_file_size_limit_fail_cleanly(saved_result, tmp_path):
     """``FitResult.save`` and ``--out``'s writer under ``ulimit -f``: an OSError (EFBIG; exit 1 in
     the CLI), the previous set kept, no temporary file or folder. Was: SIGSEGV (rc 139) inside

@@ -113,6 +113,7 @@ def test_same_seed_same_numbers(tmp_path):
     )
 
 
+@pytest.mark.slow
 def test_cli_json_and_out_dir(tmp_path, capsys):
     """``bayescap fit CSV --json --out DIR``, run in this process (main(argv) is the console script's
     entry point; tests/test_cli_commands.py and tests/test_faults.py run ``--out`` in fresh processes)."""
@@ -213,6 +214,7 @@ def test_stranded_walker_is_reported_not_averaged_in(basler_fit):
     assert "max_rounds=" in ra.notes[0]
 
 
+@pytest.mark.slow
 def test_walkers_stranded_in_burn_in_are_moved():
     """Simulated M1 1.75 µm (data/benchmark). Started from the raw Laplace covariance, 32 of 160
     walkers of the short MCMC stayed at mean-discrepancy 0.1–0.4, 140–265 nats below the mode, and
@@ -551,6 +553,7 @@ def test_laplace_covariance_is_exact_for_a_quadratic_and_second_order_otherwise(
     )
 
 
+@pytest.mark.slow
 def test_ensembles_in_lockstep_give_the_chains_of_one_after_the_other():
     """_run_segments runs the ensembles of one process in lockstep (one stacked log_prob call for
     their walkers); the chains, log p, final states and proposals are those of _run_segment run

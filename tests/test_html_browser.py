@@ -218,6 +218,7 @@ def _pdf_pages(pdf: bytes) -> int:
     return len(re.findall(rb"/Type\s*/Page(?!s)", pdf))
 
 
+@pytest.mark.slow
 def test_datasheet_prints_on_one_a4_page(tmp_path):
     """The datasheet printed from the browser (chromium's print to PDF, A4 landscape by the page's
     @page rule) is one page, as bayescap's own PDF is; on screen the notes column stays."""
