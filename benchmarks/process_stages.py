@@ -7,11 +7,12 @@ For the bundled sensors (the real Basler CCD and the simulated ones in ``data/si
 ``fast`` and ``standard``, three measurements, each in fresh Python processes (the median of
 ``--repeat`` runs):
 
-* **whole process**: ``python -m bayescap fit CSV --quality Q --json`` from start to exit, as a user
-  types it (stdout to /dev/null);
+* **whole process**: ``python -m bayescap fit CSV --quality Q --json --seed 1`` from start to exit, as a
+  user types it (stdout to /dev/null), with the stages' seed, so that both run the same fit (a drawn
+  seed would mix accepted and rejected fast paths from run to run);
 * **stages**: the same work in one process, timed stage by stage with ``time.perf_counter``: imports
   (``bayescap`` and ``bayescap.api``, with the scipy it loads; emcee is imported by the fit when it
-  samples by MCMC, so its import, ~0.5–1 s with the scipy.stats it pulls in, falls in the fit),
+  samples by MCMC (without scipy.stats, see ``bayescap.inference.moves``), so its import falls in the fit),
   reading the CSV, building the model (term selection and the rows a fit sees), the fit itself split
   into the sampler's own wall time (start, optimisation, sampling: ``diagnostics.wall_s``) and the
   rest of ``bayescap.fit`` (checks, derived quantities' draws), the result's dictionary
@@ -137,7 +138,7 @@ def run(repeat):
             plain_s, plain_cpu = _wall([sys.executable, str(plain), csv], repeat)
             for q in ("fast", "standard"):
                 whole, whole_cpu = _wall(
-                    [sys.executable, "-m", "bayescap", "fit", csv, "--quality", q, "--json"], repeat
+                    [sys.executable, "-m", "bayescap", "fit", csv, "--quality", q, "--json", "--seed", "1"], repeat
                 )
                 st = _stages(csv, q, repeat, tmp)
                 rows.append(
@@ -192,8 +193,8 @@ def report(version, rows, repeat):
         "Stages from one process (wall seconds): imports (bayescap and bayescap.api, with their scipy), reading "
         "the CSV, building the model (terms and rows), the fit (of which the sampler: start, optimisation, "
         "sampling; the fit imports emcee when it samples by MCMC), the result's dictionary (summaries, limits, "
-        "notes) and writing the JSON. 'whole' is `python -m bayescap fit CSV --quality Q --json` from start to "
-        "exit, wall and CPU; 'fit CPU' the fit's user + sys (its pool workers included); 'walker-steps' the "
+        "notes) and writing the JSON. 'whole' is `python -m bayescap fit CSV --quality Q --json --seed 1` (the "
+        "stages' seed) from start to exit, wall and CPU; 'fit CPU' the fit's user + sys (its pool workers included); 'walker-steps' the "
         "log-p evaluations of the MCMC's burn-in and production (ensembles × walkers × steps; the start's "
         "optimiser and importance draws not counted); 'plain' the plain emcee script, wall and CPU.",
         "",
