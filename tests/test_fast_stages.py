@@ -4,27 +4,16 @@ the restarts find the same start (bayescap.inference.fast, issue 50)."""
 from dataclasses import replace
 
 import numpy as np
+from test_fast import GaussianModel
 
 import bayescap.inference.fast_stages as stages
 from bayescap.inference import FastSettings, fast_posterior
 from bayescap.inference.end_errors import _end_errors
 
 
-class NamedGaussian:
+class NamedGaussian(GaussianModel):
     """N(mu, cov) with the coordinates as named physical parameters (the fast path judges their
     interval ends)."""
-
-    def __init__(self, mu, cov):
-        self.mu, self.cov = np.asarray(mu, float), np.asarray(cov, float)
-        self.prec = np.linalg.inv(self.cov)
-        self.ndim = self.mu.size
-
-    def log_prob(self, th):
-        d = np.atleast_2d(th) - self.mu
-        return -0.5 * np.einsum("ij,jk,ik->i", d, self.prec, d)
-
-    def initial_guess(self):
-        return self.mu + 0.3
 
     def physical(self, th):
         th = np.atleast_2d(th)
