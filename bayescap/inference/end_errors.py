@@ -39,9 +39,10 @@ def interval_end_mcse(values, w, probs=(0.025, 0.975), n_resampled=None):
     return float("nan") if errs is None else max(errs, default=0.0)
 
 
-def _end_errors(values, w, probs=(0.025, 0.975), n_resampled=None):
-    """Per end of ``probs``: :func:`interval_end_mcse`'s error as a fraction of the width (a list;
-    None when the values are not all finite, zeros when the width is 0)."""
+def _weighted_cdf(values, w):
+    """The values sorted, their weights in that order, the normalised cumulative weight F, the
+    weights' total and the 95 % width Q(0.975) − Q(0.025) (Q interpolated in F); None when the
+    values are not all finite."""
     v = np.asarray(values, float)
     if not np.all(np.isfinite(v)):
         return None
@@ -50,8 +51,17 @@ def _end_errors(values, w, probs=(0.025, 0.975), n_resampled=None):
     F = np.cumsum(ws)
     F_tot = F[-1]
     F /= F_tot
+    return v, ws, F, F_tot, np.interp(0.975, F, v) - np.interp(0.025, F, v)
+
+
+def _end_errors(values, w, probs=(0.025, 0.975), n_resampled=None):
+    """Per end of ``probs``: :func:`interval_end_mcse`'s error as a fraction of the width (a list;
+    None when the values are not all finite, zeros when the width is 0)."""
+    cdf = _weighted_cdf(values, w)
+    if cdf is None:
+        return None
+    v, ws, F, F_tot, width = cdf
     Q = lambda p: np.interp(p, F, v)
-    width = Q(0.975) - Q(0.025)
     if not width > 0:
         return [0.0 for _ in probs]
     # Σ w_i² (1{v_i ≤ q} − p)² from the cumulative sum of w² up to q (one pass for both ends)

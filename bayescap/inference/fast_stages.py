@@ -10,7 +10,7 @@ import numpy as np
 
 from bayescap.inference.coordinates import SamplerCoordinates
 from bayescap.inference.curvature import _proposal_cov
-from bayescap.inference.end_errors import _END_PROBS, _kept
+from bayescap.inference.end_errors import _END_PROBS, _kept, _weighted_cdf
 from bayescap.inference.importance import _systematic_resample, _t_logpdf, student_t_draws, student_t_logpdf
 from bayescap.inference.mixture import _adaptive_rounds, _DensityCache
 from bayescap.inference.proposals import (
@@ -106,15 +106,11 @@ def _sorted_end_errors(values, w, n_resampled):
     whole). Where a long tail lies beyond an end the random count's error dominates: on focal-plane
     amplifiers the clip level's upper end stayed at 0.03–0.06 of the width through 4 000–21 000
     draws for it alone. None when the values are not all finite."""
-    v = np.asarray(values, float)
-    if not np.all(np.isfinite(v)):
+    cdf = _weighted_cdf(values, w)
+    if cdf is None:
         return None
-    o = np.argsort(v)
-    v, ws = v[o], w[o]
-    F = np.cumsum(ws)
-    F /= F[-1]
+    v, ws, F, _, width = cdf
     ws = ws / np.sum(ws)
-    width = np.interp(0.975, F, v) - np.interp(0.025, F, v)
     if not width > 0:
         return [0.0 for _ in _END_PROBS]
     c2 = np.cumsum(ws * ws)
