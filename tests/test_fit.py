@@ -704,6 +704,26 @@ def test_a_walker_that_never_moved_fails_the_length_check_and_extends_the_run():
     assert inf_mcmc._next_round_steps(100, settings, cache) == settings.extend_steps
 
 
+def test_rounds_that_chase_the_same_check_grow_by_half_the_chain():
+    """A slowly mixing chain's τ estimate grows with the chain and its ESS stays put, so rounds
+    sized to the last shortfall add extend_steps at a time until max_rounds (the non-linear zoo's
+    soft knee without photon counts: 20 rounds, 540 steps, 10 τ = 556, not converged). From the
+    second round in a row that the τ or the ESS check fails, a round adds at least half the chain;
+    the first such round and the interval-end sizing are as before."""
+    settings = inf_presets.QUALITY_PRESETS["standard"]
+    assert settings.adaptive_extend and settings.extend_steps == 20
+    tau = {"_shortfall": ("tau", 3.0)}
+    ess = {"_shortfall": ("ess", 960.0, 1.001, 0)}
+    mcse = {"_shortfall": ("mcse", 0.12, "x")}
+    for cache in (tau, ess):
+        assert inf_mcmc._next_round_steps(300, settings, cache, 1) == settings.extend_steps
+        assert inf_mcmc._next_round_steps(300, settings, cache, 2) == 150
+    # a large ESS shortfall keeps its own (larger) size
+    assert inf_mcmc._next_round_steps(300, settings, {"_shortfall": ("ess", 500.0, 1.001, 0)}, 2) == 330
+    n = int(np.ceil(1.1 * 300 * ((0.12 / settings.end_mcse_goal) ** 2 - 1.0)))
+    assert inf_mcmc._next_round_steps(300, settings, mcse, 5) == n + n % 2
+
+
 def test_end_mcse_target_extends_the_run_until_the_ends_are_accurate():
     """With SamplerSettings.end_mcse_target, _default_converged fails a chain whose R-hat and ESS
     pass while an interval end's Monte Carlo error exceeds the target, names the quantity, and sizes

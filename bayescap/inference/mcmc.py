@@ -390,6 +390,7 @@ def run_ensembles(
         rounds = 0
         discard = 0  # production steps moved to the burn-in after a drift (below)
         drift = []
+        chase = ("", 0)  # the check that failed the last rounds, and in how many in a row (_next_round_steps)
         while True:
             rounds += 1
             results = _map_segments(tasks, pool, pbar)
@@ -424,7 +425,9 @@ def run_ensembles(
                 drift.append({"round": rounds, "quantity": q, "rhat": float(sf[2]), "steps_discarded": cut})
                 n_done -= cut
                 cache = {}
-            n_next = _next_round_steps(n_done, settings, cache)
+            kind = (cache.get("_shortfall") or ("",))[0]
+            chase = (kind, chase[1] + 1 if kind == chase[0] else 1)
+            n_next = _next_round_steps(n_done, settings, cache, chase[1] if kind in ("tau", "ess") else 0)
             if drift and drift[-1]["round"] == rounds:
                 # at least the steps just discarded: the chain checked next is no shorter than this
                 # one (with extend_steps alone, repeated cuts on a slow sensor, τ 20-30 steps,
@@ -575,12 +578,14 @@ def _shared_out(pool, share_fn, xs):
     return out
 
 
-def _next_round_steps(n_done, settings, cache):
+def _next_round_steps(n_done, settings, cache, chase=0):
     """Steps of the next round: ``extend_steps``, or with ``adaptive_extend`` enough to close the
     shortfall of the check that failed (ESS grows about linearly with the steps: n·(target/ESS − 1)
-    + 10 %; a τ check: tau_factor·τ − n; an interval end's Monte Carlo error: n·((error/target)² − 1)
-    + 10 %), at most 3 n + extend_steps. Even, so the shared-sort
-    diagnostics apply. Deterministic: depends only on the chain."""
+    + 10 %; a τ check: tau_factor·τ − n; an interval end's Monte Carlo error: n·((error/target)² −
+    1) + 10 %), at most 3 n + extend_steps. From the second round in a row that the τ or the ESS
+    check fails (``chase``), at least n/2: a slowly mixing chain's τ estimate grows with the chain
+    (its ESS stays put), and rounds sized to the last estimate chased it, 20 steps a round, until
+    max_rounds. Even, so the shared-sort diagnostics apply. Deterministic: depends only on the chain."""
     base = settings.extend_steps or settings.n_steps
     if not settings.adaptive_extend or not cache or "_shortfall" not in cache:
         return base
@@ -594,5 +599,7 @@ def _next_round_steps(n_done, settings, cache):
         need = base
     else:
         need = 1.1 * n_done * (settings.ess_target / max(v[0], 1.0) - 1.0)
+    if chase >= 2 and kind in ("tau", "ess"):
+        need = max(need, 0.5 * n_done)
     n = int(np.ceil(min(max(need, base), 3 * n_done + base)))
     return n + n % 2
