@@ -9,7 +9,7 @@ import numpy as np
 
 from bayescap.model.pixel_quantization import _quantized_pixel_moments
 from bayescap.model.quantization import _rounded_offset
-from bayescap.model.response import _h_table, bf_factor, linearise
+from bayescap.model.response import _h_table, bf_factor, linearise, linearise_at, linearise_weights
 
 #: below this s² + σ_o² (DN²) the rounded-normal moments replace Sheppard's σ² + 1/12
 _QUANT_EXACT_S2 = 0.5
@@ -153,7 +153,11 @@ class _PredictionMixin:
             # the response (bayescap.model.response): x = h(S), g'(x) = 1/h'(S); shot noise
             # g'(x)²·x/K, patterns g'(x)·x
             table = _h_table(theta)  # one per call: the clipped rows' latent signals below use it too
-            x_lin, hp = linearise(S, theta, self.response_ref_dn, table=table)
+            if np.ndim(self.s_obs) == 1:  # the measured signals' interpolation weights, once per model
+                w = self._memoized("linearise_weights", lambda: linearise_weights(self.s_obs, self.response_ref_dn))
+                x_lin, hp = linearise_at(w, table, self.response_ref_dn)
+            else:  # (a stacked view: every draw its sensor's signals)
+                x_lin, hp = linearise(S, theta, self.response_ref_dn, table=table)
             Sx = x_lin / hp
             shot = np.where(x_lin > 0, Sx / hp, S) / K
         else:
