@@ -29,10 +29,7 @@ REGIMES = {
     "basler": "data/emva1288_basler_ccd12.csv",
     "phone_sim": "data/simulated/sim_phone_1p75um_10bit.csv",
     "M1_1.75um": "data/benchmark/M1_1.75um.csv",
-    **{
-        p.stem: str(p.relative_to(ROOT))
-        for p in sorted((ROOT / "tests" / "data" / "logprob_regimes").glob("*.csv"))
-    },
+    **{p.stem: str(p.relative_to(ROOT)) for p in sorted((ROOT / "tests" / "data" / "logprob_regimes").glob("*.csv"))},
 }
 #: relative tolerance on each log p (issue 50: bit for bit where possible, else 1e-9)
 RTOL = 1e-9

@@ -247,7 +247,9 @@ def linearise_weights(s, s_ref, n_table=N_TABLE):
     :func:`linearise_at`."""
     v = np.asarray(s, float) / s_ref
     j, a, a1, b0, b1 = _hermite_weights(v, n_table)
-    return dict(j=j, j1=j + 1, a=a, a1=a1, b0=b0, b1=b1, over=np.maximum(v - 1.0, 0.0), under=np.minimum(v, 0.0), neg=v < 0.0)
+    return dict(
+        j=j, j1=j + 1, a=a, a1=a1, b0=b0, b1=b1, over=np.maximum(v - 1.0, 0.0), under=np.minimum(v, 0.0), neg=v < 0.0
+    )
 
 
 def linearise_at(weights, table, s_ref):
