@@ -148,7 +148,11 @@ def _h_table(theta, n_table=N_TABLE):
     (exp(L))'/K, the Hermite data in units of one interval. Each (n, K + 1)."""
     c = _power_coefficients(theta)
     n, m = c.shape
-    g = np.linspace(0.0, 1.0, n_table + 1)
+    g = _TABLE_NODES.get(n_table)
+    if g is None:  # (the nodes of each table size, once)
+        g = np.linspace(0.0, 1.0, n_table + 1)
+        g.setflags(write=False)
+        g = _TABLE_NODES.setdefault(n_table, g)
     h = 1.0 / n_table
     H, f, fp = np.empty((n, n_table + 1)), np.empty((n, n_table + 1)), np.empty((n, n_table + 1))
     H[:, 0] = 0.0
@@ -182,6 +186,8 @@ def _h_table(theta, n_table=N_TABLE):
 
 #: draws per block of :func:`_h_table`
 _H_BLOCK = 256
+#: :func:`_h_table`'s nodes u = 0, 1/K, ..., 1 by table size K
+_TABLE_NODES = {}
 
 
 def _linearise_points(v, theta, s_ref):
