@@ -3,15 +3,20 @@ benchmark CSVs and four sensors of the zoo whose rows need the rounding moments 
 phone): the number to compare before and after a likelihood change, on the same machine and load.
 For the zoo sensors the same call is also timed with the moments' Fourier series off (the exact
 evaluation of every element, ``bayescap.model.offset_fourier``), alternating with it, so the
-speed-up is measured under the same load.
+speed-up is measured under the same load. With ``--baseline DIR`` (a directory holding another
+version's ``bayescap`` package, e.g. ``git archive <commit> bayescap | tar -x -C DIR``) every call is
+also timed with that version's code on the same draws, alternately, and the two results compared
+(before/after a speed change on a loaded machine: the same load for both).
 
-    python benchmarks/bench_logprob.py [--walkers 128] [--repeat 30]
+    python benchmarks/bench_logprob.py [--walkers 128] [--repeat 30] [--baseline DIR]
 
 Writes ``benchmarks/results/bench_logprob.md`` (ms per call and ns per walker and data row)."""
 
 import argparse
 import glob
+import importlib
 import os
+import sys
 import time
 from pathlib import Path
 
@@ -55,11 +60,51 @@ def _best_ms(m, th, repeat, exact=None):
     return tuple(best[k] for k in modes)
 
 
+def _baseline_code(tree):
+    """``read_ptc_csv`` and ``PTCModel`` of the ``bayescap`` package in ``tree``, imported beside this
+    version's (whose modules are put back in ``sys.modules`` afterwards)."""
+    mine = lambda k: k == "bayescap" or k.startswith("bayescap.")  # noqa: E731
+    saved = {k: v for k, v in sys.modules.items() if mine(k)}
+    for k in saved:
+        del sys.modules[k]
+    sys.path.insert(0, str(tree))
+    try:
+        read = importlib.import_module("bayescap.io.ptc_csv").read_ptc_csv
+        model = importlib.import_module("bayescap.model.ptc_model").PTCModel
+    finally:
+        sys.path.remove(str(tree))
+        for k in [k for k in sys.modules if mine(k)]:
+            del sys.modules[k]
+        sys.modules.update(saved)
+    return read, model
+
+
+def _versus_ms(m, base, th, repeat):
+    """The fastest of 3 × ``repeat`` calls (ms) of ``m`` and of the baseline's model ``base`` on
+    ``th``, call by call alternately (the fastest: the call least disturbed by the machine's other
+    load), the median over the alternations of the baseline's time over this one's (each pair ran
+    under nearly the same load); and whether the two give the same numbers bit for bit (−inf
+    included) and their largest relative difference."""
+    times = np.empty((3 * repeat, 2))
+    for r in range(3 * repeat):
+        for i, mod in enumerate((m, base)):
+            t0 = time.perf_counter()
+            mod.log_prob(th)
+            times[r, i] = (time.perf_counter() - t0) * 1e3
+    a, b = m.log_prob(th), base.log_prob(th)
+    fin = np.isfinite(a) & np.isfinite(b)
+    rel = float(np.max(np.abs(a[fin] - b[fin]) / np.maximum(np.abs(b[fin]), 1.0), initial=0.0))
+    best = times.min(axis=0)
+    return best[0], best[1], float(np.median(times[:, 1] / times[:, 0])), bool(np.array_equal(a, b)), rel
+
+
 def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--walkers", type=int, default=128)
     ap.add_argument("--repeat", type=int, default=30)
+    ap.add_argument("--baseline", type=Path, default=None, help="a directory holding another version's bayescap")
     a = ap.parse_args(argv)
+    baseline = _baseline_code(a.baseline) if a.baseline is not None else None
     files = [ROOT / "data" / "emva1288_basler_ccd12.csv"] + sorted(
         map(Path, glob.glob(str(ROOT / "data" / "benchmark" / "*.csv")))
     )
@@ -67,6 +112,7 @@ def main(argv=None):
         "python benchmarks/bench_logprob.py"
         + (f" --walkers {a.walkers}" if a.walkers != 128 else "")
         + (f" --repeat {a.repeat}" if a.repeat != 30 else "")
+        + (f" --baseline {a.baseline}" if a.baseline is not None else "")
     )
     L = [
         "# Cost of one `PTCModel.log_prob` call",
@@ -98,6 +144,32 @@ def main(argv=None):
         else:
             (best,) = _best_ms(m, th, a.repeat)
             L.append(f"| {f.name} | {rows} | {m.ndim} | {best:.2f} | {best * 1e6 / (a.walkers * rows):.0f} | | |")
+    if baseline is not None:
+        read_base, model_base = baseline
+        L += [
+            "",
+            f"## Against the baseline `{a.baseline}`",
+            "",
+            f"The same draws as above, each call timed with this version's code and the baseline's "
+            f"alternately: the fastest of 3 × {a.repeat} alternations each, their ratio, and the median "
+            "over the alternations of the baseline's time over this version's (each pair ran under nearly the "
+            "same load); `same bits`: the two log-probabilities "
+            "equal bit for bit (−inf included), else their largest relative difference.",
+            "",
+            "| data | ms per call | ms, baseline | speed-up | median paired speed-up | same bits |",
+            "|---|---|---|---|---|---|",
+        ]
+        for f in files + zoo_files:
+            m, mb = PTCModel(read_ptc_csv(f)), model_base(read_base(f))
+            th = np.repeat(m.initial_guess()[None], a.walkers, 0)
+            if f in zoo_files:
+                th = th + 1e-3 * np.random.default_rng(0).normal(size=th.shape)
+            new, old, ratio, same, rel = _versus_ms(m, mb, th, a.repeat)
+            name = f.name.rsplit("-", 1)[0] + " (zoo)" if f in zoo_files else f.name
+            L.append(
+                f"| {name} | {new:.2f} | {old:.2f} | {old / new:.2f}× | {ratio:.2f}× | "
+                f"{'yes' if same else f'no ({rel:.1e})'} |"
+            )
     emit(L, OUT)
 
 

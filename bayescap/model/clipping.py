@@ -106,6 +106,23 @@ def _clip_var_slope(s, tau, d):
     return var, Ph, h, sp2
 
 
+def _gather(a, shape, mask, flat, out):
+    """``np.broadcast_to(a, shape)[mask]`` into ``out``, for an ``a`` that broadcasts to the 2-D
+    ``shape``, with ``flat`` = ``np.flatnonzero(mask)``: a data row (rows,) or a per-draw column
+    (n, 1) by its index instead of a boolean mask on a broadcast view (the same values)."""
+    a = np.asarray(a)
+    n, r = shape
+    if a.shape == shape:
+        np.take(a.reshape(-1), flat, out=out)
+    elif a.shape in ((r,), (1, r)):
+        np.take(a.reshape(-1), flat % r, out=out)
+    elif a.shape == (n, 1):
+        np.take(a.reshape(-1), flat // r, out=out)
+    else:
+        out[...] = np.broadcast_to(a, shape)[mask]
+    return out
+
+
 class _ClipMixin:
     """The clipped-moment methods of :class:`~bayescap.model.PTCModel` (the latent solver reads
     the model's row arrays ``m`` and ``dm``)."""
@@ -182,32 +199,35 @@ class _ClipMixin:
             idx = np.flatnonzero(todo)
             mu_f, s_f = mu.reshape(-1), s_all.reshape(-1)  # views (C order): updates land in mu and s_all
             # the fixed inputs of each element to solve, one row each, so that dropping the
-            # converged elements is one fancy-indexing call instead of six
-            P = np.empty((6, idx.size))
+            # converged elements is one fancy-indexing call; with the per-element constants of the
+            # iteration (the measured shortfall, τ², 1e-6 of the shortfall) as rows too
+            P = np.empty((9, idx.size))
             for i, a in enumerate((m_obs, dm, K, pre_var_dn2, tt_, cc)):
-                P[i] = np.broadcast_to(a, shape)[todo]
+                _gather(a, shape, todo, idx, out=P[i])
             P_all = P
             mu_a, s = P[0].copy(), s_f[idx]
-            mo_a, dm_a, k_a, pre_a, tau_a, c_a = P
-            g_obs = c_a - mo_a  # the measured shortfall (≤ 0: no root, μ → ∞)
+            mo_a, dm_a, k_a, pre_a, tau_a, c_a = P[:6]
+            g_obs = np.subtract(c_a, mo_a, out=P[6])  # the measured shortfall (≤ 0: no root, μ → ∞)
+            np.multiply(tau_a, tau_a, out=P[7])
+            np.multiply(1e-6, g_obs, out=P[8])
             pos = g_obs > 0
             with np.errstate(divide="ignore", invalid="ignore"):
                 # first guess: ψ inverted at the variance of the measured mean, never below it
-                sp = np.sqrt(s * s + tau_a * tau_a)
+                sp = np.sqrt(s * s + P[7])
                 guess = c_a - sp * _psi_inverse_guess(np.log(g_obs / sp))
             mu_a = np.where(pos & (guess > mu_a), guess, mu_a)
             lo, hi = mo_a.copy(), np.full(mu_a.size, np.inf)  # the clipped mean is below / above
             sub = idx
             with np.errstate(divide="ignore", invalid="ignore", over="ignore", under="ignore"):
                 for _ in range(30):
-                    mo_a, dm_a, k_a, pre_a, tau_a, c_a = P
-                    g_obs = c_a - mo_a
+                    mo_a, dm_a, k_a, pre_a, tau_a, c_a, g_obs, tau2, g_tol = P
                     s = np.sqrt(np.maximum(mu_a - dm_a, 0.0) / k_a + pre_a)
-                    sp = np.sqrt(s * s + tau_a * tau_a)
+                    sp = np.sqrt(s * s + tau2)
                     h = np.minimum((c_a - mu_a) / sp, 30.0)
+                    hh = 0.5 * h * h  # (−0.5·h·h is −hh exactly)
                     # Φ(h) = ½ erfcx(−h/√2) e^{−h²/2} and ψ(h) = e^{−h²/2} (φ(0) + ½ h erfcx(−h/√2)):
                     # one erfcx gives both, without cancellation for h < 0 (:func:`_log_shortfall`)
-                    e2 = np.exp(-0.5 * h * h)
+                    e2 = np.exp(-hh)
                     X = erfcx(-0.7071067811865476 * h)
                     B = 0.3989422804014327 + 0.5 * h * X
                     short = sp * e2 * B
@@ -215,14 +235,15 @@ class _ClipMixin:
                     # converged within 1e-9 of the noise and 1e-6 of the shortfall itself (a row
                     # deep in the clip has a shortfall far below the noise; the step taken after
                     # convergence squares that relative error)
-                    done = np.abs(gap) < np.where(pos, np.minimum(1e-9 * s, 1e-6 * g_obs), 1e-9 * s)
+                    tol = 1e-9 * s
+                    done = np.abs(gap) < np.where(pos, np.minimum(tol, g_tol), tol)
                     below = gap > 0
                     lo = np.where(below, np.maximum(lo, mu_a), lo)
                     hi = np.where(below, hi, np.minimum(hi, mu_a))
                     # d(clipped mean)/dμ, with the growth of the shot noise with μ
                     slope = np.maximum(e2 * (0.5 * X - 0.3989422804014327 * (mu_a > dm_a) * 0.5 / (k_a * sp)), 1e-300)
                     step_lin = np.minimum(np.maximum(gap / slope, 0.0), 50.0 * (s + tau_a))
-                    step_log = (np.log(B) - 0.5 * h * h + np.log(sp / g_obs)) * short / slope
+                    step_log = (np.log(B) - hh + np.log(sp / g_obs)) * short / slope
                     new = mu_a + np.where(pos, step_log, step_lin)
                     # a step from within the tolerance is taken too (it lands on the root to
                     # rounding, so the result does not depend on the pass at which an element
@@ -231,12 +252,13 @@ class _ClipMixin:
                     out = ~((new > lo) & (new < hi)) & pos & ~done
                     new = np.where(out, np.where(hi < np.inf, 0.5 * (lo + hi), mu_a + step_lin), new)
                     mu_a = np.where(np.isfinite(new), new, mu_a)
-                    mu_f[sub] = mu_a
                     if done.all():
                         break
-                    if done.any():  # drop the converged elements
+                    if done.any():  # drop the converged elements (their last iterate written back)
+                        mu_f[sub[done]] = mu_a[done]
                         keep = ~done
                         sub, mu_a, P, lo, hi, pos = sub[keep], mu_a[keep], P[:, keep], lo[keep], hi[keep], pos[keep]
+                mu_f[sub] = mu_a
             # the solved elements' noise at their latent mean (the others' is s0)
             mo_a, dm_a, k_a, pre_a = P_all[:4]
             s_f[idx] = np.sqrt(np.maximum(mu_f[idx] - dm_a, 0.0) / k_a + pre_a)

@@ -51,7 +51,7 @@ def _gamma_logpdf_and_log_ratio(v, sigma2, k):
         inv = 1.0 / kk
         stirling = 0.5 * np.log(kk) - 0.5 * _LOG_2PI - inv * (1.0 / 12.0 - inv * inv * (1.0 / 360.0))
     small = ~(kk > 10.0)
-    if np.any(small):  # rare (ν = n_pixels − 1 is large): lgamma only where Stirling is not used
+    if small.any():  # rare (ν = n_pixels − 1 is large): lgamma only where Stirling is not used
         shape = np.broadcast_shapes(stirling.shape, core.shape)
         stirling = np.array(np.broadcast_to(stirling, shape))  # a writable copy
         small = np.broadcast_to(small, shape)

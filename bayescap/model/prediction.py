@@ -9,7 +9,7 @@ import numpy as np
 
 from bayescap.model.pixel_quantization import _quantized_pixel_moments
 from bayescap.model.quantization import _rounded_offset
-from bayescap.model.response import _h_table, bf_factor, linearise
+from bayescap.model.response import _h_table, bf_factor, linearise, linearise_at, linearise_weights
 
 #: below this s² + σ_o² (DN²) the rounded-normal moments replace Sheppard's σ² + 1/12
 _QUANT_EXACT_S2 = 0.5
@@ -88,6 +88,10 @@ class _PredictionMixin:
             if not np.any(need):  # Sheppard everywhere: φ = 2 and no excess (read-only views)
                 return var, np.broadcast_to(2.0, var.shape), np.broadcast_to(0.0, var.shape)
             sp2 = np.full(s2.shape, sp2)
+        elif s2.size and s2.min() >= _QUANT_EXACT_S2:
+            # every s² + σ_o² ≥ s² ≥ ½ DN² (σ_o² ≥ 0): Sheppard everywhere, as below, without the
+            # σ_o² array (NaN s² takes the path below, where it needs nothing either)
+            return var, np.broadcast_to(2.0, var.shape), np.broadcast_to(0.0, var.shape)
         else:
             sp2 = np.maximum(np.broadcast_to(spread2, s2.shape), 0.0)
             need = (s2 < _QUANT_TEMPORAL_S2) | (s2 + sp2 < _QUANT_EXACT_S2)
@@ -126,6 +130,7 @@ class _PredictionMixin:
         p = self.physical(th, derived=False)
         k = p["conversion_gain_e_per_dn"]
         K = k[:, None]
+        K2 = K * K
         if self.terms.discrepancy:
             f2 = np.exp(2.0 * th[:, self.idx["log_f"]])[:, None]
         else:
@@ -134,12 +139,13 @@ class _PredictionMixin:
         rd2_all = self.dark_var_e2(p, self.t)
         out = {}
         pa, pb, pc = self._pattern_moments(th, p)  # realised ROI patterns (zeros without the terms)
+        pbk = pb / K2  # the DSNU's realised pattern in DN²
         # spread of the pixels' mean offsets about the DN grid not described by the patterns
         # (fitted when no spatial column tells it, see select_terms)
         so2 = p["pixel_offset_spread_dn"][:, None] ** 2 if "pixel_offset_spread_dn" in p else 0.0
         # dark temporal variances (all rows); rounding at the measured offset below 1 DN
         if getattr(self, "dark_rows", True):  # (a mean/variance table has no dark pairs)
-            vdm, phi_d, hd = self._quantized_var(rd2_all / (K * K), self.dark_frac_dn, pb / (K * K) + so2)
+            vdm, phi_d, hd = self._quantized_var(rd2_all / K2, self.dark_frac_dn, pbk + so2)
             out["dark_var"] = (self.vd, vdm, 1.0 / (phi_d / self.nu_d + f2), "gamma")
         if getattr(self.terms, "dark_mean", False):  # the dark means' ramp, the black level profiled
             slope = (p["dark_current_e_per_s"] / k)[:, None]
@@ -153,7 +159,11 @@ class _PredictionMixin:
             # the response (bayescap.model.response): x = h(S), g'(x) = 1/h'(S); shot noise
             # g'(x)²·x/K, patterns g'(x)·x
             table = _h_table(theta)  # one per call: the clipped rows' latent signals below use it too
-            x_lin, hp = linearise(S, theta, self.response_ref_dn, table=table)
+            if np.ndim(self.s_obs) == 1:  # the measured signals' interpolation weights, once per model
+                w = self._memoized("linearise_weights", lambda: linearise_weights(self.s_obs, self.response_ref_dn))
+                x_lin, hp = linearise_at(w, table, self.response_ref_dn)
+            else:  # (a stacked view: every draw its sensor's signals)
+                x_lin, hp = linearise(S, theta, self.response_ref_dn, table=table)
             Sx = x_lin / hp
             shot = np.where(x_lin > 0, Sx / hp, S) / K
         else:
@@ -166,10 +176,10 @@ class _PredictionMixin:
             shot = shot * bf_factor(z)
         shaped = bent or bf
         if self.terms.prnu or self.terms.dsnu or "pixel_offset_spread_dn" in p:
-            spread2 = pa * Sx * Sx + pb / (K * K) + 2.0 * pc * Sx / K + so2
+            spread2 = pa * Sx * Sx + pbk + 2.0 * pc * Sx / K + so2
         else:  # no fixed pattern and no offset spread: σ_o² is 0 (as the sum of zeros above)
             spread2 = 0.0
-        vm, phi_b, hb = self._quantized_var(shot + rd2_ok / (K * K), self.bright_frac_dn, spread2)
+        vm, phi_b, hb = self._quantized_var(shot + rd2_ok / K2, self.bright_frac_dn, spread2)
         slope = np.ones_like(vm)
         if self.clip_rows.size:
             c = p["clip_dn"]
@@ -200,8 +210,8 @@ class _PredictionMixin:
                     if self.terms.dark_current
                     else np.zeros((k.size, rows.size))
                 )
-                pre = dc_e2 / (K * K)
-                post = (rd2_ok[:, rows] - dc_e2) / (K * K) + 1.0 / 12.0
+                pre = dc_e2 / K2
+                post = (rd2_ok[:, rows] - dc_e2) / K2 + 1.0 / 12.0
                 mu, var_c, sl = self._latent_clip_rows(
                     self._clip_gain(k, S, shot if shaped else None, rows), pre, tau, c, rows
                 )
@@ -209,7 +219,7 @@ class _PredictionMixin:
             else:
                 # the ADC clips everything; quantization survives only for the unclipped pixels
                 mu, var_c, sl = self._latent_clip_rows(
-                    self._clip_gain(k, S, shot if shaped else None, rows), rd2_ok[:, rows] / (K * K), tau, c, rows
+                    self._clip_gain(k, S, shot if shaped else None, rows), rd2_ok[:, rows] / K2, tau, c, rows
                 )
                 vm[:, rows] = put(var_c + sl / 12.0, vm[:, rows])
             S[:, rows] = put(mu - self.dm[..., rows], S[:, rows])
@@ -245,7 +255,7 @@ class _PredictionMixin:
             tau_full = np.broadcast_to(p["clip_spread_dn"][:, None], post_full.shape)
             # rounding of the plateau values: exact below the quantization floor (offsets spread by
             # the well spread τ), Sheppard above
-            vfull, phi_pl, _ = self._quantized_var(post_full / (K * K), self.full_frac_dn, tau_full**2)
+            vfull, phi_pl, _ = self._quantized_var(post_full / K2, self.full_frac_dn, tau_full**2)
             cmean = np.broadcast_to(p["clip_dn"][:, None], vfull.shape)
             if self.adc is not None:
                 # the ADC clips the plateau's read noise too (wells just below the ADC maximum):
@@ -281,13 +291,13 @@ class _PredictionMixin:
             Sr = S[:, r]
             # realised pattern, plus what rounding adds to it below the quantization floor
             Sxr = Sx[:, r] if bent else Sr
-            P = pa * Sxr * Sxr + pb / (K * K) + 2.0 * pc * Sxr / K + hb[:, r]
+            P = pa * Sxr * Sxr + pbk + 2.0 * pc * Sxr / K + hb[:, r]
             out["spatial_var"] = self._spatial_block(
                 self.sp[..., r], P, vm[:, r], self.L_ok[..., r], self.v[..., r], self.nu[..., r], f2, phi_b[:, r]
             )
         if self.spd_rows.size:
             r = self.spd_rows
-            P = pb / (K * K) + hd[:, r]
+            P = pbk + hd[:, r]
             out["dark_spatial_var"] = self._spatial_block(
                 np.maximum(self.spd[..., r], 1e-9),
                 P,

@@ -148,7 +148,11 @@ def _h_table(theta, n_table=N_TABLE):
     (exp(L))'/K, the Hermite data in units of one interval. Each (n, K + 1)."""
     c = _power_coefficients(theta)
     n, m = c.shape
-    g = np.linspace(0.0, 1.0, n_table + 1)
+    g = _TABLE_NODES.get(n_table)
+    if g is None:  # (the nodes of each table size, once)
+        g = np.linspace(0.0, 1.0, n_table + 1)
+        g.setflags(write=False)
+        g = _TABLE_NODES.setdefault(n_table, g)
     h = 1.0 / n_table
     H, f, fp = np.empty((n, n_table + 1)), np.empty((n, n_table + 1)), np.empty((n, n_table + 1))
     H[:, 0] = 0.0
@@ -182,6 +186,8 @@ def _h_table(theta, n_table=N_TABLE):
 
 #: draws per block of :func:`_h_table`
 _H_BLOCK = 256
+#: :func:`_h_table`'s nodes u = 0, 1/K, ..., 1 by table size K
+_TABLE_NODES = {}
 
 
 def _linearise_points(v, theta, s_ref):
@@ -212,24 +218,61 @@ def linearise(s, theta, s_ref, per_point=False, table=None):
     H, fh, fph = _h_table(theta) if table is None else table
     k = H.shape[1] - 1
     vb = np.broadcast_to(v, shape)
-    t = np.clip(vb, 0.0, 1.0).reshape(shape[0], -1) * k
-    j = np.minimum(t.astype(np.intp), k - 1)
-    t -= j
+    j, a, a1, b0, b1 = _hermite_weights(vb.reshape(shape[0], -1), k)
     if n > 1:
         j += (np.arange(n) * (k + 1))[:, None]
     H, fh, fph = H.ravel(), fh.ravel(), fph.ravel()
-    t2 = t * t
-    t3 = t2 * t
-    a = 2.0 * t3 - 3.0 * t2  # Hermite basis: h00 = 1 + a, h01 = −a, h10 = t³ − 2t² + t, h11 = t³ − t²
-    b0, b1 = t3 - 2.0 * t2 + t, t3 - t2
     j1 = j + 1
-    f0, f1, a1 = fh[j], fh[j1], 1.0 + a  # (each gathered or computed once)
+    f0, f1 = fh[j], fh[j1]  # (each gathered once)
     integral = a1 * H[j] - a * H[j1] + b0 * f0 + b1 * f1
     slope = (a1 * f0 - a * f1) * k + b0 * fph[j] + b1 * fph[j1]
     integral, slope = integral.reshape(shape), slope.reshape(shape)
     top = (fh[(np.arange(n) + 1) * (k + 1) - 1] * k).reshape((n,) + (1,) * (len(shape) - 1))
     x = s_ref * (integral + np.maximum(vb - 1.0, 0.0) * top + np.minimum(vb, 0.0))
     slope = np.where(vb < 0.0, 1.0, slope)
+    return x, slope
+
+
+def _hermite_weights(v, k):
+    """The interval ``j`` of the table of ``k`` intervals each of ``v`` (S/S_ref) falls in, and the
+    cubic Hermite basis at its position t within it: (j, a, 1 + a, b0, b1) with h00 = 1 + a,
+    h01 = −a, h10 = b0 = t³ − 2t² + t, h11 = b1 = t³ − t² (:func:`linearise`)."""
+    t = np.clip(v, 0.0, 1.0) * k
+    j = np.minimum(t.astype(np.intp), k - 1)
+    t -= j
+    t2 = t * t
+    t3 = t2 * t
+    a = 2.0 * t3 - 3.0 * t2
+    b0, b1 = t3 - 2.0 * t2 + t, t3 - t2
+    return j, a, 1.0 + a, b0, b1
+
+
+def linearise_weights(s, s_ref, n_table=N_TABLE):
+    """What :func:`linearise` computes from the signals alone, for signals ``s`` (DN, 1-D) that are
+    the same for every draw (a model's measured signals): pass it as ``weights`` to
+    :func:`linearise_at`."""
+    v = np.asarray(s, float) / s_ref
+    j, a, a1, b0, b1 = _hermite_weights(v, n_table)
+    return dict(
+        j=j, j1=j + 1, a=a, a1=a1, b0=b0, b1=b1, over=np.maximum(v - 1.0, 0.0), under=np.minimum(v, 0.0), neg=v < 0.0
+    )
+
+
+def linearise_at(weights, table, s_ref):
+    """:func:`linearise` of the signals of :func:`linearise_weights` for every draw of ``table``
+    (:func:`_h_table`): (n, rows) each, the same numbers bit for bit (the same operations on the
+    same values; the weights are not recomputed for every draw and every call)."""
+    H, fh, fph = table
+    k = H.shape[1] - 1
+    w = weights
+    j, j1, a, a1, b0, b1 = w["j"], w["j1"], w["a"], w["a1"], w["b0"], w["b1"]
+    f0, f1 = fh.take(j, axis=1), fh.take(j1, axis=1)
+    integral = a1 * H.take(j, axis=1) - a * H.take(j1, axis=1) + b0 * f0 + b1 * f1
+    slope = (a1 * f0 - a * f1) * k + b0 * fph.take(j, axis=1) + b1 * fph.take(j1, axis=1)
+    top = fh[:, k : k + 1] * k
+    x = s_ref * (integral + w["over"] * top + w["under"])
+    if w["neg"].any():
+        slope = np.where(w["neg"], 1.0, slope)
     return x, slope
 
 
