@@ -163,6 +163,12 @@ BENCHMARKS = {
         "3-6 min",
         "1 min",
     ),
+    "colour_warm_start": (
+        "whether the CFA channels' fits would gain from starting their optimiser at the first channel's MAP: "
+        "the MAP's share of a fast channel fit, Newton's calls from the own guess and from three warm starts",
+        "1-2 min",
+        None,
+    ),
     "subdn_speed": (
         "fit times of two 8-bit sensors with read noise far below a DN (zoo draw20, draw25), fast and "
         "standard, and which tier of the rounding moments served how many elements",
