@@ -16,12 +16,9 @@ monochrome fit's: ``benchmarks/colour_cfa_speed.py``; on the project's 2-core VM
 ~1.3x slower while the other core fits too, so two processes give ~1.5x the throughput of one);
 the numbers do not depend on the process count. Stacking the four channels' ``log_prob`` calls instead gains nothing measurable (their tables
 differ in their clip rows, so at most Gr and Gb stack, and the fast path's calls are large). Nor
-does starting channels R, Gb and B at the Gr fit's MAP (``benchmarks/colour_warm_start.py``): the
-MAP and its covariance are ~14 % of a fast channel fit, and Newton from the Gr MAP (with the
-channel's QE, also moved along the QE/K ridge, or only the shared coordinates moved) took as many
-``log_prob`` calls as from the channel's own data-derived guess (141-264 against 147 over 12
-channel fits), the multi-start's other starts running as long either way; the importance sampling
-is each channel's own posterior's.
+does starting R, Gb and B at the Gr fit's MAP (``benchmarks/colour_warm_start.py``): the MAP is
+~15 % of a fast channel fit, and Newton from the Gr MAP took as many ``log_prob`` calls as from
+each channel's own data-derived guess (141-264 against 147 over 12 channel fits).
 The *joint* posterior of the shared coordinates (``log K``, ``log σ_read``, ``log D``, the clip
 level in DN) is the product of the channels' marginal posteriors with the prior counted once,
 
