@@ -9,7 +9,9 @@ tables. Timed, per camera and preset, after one warm-up fit:
 * colour: ``fit_cfa`` of the four tables (the separate fits, in one worker process per core, the K
   check, the consensus) plus ``colour_summary`` (CS per draw with the CCM's stated uncertainty, on
   one thread, scores and capacities): what ``bayescap colour`` computes after reading the tables;
-* the same colour run with ``n_jobs=1`` (every channel fit in this process, the same numbers);
+* the same colour run with ``n_jobs=1`` (the channel fits one after the other in this process, each
+  as ``bayescap.fit`` runs it alone: at ``standard`` its MCMC ensembles in one forked process per
+  core, at ``fast`` no fork; the same numbers);
 * with the fast preset (``bayescap colour``'s default), the whole processes too: ``bayescap colour``
   of the four CSVs (``--json``) against ``bayescap fit`` of the Gr CSV (``--quality fast --json``),
   imports, reading and output included.
@@ -218,7 +220,9 @@ def main(argv=None) -> int:
         "colour fit's channel processes); 'CS etc.': this process's CPU seconds in `colour_summary`. Critical "
         "path: the longer of this process's and its worker's CPU seconds in the channel fits, plus CS etc., the "
         "colour run's wall time on otherwise idle cores. 'One process': the same colour run with `n_jobs=1` (the "
-        "same numbers, checked), every channel fit in this process one after the other (no fork, no transfer). "
+        "same numbers, checked), the channel fits one after the other in this process, each as `bayescap.fit` "
+        "runs it alone (at `fast` no fork; at `standard` each channel's MCMC ensembles in one forked process per "
+        "core, as the monochrome fit's; the pooled colour run runs each channel's ensembles in lockstep in its process). "
         "Wall times beside them, not the measure: the machine is shared.",
         "",
         f"Load average (1 min) at the start {load0[0]:.2f}, at the end {os.getloadavg()[0]:.2f} on "
