@@ -160,7 +160,7 @@ BENCHMARKS = {
     "colour_cfa_speed": (
         "one CFA camera's colour fit (four channels, K check, consensus, CS) against its monochrome fit: CPU "
         "time (target ≤ 3x; wall time and whole processes beside it), K check, true K in the joint interval, on cfasim cameras",
-        "3-6 min",
+        "8-15 min",
         "1 min",
     ),
     "colour_warm_start": (
