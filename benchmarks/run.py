@@ -158,10 +158,16 @@ BENCHMARKS = {
         None,
     ),
     "colour_cfa_speed": (
-        "one CFA camera's colour fit (four channels, K check, consensus, CS) against its monochrome fit: wall "
-        "time (target ≤ 3x), K check, true K in the joint interval, on cfasim cameras",
-        "3-6 min",
+        "one CFA camera's colour fit (four channels, K check, consensus, CS) against its monochrome fit: CPU "
+        "time (target ≤ 3x; wall time and whole processes beside it), K check, true K in the joint interval, on cfasim cameras",
+        "8-15 min",
         "1 min",
+    ),
+    "colour_warm_start": (
+        "whether the CFA channels' fits would gain from starting their optimiser at the first channel's MAP: "
+        "the MAP's share of a fast channel fit, Newton's calls from the own guess and from three warm starts",
+        "1-2 min",
+        None,
     ),
     "subdn_speed": (
         "fit times of two 8-bit sensors with read noise far below a DN (zoo draw20, draw25), fast and "

@@ -311,6 +311,29 @@ def test_k_check_catches_a_digitally_scaled_channel():
     assert any("conversion gains disagree" in n for n in f.notes)
 
 
+def test_chi2_check_without_scipy_stats():
+    """The K check's p-value is the χ² survival function (for 3 degrees of freedom, in closed form
+    erfc(√(x/2)) + √(2x/π)·e^(−x/2)), and the colour command's modules leave scipy.stats unimported
+    (its import cost ~0.7 CPU s at the command's start, more than a fast channel fit)."""
+    import subprocess
+    import sys
+
+    code = (
+        "import sys, math\n"
+        "import bayescap.api, bayescap.cli.colour, bayescap.colour.ccm, bayescap.colour.raw_metadata\n"
+        "import bayescap.colour.scores, bayescap.colour.sensitivity, bayescap.io.cfa, bayescap.report.colour_section\n"
+        "from bayescap.colour.cfa_fit import _chi2_check\n"
+        "import numpy as np\n"
+        "chi2, dof, p = _chi2_check(np.array([0.0, 1.0, 2.0, 3.0]), np.ones(4))\n"
+        "x = 5.0  # the values' squared distances from their mean 1.5, in sd: 2.25 + 0.25 + 0.25 + 2.25\n"
+        "exact = math.erfc(math.sqrt(x / 2)) + math.sqrt(2 * x / math.pi) * math.exp(-x / 2)\n"
+        "print(chi2 == x, dof, abs(p - exact) < 1e-12, 'scipy.stats' in sys.modules)\n"
+    )
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
+    assert out.returncode == 0, out.stderr
+    assert out.stdout.split() == ["True", "3", "True", "False"]
+
+
 # ----------------------------------------------------------------------------------- the CLI
 @pytest.fixture(scope="module")
 def colour_json(frame_set, tmp_path_factory):
