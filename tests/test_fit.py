@@ -722,6 +722,16 @@ def test_rounds_that_chase_the_same_check_grow_by_half_the_chain():
     assert inf_mcmc._next_round_steps(300, settings, {"_shortfall": ("ess", 500.0, 1.001, 0)}, 2) == 330
     n = int(np.ceil(1.1 * 300 * ((0.12 / settings.end_mcse_goal) ** 2 - 1.0)))
     assert inf_mcmc._next_round_steps(300, settings, mcse, 5) == n + n % 2
+    # not where more steps cure nothing (a walker that never moved: τ undefined; R-hat failing), and
+    # not beyond CHASE_MAX_STEPS: the zoo's b8_k200_dsnu50dn, whose stuck walkers never converge,
+    # would otherwise grow by half its chain for 20 rounds
+    stuck = {"_shortfall": ("tau", float("nan"))}
+    split = {"_shortfall": ("ess", 40.0, 1.3, 0)}
+    for cache in (stuck, split):
+        assert inf_mcmc._next_round_steps(300, settings, cache, 5) == settings.extend_steps
+    from bayescap.inference.rounds import CHASE_MAX_STEPS
+
+    assert inf_mcmc._next_round_steps(CHASE_MAX_STEPS, settings, tau, 5) == settings.extend_steps
 
 
 def test_end_mcse_target_extends_the_run_until_the_ends_are_accurate():
