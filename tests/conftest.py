@@ -1,6 +1,7 @@
 import contextlib
 import json
 import os
+import subprocess
 import sys
 import tempfile
 import warnings
@@ -295,3 +296,11 @@ def python3_kernel(tmp_path, monkeypatch):
     monkeypatch.setenv("JUPYTER_PATH", str(tmp_path))
     monkeypatch.setenv("MPLBACKEND", "Agg")
     return "python3"
+
+
+def python_stdout(code, timeout=120):
+    """What ``python -c code`` prints in a fresh interpreter (a new process's imports: what a user's
+    command loads), after checking that it exits 0."""
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=timeout)
+    assert out.returncode == 0, out.stderr
+    return out.stdout

@@ -14,6 +14,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 import tifffile
+from conftest import python_stdout
 
 from bayescap.cli import main
 from bayescap.colour.raw_metadata import ccm_from_cam_xyz, parse_ccm, read_raw_colour
@@ -315,8 +316,6 @@ def test_chi2_check_without_scipy_stats():
     """The K check's p-value is the χ² survival function (for 3 degrees of freedom, in closed form
     erfc(√(x/2)) + √(2x/π)·e^(−x/2)), and the colour command's modules leave scipy.stats unimported
     (its import cost ~0.7 CPU s at the command's start, more than a fast channel fit)."""
-    import subprocess
-    import sys
 
     code = (
         "import sys, math\n"
@@ -329,9 +328,8 @@ def test_chi2_check_without_scipy_stats():
         "exact = math.erfc(math.sqrt(x / 2)) + math.sqrt(2 * x / math.pi) * math.exp(-x / 2)\n"
         "print(chi2 == x, dof, abs(p - exact) < 1e-12, 'scipy.stats' in sys.modules)\n"
     )
-    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
-    assert out.returncode == 0, out.stderr
-    assert out.stdout.split() == ["True", "3", "True", "False"]
+    stdout = python_stdout(code)
+    assert stdout.split() == ["True", "3", "True", "False"]
 
 
 # ----------------------------------------------------------------------------------- the CLI

@@ -6,6 +6,7 @@ import sys
 from pathlib import Path
 
 import pytest
+from conftest import python_stdout
 
 from bayescap import _progress
 from bayescap.cli import build_parser, main
@@ -148,6 +149,5 @@ def test_a_command_imports_only_its_own_module():
         "every = vars(build_parser().parse_args(argv))\n"
         "print(one == every)\n"
     )
-    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
-    assert out.returncode == 0, out.stderr
-    assert out.stdout.splitlines() == ["['bayescap.cli.common', 'bayescap.cli.fit']", "True"]
+    stdout = python_stdout(code)
+    assert stdout.splitlines() == ["['bayescap.cli.common', 'bayescap.cli.fit']", "True"]

@@ -1,14 +1,13 @@
 """Laplace–IS fast path, PSIS weights, emcee move calibration, batch fitting (issue 7)."""
 
 import json
-import sys
 import warnings
 from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
 import pytest
-from conftest import standard_recipe_gain
+from conftest import python_stdout, standard_recipe_gain
 from scipy import stats
 
 import bayescap
@@ -997,7 +996,6 @@ def test_fast_fit_does_not_import_emcee():
     """The fast preset needs no MCMC: importing bayescap and running a fast fit with its report
     leaves emcee (whose moves import scipy.stats, ~0.75 s) and scipy.optimize unimported, so the
     CLI's fast preset starts in ~0.4 s instead of ~0.9 s; the MCMC classes load on first use."""
-    import subprocess
 
     # a linear sensor, whose fast path is accepted (the Basler set's response terms send it to MCMC)
     csv = Path(__file__).resolve().parents[1] / "data" / "simulated" / "sim_industrial_3p45um_12bit.csv"
@@ -1011,9 +1009,8 @@ def test_fast_fit_does_not_import_emcee():
         "import emcee\n"
         "print(issubclass(IndependenceMove, emcee.moves.MHMove), issubclass(_Sampler, emcee.EnsembleSampler))\n"
     )
-    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=300)
-    assert out.returncode == 0, out.stderr
-    lines = out.stdout.strip().splitlines()
+    stdout = python_stdout(code, timeout=300)
+    lines = stdout.strip().splitlines()
     assert lines[-2] == "[]", lines
     assert lines[-1] == "True True"
 

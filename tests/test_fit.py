@@ -5,7 +5,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from conftest import standard_recipe_gain
+from conftest import python_stdout, standard_recipe_gain
 
 import bayescap
 from bayescap.inference import chains as inf_chains
@@ -909,8 +909,6 @@ def test_emcee_imported_without_scipy_stats():
     """The MCMC imports emcee without scipy.stats (inference.moves._import_emcee; emcee's KDE move is
     its only user: ~1 s of a 2-core machine's process start), and emcee stays whole: its KDEMove,
     whose scipy.stats import then happens on first use, samples, and scipy.stats imports normally."""
-    import subprocess
-    import sys
 
     code = (
         "import sys, numpy as np\n"
@@ -923,9 +921,8 @@ def test_emcee_imported_without_scipy_stats():
         "import scipy.stats\n"
         "print(scipy.stats.norm.cdf(0.0))\n"
     )
-    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
-    assert out.returncode == 0, out.stderr
-    assert out.stdout.split() == ["False", "True", "True", "0.5"]
+    stdout = python_stdout(code)
+    assert stdout.split() == ["False", "True", "True", "0.5"]
 
 
 def test_burn_in_after_an_importance_start(basler_fit):
