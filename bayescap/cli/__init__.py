@@ -51,53 +51,23 @@ def build_parser(command: str | None = None) -> argparse.ArgumentParser:
     if want("fit"):
         _add_fit(sub)
     if want("ingest"):
-        from bayescap.cli.ingest import add_ingest_arguments, run_ingest
+        from bayescap.cli.ingest import register as _register_ingest
 
-        p = sub.add_parser(
-            "ingest",
-            help="frames (RAW/DNG/TIFF/PNG/npy) -> photon-transfer CSV",
-            description="Compute a photon-transfer CSV from flat-field and dark frames "
-            "described by a manifest CSV or an EMVA 1288 descriptor "
-            "(docs/ingest.md).",
-        )
-        add_ingest_arguments(p)
-        p.set_defaults(func=run_ingest)
+        _register_ingest(sub)  # bayescap ingest (cli/ingest.py)
     if want("mtf"):
         _add_mtf(sub)
     if want("compare"):
-        from bayescap.cli.compare import add_compare_arguments, run_compare
+        from bayescap.cli.compare import register as _register_compare
 
-        p = sub.add_parser(
-            "compare",
-            help="compare sensors: capacity at full resolution and fixed area, TR at H0, pairwise P(C_A > C_B)",
-            description="Fit each sensor and compare capacities with credible intervals and "
-            "pairwise probabilities (docs/compare.md).",
-        )
-        add_compare_arguments(p)
-        p.set_defaults(func=run_compare)
+        _register_compare(sub)  # bayescap compare (cli/compare.py)
     if want("report"):
-        from bayescap.cli.report import add_report_arguments, run_report
+        from bayescap.cli.report import register as _register_report
 
-        p = sub.add_parser(
-            "report",
-            help="self-contained HTML report of one or more sensors",
-            description="Fit the sensors and write one self-contained HTML page (docs/compare.md).",
-            epilog=EXIT_STATUS_HELP,
-            formatter_class=argparse.RawDescriptionHelpFormatter,
-        )
-        add_report_arguments(p)
-        p.set_defaults(func=run_report)
+        _register_report(sub, epilog=EXIT_STATUS_HELP)  # bayescap report (cli/report.py)
     if want("sweep"):
-        from bayescap.cli.sweep import add_sweep_arguments, run_sweep
+        from bayescap.cli.sweep import register as _register_sweep
 
-        p = sub.add_parser(
-            "sweep",
-            help="what-if studies from the paper (capacity vs pixel size, Fig. 4)",
-            description="Capacity vs pixel pitch at a fixed optical format with Table 1's "
-            "parameter ranges drawn (docs/physics.md).",
-        )
-        add_sweep_arguments(p)
-        p.set_defaults(func=run_sweep)
+        _register_sweep(sub)  # bayescap sweep (cli/sweep.py)
     if want("datasheet"):
         from bayescap.cli.datasheet import register as _register_datasheet
 

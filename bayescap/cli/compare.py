@@ -77,3 +77,15 @@ def run_compare(args) -> int:
             print(f"bayescap: error: cannot write into {out} ({e.strerror or e}); nothing was written", file=sys.stderr)
             return 1
     return 0
+
+
+def register(sub) -> None:
+    """Add ``bayescap compare`` to the sub-command parsers ``sub``."""
+    p = sub.add_parser(
+        "compare",
+        help="compare sensors: capacity at full resolution and fixed area, TR at H0, pairwise P(C_A > C_B)",
+        description="Fit each sensor and compare capacities with credible intervals and "
+        "pairwise probabilities (docs/compare.md).",
+    )
+    add_compare_arguments(p)
+    p.set_defaults(func=run_compare)

@@ -69,3 +69,16 @@ def run_ingest(args: argparse.Namespace) -> int:
     for p in paths:
         print(p)
     return 0
+
+
+def register(sub) -> None:
+    """Add ``bayescap ingest`` to the sub-command parsers ``sub``."""
+    p = sub.add_parser(
+        "ingest",
+        help="frames (RAW/DNG/TIFF/PNG/npy) -> photon-transfer CSV",
+        description="Compute a photon-transfer CSV from flat-field and dark frames "
+        "described by a manifest CSV or an EMVA 1288 descriptor "
+        "(docs/ingest.md).",
+    )
+    add_ingest_arguments(p)
+    p.set_defaults(func=run_ingest)

@@ -73,3 +73,16 @@ def run_report(args) -> int:
         return 1
     say(args, f"wrote {out}")
     return strict_status(args, [sc.result for sc in cmp.sensors])
+
+
+def register(sub, epilog=None) -> None:
+    """Add ``bayescap report`` to the sub-command parsers ``sub``."""
+    p = sub.add_parser(
+        "report",
+        help="self-contained HTML report of one or more sensors",
+        description="Fit the sensors and write one self-contained HTML page (docs/compare.md).",
+        epilog=epilog,
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+    )
+    add_report_arguments(p)
+    p.set_defaults(func=run_report)

@@ -160,3 +160,15 @@ def main(argv=None) -> int:
     """``bayescap sweep pixel-size ...`` with ``argv`` (default: ``sys.argv[1:]``) as its arguments."""
     parser = add_sweep_arguments(argparse.ArgumentParser(prog="bayescap sweep", description=__doc__.split("\n")[0]))
     return run_sweep(parser.parse_args(argv))
+
+
+def register(sub) -> None:
+    """Add ``bayescap sweep`` to the sub-command parsers ``sub``."""
+    p = sub.add_parser(
+        "sweep",
+        help="what-if studies from the paper (capacity vs pixel size, Fig. 4)",
+        description="Capacity vs pixel pitch at a fixed optical format with Table 1's "
+        "parameter ranges drawn (docs/physics.md).",
+    )
+    add_sweep_arguments(p)
+    p.set_defaults(func=run_sweep)
