@@ -76,25 +76,17 @@ def _variants(text):
 BASE = Path(__file__).resolve().parents[1] / "data" / "simulated" / "sim_industrial_3p45um_12bit.csv"
 
 
-#: the sweep's variant whose fit costs ~50 CPU-s, the rest together ~20: the fast path fails its check
-#: (k̂ inf) and the MCMC fallback runs. A test of its own, so that under ``pytest -n 2`` it runs beside
-#: the rest of the sweep (in two halves) rather than after it on one worker
-SLOW_VARIANTS = ("row 10 mean_dn='0'",)
-
-#: the sweep's parts: the slow variants, then the other variants' even and odd positions
-PARTS = ("slow variants", "rest, even", "rest, odd")
+#: the sweep in two halves (even and odd positions), so that under ``pytest -n 2`` both workers share it
+PARTS = ("even", "odd")
 
 
 def _part(variants, part):
-    if part == PARTS[0]:
-        return {n: variants[n] for n in SLOW_VARIANTS}
-    rest = [n for n in variants if n not in SLOW_VARIANTS]
-    return {n: variants[n] for n in rest[PARTS.index(part) - 1 :: 2]}
+    return {n: variants[n] for n in list(variants)[PARTS.index(part) :: 2]}
 
 
 def test_the_parts_are_the_whole_sweep():
     variants = _variants(BASE.read_text())
-    assert len(variants) > 100 and set(SLOW_VARIANTS) <= set(variants)
+    assert len(variants) > 100
     names = [n for part in PARTS for n in _part(variants, part)]
     assert sorted(names) == sorted(variants)
 

@@ -258,3 +258,33 @@ def test_mtf_above_one_is_flagged_and_an_all_zero_table_refused(tmp_path, basler
     assert r.returncode == 2 and "Traceback" not in r.stderr
     lines = r.stderr.strip().splitlines()
     assert len(lines) == 1 and "MTF is zero at every frequency" in lines[0] and "zeros.csv" in lines[0]
+
+
+def test_a_lit_mean_far_below_its_dark_mean_is_refused_with_its_row(tmp_path, basler_csv):
+    """A flat's mean 0 DN under a dark mean of 64 DN sent the fit to a sampler that could not
+    converge (a minute, R-hat 1.8); 4 pixel σ below the dark mean is now an input error naming the
+    row, 2 σ below (a black-level drift's size, far beyond the means' own scatter) still reads."""
+    from dataclasses import replace
+
+    from bayescap.io.ptc_csv import check_table
+    from bayescap.io.table_checks import DARKER_THAN_DARK_SIGMA
+
+    def lit_below_dark(n_sigma):
+        def edit(header, rows):
+            r = rows[4]  # file row 5
+            var = float(r[header.index("temporal_var_dn2")]) + float(r[header.index("dark_temporal_var_dn2")])
+            r[header.index("mean_dn")] = repr(float(r[header.index("dark_mean_dn")]) - n_sigma * (var + 1 / 12) ** 0.5)
+
+        return edit
+
+    assert DARKER_THAN_DARK_SIGMA == 3.0
+    ok = read_ptc_csv(_basler_variant(basler_csv, tmp_path, lit_below_dark(2.0)))
+    assert np.sum(ok.signal_dn < 0) == 1
+    with pytest.raises(PTCInputError, match=r"row 5, column 'mean_dn': the lit mean .* DN below the row's dark mean"):
+        read_ptc_csv(_basler_variant(basler_csv, tmp_path, lit_below_dark(4.0)))
+    # the same check on a table built in memory (the API path)
+    i = int(np.argmin(ok.signal_dn))
+    mean = np.array(ok.mean_dn)
+    mean[i] -= 2.0 * np.sqrt(ok.temporal_var_dn2[i] + ok.dark_temporal_var_dn2[i] + 1 / 12)
+    with pytest.raises(PTCInputError, match="row 5"):
+        check_table(replace(ok, mean_dn=mean))

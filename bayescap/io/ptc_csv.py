@@ -39,6 +39,7 @@ from bayescap.io.atomic import atomic_write_text
 from bayescap.io.table_checks import (
     _check_repeated_key,
     _records,
+    check_lit_not_below_dark,
     check_not_all_saturated,
     check_repeated_rows,
     check_some_row_mostly_unclipped,
@@ -517,6 +518,7 @@ def _check_consistency(d: PTCData, path):
                     row=d.row_label(i),
                     column=col,
                 )
+    check_lit_not_below_dark(d, path)
     if np.all(d.signal_dn <= 0):
         raise PTCInputError(
             "no row has a bright mean above its dark mean: not a photon-transfer series", path=path, column="mean_dn"
@@ -527,11 +529,12 @@ def _check_consistency(d: PTCData, path):
 def check_table(d: PTCData, path=None) -> None:
     """The table-wide checks :func:`read_ptc_csv` makes, for a PTCData built in memory too (the API
     path: :func:`bayescap.model.saturation_flags` calls this before every fit): no row repeated
-    exactly, not every row saturated, some row mostly unclipped."""
+    exactly, no lit mean far below its dark mean, not every row saturated, some row mostly unclipped."""
     path = d.source if path is None else path
     cols = {c: getattr(d, c) for c in REQUIRED_COLUMNS + OPTIONAL_COLUMNS if getattr(d, c, None) is not None}
     rows = d.row_numbers if d.row_numbers is not None else np.arange(1, d.n_levels + 1)
     check_repeated_rows(cols, [int(r) for r in rows], path)
+    check_lit_not_below_dark(d, path)
     check_not_all_saturated(d, path)  # the more specific message first, as read_ptc_csv gives it
     check_some_row_mostly_unclipped(d, path)
 
