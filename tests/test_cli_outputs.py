@@ -31,7 +31,7 @@ def test_dollar_in_file_name_does_not_reach_math_text(small_csv, tmp_path, capsy
     assert main(["fit", str(small_csv), "--quality", "fast", "--seed", "1", "--out", str(out)]) == 0
     assert (out / "ptc.png").stat().st_size > 0
     rep = tmp_path / "r.html"
-    assert main(["report", str(small_csv), "-o", str(rep), "--seed", "1"]) == 0
+    assert main(["report", str(small_csv), "-o", str(rep), "--quality", "fast", "--seed", "1"]) == 0
     assert "cam_$5_vs_$10" in rep.read_text()
 
 
