@@ -149,7 +149,8 @@ def netcdf_bytes(idata) -> bytes:
     groups = {f"/{g}": idata[g] for g in idata.groups()}
     tree = xr.DataTree.from_dict({"/": xr.Dataset(attrs=dict(idata.attrs)), **groups})
     encoding = {
-        g: {v: {"zlib": True, "shuffle": True} for v, x in ds.variables.items() if x.dtype.kind in "biufc"} for g, ds in groups.items()
+        g: {v: {"zlib": True, "shuffle": True} for v, x in ds.variables.items() if x.dtype.kind in "biufc"}
+        for g, ds in groups.items()
     }
     return bytes(tree.to_netcdf(None, engine="h5netcdf", encoding=encoding))
 
