@@ -299,6 +299,7 @@ def fit(
                     "fast_path_khat": fd["khat"],
                     "fast_path_ess_is": fd["ess_is"],
                     "fast_path_wall_s": fd["wall_s"],
+                    **({"fast_path_retry_skipped": fd["retry_skipped"]} if fd.get("retry_skipped") else {}),
                     "fast_settings": dict(fd["settings"]) if fd.get("settings") is not None else None,
                 }
             )

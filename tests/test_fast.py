@@ -237,6 +237,15 @@ def test_fast_fit_falls_back_to_mcmc(basler_csv):
     assert r.diag["n_ensembles"] >= 2
 
 
+def test_a_skipped_retry_is_said_in_the_result():
+    """Rejected (a k̂ gate no fit passes) and retried with restarts that find the same MAP: the
+    reason the importance draws were not drawn again reaches the result's diagnostics (the JSON)."""
+    r = bayescap.fit(PHONE_CSV, seed=2, quality="fast", fast_settings=FastSettings(khat_max=-1.0), fallback=False)
+    d = r.to_dict()["diagnostics"]
+    assert not r.diag["converged"] and d["retried_with_restarts"]
+    assert "same proposals would give the same verdict" in d["retry_skipped"]
+
+
 def test_cli_quality_fast_runs_the_fast_path(capsys):
     from bayescap.cli import main
 

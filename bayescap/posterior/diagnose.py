@@ -98,6 +98,8 @@ class DiagnoseMixin:
             "n_proposals": int(x["n_proposals"]),
             "n_draws": int(S),
             "retried_with_restarts": bool(x.get("retried_with_restarts", False)),
+            # why the retry's importance draws were not drawn again (fast.fast_posterior)
+            **({"retry_skipped": x["retry_skipped"]} if x.get("retry_skipped") else {}),
             "fast_path_accepted": bool(x["accepted"]),
             "n_ensembles": E,
             "n_walkers": W,
