@@ -27,6 +27,14 @@ _GROUPS_FILE = "BAYESCAP_TEST_GROUPS_FILE"
 
 
 def pytest_configure(config):
+    if not os.environ.get("PYTEST_XDIST_WORKER"):
+        # bayescap byte-compiled once, as a regular (not editable) install does: with
+        # PYTHONDONTWRITEBYTECODE set (as in some CI images and sandboxes) nothing else writes the
+        # cache, and each xdist worker and each of the ~40 processes the tests start would compile
+        # the sources again (~0.4 CPU-s a process); up to date, this only compares timestamps
+        import compileall
+
+        compileall.compile_dir(ROOT / "bayescap", quiet=1)
     if config.getoption("numprocesses", None) and not os.environ.get("PYTEST_XDIST_WORKER"):
         fd, path = tempfile.mkstemp(prefix="bayescap-test-groups-", suffix=".json")
         os.close(fd)
