@@ -11,12 +11,26 @@ import json
 from pathlib import Path
 
 from bayescap.posterior import FitResult
-from bayescap.posterior.inference_data import to_inference_data as _to_inference_data
-from bayescap.posterior.storage import netcdf_bytes
 from bayescap.posterior.summary import DERIVED_ORDER, PARAMETER_ORDER
-from bayescap.report.plots import plot_corner, plot_ptc
 
 __all__ = ["format_text", "to_json", "write_outputs", "to_inference_data", "plot_ptc", "plot_corner"]
+
+
+def _plot_functions() -> None:
+    """Bind :func:`plot_ptc` and :func:`plot_corner` here on first need (a name already bound, e.g.
+    replaced by a test, is kept): the text report and the JSON start without the plotting module."""
+    from bayescap.report import plots
+
+    g = globals()
+    g.setdefault("plot_ptc", plots.plot_ptc)
+    g.setdefault("plot_corner", plots.plot_corner)
+
+
+def __getattr__(name):
+    if name in ("plot_ptc", "plot_corner"):
+        _plot_functions()
+        return globals()[name]
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
 
 
 def _fmt(x):
@@ -186,6 +200,8 @@ def to_inference_data(result: FitResult):
     report's R-hat), physical parameters and derived quantities with units, the sampler's
     coordinates, pointwise log-likelihood (``az.loo``), replicated and observed data, the input
     columns (:mod:`bayescap.posterior.inference_data`; docs/results.md)."""
+    from bayescap.posterior.inference_data import to_inference_data as _to_inference_data
+
     return _to_inference_data(result)
 
 
@@ -211,7 +227,9 @@ def write_outputs(result: FitResult, out_dir) -> list[Path]:
     complete run, the previous one, or nothing. An existing ``out_dir`` holding other files is
     refused (:class:`FileExistsError`); write errors raise :class:`OSError` and leave nothing."""
     from bayescap.io.atomic import output_problem, write_dir_atomically
+    from bayescap.posterior.storage import netcdf_bytes
 
+    _plot_functions()
     out = Path(out_dir)
     problem = output_problem(out, directory=True, names=OUTPUT_NAMES, option="output directory")
     if problem:
