@@ -16,21 +16,19 @@ from bayescap.posterior.summary import DERIVED_ORDER, PARAMETER_ORDER
 __all__ = ["format_text", "to_json", "write_outputs", "to_inference_data", "plot_ptc", "plot_corner"]
 
 
-def _plot_functions() -> None:
-    """Bind :func:`plot_ptc` and :func:`plot_corner` here on first need (a name already bound, e.g.
-    replaced by a test, is kept): the text report and the JSON start without the plotting module."""
+def plot_ptc(result, path=None, **kwargs):
+    """:func:`bayescap.report.plots.plot_ptc`, loaded on the first call: the text report and the
+    JSON start without the plotting module."""
     from bayescap.report import plots
 
-    g = globals()
-    g.setdefault("plot_ptc", plots.plot_ptc)
-    g.setdefault("plot_corner", plots.plot_corner)
+    return plots.plot_ptc(result, path, **kwargs)
 
 
-def __getattr__(name):
-    if name in ("plot_ptc", "plot_corner"):
-        _plot_functions()
-        return globals()[name]
-    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+def plot_corner(result, path=None, **kwargs):
+    """:func:`bayescap.report.plots.plot_corner`, loaded on the first call (:func:`plot_ptc`)."""
+    from bayescap.report import plots
+
+    return plots.plot_corner(result, path, **kwargs)
 
 
 def _fmt(x):
@@ -229,7 +227,6 @@ def write_outputs(result: FitResult, out_dir) -> list[Path]:
     from bayescap.io.atomic import output_problem, write_dir_atomically
     from bayescap.posterior.storage import netcdf_bytes
 
-    _plot_functions()
     out = Path(out_dir)
     problem = output_problem(out, directory=True, names=OUTPUT_NAMES, option="output directory")
     if problem:
