@@ -27,19 +27,14 @@ NEVER_IN_A_FIT = (
     "bayescap.posterior.inference_data",
 )
 
-_SNAPSHOT = (
-    "def loaded(names):\n"
-    "    return sorted(n for n in names if n in sys.modules)\n"
-)
+_SNAPSHOT = "def loaded(names):\n    return sorted(n for n in names if n in sys.modules)\n"
 
 
 def test_import_bayescap_and_version_are_light():
     """``import bayescap`` loads neither numpy nor ctypes (nor subprocess, which ctypes.util's
     library search imports); ``bayescap --version`` loads no numpy either."""
     code = (
-        "import sys\n"
-        + _SNAPSHOT
-        + "import bayescap\n"
+        "import sys\n" + _SNAPSHOT + "import bayescap\n"
         "heavy = ('numpy', 'scipy', 'ctypes', 'subprocess', 'bayescap.api', 'bayescap.cli')\n"
         "print(loaded(heavy))\n"
         "from bayescap.cli import main\n"
@@ -62,9 +57,7 @@ def test_fit_json_imports_only_what_it_uses():
     fast_csv = ROOT / "data" / "simulated" / "sim_industrial_3p45um_12bit.csv"
     std_csv = ROOT / "data" / "simulated" / "sim_scientific_6p5um_16bit_unsaturated.csv"
     code = (
-        "import contextlib, io, json, sys\n"
-        + _SNAPSHOT
-        + f"never = {NEVER_IN_A_FIT!r}\n"
+        "import contextlib, io, json, sys\n" + _SNAPSHOT + f"never = {NEVER_IN_A_FIT!r}\n"
         "from bayescap.cli import main\n"
         "def fit(csv, quality):\n"
         "    out = io.StringIO()\n"
