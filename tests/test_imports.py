@@ -8,15 +8,17 @@ from conftest import python_stdout
 
 ROOT = Path(__file__).resolve().parents[1]
 
-#: never needed by ``fit --json``: plotting, the InferenceData and NetCDF outputs, the tables
-#: libraries, the scipy sub-packages the fit does without (scipy.stats, ~1 s, comes with emcee's KDE
-#: move; scipy.optimize: the start is a Newton iteration of its own)
+#: never needed by ``fit --json``: plotting, the InferenceData and NetCDF outputs (and h5py, which
+#: emcee's HDF5 backend would import), the tables libraries, the scipy sub-packages the fit does
+#: without (scipy.stats, ~1 s, comes with emcee's KDE move; scipy.optimize: the start is a Newton
+#: iteration of its own)
 NEVER_IN_A_FIT = (
     "matplotlib",
     "corner",
     "arviz",
     "xarray",
     "h5netcdf",
+    "h5py",
     "pandas",
     "dask",
     "scipy.stats",
@@ -71,3 +73,19 @@ def test_fit_json_imports_only_what_it_uses():
     )
     lines = python_stdout(code, timeout=300).splitlines()
     assert lines == ["0 laplace-is", "[]", "0 emcee", "['emcee']"]
+
+
+def test_emcee_hdf_backend_works_after_bayescap_imports_emcee(tmp_path):
+    """bayescap imports emcee without h5py (bayescap.inference.moves._import_emcee), and emcee stays
+    whole: its HDF5 backend imports h5py when it opens its file, and stores the chain."""
+    code = (
+        "import sys, numpy as np\n"
+        "import bayescap.inference.moves\n"
+        "print('h5py' in sys.modules)\n"
+        "import emcee\n"
+        f"backend = emcee.backends.HDFBackend({str(tmp_path / 'chain.h5')!r})\n"
+        "s = emcee.EnsembleSampler(8, 2, lambda x: -0.5 * np.sum(x**2), backend=backend)\n"
+        "s.run_mcmc(np.random.default_rng(0).standard_normal((8, 2)), 10, progress=False)\n"
+        "print('h5py' in sys.modules, backend.iteration, backend.get_chain().shape)\n"
+    )
+    assert python_stdout(code).splitlines() == ["False", "True 10 (10, 8, 2)"]

@@ -2,9 +2,10 @@
 (``bayescap.inference.IndependenceMove`` loads it on first access) so that ``import bayescap`` does not
 import emcee.
 
-emcee is imported here without scipy.stats (:func:`_import_emcee`): emcee's package imports every
-move, and its KDE move alone imports ``scipy.stats`` (0.8–1.3 s of a 2-core machine, most of it
-scipy's docstring parsing; ``python -X importtime -c "import emcee"``), which bayescap never uses."""
+emcee is imported here without scipy.stats and h5py (:func:`_import_emcee`): emcee's package imports
+every move, and its KDE move alone imports ``scipy.stats`` (0.8–1.3 s of a 2-core machine, most of it
+scipy's docstring parsing; ``python -X importtime -c "import emcee"``), and its HDF5 backend h5py
+(~50-80 ms), neither of which bayescap uses."""
 
 from __future__ import annotations
 
@@ -22,24 +23,46 @@ def _gaussian_kde(*args, **kwargs):
     return gaussian_kde(*args, **kwargs)
 
 
+class _LazyH5py:
+    """Stands for the ``h5py`` module in ``emcee.backends.hdf``: imports it on the first attribute
+    read (``h5py.File`` when an :class:`emcee.backends.HDFBackend` opens its file)."""
+
+    def __getattr__(self, name):
+        import h5py
+
+        return getattr(h5py, name)
+
+
 def _import_emcee():
-    """``import emcee`` without importing ``scipy.stats``, emcee unchanged for anyone else.
+    """``import emcee`` without importing ``scipy.stats`` or ``h5py``, emcee unchanged for anyone else.
 
     The only import of ``scipy.stats`` in emcee is ``emcee.moves.kde``'s ``from scipy.stats import
-    gaussian_kde``, guarded by ``except ImportError`` (then ``gaussian_kde = None``). While emcee
-    loads, ``sys.modules["scipy.stats"]`` is ``None`` (Python's documented way to make an import
-    raise ImportError), and afterwards the module's ``gaussian_kde`` is :func:`_gaussian_kde`,
-    which imports scipy.stats on its first call: KDEMove works as before, for bayescap's callers
-    too. When emcee or scipy.stats is already imported this is a plain ``import emcee``."""
-    if "emcee" not in sys.modules and "scipy.stats" not in sys.modules:
-        sys.modules["scipy.stats"] = None
+    gaussian_kde``, and its only import of ``h5py`` at import time ``emcee.backends.hdf``'s (~50-80
+    ms, for the HDF5 backend bayescap does not use); both guarded by ``except ImportError`` (then
+    ``None``). While emcee loads, ``sys.modules[name]`` is ``None`` for each of them that is not
+    imported yet (Python's documented way to make an import raise ImportError), and afterwards the
+    module's ``gaussian_kde`` is :func:`_gaussian_kde`, which imports scipy.stats on its first call,
+    and its ``h5py`` a :class:`_LazyH5py` (where h5py is installed): KDEMove and HDFBackend work as
+    before, for bayescap's callers too. When emcee is already imported this is a plain
+    ``import emcee``."""
+    if "emcee" not in sys.modules:
+        blocked = [name for name in ("scipy.stats", "h5py") if name not in sys.modules]
+        for name in blocked:
+            sys.modules[name] = None
         try:
+            import emcee.backends.hdf as hdf
             import emcee.moves.kde as kde
         finally:
-            if "scipy.stats" in sys.modules and sys.modules["scipy.stats"] is None:
-                del sys.modules["scipy.stats"]
-        if kde.gaussian_kde is None:
+            for name in blocked:
+                if name in sys.modules and sys.modules[name] is None:
+                    del sys.modules[name]
+        if "scipy.stats" in blocked and kde.gaussian_kde is None:
             kde.gaussian_kde = _gaussian_kde
+        if "h5py" in blocked and hdf.h5py is None:
+            import importlib.util
+
+            if importlib.util.find_spec("h5py") is not None:
+                hdf.h5py = _LazyH5py()
     import emcee
 
     return emcee
