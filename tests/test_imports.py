@@ -8,8 +8,8 @@ from conftest import python_stdout
 
 ROOT = Path(__file__).resolve().parents[1]
 
-#: never needed by ``fit --json``: plotting, the InferenceData and NetCDF outputs (and h5py, which
-#: emcee's HDF5 backend would import), the tables libraries, the scipy sub-packages the fit does
+#: never needed by ``fit --json --no-progress``: plotting, the InferenceData and NetCDF outputs (and
+#: h5py, which emcee's HDF5 backend would import), progress bars, the tables libraries, the scipy sub-packages the fit does
 #: without (scipy.stats, ~1 s, comes with emcee's KDE move; scipy.optimize: the start is a Newton
 #: iteration of its own)
 NEVER_IN_A_FIT = (
@@ -19,6 +19,7 @@ NEVER_IN_A_FIT = (
     "xarray",
     "h5netcdf",
     "h5py",
+    "tqdm",
     "pandas",
     "dask",
     "scipy.stats",
@@ -75,17 +76,18 @@ def test_fit_json_imports_only_what_it_uses():
     assert lines == ["0 laplace-is", "[]", "0 emcee", "['emcee']"]
 
 
-def test_emcee_hdf_backend_works_after_bayescap_imports_emcee(tmp_path):
-    """bayescap imports emcee without h5py (bayescap.inference.moves._import_emcee), and emcee stays
-    whole: its HDF5 backend imports h5py when it opens its file, and stores the chain."""
+def test_emcee_whole_after_bayescap_imports_it(tmp_path):
+    """bayescap imports emcee without h5py and tqdm (bayescap.inference.moves._import_emcee), and
+    emcee stays whole: its HDF5 backend imports h5py when it opens its file and stores the chain,
+    and its progress bar imports tqdm when shown."""
     code = (
         "import sys, numpy as np\n"
         "import bayescap.inference.moves\n"
-        "print('h5py' in sys.modules)\n"
+        "print([m for m in ('h5py', 'tqdm') if m in sys.modules])\n"
         "import emcee\n"
         f"backend = emcee.backends.HDFBackend({str(tmp_path / 'chain.h5')!r})\n"
         "s = emcee.EnsembleSampler(8, 2, lambda x: -0.5 * np.sum(x**2), backend=backend)\n"
-        "s.run_mcmc(np.random.default_rng(0).standard_normal((8, 2)), 10, progress=False)\n"
-        "print('h5py' in sys.modules, backend.iteration, backend.get_chain().shape)\n"
+        "s.run_mcmc(np.random.default_rng(0).standard_normal((8, 2)), 10, progress=True)\n"
+        "print([m for m in ('h5py', 'tqdm') if m in sys.modules], backend.iteration, backend.get_chain().shape)\n"
     )
-    assert python_stdout(code).splitlines() == ["False", "True 10 (10, 8, 2)"]
+    assert python_stdout(code).splitlines() == ["[]", "['h5py', 'tqdm'] 10 (10, 8, 2)"]

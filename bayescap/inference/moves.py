@@ -2,10 +2,10 @@
 (``bayescap.inference.IndependenceMove`` loads it on first access) so that ``import bayescap`` does not
 import emcee.
 
-emcee is imported here without scipy.stats and h5py (:func:`_import_emcee`): emcee's package imports
-every move, and its KDE move alone imports ``scipy.stats`` (0.8–1.3 s of a 2-core machine, most of it
-scipy's docstring parsing; ``python -X importtime -c "import emcee"``), and its HDF5 backend h5py
-(~50-80 ms), neither of which bayescap uses."""
+emcee is imported here without scipy.stats, h5py and tqdm (:func:`_import_emcee`): emcee's package
+imports every move, and its KDE move alone imports ``scipy.stats`` (0.8–1.3 s of a 2-core machine,
+most of it scipy's docstring parsing; ``python -X importtime -c "import emcee"``), its HDF5 backend
+h5py and its progress bar tqdm, none of which bayescap's MCMC uses."""
 
 from __future__ import annotations
 
@@ -23,46 +23,63 @@ def _gaussian_kde(*args, **kwargs):
     return gaussian_kde(*args, **kwargs)
 
 
-class _LazyH5py:
-    """Stands for the ``h5py`` module in ``emcee.backends.hdf``: imports it on the first attribute
-    read (``h5py.File`` when an :class:`emcee.backends.HDFBackend` opens its file)."""
+class _LazyModule:
+    """Stands for the module ``name`` in an emcee module: imports it on the first attribute read
+    (``h5py.File`` when an :class:`emcee.backends.HDFBackend` opens its file, ``tqdm.tqdm`` when
+    emcee shows a progress bar)."""
 
-    def __getattr__(self, name):
-        import h5py
+    def __init__(self, name):
+        self._name = name
 
-        return getattr(h5py, name)
+    def __getattr__(self, attr):
+        import importlib
+
+        return getattr(importlib.import_module(self._name), attr)
+
+
+#: what emcee imports at import time and bayescap does not use: (the module, the emcee module that
+#: imports it under ``except ImportError``, the name it binds there)
+_DEFERRED = (
+    ("scipy.stats", "emcee.moves.kde", "gaussian_kde"),
+    ("h5py", "emcee.backends.hdf", "h5py"),
+    ("tqdm", "emcee.pbar", "tqdm"),
+)
 
 
 def _import_emcee():
-    """``import emcee`` without importing ``scipy.stats`` or ``h5py``, emcee unchanged for anyone else.
+    """``import emcee`` without importing ``scipy.stats``, ``h5py`` or ``tqdm``, emcee unchanged for
+    anyone else.
 
-    The only import of ``scipy.stats`` in emcee is ``emcee.moves.kde``'s ``from scipy.stats import
-    gaussian_kde``, and its only import of ``h5py`` at import time ``emcee.backends.hdf``'s (~50-80
-    ms, for the HDF5 backend bayescap does not use); both guarded by ``except ImportError`` (then
-    ``None``). While emcee loads, ``sys.modules[name]`` is ``None`` for each of them that is not
-    imported yet (Python's documented way to make an import raise ImportError), and afterwards the
-    module's ``gaussian_kde`` is :func:`_gaussian_kde`, which imports scipy.stats on its first call,
-    and its ``h5py`` a :class:`_LazyH5py` (where h5py is installed): KDEMove and HDFBackend work as
-    before, for bayescap's callers too. When emcee is already imported this is a plain
-    ``import emcee``."""
+    emcee imports each of them in one place, guarded by ``except ImportError`` (then ``None``):
+    ``emcee.moves.kde``'s ``from scipy.stats import gaussian_kde`` (0.8–1.3 s of a 2-core machine),
+    ``emcee.backends.hdf``'s ``import h5py`` (~50-80 ms, for the HDF5 backend) and ``emcee.pbar``'s
+    ``import tqdm`` (~20-30 ms, for its progress bar; bayescap's own bars import tqdm when shown). While
+    emcee loads, ``sys.modules[name]`` is ``None`` for each of them that is not imported yet (Python's
+    documented way to make an import raise ImportError), and afterwards the name emcee bound is
+    :func:`_gaussian_kde` (which imports scipy.stats on its first call) or a :class:`_LazyModule`
+    (where the package is installed): KDEMove, HDFBackend and emcee's progress bar work as before,
+    for bayescap's callers too. When emcee is already imported this is a plain ``import emcee``."""
     if "emcee" not in sys.modules:
-        blocked = [name for name in ("scipy.stats", "h5py") if name not in sys.modules]
-        for name in blocked:
+        import importlib
+        import importlib.util
+
+        blocked = [d for d in _DEFERRED if d[0] not in sys.modules]
+        for name, _, _ in blocked:
             sys.modules[name] = None
         try:
-            import emcee.backends.hdf as hdf
-            import emcee.moves.kde as kde
+            for _, where, _ in _DEFERRED:
+                importlib.import_module(where)
         finally:
-            for name in blocked:
+            for name, _, _ in blocked:
                 if name in sys.modules and sys.modules[name] is None:
                     del sys.modules[name]
-        if "scipy.stats" in blocked and kde.gaussian_kde is None:
-            kde.gaussian_kde = _gaussian_kde
-        if "h5py" in blocked and hdf.h5py is None:
-            import importlib.util
-
-            if importlib.util.find_spec("h5py") is not None:
-                hdf.h5py = _LazyH5py()
+        for name, where, attr in blocked:
+            module = sys.modules[where]
+            if getattr(module, attr) is None:
+                if name == "scipy.stats":
+                    setattr(module, attr, _gaussian_kde)
+                elif importlib.util.find_spec(name) is not None:
+                    setattr(module, attr, _LazyModule(name))
     import emcee
 
     return emcee
