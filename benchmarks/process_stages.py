@@ -25,7 +25,8 @@ Before measuring, ``python -m compileall`` writes bayescap's bytecode cache (``_
 ``pip install`` does: otherwise, where ``PYTHONDONTWRITEBYTECODE`` is set (as in this project's
 sandbox), every process compiles bayescap's ~80 modules from source again. What that costs is
 measured too: the imports of a copy of the package without a cache, with
-``PYTHONDONTWRITEBYTECODE=1`` (the imports of an uncompiled checkout).
+``PYTHONDONTWRITEBYTECODE=1`` (the imports of an uncompiled checkout), alternating with those of the
+compiled one.
 
 Also ``bayescap --version`` (start to exit). Every whole-process time is given as wall time and as CPU
 time (user + sys of the process and of the pool workers it forks, from ``getrusage``): on a shared
@@ -110,12 +111,21 @@ def _compile():
     subprocess.run([sys.executable, "-m", "compileall", "-q", str(ROOT / "bayescap")], check=True)
 
 
-def _imports_without_cache(repeat, tmp):
-    """(median wall, median CPU) of ``import bayescap, bayescap.api`` from a copy of the package
-    that has no bytecode cache, with ``PYTHONDONTWRITEBYTECODE=1``: each process compiles it again."""
+def _imports(n, tmp):
+    """{"cached": (median wall, median CPU), "uncached": (...)} of ``import bayescap, bayescap.api``
+    in ``n`` fresh processes each, the two alternating (a shared machine's load drifts): with this
+    checkout's bytecode cache, and from a copy of the package without one, with
+    ``PYTHONDONTWRITEBYTECODE=1`` (each process compiles the package again)."""
     root = Path(tmp) / "uncompiled"
     shutil.copytree(ROOT / "bayescap", root / "bayescap", ignore=shutil.ignore_patterns("__pycache__"))
-    return _wall([sys.executable, "-c", IMPORTS], repeat, env=_env(root, PYTHONDONTWRITEBYTECODE="1"))
+    envs = {"cached": _env(), "uncached": _env(root, PYTHONDONTWRITEBYTECODE="1")}
+    runs = {k: ([], []) for k in envs}
+    for i in range(n):
+        for k in envs if i % 2 == 0 else reversed(list(envs)):
+            w, c = _wall([sys.executable, "-c", IMPORTS], 1, env=envs[k])
+            runs[k][0].append(w)
+            runs[k][1].append(c)
+    return {k: (statistics.median(w), statistics.median(c)) for k, (w, c) in runs.items()}
 
 
 def _children_cpu():
@@ -162,10 +172,7 @@ def run(repeat):
     with tempfile.TemporaryDirectory() as tmp:
         plain = ROOT / "benchmarks" / "_plain_emcee.py"
         version = _wall([sys.executable, "-m", "bayescap", "--version"], max(repeat, 3))
-        imports = {
-            "cached": _wall([sys.executable, "-c", IMPORTS], max(repeat, 3)),
-            "uncached": _imports_without_cache(max(repeat, 3), tmp),
-        }
+        imports = _imports(max(3 * repeat, 9), tmp)
         for name, csv in SENSORS.items():
             plain_s, plain_cpu = _wall([sys.executable, str(plain), csv], repeat)
             for q in ("fast", "standard"):
@@ -225,6 +232,8 @@ def report(version, imports, rows, repeat):
         "Every process below reads bayescap's bytecode cache, compiled first (`python -m compileall`, as "
         "`pip install` does). Without it, where `PYTHONDONTWRITEBYTECODE` is set (as in this project's "
         "sandbox), every process compiles the package again:",
+        "",
+        f"Medians of {max(3 * repeat, 9)} processes each, the two kinds alternating:",
         "",
         f"* `import bayescap, bayescap.api` with the cache: {imports['cached'][0]:.2f} s wall, "
         f"{imports['cached'][1]:.2f} s CPU",
