@@ -118,11 +118,12 @@ def _imports(n, tmp):
     ``PYTHONDONTWRITEBYTECODE=1`` (each process compiles the package again)."""
     root = Path(tmp) / "uncompiled"
     shutil.copytree(ROOT / "bayescap", root / "bayescap", ignore=shutil.ignore_patterns("__pycache__"))
-    envs = {"cached": _env(), "uncached": _env(root, PYTHONDONTWRITEBYTECODE="1")}
+    # (run from the package's parent: ``python -c`` puts the working directory first on the path)
+    envs = {"cached": (_env(), ROOT), "uncached": (_env(root, PYTHONDONTWRITEBYTECODE="1"), root)}
     runs = {k: ([], []) for k in envs}
     for i in range(n):
         for k in envs if i % 2 == 0 else reversed(list(envs)):
-            w, c = _wall([sys.executable, "-c", IMPORTS], 1, env=envs[k])
+            w, c = _wall([sys.executable, "-c", IMPORTS], 1, env=envs[k][0], cwd=envs[k][1])
             runs[k][0].append(w)
             runs[k][1].append(c)
     return {k: (statistics.median(w), statistics.median(c)) for k, (w, c) in runs.items()}
@@ -133,14 +134,14 @@ def _children_cpu():
     return r.ru_utime + r.ru_stime
 
 
-def _wall(cmd, repeat, env=None):
+def _wall(cmd, repeat, env=None, cwd=ROOT):
     """(median wall time, median CPU time) in seconds of ``repeat`` runs of ``cmd`` (a list), each a
     fresh process; the CPU time is user + sys of the process and of the workers it forks."""
     times, cpus = [], []
     for _ in range(repeat):
         t, c = time.perf_counter(), _children_cpu()
         subprocess.run(
-            cmd, cwd=ROOT, env=env or _env(), stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, check=True
+            cmd, cwd=cwd, env=env or _env(), stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, check=True
         )
         times.append(time.perf_counter() - t)
         cpus.append(_children_cpu() - c)
