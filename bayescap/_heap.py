@@ -22,8 +22,6 @@ for the whole process (``man 3 mallopt``); that is the purpose here."""
 
 from __future__ import annotations
 
-import ctypes
-import ctypes.util
 import os
 import sys
 
@@ -45,6 +43,17 @@ def _env_tunes_malloc(env) -> bool:
     return "glibc.malloc" in env.get("GLIBC_TUNABLES", "")
 
 
+def _libc(ctypes):
+    """The C library: glibc by its soname, else whatever ``ctypes.util.find_library`` finds (which
+    runs ``ldconfig``, ~10 ms, and imports ``subprocess``: only where the soname is not glibc's)."""
+    try:
+        return ctypes.CDLL("libc.so.6")
+    except OSError:
+        import ctypes.util
+
+        return ctypes.CDLL(ctypes.util.find_library("c") or "libc.so.6")
+
+
 def retain_freed_memory() -> dict:
     """Raise glibc's trim and mmap thresholds once per process (see the module docstring).
 
@@ -58,8 +67,10 @@ def retain_freed_memory() -> dict:
             applied=False, reason="left to the environment (BAYESCAP_NO_MALLOPT, MALLOC_*_ or GLIBC_TUNABLES)"
         )
     else:
+        import ctypes  # here, not at the top: `import bayescap` stays without ctypes (and subprocess)
+
         try:
-            libc = ctypes.CDLL(ctypes.util.find_library("c") or "libc.so.6")
+            libc = _libc(ctypes)
             mallopt = libc.mallopt
         except (OSError, AttributeError):
             _state.update(applied=False, reason="no mallopt in the C library (not glibc)")

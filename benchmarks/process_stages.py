@@ -21,6 +21,13 @@ For the bundled sensors (the real Basler CCD and the simulated ones in ``data/si
   log read noise, Gaussian variances, StretchMove, 32 walkers × 2 500 steps, one walker per call: how
   a new user would write it), from start to exit: the yardstick issue 50 asks the whole process to beat.
 
+Before measuring, ``python -m compileall`` writes bayescap's bytecode cache (``__pycache__``), as
+``pip install`` does: otherwise, where ``PYTHONDONTWRITEBYTECODE`` is set (as in this project's
+sandbox), every process compiles bayescap's ~80 modules from source again. What that costs is
+measured too: the imports of a copy of the package without a cache, with
+``PYTHONDONTWRITEBYTECODE=1`` (the imports of an uncompiled checkout), alternating with those of the
+compiled one.
+
 Also ``bayescap --version`` (start to exit). Every whole-process time is given as wall time and as CPU
 time (user + sys of the process and of the pool workers it forks, from ``getrusage``): on a shared
 machine the CPU time is the fairer comparison. Targets (issue 50, quiet 2-core machine): ``--version``
@@ -33,6 +40,7 @@ import argparse
 import json
 import os
 import resource
+import shutil
 import statistics
 import subprocess
 import sys
@@ -86,11 +94,39 @@ print(json.dumps({"import": t1 - t0, "read": t2 - t1, "model": t3 - t2, "fit": t
 """
 
 
-def _env():
+IMPORTS = "import bayescap\nimport bayescap.api\n"
+
+
+def _env(root=ROOT, **extra):
     env = dict(os.environ)
-    env["PYTHONPATH"] = os.pathsep.join([str(ROOT)] + [p for p in env.get("PYTHONPATH", "").split(os.pathsep) if p])
+    env["PYTHONPATH"] = os.pathsep.join([str(root)] + [p for p in env.get("PYTHONPATH", "").split(os.pathsep) if p])
     env.setdefault("OMP_NUM_THREADS", "1")
+    env.update(extra)
     return env
+
+
+def _compile():
+    """bayescap's bytecode cache, written as ``pip install`` writes it (read even where
+    ``PYTHONDONTWRITEBYTECODE`` forbids writing it)."""
+    subprocess.run([sys.executable, "-m", "compileall", "-q", str(ROOT / "bayescap")], check=True)
+
+
+def _imports(n, tmp):
+    """{"cached": (median wall, median CPU), "uncached": (...)} of ``import bayescap, bayescap.api``
+    in ``n`` fresh processes each, the two alternating (a shared machine's load drifts): with this
+    checkout's bytecode cache, and from a copy of the package without one, with
+    ``PYTHONDONTWRITEBYTECODE=1`` (each process compiles the package again)."""
+    root = Path(tmp) / "uncompiled"
+    shutil.copytree(ROOT / "bayescap", root / "bayescap", ignore=shutil.ignore_patterns("__pycache__"))
+    # (run from the package's parent: ``python -c`` puts the working directory first on the path)
+    envs = {"cached": (_env(), ROOT), "uncached": (_env(root, PYTHONDONTWRITEBYTECODE="1"), root)}
+    runs = {k: ([], []) for k in envs}
+    for i in range(n):
+        for k in envs if i % 2 == 0 else reversed(list(envs)):
+            w, c = _wall([sys.executable, "-c", IMPORTS], 1, env=envs[k][0], cwd=envs[k][1])
+            runs[k][0].append(w)
+            runs[k][1].append(c)
+    return {k: (statistics.median(w), statistics.median(c)) for k, (w, c) in runs.items()}
 
 
 def _children_cpu():
@@ -98,13 +134,15 @@ def _children_cpu():
     return r.ru_utime + r.ru_stime
 
 
-def _wall(cmd, repeat):
+def _wall(cmd, repeat, env=None, cwd=ROOT):
     """(median wall time, median CPU time) in seconds of ``repeat`` runs of ``cmd`` (a list), each a
     fresh process; the CPU time is user + sys of the process and of the workers it forks."""
     times, cpus = [], []
     for _ in range(repeat):
         t, c = time.perf_counter(), _children_cpu()
-        subprocess.run(cmd, cwd=ROOT, env=_env(), stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, check=True)
+        subprocess.run(
+            cmd, cwd=cwd, env=env or _env(), stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, check=True
+        )
         times.append(time.perf_counter() - t)
         cpus.append(_children_cpu() - c)
     return statistics.median(times), statistics.median(cpus)
@@ -131,9 +169,11 @@ def _stages(path, quality, repeat, tmp):
 
 def run(repeat):
     rows = []
+    _compile()
     with tempfile.TemporaryDirectory() as tmp:
         plain = ROOT / "benchmarks" / "_plain_emcee.py"
         version = _wall([sys.executable, "-m", "bayescap", "--version"], max(repeat, 3))
+        imports = _imports(max(3 * repeat, 9), tmp)
         for name, csv in SENSORS.items():
             plain_s, plain_cpu = _wall([sys.executable, str(plain), csv], repeat)
             for q in ("fast", "standard"):
@@ -153,10 +193,10 @@ def run(repeat):
                     }
                 )
                 print(json.dumps(rows[-1]), flush=True)
-    return version, rows
+    return version, imports, rows
 
 
-def report(version, rows, repeat):
+def report(version, imports, rows, repeat):
     from _machine import describe_machine, emit
 
     try:
@@ -188,6 +228,19 @@ def report(version, rows, repeat):
         f"{basler['plain_cpu']:.2f} s CPU; `standard` faster than it on {faster} of {n_std} sensors by wall time, "
         f"{faster_cpu} of {n_std} by CPU time",
         "",
+        "## Imports and the bytecode cache",
+        "",
+        "Every process below reads bayescap's bytecode cache, compiled first (`python -m compileall`, as "
+        "`pip install` does). Without it, where `PYTHONDONTWRITEBYTECODE` is set (as in this project's "
+        "sandbox), every process compiles the package again:",
+        "",
+        f"Medians of {max(3 * repeat, 9)} processes each, the two kinds alternating:",
+        "",
+        f"* `import bayescap, bayescap.api` with the cache: {imports['cached'][0]:.2f} s wall, "
+        f"{imports['cached'][1]:.2f} s CPU",
+        f"* the same from a copy without a cache, `PYTHONDONTWRITEBYTECODE=1`: {imports['uncached'][0]:.2f} s wall, "
+        f"{imports['uncached'][1]:.2f} s CPU",
+        "",
         "## Per sensor",
         "",
         "Stages from one process (wall seconds): imports (bayescap and bayescap.api, with their scipy), reading "
@@ -218,8 +271,8 @@ def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--repeat", type=int, default=3, help="fresh processes per measurement (median; default 3)")
     a = ap.parse_args(argv)
-    version, rows = run(a.repeat)
-    report(version, rows, a.repeat)
+    version, imports, rows = run(a.repeat)
+    report(version, imports, rows, a.repeat)
 
 
 if __name__ == "__main__":

@@ -2,9 +2,10 @@
 (``bayescap.inference.IndependenceMove`` loads it on first access) so that ``import bayescap`` does not
 import emcee.
 
-emcee is imported here without scipy.stats (:func:`_import_emcee`): emcee's package imports every
-move, and its KDE move alone imports ``scipy.stats`` (0.8–1.3 s of a 2-core machine, most of it
-scipy's docstring parsing; ``python -X importtime -c "import emcee"``), which bayescap never uses."""
+emcee is imported here without scipy.stats, h5py and tqdm (:func:`_import_emcee`): emcee's package
+imports every move, and its KDE move alone imports ``scipy.stats`` (0.8–1.3 s of a 2-core machine,
+most of it scipy's docstring parsing; ``python -X importtime -c "import emcee"``), its HDF5 backend
+h5py and its progress bar tqdm, none of which bayescap's MCMC uses."""
 
 from __future__ import annotations
 
@@ -22,24 +23,63 @@ def _gaussian_kde(*args, **kwargs):
     return gaussian_kde(*args, **kwargs)
 
 
-def _import_emcee():
-    """``import emcee`` without importing ``scipy.stats``, emcee unchanged for anyone else.
+class _LazyModule:
+    """Stands for the module ``name`` in an emcee module: imports it on the first attribute read
+    (``h5py.File`` when an :class:`emcee.backends.HDFBackend` opens its file, ``tqdm.tqdm`` when
+    emcee shows a progress bar)."""
 
-    The only import of ``scipy.stats`` in emcee is ``emcee.moves.kde``'s ``from scipy.stats import
-    gaussian_kde``, guarded by ``except ImportError`` (then ``gaussian_kde = None``). While emcee
-    loads, ``sys.modules["scipy.stats"]`` is ``None`` (Python's documented way to make an import
-    raise ImportError), and afterwards the module's ``gaussian_kde`` is :func:`_gaussian_kde`,
-    which imports scipy.stats on its first call: KDEMove works as before, for bayescap's callers
-    too. When emcee or scipy.stats is already imported this is a plain ``import emcee``."""
-    if "emcee" not in sys.modules and "scipy.stats" not in sys.modules:
-        sys.modules["scipy.stats"] = None
+    def __init__(self, name):
+        self._name = name
+
+    def __getattr__(self, attr):
+        import importlib
+
+        return getattr(importlib.import_module(self._name), attr)
+
+
+#: what emcee imports at import time and bayescap does not use: (the module, the emcee module that
+#: imports it under ``except ImportError``, the name it binds there)
+_DEFERRED = (
+    ("scipy.stats", "emcee.moves.kde", "gaussian_kde"),
+    ("h5py", "emcee.backends.hdf", "h5py"),
+    ("tqdm", "emcee.pbar", "tqdm"),
+)
+
+
+def _import_emcee():
+    """``import emcee`` without importing ``scipy.stats``, ``h5py`` or ``tqdm``, emcee unchanged for
+    anyone else.
+
+    emcee imports each of them in one place, guarded by ``except ImportError`` (then ``None``):
+    ``emcee.moves.kde``'s ``from scipy.stats import gaussian_kde`` (0.8–1.3 s of a 2-core machine),
+    ``emcee.backends.hdf``'s ``import h5py`` (~50-80 ms, for the HDF5 backend) and ``emcee.pbar``'s
+    ``import tqdm`` (~20-30 ms, for its progress bar; bayescap's own bars import tqdm when shown). While
+    emcee loads, ``sys.modules[name]`` is ``None`` for each of them that is not imported yet (Python's
+    documented way to make an import raise ImportError), and afterwards the name emcee bound is
+    :func:`_gaussian_kde` (which imports scipy.stats on its first call) or a :class:`_LazyModule`
+    (where the package is installed): KDEMove, HDFBackend and emcee's progress bar work as before,
+    for bayescap's callers too. When emcee is already imported this is a plain ``import emcee``."""
+    if "emcee" not in sys.modules:
+        import importlib
+        import importlib.util
+
+        blocked = [d for d in _DEFERRED if d[0] not in sys.modules]
+        for name, _, _ in blocked:
+            sys.modules[name] = None
         try:
-            import emcee.moves.kde as kde
+            for _, where, _ in _DEFERRED:
+                importlib.import_module(where)
         finally:
-            if "scipy.stats" in sys.modules and sys.modules["scipy.stats"] is None:
-                del sys.modules["scipy.stats"]
-        if kde.gaussian_kde is None:
-            kde.gaussian_kde = _gaussian_kde
+            for name, _, _ in blocked:
+                if name in sys.modules and sys.modules[name] is None:
+                    del sys.modules[name]
+        for name, where, attr in blocked:
+            module = sys.modules[where]
+            if getattr(module, attr) is None:
+                if name == "scipy.stats":
+                    setattr(module, attr, _gaussian_kde)
+                elif importlib.util.find_spec(name) is not None:
+                    setattr(module, attr, _LazyModule(name))
     import emcee
 
     return emcee

@@ -37,16 +37,19 @@ def _psi_inverse_table():
     return np.interp(grid, L, h)
 
 
-_PSI_INV = _psi_inverse_table()
+_PSI_INV = []  # [the table], made on the first clip row solved (~15 ms: not at import)
 
 
 def _psi_inverse_guess(L):
-    """h with log ψ(h) ≈ L by linear interpolation in :data:`_PSI_INV` (clamped to its range; NaN
-    gives its upper end)."""
-    t = np.fmax(np.fmin((L - _PSI_L0) / _PSI_DL, _PSI_INV.size - 1.000001), 0.0)  # fmin: NaN → top
+    """h with log ψ(h) ≈ L by linear interpolation in :func:`_psi_inverse_table` (clamped to its range;
+    NaN gives its upper end)."""
+    if not _PSI_INV:
+        _PSI_INV.append(_psi_inverse_table())
+    table = _PSI_INV[0]
+    t = np.fmax(np.fmin((L - _PSI_L0) / _PSI_DL, table.size - 1.000001), 0.0)  # fmin: NaN → top
     i = t.astype(np.intp)
-    lo = _PSI_INV[i]
-    return lo + (t - i) * (_PSI_INV[i + 1] - lo)
+    lo = table[i]
+    return lo + (t - i) * (table[i + 1] - lo)
 
 
 def _ndtr_upper(x):

@@ -106,7 +106,10 @@ class DerivedMixin:
             spread = lambda d: {k: v[where] if np.ndim(v) == 1 and np.size(v) == n else v for k, v in d.items()}
             self.draws, self.derived = spread(self.draws), spread(self.derived)
 
-    def _derive(self):
+    def _derive(self, linearity=True):
+        """``derived`` (and the notes and flags that go with it) of ``draws``; ``linearity=False``
+        leaves out the linearity error (a function of the response shape draws alone, and the
+        costliest quantity: its response inverse)."""
         p = self.draws
         coeffs = self._noise_coefficients(p, self.scene.exposure_time_s)
         s_max, lower = self.signal_max_e(p)
@@ -128,7 +131,7 @@ class DerivedMixin:
             "snr_max_db": snr_db(coeffs, s_max),
             "mtf_loss_bits": ds,
         }
-        if "response_nonlinearity" in p:
+        if linearity and "response_nonlinearity" in p:
             self.derived["linearity_error_percent"] = self._linearity_error(p["response_nonlinearity"])
         if w and h:
             s = float(w) * float(h)

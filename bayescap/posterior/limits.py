@@ -201,7 +201,9 @@ def _followers(result, params: dict, names) -> dict:
         src = "dark_noise_e" if c == "read_noise_e" and c not in p and "dark_noise_e" in p else c
         if src not in p:
             continue
-        moved = _derived_of(result, {**p, src: 0.1 * p[src]})
+        # the linearity error is a function of the response shape draws alone (DerivedMixin._linearity_error):
+        # no noise parameter moves it, so it is not computed again here (and follows none)
+        moved = _derived_of(result, {**p, src: 0.1 * p[src]}, linearity=False)
         for name in names:
             if name not in base or name not in moved:
                 continue
@@ -212,8 +214,9 @@ def _followers(result, params: dict, names) -> dict:
     return out
 
 
-def _derived_of(result, p: dict) -> dict:
-    """The derived quantities of the physical draws ``p`` at ``result``'s scene, MTF and metadata."""
+def _derived_of(result, p: dict, linearity: bool = True) -> dict:
+    """The derived quantities of the physical draws ``p`` at ``result``'s scene, MTF and metadata
+    (without the linearity error when not ``linearity``)."""
     tmp = type(result)(
         model=result.model,
         chains=None,
@@ -225,7 +228,7 @@ def _derived_of(result, p: dict) -> dict:
         draws=p,
     )
     with np.errstate(all="ignore"):
-        tmp._derive()
+        tmp._derive(linearity=linearity)
     return {k: np.asarray(v, float) for k, v in tmp.derived.items() if np.size(v) == next(iter(p.values())).size}
 
 

@@ -11,12 +11,24 @@ import json
 from pathlib import Path
 
 from bayescap.posterior import FitResult
-from bayescap.posterior.inference_data import to_inference_data as _to_inference_data
-from bayescap.posterior.storage import netcdf_bytes
 from bayescap.posterior.summary import DERIVED_ORDER, PARAMETER_ORDER
-from bayescap.report.plots import plot_corner, plot_ptc
 
 __all__ = ["format_text", "to_json", "write_outputs", "to_inference_data", "plot_ptc", "plot_corner"]
+
+
+def plot_ptc(result, path=None, **kwargs):
+    """:func:`bayescap.report.plots.plot_ptc`, loaded on the first call: the text report and the
+    JSON start without the plotting module."""
+    from bayescap.report import plots
+
+    return plots.plot_ptc(result, path, **kwargs)
+
+
+def plot_corner(result, path=None, **kwargs):
+    """:func:`bayescap.report.plots.plot_corner`, loaded on the first call (:func:`plot_ptc`)."""
+    from bayescap.report import plots
+
+    return plots.plot_corner(result, path, **kwargs)
 
 
 def _fmt(x):
@@ -186,6 +198,8 @@ def to_inference_data(result: FitResult):
     report's R-hat), physical parameters and derived quantities with units, the sampler's
     coordinates, pointwise log-likelihood (``az.loo``), replicated and observed data, the input
     columns (:mod:`bayescap.posterior.inference_data`; docs/results.md)."""
+    from bayescap.posterior.inference_data import to_inference_data as _to_inference_data
+
     return _to_inference_data(result)
 
 
@@ -211,6 +225,7 @@ def write_outputs(result: FitResult, out_dir) -> list[Path]:
     complete run, the previous one, or nothing. An existing ``out_dir`` holding other files is
     refused (:class:`FileExistsError`); write errors raise :class:`OSError` and leave nothing."""
     from bayescap.io.atomic import output_problem, write_dir_atomically
+    from bayescap.posterior.storage import netcdf_bytes
 
     out = Path(out_dir)
     problem = output_problem(out, directory=True, names=OUTPUT_NAMES, option="output directory")
