@@ -94,6 +94,9 @@ _PARAMETER_UNITS = {
     "dsnu_e": "e-",
     "quantum_efficiency": "",
 }
+#: the physical parameters the colour fit reports per channel (joint and separate): what a channel
+#: fit's interval-end Monte Carlo error is judged on (:func:`channel_fast_settings`)
+REPORTED_PARAMETERS = tuple(_PARAMETER_UNITS)
 
 
 class JointCFAModel:
@@ -265,26 +268,42 @@ def _k_check(separate: dict, channels) -> dict:
     }
 
 
+def channel_fast_settings():
+    """The fast path's settings of a channel fit: the defaults, with the top-up and the gate on the
+    interval ends' Monte Carlo error judging the parameters this fit reports
+    (:data:`REPORTED_PARAMETERS`, ``FastSettings.end_parameters``) instead of every parameter and
+    monochrome derived quantity (capacity, TR, DR, SNR at the channel's scene, which the colour fit
+    does not use; the result still checks them and falls back to MCMC where one fails the gate)."""
+    from bayescap.inference import FastSettings
+
+    return FastSettings(end_parameters=REPORTED_PARAMETERS)
+
+
 def _fit_channel(args, n_jobs=None):
-    """One channel's unchanged single-channel fit, ``bayescap.fit(data, seed=seed, quality=quality)``
-    (``n_jobs``: its MCMC ensembles' processes; the numbers do not depend on it), and its
-    ``parameter_summary()`` (computed where the fit ran: in a worker, beside this process's fits)."""
+    """One channel's single-channel fit, ``bayescap.fit(data, seed=seed, quality=quality)`` (at
+    ``fast`` with :func:`channel_fast_settings`; ``n_jobs``: its MCMC ensembles' processes; the
+    numbers do not depend on it), and its ``parameter_summary()`` (computed where the fit ran: in a
+    worker, beside this process's fits)."""
     from bayescap.api import fit
 
     data, seed, quality = args
-    res = fit(data, seed=seed, quality=quality, n_jobs=n_jobs)
+    fs = channel_fast_settings() if quality == "fast" else None
+    res = fit(data, seed=seed, quality=quality, n_jobs=n_jobs, fast_settings=fs)
     return res, res.parameter_summary()
 
 
-def _channel_jobs(n_jobs, n_channels: int) -> int:
-    """Processes for the channel fits: ``n_jobs``, else ``BAYESCAP_JOBS``, else one per core (at most
-    one per channel; 1 inside a multiprocessing worker, whose siblings have the other cores)."""
+def _channel_jobs(n_jobs, n_channels: int, quality: str = "standard") -> int:
+    """Processes for the channel fits: ``n_jobs``, else ``BAYESCAP_JOBS``, else one per core at the
+    MCMC presets and one at ``fast`` (at most one per channel; 1 inside a multiprocessing worker,
+    whose siblings have the other cores). At ``fast`` a worker process costs about as much CPU time
+    as a channel fit (its start, the pages it copies, the results' transfer:
+    ``benchmarks/results/colour_cfa_speed.md``, 'one process'), for ~0.3 s of wall time on idle cores."""
     import os
 
     from bayescap.model.threads import _allowed
 
     if n_jobs is None:
-        n_jobs = _allowed("BAYESCAP_JOBS", lambda: os.cpu_count() or 1)
+        n_jobs = _allowed("BAYESCAP_JOBS", lambda: 1 if quality == "fast" else (os.cpu_count() or 1))
     return max(1, min(int(n_jobs), n_channels))
 
 
@@ -302,7 +321,7 @@ def _separate_fits(tables, channels, *, quality, seed, n_jobs=None):
     from bayescap.batch import sensor_seeds
 
     tasks = [(tables[c], s, quality) for c, s in zip(channels, sensor_seeds(seed, len(channels)))]
-    n_jobs = _channel_jobs(n_jobs, len(tasks))
+    n_jobs = _channel_jobs(n_jobs, len(tasks), quality)
     if n_jobs == 1:
         res = [_fit_channel(t) for t in tasks]
     else:
@@ -393,8 +412,9 @@ def fit_cfa(
     seed : the seed of every random draw (the same seed gives the same numbers).
     quality : the single-channel fit's preset ("fast", "standard", "accurate").
     n_draws : draws of the joint posterior.
-    n_jobs : processes for the four channel fits (default: one per core, ``BAYESCAP_JOBS``
-        overrides; 1 in a multiprocessing worker). The numbers do not depend on it.
+    n_jobs : processes for the four channel fits (default: one per core at the MCMC presets, one
+        at ``fast``; ``BAYESCAP_JOBS`` overrides; 1 in a multiprocessing worker). The numbers do
+        not depend on it.
     """
     missing = [c for c in CFA_CHANNELS if c not in tables]
     if missing:
