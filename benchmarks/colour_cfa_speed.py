@@ -13,8 +13,7 @@ tables. Timed, per camera and preset, after one warm-up fit:
   capacities): what ``bayescap colour`` computes after reading the tables;
 * the same colour run with the other process count (the same numbers, checked): at ``fast``
   ``n_jobs=2`` (a worker process fits half the channels), at ``standard`` ``n_jobs=1`` (the channel
-  fits one after the other in this process, each as ``bayescap.fit`` runs it alone, its MCMC
-  ensembles in one forked process per core);
+  fits one after the other in this process, each channel's ensembles in lockstep);
 * with the fast preset (``bayescap colour``'s default), the whole processes too: ``bayescap colour``
   of the four CSVs (``--json``) against ``bayescap fit`` of the Gr CSV (``--quality fast --json``),
   imports, reading and output included.
@@ -233,9 +232,8 @@ def main(argv=None) -> int:
         "worker's CPU seconds in the channel fits, plus CS etc.: its wall time on otherwise idle cores. 'Other "
         "process count': the same colour run (the same numbers, checked) at `fast` with `n_jobs=2` (a worker "
         "process fits half the channels, each process one after the other), at `standard` with `n_jobs=1` (the "
-        "channel fits one after the other in this process, each as `bayescap.fit` runs it alone, its MCMC "
-        "ensembles in one forked process per core as the monochrome fit's; the default pooled run runs each "
-        "channel's ensembles in lockstep in its process). "
+        "channel fits one after the other in this process; every colour run runs a channel's MCMC ensembles "
+        "in lockstep in its process, the monochrome fit in one forked process per core). "
         "Wall times beside them, not the measure: the machine is shared.",
         "",
         f"Load average (1 min) at the start {load0[0]:.2f}, at the end {os.getloadavg()[0]:.2f} on "
