@@ -13,11 +13,12 @@ sampler, seeded by the channel's child of :func:`bayescap.batch.sensor_seeds`). 
 the interval ends' Monte Carlo error judge the parameters this fit reports
 (:data:`REPORTED_PARAMETERS`, :func:`channel_fast_settings`), not the monochrome derived quantities
 (capacity, TR, DR, SNR at the channel's scene), which the colour result does not use and the
-channel's result still checks: ~0.65 of a monochrome fast fit's CPU time each. At ``fast`` the four
-run one after the other in this process (a worker process cost about a channel fit's CPU time);
-at the MCMC presets in worker processes, one per core (``n_jobs``, ``BAYESCAP_JOBS``), each
-running a channel's ensembles in lockstep (``benchmarks/colour_cfa_speed.py``); the numbers do
-not depend on the process count. Stacking the channels' ``log_prob`` calls gains nothing (their
+channel's result still checks: ~0.65 of a monochrome fast fit's CPU time each. The four run one
+after the other in this process, a channel's MCMC ensembles in lockstep; ``n_jobs`` (or
+``BAYESCAP_JOBS``) > 1 shares them out among worker processes, which shortens the wall time on
+idle cores but costs CPU time (a worker's start, and the cores' contention: at ``standard`` 2.7×
+the monochrome fit's CPU time in one process against 3.2× in two on the project's shared 2-core
+VM, ``benchmarks/colour_cfa_speed.py``); the numbers do not depend on the process count. Stacking the channels' ``log_prob`` calls gains nothing (their
 tables differ in their clip rows, so at most Gr and Gb stack, and the fast path's calls are large). Nor
 does starting R, Gb and B at the Gr fit's MAP (``benchmarks/colour_warm_start.py``): the MAP is
 ~15 % of a fast channel fit, and Newton from the Gr MAP took as many ``log_prob`` calls as from
@@ -290,16 +291,13 @@ def _fit_channel(args, n_jobs=None):
     return res, res.parameter_summary()
 
 
-def _channel_jobs(n_jobs, n_channels: int, quality: str = "standard") -> int:
-    """Processes for the channel fits: ``n_jobs``, else ``BAYESCAP_JOBS``, else one at ``fast`` (a
-    worker costs about a channel fit's CPU time) and one per core at the MCMC presets (at most one
-    per channel; 1 inside a multiprocessing worker, whose siblings have the other cores)."""
-    import os
-
+def _channel_jobs(n_jobs, n_channels: int) -> int:
+    """Processes for the channel fits: ``n_jobs``, else ``BAYESCAP_JOBS``, else one (module
+    docstring: more cost CPU time; at most one per channel)."""
     from bayescap.model.threads import _allowed
 
     if n_jobs is None:
-        n_jobs = _allowed("BAYESCAP_JOBS", lambda: 1 if quality == "fast" else (os.cpu_count() or 1))
+        n_jobs = _allowed("BAYESCAP_JOBS", lambda: 1)
     return max(1, min(int(n_jobs), n_channels))
 
 
@@ -312,7 +310,7 @@ def _separate_fits(tables, channels, *, quality, seed, n_jobs=None):
     from bayescap.batch import sensor_seeds
 
     tasks = [(tables[c], s, quality) for c, s in zip(channels, sensor_seeds(seed, len(channels)))]
-    n_jobs = _channel_jobs(n_jobs, len(tasks), quality)
+    n_jobs = _channel_jobs(n_jobs, len(tasks))
     if n_jobs == 1:
         res = [_fit_channel(t, n_jobs=1) for t in tasks]  # one process: MCMC ensembles in lockstep
     else:
@@ -403,9 +401,9 @@ def fit_cfa(
     seed : the seed of every random draw (the same seed gives the same numbers).
     quality : the single-channel fit's preset ("fast", "standard", "accurate").
     n_draws : draws of the joint posterior.
-    n_jobs : processes for the four channel fits (default: one per core at the MCMC presets, one
-        at ``fast``; ``BAYESCAP_JOBS`` overrides; 1 in a multiprocessing worker; 1: every fit and
-        MCMC ensemble in this process). The numbers do not depend on it.
+    n_jobs : processes for the four channel fits (default ``BAYESCAP_JOBS``, else 1: every fit and
+        MCMC ensemble in this process; 1 in a multiprocessing worker). The numbers do not depend
+        on it.
     """
     missing = [c for c in CFA_CHANNELS if c not in tables]
     if missing:
