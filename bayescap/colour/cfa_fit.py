@@ -16,10 +16,11 @@ the interval ends' Monte Carlo error judge the parameters this fit reports
 channel's result still checks: ~0.65 of a monochrome fast fit's CPU time each. The four run one
 after the other in this process, a channel's MCMC ensembles in lockstep; ``n_jobs`` (or
 ``BAYESCAP_JOBS``) > 1 shares them out among worker processes, which shortens the wall time on
-idle cores but costs CPU time (a worker's start, and the cores' contention: at ``standard`` 2.7×
-the monochrome fit's CPU time in one process against 3.2× in two on the project's shared 2-core
-VM, ``benchmarks/colour_cfa_speed.py``); the numbers do not depend on the process count. Stacking the channels' ``log_prob`` calls gains nothing (their
-tables differ in their clip rows, so at most Gr and Gb stack, and the fast path's calls are large). Nor
+idle cores but costs CPU time (a worker's start, and the cores' contention: at ``standard`` 2.8×
+the monochrome fit's CPU time in one process against 3.0× in two on the project's shared 2-core
+VM, ``benchmarks/colour_cfa_speed.py``); the numbers do not depend on the process count.
+Stacking the channels' ``log_prob`` calls gains nothing (their tables differ in their clip rows,
+so at most Gr and Gb stack, and the fast path's calls are large). Nor
 does starting R, Gb and B at the Gr fit's MAP (``benchmarks/colour_warm_start.py``): the MAP is
 ~15 % of a fast channel fit, and Newton from the Gr MAP took as many ``log_prob`` calls as from
 each channel's own data-derived guess (141-264 against 147 over 12 channel fits).
