@@ -314,6 +314,18 @@ def test_channel_fits_gate_the_reported_parameters_and_still_check_the_rest(join
         assert all(end[n] <= gate for n in gated | {"capacity_bits", "tonal_range_bits"}), c
 
 
+def test_channel_fits_run_in_one_process_unless_asked(monkeypatch):
+    """The channel fits' process count: one by default (a worker costs CPU time, the target's
+    measure), ``BAYESCAP_JOBS`` or ``n_jobs`` for more, never more than the channels."""
+    from bayescap.colour.cfa_fit import _channel_jobs
+
+    monkeypatch.delenv("BAYESCAP_JOBS", raising=False)
+    assert _channel_jobs(None, 4) == 1
+    assert _channel_jobs(2, 4) == 2 and _channel_jobs(8, 4) == 4
+    monkeypatch.setenv("BAYESCAP_JOBS", "3")
+    assert _channel_jobs(None, 4) == 3 and _channel_jobs(1, 4) == 1
+
+
 @pytest.mark.parametrize("bad", ["R", "Gr"])  # R is fitted in this process, Gr in a worker
 def test_a_channel_fit_refusing_its_input_raises_here(bad, tmp_path):
     """An input error inside a worker process comes back as the same error, naming the file."""
