@@ -270,11 +270,12 @@ def test_consensus_agrees_with_the_mode_of_the_exact_joint_density(joint_fit):
 
 
 def test_channel_fits_do_not_depend_on_the_process_count(joint_fit):
-    """The four channel fits in worker processes (the default on two cores) give bit for bit what
-    one process gives, and each channel's is ``bayescap.fit``'s with the channel's child seed."""
+    """The four channel fits in worker processes give bit for bit what one process gives (the
+    default at fast), and each channel's is ``bayescap.fit``'s with the channel's child seed and the
+    channel fits' fast settings (the gate on the reported parameters)."""
     import bayescap
     from bayescap.batch import sensor_seeds
-    from bayescap.colour.cfa_fit import fit_cfa
+    from bayescap.colour.cfa_fit import channel_fast_settings, fit_cfa
 
     one = fit_cfa(_tables(3), seed=5, n_jobs=1)
     two = fit_cfa(_tables(3), seed=5, n_jobs=2)
@@ -283,13 +284,46 @@ def test_channel_fits_do_not_depend_on_the_process_count(joint_fit):
         for name, v in one.draws[c].items():
             np.testing.assert_array_equal(v, two.draws[c][name])
             np.testing.assert_array_equal(v, joint_fit.draws[c][name])
-    alone = bayescap.fit(_tables(3)["B"], seed=sensor_seeds(5, 4)[3], quality="fast")
+    alone = bayescap.fit(
+        _tables(3)["B"], seed=sensor_seeds(5, 4)[3], quality="fast", fast_settings=channel_fast_settings()
+    )
     np.testing.assert_array_equal(alone.chains.chain, one.results["B"].chains.chain)
     assert one.to_dict()["k_check"] == two.to_dict()["k_check"]
     # each channel's parameter summary, computed once where its fit ran, is the result's own
     for c in one.channels:
         assert two.summaries[c] == two.results[c].parameter_summary() == one.summaries[c]
     assert one.to_dict()["separate"] == two.to_dict()["separate"]
+
+
+def test_channel_fits_gate_the_reported_parameters_and_still_check_the_rest(joint_fit):
+    """At fast each channel fit's top-up and gate judge the parameters the colour result reports
+    (their interval ends' predicted Monte Carlo error within the gate), not the monochrome derived
+    quantities; the result still computes those (capacity, TR) and checks them against the same
+    gate (a failure would send the channel to MCMC)."""
+    from bayescap.colour.cfa_fit import REPORTED_PARAMETERS
+
+    for c, r in joint_fit.results.items():
+        d = r.diag
+        assert d["method"] == "laplace-is" and d["converged"], c
+        assert tuple(d["fast_settings"]["end_parameters"]) == REPORTED_PARAMETERS
+        gated = set(r.chains.extra["end_mcse"])
+        assert gated and gated <= set(REPORTED_PARAMETERS), (c, gated)
+        gate = d["fast_settings"]["end_mcse_max"]
+        end = d["interval_end_mcse"]
+        assert {"capacity_bits", "tonal_range_bits"} <= set(end), c
+        assert all(end[n] <= gate for n in gated | {"capacity_bits", "tonal_range_bits"}), c
+
+
+def test_channel_fits_run_in_one_process_unless_asked(monkeypatch):
+    """The channel fits' process count: one by default (a worker costs CPU time, the target's
+    measure), ``BAYESCAP_JOBS`` or ``n_jobs`` for more, never more than the channels."""
+    from bayescap.colour.cfa_fit import _channel_jobs
+
+    monkeypatch.delenv("BAYESCAP_JOBS", raising=False)
+    assert _channel_jobs(None, 4) == 1
+    assert _channel_jobs(2, 4) == 2 and _channel_jobs(8, 4) == 4
+    monkeypatch.setenv("BAYESCAP_JOBS", "3")
+    assert _channel_jobs(None, 4) == 3 and _channel_jobs(1, 4) == 1
 
 
 @pytest.mark.parametrize("bad", ["R", "Gr"])  # R is fitted in this process, Gr in a worker

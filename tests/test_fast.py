@@ -584,6 +584,35 @@ def test_end_mcse_gate_tops_up_the_draws_until_the_ends_are_accurate(topup):
         _assert_ends_near_exact(model, ch.chain.reshape(-1, 3), lambda j: 4 * target, seed)
 
 
+def test_end_parameters_gate_only_the_named_parameters():
+    """FastSettings.end_parameters: the top-up and the gate judge the named parameters' interval ends
+    only, and the derived quantities are not computed for them (their errors are the result's to
+    check): with a target the default draws miss, gating p1 alone tops up until p1's ends are within
+    it, and its ends sit within 4 targets of the exact quantiles (seeds 1-3)."""
+    model = _gaussian_target()
+    base = FastSettings(retry_restarts=0, end_mcse_max=None)
+    calls = []
+
+    def derived(x):
+        calls.append(x.shape[0])
+        return {"sum": x.sum(axis=1)}
+
+    for seed in (1, 2, 3):
+        _, d0 = fast_posterior(model, seed=seed, settings=base)
+        target = 0.6 * d0["end_mcse"]["p1"]  # out of reach of the default draws for p1
+        gated = replace(base, end_mcse_max=target, end_parameters=("p1",))
+        ch, dg = fast_posterior(model, seed=seed, settings=gated, derived_fn=derived)
+        assert dg["accepted"], dg["reason"]
+        assert set(dg["end_mcse"]) == {"p1"} and dg["end_mcse"]["p1"] <= target
+        assert dg["n_topup"] > 0
+        assert "derived_fn" not in ch.extra["weighted_draws"]
+        sd = np.sqrt(model.cov[1, 1])
+        lo, hi = np.quantile(ch.chain.reshape(-1, 3)[:, 1], [0.025, 0.975])
+        assert abs(lo - (model.mu[1] - 1.959964 * sd)) < 4 * target * 2 * 1.959964 * sd, seed
+        assert abs(hi - (model.mu[1] + 1.959964 * sd)) < 4 * target * 2 * 1.959964 * sd, seed
+    assert calls == []
+
+
 def test_targeted_top_up_needs_fewer_draws_and_aims_beyond_the_ends():
     """The targeted top-up (FastSettings.topup, the default) reaches a gate that the default draws
     miss with fewer draws than more moment-matched ones (seeds 1-3, the same first 6 000 draws), and

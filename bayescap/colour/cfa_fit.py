@@ -7,15 +7,20 @@ reached at a given exposure), its PRNU and DSNU, the spread of its pixels' clip 
 variance discrepancy and its response non-linearity.
 
 **How the channels are combined: per-channel fits and a Gaussian consensus.** Each channel is
-fitted alone by the unchanged single-channel fit (:func:`bayescap.fit`, the same model, likelihood
-and sampler, seeded by the channel's child of :func:`bayescap.batch.sensor_seeds`). These are the
-*separate fits*, reported beside the joint one. The four run in worker processes, one per core
-(``n_jobs``, ``BAYESCAP_JOBS``), as the monochrome MCMC runs its ensembles: four fits cost about
-four monochrome fits of CPU time, and the cores share that out (wall time and CPU time against the
-monochrome fit's: ``benchmarks/colour_cfa_speed.py``; on the project's 2-core VM a fast fit runs
-~1.3x slower while the other core fits too, so two processes give ~1.5x the throughput of one);
-the numbers do not depend on the process count. Stacking the four channels' ``log_prob`` calls instead gains nothing measurable (their tables
-differ in their clip rows, so at most Gr and Gb stack, and the fast path's calls are large). Nor
+fitted alone by the single-channel fit (:func:`bayescap.fit`, the same model, likelihood and
+sampler, seeded by the channel's child of :func:`bayescap.batch.sensor_seeds`). These are the
+*separate fits*, reported beside the joint one. At ``fast`` the fast path's top-up and its gate on
+the interval ends' Monte Carlo error judge the parameters this fit reports
+(:data:`REPORTED_PARAMETERS`, :func:`channel_fast_settings`), not the monochrome derived quantities
+(capacity, TR, DR, SNR at the channel's scene), which the colour result does not use and the
+channel's result still checks: ~0.65 of a monochrome fast fit's CPU time each. The four run one
+after the other in this process, a channel's MCMC ensembles in lockstep; ``n_jobs`` (or
+``BAYESCAP_JOBS``) > 1 shares them out among worker processes, which shortens the wall time on
+idle cores but costs CPU time (a worker's start, and the cores' contention: at ``standard`` 2.8×
+the monochrome fit's CPU time in one process against 3.0× in two on the project's shared 2-core
+VM, ``benchmarks/colour_cfa_speed.py``); the numbers do not depend on the process count.
+Stacking the channels' ``log_prob`` calls gains nothing (their tables differ in their clip rows,
+so at most Gr and Gb stack, and the fast path's calls are large). Nor
 does starting R, Gb and B at the Gr fit's MAP (``benchmarks/colour_warm_start.py``): the MAP is
 ~15 % of a fast channel fit, and Newton from the Gr MAP took as many ``log_prob`` calls as from
 each channel's own data-derived guess (141-264 against 147 over 12 channel fits).
@@ -94,6 +99,8 @@ _PARAMETER_UNITS = {
     "dsnu_e": "e-",
     "quantum_efficiency": "",
 }
+#: the parameters the colour fit reports per channel: what a channel fit's interval ends are judged on
+REPORTED_PARAMETERS = tuple(_PARAMETER_UNITS)
 
 
 class JointCFAModel:
@@ -265,46 +272,48 @@ def _k_check(separate: dict, channels) -> dict:
     }
 
 
+def channel_fast_settings():
+    """A channel fit's fast-path settings: the defaults, the top-up and the interval-end gate judging
+    :data:`REPORTED_PARAMETERS` (``FastSettings.end_parameters``; module docstring)."""
+    from bayescap.inference import FastSettings
+
+    return FastSettings(end_parameters=REPORTED_PARAMETERS)
+
+
 def _fit_channel(args, n_jobs=None):
-    """One channel's unchanged single-channel fit, ``bayescap.fit(data, seed=seed, quality=quality)``
-    (``n_jobs``: its MCMC ensembles' processes; the numbers do not depend on it), and its
+    """``bayescap.fit(data, seed=seed, quality=quality)`` of one channel (at ``fast`` with
+    :func:`channel_fast_settings`; ``n_jobs``: its MCMC ensembles' processes) and its
     ``parameter_summary()`` (computed where the fit ran: in a worker, beside this process's fits)."""
     from bayescap.api import fit
 
     data, seed, quality = args
-    res = fit(data, seed=seed, quality=quality, n_jobs=n_jobs)
+    fs = channel_fast_settings() if quality == "fast" else None
+    res = fit(data, seed=seed, quality=quality, n_jobs=n_jobs, fast_settings=fs)
     return res, res.parameter_summary()
 
 
 def _channel_jobs(n_jobs, n_channels: int) -> int:
-    """Processes for the channel fits: ``n_jobs``, else ``BAYESCAP_JOBS``, else one per core (at most
-    one per channel; 1 inside a multiprocessing worker, whose siblings have the other cores)."""
-    import os
-
+    """Processes for the channel fits: ``n_jobs``, else ``BAYESCAP_JOBS``, else one (module
+    docstring: more cost CPU time; at most one per channel)."""
     from bayescap.model.threads import _allowed
 
     if n_jobs is None:
-        n_jobs = _allowed("BAYESCAP_JOBS", lambda: os.cpu_count() or 1)
+        n_jobs = _allowed("BAYESCAP_JOBS", lambda: 1)
     return max(1, min(int(n_jobs), n_channels))
 
 
 def _separate_fits(tables, channels, *, quality, seed, n_jobs=None):
-    """The unchanged single-channel fit of each channel, ``bayescap.fit(table, seed=child, quality)``
-    with child ``i`` of :func:`bayescap.batch.sensor_seeds` (``seed``): ({channel: FitResult},
-    {channel: its ``parameter_summary()``}).
-
-    With ``n_jobs`` > 1 the channels are shared out round-robin among this process and
-    ``n_jobs − 1`` worker processes, one channel at a time in each (a channel fit runs its MCMC
-    ensembles in lockstep in its own process instead of forking a pool of its own; this process
-    works too rather than wait, which saves a fork and the transfer of its channels' results). The
-    numbers do not depend on ``n_jobs``: each channel's result is bit for bit the one
-    :func:`bayescap.fit` gives alone (``tests/test_cfa.py``); only its wall time differs."""
+    """:func:`_fit_channel` of each channel with child ``i`` of :func:`bayescap.batch.sensor_seeds`
+    (``seed``): ({channel: FitResult}, {channel: its ``parameter_summary()``}). With ``n_jobs`` > 1
+    the channels are shared out round-robin among this process and ``n_jobs − 1`` workers; every
+    process runs a channel's MCMC ensembles in lockstep. The numbers are bit for bit the same
+    (``tests/test_cfa.py``)."""
     from bayescap.batch import sensor_seeds
 
     tasks = [(tables[c], s, quality) for c, s in zip(channels, sensor_seeds(seed, len(channels)))]
     n_jobs = _channel_jobs(n_jobs, len(tasks))
     if n_jobs == 1:
-        res = [_fit_channel(t) for t in tasks]
+        res = [_fit_channel(t, n_jobs=1) for t in tasks]  # one process: MCMC ensembles in lockstep
     else:
         res = _pooled(tasks, n_jobs)
     return {c: r for c, (r, _) in zip(channels, res)}, {c: s for c, (_, s) in zip(channels, res)}
@@ -393,8 +402,9 @@ def fit_cfa(
     seed : the seed of every random draw (the same seed gives the same numbers).
     quality : the single-channel fit's preset ("fast", "standard", "accurate").
     n_draws : draws of the joint posterior.
-    n_jobs : processes for the four channel fits (default: one per core, ``BAYESCAP_JOBS``
-        overrides; 1 in a multiprocessing worker). The numbers do not depend on it.
+    n_jobs : processes for the four channel fits (default ``BAYESCAP_JOBS``, else 1: every fit and
+        MCMC ensemble in this process; 1 in a multiprocessing worker). The numbers do not depend
+        on it.
     """
     missing = [c for c in CFA_CHANNELS if c not in tables]
     if missing:

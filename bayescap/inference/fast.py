@@ -26,7 +26,8 @@
 4. **Top-up.** Each 95 % interval end's predicted Monte Carlo error is computed for every physical
    parameter and derived quantity (:mod:`bayescap.inference.end_errors`). While the worst is above
    the target, more draws are added, up to ``max_proposals``: by default t components aimed at the
-   offending ends (the importance density of a quantile has half its mass beyond it). The target
+   offending ends (the importance density of a quantile has half its mass beyond it); with
+   ``FastSettings.end_parameters`` only the named parameters' ends. The target
    is ``end_mcse_max`` of the width, lowered so that *every* end is within ``end_tolerance`` with
    predicted probability ``end_confidence`` (Π erf(tol/(s_i√2)) over the ends' errors s_i).
 5. **Resampling.** Systematic resampling to ``n_draws`` equally weighted draws (as many as there
@@ -192,6 +193,9 @@ def _top_up(model, settings, rng, derived_fn, x, logp, logq, comps, cache, n_dra
     # included: each draw's are computed once (the linearity error's per-draw response inverse was
     # ~40 % of a Basler fast fit), where the functions are of each draw alone
     phys = _physical_fn(model)
+    gated = None if settings.end_parameters is None else set(settings.end_parameters)
+    if gated is not None:
+        derived_fn = None  # (FastSettings.end_parameters: the derived quantities are the result's to check)
     if phys is not None and _physical_per_draw(model):
         phys = PerDrawValues(phys)
     if derived_fn is not None and getattr(derived_fn, "per_draw", False):
@@ -199,7 +203,7 @@ def _top_up(model, settings, rng, derived_fn, x, logp, logq, comps, cache, n_dra
 
     # the physical parameters (their errors are this path's; a derived quantity's FitResult computes
     # again, for randomly ordered resampling): one of them may be the resampling's order
-    params = set(_end_values(model, x, w, None, phys=phys)[2]) if phys is not None else set()
+    params = set(_end_values(model, x, w, None, names=gated, phys=phys)[2]) if phys is not None else set()
     key = None  # the parameter the draws are resampled in the order of (_sorted_end_errors)
 
     def table(vals_, wk_, mcse_=None, ends_=None):
@@ -218,7 +222,7 @@ def _top_up(model, settings, rng, derived_fn, x, logp, logq, comps, cache, n_dra
         {name: worst end}, {name: ends}, the worst, the per-end target). The parameter whose ends are
         worst for randomly ordered resampling becomes the resampling's order (``key``)."""
         nonlocal key
-        xk_, wk_, vals_ = _end_values(model, x, w, derived_fn, phys=phys)
+        xk_, wk_, vals_ = _end_values(model, x, w, derived_fn, names=gated, phys=phys)
         key = None
         mcse_, ends_ = table(vals_, wk_)
         # (only with a gate on the ends: without one, as for the MCMC's start, the order is not needed)
@@ -536,7 +540,7 @@ def fast_posterior(
         diag["first_attempt"] = first
     chains.extra["retried_with_restarts"] = diag["retried_with_restarts"]
     wd = chains.extra.get("weighted_draws")
-    if derived_fn is not None and wd is not None:
+    if derived_fn is not None and wd is not None and settings.end_parameters is None:
         # the function whose quantities' interval-end errors are in end_mcse (with its inputs, for
         # FitResult to reuse them: FitResult._derived_end_mcse_importance)
         wd["derived_fn"] = derived_fn

@@ -85,6 +85,11 @@ class FastSettings:
     end_confidence: float | None = (
         0.9  # ... with at least this predicted probability, all ends at once (None: per end only)
     )
+    # the physical parameters whose interval ends the top-up and the gate judge (None: every physical
+    # parameter and the derived quantities of fast_posterior's derived_fn); a caller that reports only
+    # some parameters (the colour fit's channels, bayescap.colour.cfa_fit) names them, and then the
+    # derived quantities' errors are left to the result's own check (FitResult), the others' unjudged
+    end_parameters: tuple | None = None
 
 
 QUALITY_PRESETS = {
