@@ -59,8 +59,9 @@ import time
 from dataclasses import dataclass, field
 
 import numpy as np
-from scipy.special import chdtrc
 
+from bayescap.colour.agreement import K_CHECK_P_MIN, chi2_check
+from bayescap.colour.agreement import k_check as _k_check
 from bayescap.io.ptc_csv import PTCData
 from bayescap.model.ptc_model import PTCModel
 from bayescap.posterior import summarize
@@ -78,8 +79,6 @@ SHARED_NAMES = {
     "log_dc": "dark_current_e_per_s",
     "clip_dn": "clip_dn",
 }
-#: the K check fails below this p-value of the χ² of the channels' log K
-K_CHECK_P_MIN = 0.01
 #: CS is computed on at most this many of the joint draws, with this many Gauss-Legendre nodes per
 #: axis over the full raw cube (a smooth integrand: 24 nodes differ from 96 by < 2e-6 bits) and where
 #: the domain is cut (clipping after M, a reflectance cone: the cut is not smooth in the quadrature's
@@ -241,35 +240,6 @@ class CFAFit:
             "consistency": dict(self.consistency),
             "notes": list(self.notes),
         }
-
-
-def _chi2_check(mu, sd) -> tuple[float, int, float]:
-    """χ² of values ``mu`` (sd ``sd``) about their precision-weighted mean: (χ², dof, p)."""
-    sd = np.maximum(sd, 1e-12)
-    w = 1.0 / sd**2
-    mean = float(np.sum(w * mu) / np.sum(w))
-    chi2 = float(np.sum(((mu - mean) / sd) ** 2))
-    dof = len(mu) - 1
-    # chdtrc: the χ² survival function (scipy.stats.chi2.sf's own), without importing scipy.stats
-    # (~0.7 CPU s at the colour command's start, more than a fast channel fit)
-    return chi2, dof, float(chdtrc(dof, chi2)) if dof > 0 else 1.0
-
-
-def _k_check(separate: dict, channels) -> dict:
-    """The K check (module docstring) from the separate fits' draws."""
-    lk = [np.log(separate[c]["conversion_gain_e_per_dn"]) for c in channels]
-    chi2, dof, p = _chi2_check(np.array([np.median(v) for v in lk]), np.array([np.std(v, ddof=1) for v in lk]))
-    k = np.exp([np.median(v) for v in lk])
-    return {
-        "definition": "chi-square of the channels' log K (separate fits) about their precision-weighted mean, "
-        f"{dof} degrees of freedom; passes when p >= {K_CHECK_P_MIN:g}",
-        "k_e_per_dn": {c: float(v) for c, v in zip(channels, k)},
-        "chi2": chi2,
-        "dof": dof,
-        "p_value": p,
-        "max_ratio": float(k.max() / k.min()),
-        "passed": bool(p >= K_CHECK_P_MIN),
-    }
 
 
 def channel_fast_settings():
@@ -444,7 +414,7 @@ def fit_cfa(
     for c in shared:
         have = [i for i, m in enumerate(models) if c in m.idx]
         v = [xs[i][:, models[i].idx[c]] for i in have]
-        chi2, dof, p = _chi2_check(np.array([np.median(a) for a in v]), np.array([np.std(a, ddof=1) for a in v]))
+        chi2, dof, p = chi2_check(np.array([np.median(a) for a in v]), np.array([np.std(a, ddof=1) for a in v]))
         consistency[SHARED_NAMES[c]] = {
             "channels": [channels[i] for i in have],
             "chi2": chi2,
