@@ -217,7 +217,8 @@ def test_workers_keep_freed_memory(client):
 
 def test_workers_run_without_the_profiler(client):
     """The cluster bayescap starts leaves out the workers' statistical profiler and the 20 ms
-    ticks (QUIET_CLUSTER): ~0.17 of a core on an idle 2-worker cluster."""
+    ticks (QUIET_CLUSTER): ~0.17 of a core on an idle 2-worker cluster; a worker restarted after the
+    kill test above too."""
     import dask
 
     from bayescap.batch.cluster import QUIET_CLUSTER

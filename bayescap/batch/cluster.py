@@ -100,8 +100,13 @@ def local_cluster(n_workers: int):
 
     distributed = import_distributed()
     environ = {**dask.config.get("distributed.nanny.pre-spawn-environ", {}), **WORKER_MALLOC_ENV}
-    # the nannies hand this configuration to their worker processes
     with dask.config.set({"distributed.nanny.pre-spawn-environ": environ, **QUIET_CLUSTER}):
+        # each nanny also gets the quiet settings as its own configuration, which it hands to every
+        # worker process it starts: a worker restarted after the first died read the defaults again
         return distributed.LocalCluster(
-            n_workers=n_workers, threads_per_worker=1, processes=True, dashboard_address=":0"
+            n_workers=n_workers,
+            threads_per_worker=1,
+            processes=True,
+            dashboard_address=":0",
+            config=dict(QUIET_CLUSTER),
         )
