@@ -548,7 +548,7 @@ def _response_degree(d: PTCData, full, how) -> int:
     else:
         V, Vd = d.temporal_var_dn2, d.dark_temporal_var_dn2
         sd = np.sqrt(2.0 * (V**2 + Vd**2) / np.maximum(d.n_pixels - 1.0, 1.0))
-        ev = response_degree_evidence(sig, V - Vd, sd, rows & (V >= _QUANT_EXACT_S2))
+        ev = response_degree_evidence(sig, V - Vd, sd, rows & (V >= _QUANT_EXACT_S2), sd_known=True)
         what = "the temporal photon-transfer curve"
     if ev is None or not ev[0] < RICH_P_VALUE:
         return N_BASIS
