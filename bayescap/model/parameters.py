@@ -54,7 +54,10 @@ PARAMETER_INFO = {
         "fractional deviation of the response from linearity at the largest unclipped signal",
     ),
     **{
-        f"response_shape_{k}": ("", f"coefficient {k} of the response's log-slope (Bernstein or spline basis, docs/model.md)")
+        f"response_shape_{k}": (
+            "",
+            f"coefficient {k} of the response's log-slope (Bernstein or spline basis, docs/model.md)",
+        )
         for k in range(1, RICH_BASIS + 1)
     },
     "brighter_fatter_a00_per_e": (
