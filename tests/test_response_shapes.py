@@ -120,7 +120,8 @@ def test_spline_log_slope_is_local_and_integrates_exactly():
     intervals (the low rows, which pin K, keep L = 0)."""
     from scipy.integrate import quad
 
-    from bayescap.model.response import RICH_BASIS, SPLINE_INTERVALS, log_slope
+    from bayescap.model.response import RICH_BASIS, log_slope
+    from bayescap.model.response_spline import SPLINE_INTERVALS
 
     rng = np.random.default_rng(1)
     theta = np.cumsum(rng.normal(0.0, 0.05, (6, RICH_BASIS)), axis=1)  # steps at the prior's scale

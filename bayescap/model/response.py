@@ -43,6 +43,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from bayescap.model.response_spline import RICH_BASIS, h_table_spline, is_spline, spline_basis
+
 __all__ = [
     "N_BASIS",
     "RICH_BASIS",
@@ -83,16 +85,6 @@ BF_EVIDENCE_SIGMA = 3.0
 
 #: degree of the Bernstein basis of the log-slope (coefficients θ₁..θ_m)
 N_BASIS = 4
-#: the log-slope when the data show a shape a degree-4 polynomial cannot follow (a knee or a kink in
-#: the top rows: :func:`response_degree_evidence`): a quadratic B-spline on this many uniform
-#: intervals of [0, 1] (local: a kink bends L only within about one interval of it, where a global
-#: polynomial's overshoot reaches down into the low rows and pulls K; C¹, so h' and h'' stay
-#: continuous for the table's Hermite data)
-SPLINE_INTERVALS = 8
-#: ... its coefficients: the B-splines of the clamped knot vector less the first (the only one not
-#: zero at u = 0, so L(0) = 0 and K stays the small-signal gain). Any other number of coefficients
-#: is a Bernstein log-slope of that degree (results saved with a degree-8 polynomial read as before)
-RICH_BASIS = SPLINE_INTERVALS + 1
 #: the degree of the richer polynomial :func:`response_degree_evidence` tests the degree-4 shape against
 PROXY_DEGREE = 8
 #: ... chosen on an F-test of the two degrees' smooth fits at this p-value (strong evidence: a richer
@@ -129,38 +121,6 @@ def _bernstein_to_power(m):
 _POWER = {N_BASIS: _bernstein_to_power(N_BASIS)}
 
 
-def _spline_basis(u, derivative=False):
-    """The :data:`RICH_BASIS` quadratic B-splines (or their derivatives) at ``u`` (clipped to
-    [0, 1]): u's shape + (m,)."""
-    from scipy.interpolate import BSpline
-
-    n = SPLINE_INTERVALS
-    t = np.concatenate([[0.0, 0.0], np.linspace(0.0, 1.0, n + 1), [1.0, 1.0]])
-    b = BSpline(t, np.eye(n + 2)[:, 1:], 2, extrapolate=False)
-    if derivative:
-        b = b.derivative()
-    return np.nan_to_num(b(np.clip(np.asarray(u, float), 0.0, 1.0)))
-
-
-def _is_spline(m):
-    return m == RICH_BASIS
-
-
-def _spline_nodes(n_table):
-    """The spline basis and its derivative at the table's nodes, (m, n_table + 1) each, once."""
-    out = _SPLINE_NODES.get(n_table)
-    if out is None:
-        g = np.linspace(0.0, 1.0, n_table + 1)
-        out = (np.ascontiguousarray(_spline_basis(g).T), np.ascontiguousarray(_spline_basis(g, True).T))
-        for a in out:
-            a.setflags(write=False)
-        out = _SPLINE_NODES.setdefault(n_table, out)
-    return out
-
-
-_SPLINE_NODES = {}
-
-
 def log_slope(u, theta):
     """L(u) = Σ_k θ_k B_k(u) (k = 1..m), u clipped to [0, 1]: the Bernstein polynomials B_{k,m}, or
     for m = :data:`RICH_BASIS` the quadratic B-splines. ``theta`` (n, m); ``u`` with a leading axis
@@ -168,9 +128,9 @@ def log_slope(u, theta):
     power basis.)"""
     theta = np.atleast_2d(np.asarray(theta, float))
     m = theta.shape[1]
-    if _is_spline(m):
+    if is_spline(m):
         u = np.asarray(u, float)
-        B = _spline_basis(u)  # u.shape + (m,)
+        B = spline_basis(u)  # u.shape + (m,)
         th = theta.reshape((theta.shape[0],) + (1,) * (u.ndim - 1) + (m,)) if u.ndim else theta[0]
         return np.sum(B * th, axis=-1)
     c = _power_coefficients(theta)  # (n, m): coefficients of u, u², ..., u^m
@@ -195,8 +155,8 @@ def _power_coefficients(theta):
 def _h_table(theta, n_table=N_TABLE):
     """Per draw, on u = 0, 1/K, ..., 1 (K = ``n_table``): h(u) = ∫₀^u exp(L), and exp(L)/K and
     (exp(L))'/K, the Hermite data in units of one interval. Each (n, K + 1)."""
-    if _is_spline(theta.shape[1]):
-        return _h_table_spline(theta, n_table)
+    if is_spline(theta.shape[1]):
+        return h_table_spline(theta, n_table)
     c = _power_coefficients(theta)
     n, m = c.shape
     g = _TABLE_NODES.get(n_table)
@@ -235,27 +195,6 @@ def _h_table(theta, n_table=N_TABLE):
     return H, f, fp
 
 
-def _h_table_spline(theta, n_table):
-    """:func:`_h_table` for the spline log-slope: L and L' at the nodes as sums over the basis,
-    element by element (the same numbers whatever the number of draws)."""
-    B, dB = _spline_nodes(n_table)
-    n, m = theta.shape
-    h = 1.0 / n_table
-    L = np.zeros((n, n_table + 1))
-    dL = np.zeros((n, n_table + 1))
-    for k in range(m):
-        tk = theta[:, k : k + 1]
-        L += tk * B[k]
-        dL += tk * dB[k]
-    np.exp(L, out=L)
-    dL *= L
-    s = 0.5 * h * (L[:, :-1] + L[:, 1:]) + (h * h / 12.0) * (dL[:, :-1] - dL[:, 1:])
-    H = np.empty((n, n_table + 1))
-    H[:, 0] = 0.0
-    np.cumsum(s, axis=1, out=H[:, 1:])
-    return H, L * h, dL * h
-
-
 #: draws per block of :func:`_h_table`
 _H_BLOCK = 256
 #: :func:`_h_table`'s nodes u = 0, 1/K, ..., 1 by table size K
@@ -285,7 +224,7 @@ def linearise(s, theta, s_ref, per_point=False, table=None):
     theta = np.atleast_2d(np.asarray(theta, float))
     n = theta.shape[0]
     shape = np.broadcast_shapes(v.shape, (n,) + (1,) * (v.ndim - 1)) if v.ndim else (n,)
-    if per_point and not _is_spline(theta.shape[1]):  # (Gauss–Legendre is not exact across a spline's knots)
+    if per_point and not is_spline(theta.shape[1]):  # (Gauss–Legendre is not exact across a spline's knots)
         return _linearise_points(v, theta, s_ref)
     H, fh, fph = _h_table(theta) if table is None else table
     k = H.shape[1] - 1
