@@ -48,6 +48,7 @@ from bayescap.model.response_spline import RICH_BASIS, h_table_spline, is_spline
 __all__ = [
     "N_BASIS",
     "RICH_BASIS",
+    "PROXY_DEGREE",
     "SHAPE_BOUND",
     "BF_BOUND",
     "log_slope",
