@@ -177,6 +177,24 @@ def test_two_slope_ptc_gets_the_spline_without_photons():
     assert N_BASIS == 4
 
 
+def test_rich_shape_is_the_spline_only_without_photons(tmp_path):
+    """The non-linear zoo's 16-bit two-slope camera (frames simulated, seed of the zoo): without
+    photon counts the degree test (its χ² leg) picks the spline; with them the F-test on the means
+    picks the degree-8 polynomial; the quadratic camera without photons keeps degree 4."""
+    from bayescap.model.response import N_BASIS, PROXY_DEGREE, RICH_BASIS
+    from bayescap.validation.zoo_nonlinear import ensure_csvs, nonlinear_zoo
+
+    want = {
+        "nl_two_slope_16bit_noph": RICH_BASIS,
+        "nl_two_slope_16bit_ph": PROXY_DEGREE,
+        "nl_quadratic_16bit_noph": N_BASIS,
+    }
+    for z in nonlinear_zoo():
+        if z.name in want:
+            terms = select_terms(bayescap.load(str(ensure_csvs(z, tmp_path)[0])))
+            assert terms.nonlinearity and terms.response_degree == want[z.name], z.name
+
+
 def test_bf_factor_is_astier_eq16():
     """(exp(2a₀₀μ) − 1)/(2a₀₀) = μ · expm1(z)/z with z = 2a₀₀μ."""
     a00, mu = -2e-6, np.array([1.0, 1e4, 1e5])
