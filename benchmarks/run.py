@@ -121,6 +121,13 @@ BENCHMARKS = {
         "20-40 min",
         "8-15 min",
     ),
+    "zoo_nonlinear_seeds": (
+        "the non-linear zoo's 42 sensors on 5 independent simulation seeds at `fast` (all rows and rows below "
+        "70 %): coverage per shape and per photons/no photons with Wilson intervals, K overlap, tight misses, "
+        "the signed z of K ((mean - truth)/sd: bias and calibration)",
+        "10-20 min",
+        "6-12 min",
+    ),
     "astro_tables": (
         "mean/variance-only PTC tables of 60 frame-simulated astronomy amplifiers (gain 0.6-1.8, 40-400 flat "
         "pairs, strong brighter-fatter): K inside its 95 % interval, read noise within 10 %; stops (exit 2, "

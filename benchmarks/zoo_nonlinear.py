@@ -56,7 +56,9 @@ def _loadavg():
         return float("nan")
 
 
-def fit_one(path, quality):
+def fit_one(path, quality, n_jobs=None):
+    """One fit's contract dict, its time, and ``draw_moments``: the posterior mean and sd of each
+    scored parameter's draws (for the signed z-score (mean − truth)/sd)."""
     import bayescap
     from bayescap.exceptions import InputError
 
@@ -64,7 +66,10 @@ def fit_one(path, quality):
     try:
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")
-            d = bayescap.fit(str(path), seed=1, quality=quality).to_dict()
+            res = bayescap.fit(str(path), seed=1, quality=quality, n_jobs=n_jobs)
+            d = res.to_dict()
+            draws = res.summary_draws()
+            d["draw_moments"] = {p: [float(np.mean(draws[p])), float(np.std(draws[p]))] for p in SHORT if p in draws}
     except InputError as e:
         return {"refused": str(e).splitlines()[0][:200], "wall_s": time.perf_counter() - t0}
     except Exception as e:  # a crash is a finding to list, not a reason to stop the zoo
@@ -104,6 +109,7 @@ def summary_of(d, truths):
         "outliers": [o["row"] for o in d.get("outliers", [])],
         "terms": d.get("model_terms", []),
         "flags": sorted(k for k, v in (d.get("flags") or {}).items() if v and k != "metadata_defaults"),
+        "moments": d.get("draw_moments", {}),
     }
 
 

@@ -112,6 +112,89 @@ def test_log_slope_response_is_monotone_with_unit_slope_at_zero():
     assert linearity_error_shape(theta[:1], 1000.0)[0] < 1e-9
 
 
+def test_spline_log_slope_is_local_and_integrates_exactly():
+    """The rich log-slope (a quadratic B-spline on SPLINE_INTERVALS intervals, RICH_BASIS values):
+    L(0) = 0, the table's h and h' against adaptive quadrature of exp(L) and a finite difference,
+    the forward response inverts it (h within 1e-6: the means with photons are precise to ~1e-4);
+    and a change of the last value bends L only in the top
+    intervals (the low rows, which pin K, keep L = 0)."""
+    from scipy.integrate import quad
+
+    from bayescap.model.response import RICH_BASIS, log_slope
+    from bayescap.model.response_spline import SPLINE_INTERVALS
+
+    rng = np.random.default_rng(1)
+    theta = np.cumsum(rng.normal(0.0, 0.05, (6, RICH_BASIS)), axis=1)  # steps at the prior's scale
+    s = np.linspace(0.0, 1200.0, 49)[None, :]
+    x, slope = linearise(s, theta, 1000.0)
+    assert np.all(log_slope(np.zeros((1, 1)), theta) == 0.0)
+    for i in (0, 3):
+        for v in (0.13, 0.5, 0.97):
+            ref = (
+                1000.0
+                * quad(lambda u: float(np.exp(log_slope(np.array([[u]]), theta[i : i + 1])[0, 0])), 0, v, limit=200)[0]
+            )
+            assert linearise(np.array([[1000.0 * v]]), theta[i : i + 1], 1000.0)[0][0, 0] == pytest.approx(
+                ref, rel=1e-6
+            )
+    x2, _ = linearise(s + 1e-3, theta, 1000.0)
+    assert np.allclose((x2 - x) / 1e-3, slope, rtol=1e-5, atol=1e-6)
+    assert np.allclose(response_forward(x, theta, 1000.0), s, atol=1e-6)
+    # per_point (Gauss–Legendre for the polynomial) gives the table's numbers for the spline
+    xp, sp = linearise(s, theta, 1000.0, per_point=True)
+    assert np.array_equal(xp, x) and np.array_equal(sp, slope)
+    step = np.zeros((1, RICH_BASIS))
+    step[0, -1] = -0.5
+    u = np.linspace(0.0, 1.0, 201)[None, :]
+    L = log_slope(u, step)[0]
+    assert np.all(L[u[0] <= 1.0 - 2.0 / SPLINE_INTERVALS] == 0.0) and L[-1] == pytest.approx(-0.5)
+
+
+def test_two_slope_ptc_gets_the_spline_without_photons():
+    """Without photons a two-slope ADC's temporal PTC steps down at the kink (the variance falls by
+    the slope ratio squared): the degree-4 and degree-8 polynomials both miss it, so their F-test
+    says little, but the degree-4 proxy's χ² against the variances' sampling errors calls for the
+    spline; a quadratic compression's PTC (smooth) keeps degree 4 under the same noise."""
+    from bayescap.model.response import N_BASIS, RICH_P_VALUE, response_degree_evidence
+
+    rng = np.random.default_rng(5)
+    S = np.linspace(1500.0, 60000.0, 30)
+    n_pix = 1e4
+    kink = 42000.0
+    x_two = np.where(S <= kink, S, kink + (S - kink) / 0.7)
+    slope_two = np.where(S <= kink, 1.0, 0.7)
+    x_quad = 2 * S / (1 + np.sqrt(1 - 4 * 0.1 * S / 66000.0))  # S = x(1 − 0.1 x/66000)
+    slope_quad = 1.0 - 2 * 0.1 * x_quad / 66000.0
+    for x, g, rich in ((x_two, slope_two, True), (x_quad, slope_quad, False)):
+        v = g * g * x / 1.5 + 2.0
+        sd = v * np.sqrt(2.0 / (n_pix - 1.0))
+        vm = v + sd * rng.standard_normal(S.size)
+        p_f, _ = response_degree_evidence(S, vm, sd, np.ones(S.size, bool))
+        p, n = response_degree_evidence(S, vm, sd, np.ones(S.size, bool), sd_known=True)
+        assert n == S.size and (p < RICH_P_VALUE) == rich
+        if rich:
+            assert p_f > RICH_P_VALUE  # the F-test alone would keep degree N_BASIS
+    assert N_BASIS == 4
+
+
+def test_rich_shape_is_the_spline_only_without_photons(tmp_path):
+    """The non-linear zoo's 16-bit two-slope camera (frames simulated, seed of the zoo): without
+    photon counts the degree test (its χ² leg) picks the spline; with them the F-test on the means
+    picks the degree-8 polynomial; the quadratic camera without photons keeps degree 4."""
+    from bayescap.model.response import N_BASIS, PROXY_DEGREE, RICH_BASIS
+    from bayescap.validation.zoo_nonlinear import ensure_csvs, nonlinear_zoo
+
+    want = {
+        "nl_two_slope_16bit_noph": RICH_BASIS,
+        "nl_two_slope_16bit_ph": PROXY_DEGREE,
+        "nl_quadratic_16bit_noph": N_BASIS,
+    }
+    for z in nonlinear_zoo():
+        if z.name in want:
+            terms = select_terms(bayescap.load(str(ensure_csvs(z, tmp_path)[0])))
+            assert terms.nonlinearity and terms.response_degree == want[z.name], z.name
+
+
 def test_bf_factor_is_astier_eq16():
     """(exp(2a₀₀μ) − 1)/(2a₀₀) = μ · expm1(z)/z with z = 2a₀₀μ."""
     a00, mu = -2e-6, np.array([1.0, 1e4, 1e5])

@@ -54,7 +54,10 @@ PARAMETER_INFO = {
         "fractional deviation of the response from linearity at the largest unclipped signal",
     ),
     **{
-        f"response_shape_{k}": ("", f"coefficient {k} of the response's log-slope (Bernstein basis, docs/model.md)")
+        f"response_shape_{k}": (
+            "",
+            f"coefficient {k} of the response's log-slope (Bernstein or spline basis, docs/model.md)",
+        )
         for k in range(1, RICH_BASIS + 1)
     },
     "brighter_fatter_a00_per_e": (
@@ -322,9 +325,17 @@ class _ParametersMixin:
         if self.terms.discrepancy:
             lp = lp + _norm_logpdf(g("log_f"), np.log(P["f_center"]), P["f_log_sd"])
         if getattr(self.terms, "nonlinearity", False):
-            # independent normals shrinking the log-slope towards 0 (the linear response)
             theta = self.response_theta(th)
-            lp = lp + np.sum(_norm_logpdf(theta, 0.0, P["response_shape_sd"]), axis=1)
+            if self.n_basis == RICH_BASIS:
+                # the spline's values: a random walk from L(0) = 0 with Cauchy steps of scale
+                # response_step_scale: neighbouring intervals agree unless the data bend them, and
+                # then a step as large as a kink's costs little (heavy tails), so a knee or a kink
+                # near the top does not drag the low rows' log-slope (which pin K) with it
+                steps = np.diff(theta, axis=1, prepend=0.0) / P["response_step_scale"]
+                lp = lp - np.sum(np.log1p(steps * steps), axis=1)
+            else:
+                # independent normals shrinking the log-slope towards 0 (the linear response)
+                lp = lp + np.sum(_norm_logpdf(theta, 0.0, P["response_shape_sd"]), axis=1)
             lp = lp + np.where(np.all(np.abs(theta) < SHAPE_BOUND, axis=1), 0.0, -np.inf)
         if getattr(self.terms, "brighter_fatter", False):
             b = g("bf")

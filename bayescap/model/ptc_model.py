@@ -99,6 +99,7 @@ class PTCModel(_ParametersMixin, _PredictionMixin, _ClipMixin, _LikelihoodMixin)
         tau_log_sd=1.5,
         tau_max_frac=0.1,
         response_shape_sd=1.0,
+        response_step_scale=0.05,
         brighter_fatter_sd=0.5,
         offset_spread_log_bounds=(1e-3, 2.0),
         read_log_bounds=None,

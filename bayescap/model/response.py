@@ -5,8 +5,10 @@ linear signal x = charge/K (DN). The model writes its inverse, the *linearisatio
 
     h(S) = S_ref ∫₀^{S/S_ref} exp(L(u)) du,   L(u) = Σ_{k=1..m} θ_k B_{k,m}(u),
 
-with B_{k,m} the Bernstein polynomials of degree m (:data:`N_BASIS`) on [0, 1] without B_{0,m}
-(so L(0) = 0: h'(0) = 1, and K stays the small-signal gain), ``S_ref`` the largest unclipped
+with B_{k,m} the Bernstein polynomials of degree m (:data:`N_BASIS`) on [0, 1] without B_{0,m}, or
+(:data:`RICH_BASIS` coefficients, when the data show a knee or a kink) the quadratic B-splines on
+:data:`SPLINE_INTERVALS` uniform intervals without the first (either way L(0) = 0: h'(0) = 1, and
+K stays the small-signal gain), ``S_ref`` the largest unclipped
 measured signal. h' = exp(L) > 0, so the response is monotone whatever the coefficients; beyond
 S_ref the slope is held at its value there (the clip level lies a little above). The integral
 is a fixed Gauss–Legendre quadrature, vectorised over draws and rows. All θ = 0 is the linear
@@ -41,9 +43,12 @@ from __future__ import annotations
 
 import numpy as np
 
+from bayescap.model.response_spline import RICH_BASIS, h_table_spline, is_spline, spline_basis
+
 __all__ = [
     "N_BASIS",
     "RICH_BASIS",
+    "PROXY_DEGREE",
     "SHAPE_BOUND",
     "BF_BOUND",
     "log_slope",
@@ -81,9 +86,8 @@ BF_EVIDENCE_SIGMA = 3.0
 
 #: degree of the Bernstein basis of the log-slope (coefficients θ₁..θ_m)
 N_BASIS = 4
-#: the degree when the data show a shape a degree-4 log-slope cannot follow (a knee or a kink in the
-#: top rows: :func:`response_degree_evidence`)
-RICH_BASIS = 8
+#: the degree of the richer polynomial :func:`response_degree_evidence` tests the degree-4 shape against
+PROXY_DEGREE = 8
 #: ... chosen on an F-test of the two degrees' smooth fits at this p-value (strong evidence: a richer
 #: shape costs K's precision without photon counts, and sampling time)
 RICH_P_VALUE = 1e-3
@@ -119,11 +123,17 @@ _POWER = {N_BASIS: _bernstein_to_power(N_BASIS)}
 
 
 def log_slope(u, theta):
-    """L(u) = Σ_k θ_k B_{k,m}(u) (k = 1..m), u clipped to [0, 1]. ``theta`` (n, m); ``u`` with a
-    leading axis of n draws (or 1), any trailing axes: returns u's broadcast shape. (Horner's
-    scheme in the power basis.)"""
+    """L(u) = Σ_k θ_k B_k(u) (k = 1..m), u clipped to [0, 1]: the Bernstein polynomials B_{k,m}, or
+    for m = :data:`RICH_BASIS` the quadratic B-splines. ``theta`` (n, m); ``u`` with a leading axis
+    of n draws (or 1), any trailing axes: returns u's broadcast shape. (Horner's scheme in the
+    power basis.)"""
     theta = np.atleast_2d(np.asarray(theta, float))
     m = theta.shape[1]
+    if is_spline(m):
+        u = np.asarray(u, float)
+        B = spline_basis(u)  # u.shape + (m,)
+        th = theta.reshape((theta.shape[0],) + (1,) * (u.ndim - 1) + (m,)) if u.ndim else theta[0]
+        return np.sum(B * th, axis=-1)
     c = _power_coefficients(theta)  # (n, m): coefficients of u, u², ..., u^m
     u = np.clip(np.asarray(u, float), 0.0, 1.0)
     extra = (1,) * (u.ndim - 1)
@@ -146,6 +156,8 @@ def _power_coefficients(theta):
 def _h_table(theta, n_table=N_TABLE):
     """Per draw, on u = 0, 1/K, ..., 1 (K = ``n_table``): h(u) = ∫₀^u exp(L), and exp(L)/K and
     (exp(L))'/K, the Hermite data in units of one interval. Each (n, K + 1)."""
+    if is_spline(theta.shape[1]):
+        return h_table_spline(theta, n_table)
     c = _power_coefficients(theta)
     n, m = c.shape
     g = _TABLE_NODES.get(n_table)
@@ -213,7 +225,7 @@ def linearise(s, theta, s_ref, per_point=False, table=None):
     theta = np.atleast_2d(np.asarray(theta, float))
     n = theta.shape[0]
     shape = np.broadcast_shapes(v.shape, (n,) + (1,) * (v.ndim - 1)) if v.ndim else (n,)
-    if per_point:
+    if per_point and not is_spline(theta.shape[1]):  # (Gauss–Legendre is not exact across a spline's knots)
         return _linearise_points(v, theta, s_ref)
     H, fh, fph = _h_table(theta) if table is None else table
     k = H.shape[1] - 1
@@ -419,15 +431,19 @@ def response_shape_evidence(signal_dn, photons, rows):
     return dev, chi2
 
 
-def response_degree_evidence(u, y, sd, rows, lo=N_BASIS, hi=RICH_BASIS):
-    """Whether a shape needs the richer log-slope: smooth fits of ``y`` against ``u`` (a Chebyshev
-    series of degree ``lo + 1`` and ``hi + 1``, the polynomial a log-slope of degree m bends a curve
-    into to first order) over the rows ``rows``, each weighted by ``1/sd``, compared by the F-test of
-    the nested fits. With photon counts ``u`` are the photons and ``y`` the signals (``sd`` the
-    signals: relative residuals, as in EMVA 1288's linearity fit); without them ``u`` the signals and
-    ``y`` the shot variances (``sd`` their sampling errors). Returns ``(p_value, n_rows)``, None with
-    too few rows for the richer fit to leave four degrees of freedom."""
-    from scipy.special import fdtrc
+def response_degree_evidence(u, y, sd, rows, lo=N_BASIS, hi=PROXY_DEGREE, sd_known=False):
+    """Whether a shape needs the richer (spline) log-slope: smooth fits of ``y`` against ``u`` (a
+    Chebyshev series of degree ``lo + 1`` and ``hi + 1``, the polynomial a log-slope of degree m
+    bends a curve into to first order) over the rows ``rows``, each weighted by ``1/sd``, compared
+    by the F-test of the nested fits. With photon counts ``u`` are the photons and ``y`` the signals
+    (``sd`` the signals: relative residuals, as in EMVA 1288's linearity fit); without them ``u`` the
+    signals and ``y`` the shot variances (``sd`` their sampling errors). With ``sd_known`` (the
+    variances' sampling errors are errors, not only weights) the p-value is the smaller of the
+    F-test's and the χ² test of the degree-``lo + 1`` fit's own residuals: a step in the PTC's slope
+    (a two-slope ADC) leaves both polynomials far off, so the F-test between them says little, while
+    the low one's χ² per degree of freedom is tens (a smooth shape's about 1). Returns ``(p_value,
+    n_rows)``, None with too few rows for the richer fit to leave four degrees of freedom."""
+    from scipy.special import chdtrc, fdtrc
 
     u, y, sd = (np.asarray(a, float) for a in (u, y, sd))
     r = np.asarray(rows, bool) & np.isfinite(u) & np.isfinite(y) & np.isfinite(sd) & (sd > 0)
@@ -445,7 +461,10 @@ def response_degree_evidence(u, y, sd, rows, lo=N_BASIS, hi=RICH_BASIS):
     if not rss[1] > 0:
         return (0.0 if rss[0] > 0 else 1.0), n
     F = ((rss[0] - rss[1]) / (p_hi - p_lo)) / (rss[1] / (n - p_hi))
-    return float(fdtrc(p_hi - p_lo, n - p_hi, max(F, 0.0))), n
+    p = float(fdtrc(p_hi - p_lo, n - p_hi, max(F, 0.0)))
+    if sd_known:
+        p = min(p, float(chdtrc(n - p_lo, rss[0])))
+    return p, n
 
 
 def response(x, a, s_ref):

@@ -18,6 +18,7 @@ from bayescap.model.response import (
     EVIDENCE_MIN,
     EVIDENCE_SIGMA,
     N_BASIS,
+    PROXY_DEGREE,
     RICH_BASIS,
     RICH_P_VALUE,
     VARIANCE_EVIDENCE_MIN,
@@ -27,6 +28,7 @@ from bayescap.model.response import (
     response_shape_evidence,
     variance_curvature_evidence,
 )
+from bayescap.model.response_spline import SPLINE_INTERVALS
 
 __all__ = ["ModelTerms", "rows_at_a_skewed_clip", "rows_to_fit", "saturation_flags", "select_terms"]
 
@@ -533,10 +535,15 @@ def _select_ptc_curvature(d: PTCData, sig, rows, reasons, how) -> bool:
 
 
 def _response_degree(d: PTCData, full, how) -> int:
-    """The degree of the response's log-slope: :data:`RICH_BASIS` when a degree-4 shape leaves
-    structure the richer one removes (:func:`~bayescap.model.response.response_degree_evidence`, an
-    F-test at :data:`RICH_P_VALUE` on the means against the photons, or without photons on the
-    temporal PTC), over the rows the response is selected on; else :data:`N_BASIS`."""
+    """The response's log-slope, as its number of coefficients: richer when a degree-4 shape leaves
+    structure (:func:`~bayescap.model.response.response_degree_evidence` at :data:`RICH_P_VALUE`,
+    over the rows the response is selected on), else :data:`N_BASIS`. With photon counts (an F-test
+    on the means against the photons) the richer shape is the degree-:data:`PROXY_DEGREE` Bernstein
+    polynomial: the means, precise to ~1e-4, pin a smooth shape, and a knee or a kink that it
+    smooths is taken up by the mean discrepancy (the spline's fixed knots, which a kink seldom meets,
+    moved K by 1-3 sd on the 16-bit two-slope camera, benchmarks/results/zoo_nonlinear_seeds.md).
+    Without them (the temporal PTC; the F-test or the polynomial's χ²) it is the local spline
+    (:data:`RICH_BASIS` values), so a knee or a kink does not pull the low rows that pin K."""
     sig = d.mean_dn - d.dark_mean_dn
     ok = _unclipped_rows(d, full)
     if not np.any(ok):
@@ -548,15 +555,21 @@ def _response_degree(d: PTCData, full, how) -> int:
     else:
         V, Vd = d.temporal_var_dn2, d.dark_temporal_var_dn2
         sd = np.sqrt(2.0 * (V**2 + Vd**2) / np.maximum(d.n_pixels - 1.0, 1.0))
-        ev = response_degree_evidence(sig, V - Vd, sd, rows & (V >= _QUANT_EXACT_S2))
+        ev = response_degree_evidence(sig, V - Vd, sd, rows & (V >= _QUANT_EXACT_S2), sd_known=True)
         what = "the temporal photon-transfer curve"
     if ev is None or not ev[0] < RICH_P_VALUE:
         return N_BASIS
-    how["response_nonlinearity"] = how.get("response_nonlinearity", "") + (
-        f"; {what} has a shape a degree-{N_BASIS} log-slope does not follow (a knee or a kink: F-test "
-        f"p = {ev[0]:.1g} over {ev[1]} rows), so the log-slope has degree {RICH_BASIS}"
+    photons = d.photons_per_pixel is not None
+    rich = (
+        f"degree {PROXY_DEGREE}"
+        if photons
+        else f"a quadratic spline on {SPLINE_INTERVALS} intervals (local: it bends only near a knee or kink)"
     )
-    return RICH_BASIS
+    how["response_nonlinearity"] = how.get("response_nonlinearity", "") + (
+        f"; {what} has a shape a degree-{N_BASIS} log-slope does not follow (a knee or a kink: "
+        f"{'F-test' if photons else 'F-test or χ²'} p = {ev[0]:.1g} over {ev[1]} rows), so the log-slope is {rich}"
+    )
+    return PROXY_DEGREE if photons else RICH_BASIS
 
 
 def _select_offset_spread(d: PTCData, dsnu: bool, full, reasons, how) -> bool:

@@ -19,6 +19,7 @@ and the brightest row sits at 1.25 of it.
 from __future__ import annotations
 
 import math
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -37,6 +38,7 @@ __all__ = [
     "ensure_csvs",
     "shape_of",
     "has_photons",
+    "reseeded",
 ]
 
 FAMILY = ("quadratic", "cubic", "quartic", "s_shape", "soft_knee", "two_slope", "brighter_fatter")
@@ -130,6 +132,15 @@ def nonlinear_zoo() -> list[ZooSensor]:
                 seed = 4600 + 10 * i + 2 * j + (0 if photons else 1)
                 out.append(_sensor(shape, cam, strengths[j], knee if knee is not None else 0.75, photons, seed))
     return out
+
+
+def reseeded(zs: ZooSensor, replicate: int) -> ZooSensor:
+    """The same sensor and acquisition simulated from an independent seed (new frames, hence new
+    means and variances): replicate 0 is the zoo's own seed; replicate r adds 100 000·r, far from
+    every zoo seed. The CSV cache tells the replicates apart by the seed in :meth:`ZooSensor.key`."""
+    if replicate < 0:
+        raise ValueError(f"replicate must be >= 0, got {replicate}")
+    return replace(zs, seed=zs.seed + 100_000 * int(replicate))
 
 
 def scored_truths(zs: ZooSensor) -> dict:
