@@ -25,11 +25,18 @@ def small_csv(tmp_path_factory):
     return p
 
 
-@pytest.mark.slow
-def test_dollar_in_file_name_does_not_reach_math_text(small_csv, tmp_path, capsys):
-    out = tmp_path / "o"
+@pytest.fixture(scope="module")
+def out_set(small_csv, tmp_path_factory):
+    """``bayescap fit small_csv --quality fast --seed 1 --out DIR``: the folder, for the tests that
+    read a first set (one fit and one set of plots and posterior for the module)."""
+    out = tmp_path_factory.mktemp("out_set") / "o"
     assert main(["fit", str(small_csv), "--quality", "fast", "--seed", "1", "--out", str(out)]) == 0
-    assert (out / "ptc.png").stat().st_size > 0
+    return out
+
+
+@pytest.mark.slow
+def test_dollar_in_file_name_does_not_reach_math_text(small_csv, out_set, tmp_path, capsys):
+    assert (out_set / "ptc.png").stat().st_size > 0
     rep = tmp_path / "r.html"
     assert main(["report", str(small_csv), "-o", str(rep), "--quality", "fast", "--seed", "1"]) == 0
     assert "cam_$5_vs_$10" in rep.read_text()
@@ -134,11 +141,13 @@ def test_disk_full_while_writing_the_set_prints_the_result_and_leaves_nothing(sm
 
 
 @pytest.mark.slow
-def test_the_out_set_is_replaced_as_a_whole(small_csv, tmp_path, capsys, monkeypatch):
+def test_the_out_set_is_replaced_as_a_whole(small_csv, out_set, tmp_path, capsys, monkeypatch):
     """A second run into the same folder replaces the first run's set as a whole; a failed run
     leaves the previous set as it was and no temporary files."""
+    import shutil
+
     out = tmp_path / "out"
-    assert main(["fit", str(small_csv), "--quality", "fast", "--seed", "1", "--out", str(out)]) == 0
+    shutil.copytree(out_set, out)  # the first run's set
     first = (out / "result.json").read_text()
     (out / "corner.png").unlink()  # a set that lost a file: replaced whole, not topped up
     assert main(["fit", str(small_csv), "--quality", "fast", "--seed", "2", "--out", str(out)]) == 0
