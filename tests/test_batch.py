@@ -184,10 +184,10 @@ def test_fit_many_gives_each_sensor_its_own_fit():
 def test_fit_many_fallbacks_shared_out_across_processes_are_each_sensors_own():
     """With n_jobs > 1 the MCMC fallbacks run after every process's fast paths, shared out evenly:
     each is still bayescap.fit's own fallback for that sensor and seed (here every fast path is
-    rejected: k̂ must be below −1)."""
+    rejected: k̂ must be below −1; two sensors, one fallback per process)."""
     from bayescap.inference import FastSettings
 
-    datas, _ = gpixel_sensors(n_max=3, seed=5)
+    datas, _ = gpixel_sensors(n_max=2, seed=5)
     seeds = [int(c.generate_state(1)[0]) for c in np.random.SeedSequence(9).spawn(len(datas))]
     fs = FastSettings(khat_max=-1.0, retry_restarts=0)
     with warnings.catch_warnings():
