@@ -1,0 +1,123 @@
+"""Benchmark figures the README and docs quote in prose stand in the results file a rerun overwrites.
+
+Each row pairs a phrase of a page with the text the benchmark's results file writes for the same
+figure: a rerun that moves the figure changes the file, and this test fails until the page says the
+new figure (rerun the benchmark named in the row, then edit the page). Figures generated into
+docs/ from a fit are tests/test_docs_numbers.py's.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import pytest
+
+ROOT = Path(__file__).resolve().parents[1]
+RESULTS = ROOT / "benchmarks" / "results"
+
+#: (page, phrase on the page, results file, the same figure as the results file writes it)
+QUOTED = [
+    # python benchmarks/run.py zoo_nonlinear
+    ("README.md", "139 of 147 checks hold the truth (95 %)", "zoo_nonlinear.md", "**139/147 (95 %)**"),
+    ("README.md", "median 2.93 s of sampling", "zoo_nonlinear.md", "| 2.93 (243.06) |"),
+    ("README.md", "(up to 243 s;", "zoo_nonlinear.md", "| 2.93 (243.06) |"),
+    ("README.md", "overlap on 42/42", "zoo_nonlinear.md", "**139/147 (95 %)** | 42/42 (100 %) |"),
+    # python benchmarks/run.py zoo_nonlinear_seeds
+    (
+        "README.md",
+        "697 of 735 checks hold\n(94.8 %, 95 % interval 93–96 %)",
+        "zoo_nonlinear_seeds.md",
+        "**697/735 (94.8 %)** [93, 96]",
+    ),
+    ("README.md", "has an RMS of 0.97", "zoo_nonlinear_seeds.md", "| +0.10 ± 0.07 | 0.97 |"),
+    (
+        "README.md",
+        "holds 42/45 (z-scores +0.5 ± 0.25, RMS 1.05",
+        "zoo_nonlinear_seeds.md",
+        "| two_slope, no photons | 15 | **42/45 (93.3 %)** [82, 98] | 14/15 | 13/15 | 15/15 | 0 | +0.48 ± 0.25 | 1.05 |",
+    ),
+    (
+        "README.md",
+        "38/45 (84 %,\ninterval 71–92 %",
+        "zoo_nonlinear_seeds.md",
+        "| soft_knee, no photons | 15 | **38/45 (84.4 %)** [71, 92]",
+    ),
+    (
+        "docs/real_sensors.md",
+        "holds 42 of 45 checks and K's z-scores centre on\n+0.5 ± 0.25 with an RMS of 1.05",
+        "zoo_nonlinear_seeds.md",
+        "**42/45 (93.3 %)** [82, 98] | 14/15 | 13/15 | 15/15 | 0 | +0.48 ± 0.25 | 1.05 |",
+    ),
+    (
+        "docs/real_sensors.md",
+        "The soft knee without photons holds 38 of 45",
+        "zoo_nonlinear_seeds.md",
+        "| soft_knee, no photons | 15 | **38/45",
+    ),
+    # python benchmarks/run.py process_stages
+    (
+        "README.md",
+        "(the Basler set 2.5 s and 3.3 s)",
+        "process_stages.md",
+        "| basler_ccd12 (real) | fast | laplace-is | 2.50 |",
+    ),
+    (
+        "README.md",
+        "(the Basler set 2.5 s and 3.3 s)",
+        "process_stages.md",
+        "| basler_ccd12 (real) | standard | emcee | 3.30 |",
+    ),
+    ("README.md", "`bayescap --version` 0.07 s", "process_stages.md", "`bayescap --version`: **0.07 s**"),
+    # python benchmarks/run.py colour_cfa_speed
+    (
+        "README.md",
+        "2.90× one channel's monochrome fit at `standard`",
+        "colour_cfa_speed.md",
+        "colour (standard) / monochrome (standard): median 2.90x",
+    ),
+    ("README.md", "and 3.33× at `fast`", "colour_cfa_speed.md", "colour (fast) / monochrome (fast): median 3.33x"),
+    ("README.md", "command costs 1.54×", "colour_cfa_speed.md", "bayescap colour / bayescap fit (fast): median 1.54x"),
+    # python benchmarks/run.py colour_coverage
+    (
+        "README.md",
+        "K and QE held the truth in 489/512 and 487/512",
+        "colour_coverage.md",
+        "- K (each channel's own fit): 489/512",
+    ),
+    ("README.md", "K and QE held the truth in 489/512 and 487/512", "colour_coverage.md", "- QE per channel: 487/512"),
+    (
+        "README.md",
+        "CS in 125/128 (raw cube) and 127/128",
+        "colour_coverage.md",
+        "- CS (cube, 8-bit floor, spectral CCM taken as exact): 125/128",
+    ),
+    (
+        "README.md",
+        "CS in 125/128 (raw cube) and 127/128",
+        "colour_coverage.md",
+        "- CS clipped after M (CCM exact): 127/128",
+    ),
+    ("README.md", "held the shared K in\n125/128", "colour_coverage.md", "- K (shared): 125/128"),
+    ("README.md", "QE in 499/512", "colour_coverage.md", "- QE per channel: 499/512"),
+    (
+        "README.md",
+        "CS in 124/128 clipped after the CCM and 121/128 over the raw cube (94.5 %,\n95 % interval 89.1–97.8 %",
+        "colour_coverage.md",
+        "- CS (cube, 8-bit floor, CCM exact): 121/128 = 94.5% (95 % CI 89.1%-97.8%",
+    ),
+    (
+        "README.md",
+        "CS in 124/128 clipped after the CCM",
+        "colour_coverage.md",
+        "- CS clipped after M (CCM exact): 124/128",
+    ),
+]
+
+
+@pytest.mark.parametrize("page, phrase, results, figure", QUOTED, ids=[f"{q[0]}: {q[1][:40]}" for q in QUOTED])
+def test_quoted_figure_is_the_results_files(page, phrase, results, figure):
+    text = " ".join((ROOT / page).read_text(encoding="utf-8").split())
+    assert " ".join(phrase.split()) in text, f"{page} no longer says {phrase!r}"
+    assert figure in (RESULTS / results).read_text(encoding="utf-8"), (
+        f"benchmarks/results/{results} no longer holds {figure!r}: {page}'s {phrase!r} is stale"
+    )
