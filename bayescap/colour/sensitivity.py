@@ -39,6 +39,7 @@ colours that leave ``[0, white]`` after M (out of gamut / clipped in the output)
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from functools import lru_cache
 
 import numpy as np
 
@@ -114,6 +115,16 @@ def _per_draw(x, n, shape, name):
     if not np.all(np.isfinite(x)):
         raise ValueError(f"{name} must be finite")
     return x
+
+
+@lru_cache(maxsize=8)
+def _unit_gauss_legendre(n: int):
+    """Gauss-Legendre nodes and weights on [0, 1] (cached: numpy's take ~4 ms at 40 nodes)."""
+    x, w = np.polynomial.legendre.leggauss(n)
+    u, wu = 0.5 * (x + 1.0), 0.5 * w
+    u.setflags(write=False)
+    wu.setflags(write=False)
+    return u, wu
 
 
 def _inverse_tonal(a, b, c, lo, t):
@@ -334,8 +345,7 @@ def colour_sensitivity(
         cone = _cone_halfspaces(domain)
         domain_desc = f"the raw cube ∩ the cone of {np.shape(domain)[0]} reflectance responses"
     n_levels = float(2**out_bits)
-    x, w = np.polynomial.legendre.leggauss(int(n_grid))
-    nodes = (0.5 * (x + 1.0), 0.5 * w)  # on [0, 1]
+    nodes = _unit_gauss_legendre(int(n_grid))
     bits = np.empty(n)
 
     # one thread: on two threads (numpy releasing the GIL) the same CS took 1.5x the wall time on the
