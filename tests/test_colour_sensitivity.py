@@ -255,3 +255,19 @@ def test_emulator_falls_back_to_the_quadrature_where_cs_is_not_linear_or_draws_a
     few = colour_sensitivity_emulated(v[:200], clip[:200], ms[:200], WB, n_grid=24)
     assert few.choices["evaluation"].startswith("the quadrature on every draw (200 draws")
     assert np.array_equal(few.bits, colour_sensitivity(v[:200], clip[:200], ms[:200], WB, n_grid=24).bits)
+
+
+def test_emulator_checks_every_draw_not_only_its_pilots():
+    """A singular CCM or a negative coefficient in a draw the map does not evaluate is refused, as the
+    quadrature refuses it."""
+    from bayescap.colour.cs_emulator import colour_sensitivity_emulated
+
+    v, clip, ms = _posterior_like(300, seed=4)
+    bad = ms.copy()
+    bad[1] = [[1.0, 0.0, 0.0], [1.0, 0.0, 0.0], [0.0, 0.0, 1.0]]  # draw 1 is not a pilot
+    with pytest.raises(ValueError, match="singular"):
+        colour_sensitivity_emulated(v, clip, bad, WB, clip_output=True)
+    vb = v.copy()
+    vb[1, 0, 1] = -0.1
+    with pytest.raises(ValueError, match="c1 ≥ 0"):
+        colour_sensitivity_emulated(vb, clip, ms, WB, clip_output=True)

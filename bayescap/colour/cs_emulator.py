@@ -22,7 +22,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from bayescap.colour.sensitivity import ColourSensitivity, _per_draw, colour_sensitivity, raw_rgb_coefficients
+from bayescap.colour.sensitivity import ColourSensitivity, checked_inputs, colour_sensitivity
 
 __all__ = ["colour_sensitivity_emulated", "EMULATOR_PILOTS", "EMULATOR_MAX_RESID_FRAC"]
 
@@ -34,11 +34,9 @@ EMULATOR_MAX_RESID_FRAC = 0.1
 
 def _inputs(var_coeffs_dn2, clip_dn, ccm, wb_gains) -> np.ndarray:
     """Per draw what CS depends on (n, 24): log c0, √c1, √c2 of R, G, B, log of their clips, the CCM's
-    and the white balance's elements."""
-    rgb, clip3 = raw_rgb_coefficients(var_coeffs_dn2, clip_dn)
+    and the white balance's elements; every draw checked as the quadrature checks its inputs."""
+    rgb, clip3, ccm_d, wb_d = checked_inputs(var_coeffs_dn2, clip_dn, ccm, wb_gains)
     n = rgb.shape[0]
-    ccm_d = _per_draw(ccm, n, (3, 3), "ccm")
-    wb_d = _per_draw(wb_gains, n, (3,), "wb_gains")
     return np.column_stack(
         [np.log(rgb[..., 0]), np.sqrt(rgb[..., 1]), np.sqrt(rgb[..., 2]), np.log(clip3), ccm_d.reshape(n, 9), wb_d]
     )

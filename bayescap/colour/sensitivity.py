@@ -153,6 +153,22 @@ def _inverse_tonal(a, b, c, lo, t):
     return s
 
 
+def checked_inputs(var_coeffs_dn2, clip_dn, ccm, wb_gains):
+    """Every draw's R, G, B noise coefficients (n, 3, 3), clips (n, 3), CCM (n, 3, 3) and white
+    balance (n, 3), checked (ValueError: the first problem, in words)."""
+    rgb, clip3 = raw_rgb_coefficients(var_coeffs_dn2, clip_dn)
+    n = rgb.shape[0]
+    ccm_d = _per_draw(ccm, n, (3, 3), "ccm")
+    wb_d = _per_draw(wb_gains, n, (3,), "wb_gains")
+    if np.any(wb_d <= 0):
+        raise ValueError("wb_gains must be positive")
+    if np.any(np.abs(np.linalg.det(ccm_d)) <= 1e-12 * np.max(np.abs(ccm_d), axis=(1, 2)) ** 3):
+        raise ValueError("the colour-correction matrix is singular (or nearly) in some draw")
+    if np.any(ccm_d.sum(axis=2) <= 0):
+        raise ValueError("the colour-correction matrix maps white to a non-positive output (a row sum ≤ 0)")
+    return rgb, clip3, ccm_d, wb_d
+
+
 def _cone_halfspaces(directions):
     """Normals n_k (m, 3) with n_k·s ≥ 0 exactly on the convex cone spanned by ``directions``."""
     from scipy.spatial import ConvexHull
@@ -325,16 +341,8 @@ def colour_sensitivity(
     lower : ``"dark_noise"`` (each raw axis starts at σ_c(0), as Eq. 2/7) or ``"zero"``.
     n_grid : Gauss-Legendre nodes per axis on the (t_R, t_G) plane (the B axis is exact).
     """
-    rgb, clip3 = raw_rgb_coefficients(var_coeffs_dn2, clip_dn)
+    rgb, clip3, ccm_d, wb_d = checked_inputs(var_coeffs_dn2, clip_dn, ccm, wb_gains)
     n = rgb.shape[0]
-    ccm_d = _per_draw(ccm, n, (3, 3), "ccm")
-    wb_d = _per_draw(wb_gains, n, (3,), "wb_gains")
-    if np.any(wb_d <= 0):
-        raise ValueError("wb_gains must be positive")
-    if np.any(np.abs(np.linalg.det(ccm_d)) <= 1e-12 * np.max(np.abs(ccm_d), axis=(1, 2)) ** 3):
-        raise ValueError("the colour-correction matrix is singular (or nearly) in some draw")
-    if np.any(ccm_d.sum(axis=2) <= 0):
-        raise ValueError("the colour-correction matrix maps white to a non-positive output (a row sum ≤ 0)")
     if lower not in ("dark_noise", "zero"):
         raise ValueError(f"lower must be 'dark_noise' or 'zero', got {lower!r}")
     if isinstance(domain, str):
