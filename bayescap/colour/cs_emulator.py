@@ -107,12 +107,12 @@ def colour_sensitivity_emulated(
     rms = float(np.sqrt(np.mean(loo**2))) if np.all(np.isfinite(loo)) else float("inf")
     sd = float(np.std(y, ddof=1))
     frac = rms / sd if sd > 0 else (0.0 if rms == 0 else float("inf"))
-    check = {
+    check = {  # (None where not finite: the JSON carries it)
         "pilots": int(n_pilot),
         "inputs": int(rank - 1),
-        "loo_resid_rms_bits": rms,
+        "loo_resid_rms_bits": rms if np.isfinite(rms) else None,
         "pilot_cs_sd_bits": sd,
-        "loo_resid_frac_of_sd": frac,
+        "loo_resid_frac_of_sd": frac if np.isfinite(frac) else None,
         "max_resid_frac": float(max_resid_frac),
     }
     if not (rms <= max_resid_frac * sd or rms <= 1e-6):
