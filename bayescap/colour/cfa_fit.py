@@ -515,7 +515,7 @@ def colour_summary(
     cs = colour_sensitivity_emulated(
         coeffs,
         clip,
-        ccm.as_draws(n, seed=fit.seed),
+        ccm.as_draws(n, seed=fit.seed) if ccm.draws is not None else ccm.matrix,  # exact: one matrix
         wb_gains,
         domain=domain,
         floor=floor,
