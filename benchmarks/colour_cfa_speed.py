@@ -9,8 +9,10 @@ tables. Timed, per camera and preset, after one warm-up fit:
 * colour: ``fit_cfa`` of the four tables with its default process count (the separate fits one
   after the other in this process, a channel's MCMC ensembles in lockstep; the K check, the
   consensus) plus
-  ``colour_summary`` (CS per draw with the CCM's stated uncertainty, on one thread, scores and
-  capacities): what ``bayescap colour`` computes after reading the tables;
+  ``colour_summary`` (CS per draw with the CCM's stated uncertainty, on one thread: the quadrature on
+  128 pilot draws and the checked linear map on all, whose leave-one-out residual over CS's sd is
+  recorded with the Monte Carlo error of CS's interval ends; scores and capacities): what
+  ``bayescap colour`` computes after reading the tables;
 * the same colour run with ``n_jobs=2`` (the same numbers, checked): a worker process fits half the
   channels;
 * with the fast preset (``bayescap colour``'s default), the whole processes too: ``bayescap colour``
@@ -210,6 +212,9 @@ def main(argv=None) -> int:
                 k = f.to_dict()["shared"]["conversion_gain_e_per_dn"]["ci95"]
                 row[f"ok_{q}"] = (f.k_check["passed"], bool(k[0] <= truth["k_e_per_dn"] <= k[1]), f.converged)
                 row[f"cs_{q}"] = s["cs_bits"]["median"]
+                emu = s["choices"].get("emulator")
+                row[f"csmap_{q}"] = emu["loo_resid_frac_of_sd"] if emu else None
+                row[f"csmc_{q}"] = s["choices"]["cs_interval_end_mc_error_frac_of_width"]
             rows.append(row)
             print({k: v for k, v in row.items() if "_med_" not in k}, flush=True)
     lines = [
@@ -225,8 +230,10 @@ def main(argv=None) -> int:
         "the Gr table. Colour: `fit_cfa` of the four tables with its default process count (four separate fits "
         "one after the other in this process, at `fast` each gated on the parameters the colour result reports, "
         "at `standard` each channel's ensembles in lockstep; the K check, the consensus) + "
-        "`colour_summary` (CS per draw on 1000 joint draws with a CCM of 2 % stated "
-        "element uncertainty, clipped after the CCM as by default, on one thread; scores, capacities). Times "
+        "`colour_summary` (CS on 1000 joint draws with a CCM of 2 % stated "
+        "element uncertainty, clipped after the CCM as by default, on one thread: the quadrature on 128 pilot "
+        "draws and, where its leave-one-out check admits it, a linear map of the draws' inputs on all, "
+        "`bayescap.colour.cs_emulator`; scores, capacities). Times "
         f"after one warm-up fit; each the fastest of {reps['fast']} runs at `fast`, {args.repeats} at `standard` "
         "(monochrome, colour and colour with the "
         "other process count in turn; the ratios with the median of the runs are listed below the table). CPU time, the "
@@ -244,8 +251,9 @@ def main(argv=None) -> int:
         "",
         "| seed | preset | CPU mono (s) | CPU colour (s) | CPU ratio | CS etc. CPU (s) | other process count "
         "CPU (s) | its ratio | critical path (CPU s) | its ratio | wall mono (s) | wall colour (s) | wall ratio "
-        "| wall other process count (s) | K check | true K in joint 95 % | converged | CS (bits) |",
-        "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|",
+        "| wall other process count (s) | K check | true K in joint 95 % | converged | CS (bits) | CS map's "
+        "leave-one-out residual / CS sd | CS 95 % ends' MC error / width |",
+        "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|",
     ]
     for r in rows:
         for q in presets:
@@ -256,7 +264,9 @@ def main(argv=None) -> int:
                 f"{r[f'summarycpu_{q}']:.2f} | {r[f'colour1cpu_{q}']:.2f} | {r[f'colour1cpu_{q}'] / m:.2f} | "
                 f"{r[f'colourcrit_{q}']:.2f} | {r[f'colourcrit_{q}'] / m:.2f} | {r[f'mono_{q}']:.2f} | "
                 f"{r[f'colour_{q}']:.2f} | {r[f'colour_{q}'] / r[f'mono_{q}']:.2f} | {r[f'colour1_{q}']:.2f} | "
-                f"{'pass' if kc else 'FAIL'} | {'yes' if kin else 'no'} | {conv} | {r[f'cs_{q}']:.3f} |"
+                f"{'pass' if kc else 'FAIL'} | {'yes' if kin else 'no'} | {conv} | {r[f'cs_{q}']:.3f} | "
+                + (f"{r[f'csmap_{q}']:.3f}" if r[f"csmap_{q}"] is not None else "not used")
+                + f" | {r[f'csmc_{q}']:.3f} |"
             )
     lines += [
         "",

@@ -23,7 +23,8 @@ The joint fit, what ``bayescap colour`` reports (``fit_cfa``, quality ``fast``, 
 separate fits with the channels' child seeds, the K check, the consensus of the shared
 coordinates), is checked on the same cameras: the truth inside the 95 % interval of the shared K,
 the read noise, each channel's QE and PRNU and of CS (as above, on 1000 evenly thinned joint draws
-at the truth's exposure time, CCM exact, clipped and not). The channels share one K here, so the K
+at the truth's exposure time, CCM exact, clipped and not, evaluated as ``colour_summary`` does: exactly on
+128 pilot draws and by the checked linear map of :mod:`bayescap.colour.cs_emulator` on all). The channels share one K here, so the K
 check should pass on about 99 % of the cameras (its threshold p ≥ 0.01).
 
 The truth is the population the camera is drawn from (its ``prnu_frac``, ``channel_qe``): what the
@@ -110,6 +111,7 @@ def main() -> int:
     import bayescap
     from bayescap.colour.ccm import ccm_from_spectral
     from bayescap.colour.cfa_fit import fit_cfa
+    from bayescap.colour.cs_emulator import colour_sensitivity_emulated
     from bayescap.colour.scores import var_coeffs_from_fit
     from bayescap.colour.sensitivity import colour_sensitivity_bits
     from bayescap.io.ptc_csv import read_ptc_csv, write_ptc_csv
@@ -130,6 +132,7 @@ def main() -> int:
     }
     ranks, j_ranks, j_z, misses = [], [], [], []
     widths, widths_unc, widths_clip, t_cs = [], [], [], []
+    emul, emul_used = [], []  # the joint CS's linear map: its leave-one-out residual / CS sd, whether used
     ccms = {}
     for seed in seeds:
         cam = _camera(seed)
@@ -190,7 +193,13 @@ def main() -> int:
         jv, jclip = jf.var_coeffs_dn2(t_exp)[keep], jf.clip_signal_dn()[keep]
         jd = jf.draws
         read_name = "read_noise_e" if "read_noise_e" in jd["R"] else "dark_noise_e"
-        j_cs = colour_sensitivity_bits(jv, jclip, ccm.matrix, ccm.wb_gains)
+        # as colour_summary evaluates it: the quadrature on 128 pilot draws and the checked linear map
+        j_em = colour_sensitivity_emulated(jv, jclip, ccm.matrix, ccm.wb_gains)
+        j_em_clip = colour_sensitivity_emulated(jv, jclip, ccm.matrix, ccm.wb_gains, clip_output=True)
+        j_cs = j_em.bits
+        for e in (j_em, j_em_clip):
+            emul.append(e.choices["emulator"]["loo_resid_frac_of_sd"] if e.choices["emulator"] else None)
+            emul_used.append(e.choices["evaluation"].startswith("the quadrature on 128"))
         real_v = truth["var_coeffs_dn2"].copy()
         real_v[:, 2] = np.array([truth["realized"]["prnu_frac"][c] for c in CHANNELS]) ** 2
         cs_true_real = float(colour_sensitivity_bits(real_v, truth["clip_dn"][None], ccm.matrix, ccm.wb_gains)[0])
@@ -200,9 +209,7 @@ def main() -> int:
             "QE": [_inside(jd[c]["quantum_efficiency"], truth["quantum_efficiency"][c])[0] for c in CHANNELS],
             "PRNU": [_inside(jd[c]["prnu_percent"] / 100.0, truth["prnu_frac"][c])[0] for c in CHANNELS],
             "CS": [_inside(j_cs, cs_true)[0]],
-            "CS_clip": [
-                _inside(colour_sensitivity_bits(jv, jclip, ccm.matrix, ccm.wb_gains, clip_output=True), cs_clip_true)[0]
-            ],
+            "CS_clip": [_inside(j_em_clip.bits, cs_clip_true)[0]],
             "CS at the drawn pattern's PRNU": [_inside(j_cs, cs_true_real)[0]],
             "K check passed": [bool(jf.k_check["passed"])],
         }
@@ -295,6 +302,12 @@ CS 95 % interval width: median {np.median(widths):.3f} bits (min {np.min(widths)
 bootstrap draws: median {np.median(widths_unc):.3f} bits (over the raw cube the CCM enters only through
 the floor: its Jacobian cancels); with clipping after M (output volume fixed): median
 {np.median(widths_clip):.3f} bits. CS costs {np.median(t_cs):.2f} s per 1000 draws (default n_grid, median over the cameras; machine shared).
+
+The joint CS (raw cube and clipped), as `colour_summary` evaluates it (`bayescap.colour.cs_emulator`: the
+quadrature on 128 pilot draws, a linear map of the draws' inputs on all when its leave-one-out residual
+rms is ≤ 0.1 of CS's sd): the map used in {sum(emul_used)} of {len(emul_used)} evaluations (else the
+quadrature on every draw); its leave-one-out residual / CS sd: median
+{np.median([e for e in emul if e is not None]):.3f}, largest {max(e for e in emul if e is not None):.3f}.
 
 Spectral CCMs (ColorChecker N Ohta → linear sRGB):
 {chr(10).join(ccm_lines)}

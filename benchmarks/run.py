@@ -99,7 +99,7 @@ BENCHMARKS = {
         "simulated Bayer cameras (frame by frame, from spectral sensitivities): per-channel K and QE and colour "
         "sensitivity against the truth (95 % coverage), from the separate channel fits and from the joint fit "
         "(fit_cfa, with its K check), CS interval widths with the CCM exact and uncertain",
-        "10-25 min",
+        "5-25 min",
         "1-2 min",
     ),
     "quantization_regime": (

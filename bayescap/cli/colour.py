@@ -277,6 +277,12 @@ def colour_text(doc: dict) -> str:
     lines.append(f"  domain: {c['choices']['domain']}; floor: {c['choices']['floor']}")
     if "clipping" in c["choices"]:
         lines.append(f"  clipping: {c['choices']['clipping']}")
+    if "evaluation" in c["choices"]:
+        mc = c["choices"].get("cs_interval_end_mc_error_frac_of_width")
+        lines.append(
+            f"  CS evaluated: {c['choices']['evaluation']}"
+            + (f"; its 95 % interval's ends to a Monte Carlo error of {mc:.2g} of the width" if mc is not None else "")
+        )
     for k, v in c["definitions"].items():
         lines.append(f"  {k}: {v}")
     return "\n".join(lines) + "\n"

@@ -79,10 +79,11 @@ SHARED_NAMES = {
     "log_dc": "dark_current_e_per_s",
     "clip_dn": "clip_dn",
 }
-#: CS is computed on at most this many of the joint draws, with this many Gauss-Legendre nodes per
-#: axis over the full raw cube (a smooth integrand: 24 nodes differ from 96 by < 2e-6 bits) and where
-#: the domain is cut (clipping after M, a reflectance cone: the cut is not smooth in the quadrature's
-#: plane; 40 nodes differ from 128 by < 4e-3 bits, a few per cent of a CS interval's width)
+#: CS is computed on at most this many of the joint draws (exactly on 128 of them, by a checked linear
+#: map of the draws' inputs on all: bayescap.colour.cs_emulator), with this many Gauss-Legendre nodes
+#: per axis over the full raw cube (a smooth integrand: 24 nodes differ from 96 by < 2e-6 bits) and
+#: where the domain is cut (clipping after M, a reflectance cone: the cut is not smooth in the
+#: quadrature's plane; 40 nodes differ from 128 by < 4e-3 bits, a few per cent of a CS interval's width)
 CS_DRAWS = 1000
 CS_GRID = 24
 CS_GRID_CUT = 40
@@ -497,21 +498,24 @@ def colour_summary(
     """
     from bayescap.api import mtf_from_metadata
     from bayescap.colour.capacity import colour_capacities
+    from bayescap.colour.cs_emulator import colour_sensitivity_emulated
     from bayescap.colour.scores import SCORE_DEFINITIONS, colour_depth, dynamic_range_ev, snr_18_db
-    from bayescap.colour.sensitivity import colour_sensitivity
+    from bayescap.inference.end_errors import interval_end_mcse
     from bayescap.physics.capacity import mtf_loss_bits, tonal_range, tonal_range_bits
     from bayescap.physics.noise import NoiseCoefficients
 
     # CS on an evenly thinned subset of the joint draws: its 95 % ends to a Monte Carlo error of a few
-    # per cent of the interval's width (CS_GRID, CS_GRID_CUT: the quadrature's error)
+    # per cent of the interval's width, reported (CS_GRID, CS_GRID_CUT: the quadrature's error); the
+    # quadrature on 128 pilot draws, the rest by the linear map its leave-one-out check admits
+    # (bayescap.colour.cs_emulator; else the quadrature on every draw)
     keep = np.linspace(0, fit.n_draws - 1, min(fit.n_draws, CS_DRAWS)).round().astype(int)
     coeffs = fit.var_coeffs_dn2(exposure_time_s)[keep]
     clip = fit.clip_signal_dn()[keep]
     n = keep.size
-    cs = colour_sensitivity(
+    cs = colour_sensitivity_emulated(
         coeffs,
         clip,
-        ccm.as_draws(n, seed=fit.seed),
+        ccm.as_draws(n, seed=fit.seed) if ccm.draws is not None else ccm.matrix,  # exact: one matrix
         wb_gains,
         domain=domain,
         floor=floor,
@@ -523,6 +527,8 @@ def colour_summary(
         cs.choices["domain"] = f"{cs.choices['domain']}: {domain_name}"
     cs_nofloor = cs_without_floor(coeffs, clip)
     notes: list = []
+    # the Monte Carlo error of the 95 % interval's ends, as for independent draws (the joint draws are)
+    mc_frac = interval_end_mcse(cs.bits, np.full(n, 1.0 / n))
     out = {
         "cs_bits": summarize(cs.bits, "bits"),
         "cs_no_floor_bits": summarize(cs_nofloor, "bits"),
@@ -531,6 +537,7 @@ def colour_summary(
             "exposure_time_s": float(exposure_time_s),
             "wb_gains": np.asarray(wb_gains, float).tolist(),
             "n_draws": int(n),
+            "cs_interval_end_mc_error_frac_of_width": mc_frac,
         },
         "scores": {},
         "capacity": {},
