@@ -156,7 +156,7 @@ def main(argv=None):
         f"Machine: {describe_machine()}.  ",
         f"Load average (1, 5, 15 min) before: {load0}; after: {load1} (a shared machine: other work inflates every CPU time).",
         "",
-        f"{n} amplifier tables of `bayescap.validation.astro.focal_plane` (every {a.step}th of the 3 024; "
+        f"{n} amplifier tables of `bayescap.validation.astro.focal_plane` (1 in {a.step} of the 3 024; "
         f"{sum(t.n_points for _, t, _ in amps)} flat pairs in all), the cached CSVs of `benchmarks/focal_plane.py`. "
         "Target (issue 46): 3 024 tables in ≤ 300 s on 2 workers, i.e. ≤ ~0.19 CPU-s per table, the batch's cost included.",
         "",
