@@ -142,6 +142,13 @@ BENCHMARKS = {
         "30-90 min",
         None,
     ),
+    "focal_plane_cpu": (
+        "where the CPU of a focal-plane amplifier's fast fit goes: 96 of the 3024 tables in one process (accepted "
+        "vs MCMC fallback), the stages under cProfile (the clip rows' latent solver, log_prob, the draws, the "
+        "fallback), and the command line with --jobs 2 (the batch's own cost per table)",
+        "5-8 min",
+        None,
+    ),
     "process_stages": (
         "the whole process a user waits for (python -m bayescap fit CSV --json) on the bundled sensors at fast "
         "and standard, stage by stage (imports, read, model, sampler, result, write), bayescap --version, and a "
