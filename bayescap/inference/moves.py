@@ -208,7 +208,14 @@ class _Sampler(emcee.EnsembleSampler):
             emcee.EnsembleSampler.random_state.fset(self, state)
 
     def sample(
-        self, initial_state, iterations=1, tune=False, skip_initial_state_check=False, store=True, progress=False, **kwargs
+        self,
+        initial_state,
+        iterations=1,
+        tune=False,
+        skip_initial_state_check=False,
+        store=True,
+        progress=False,
+        **kwargs,
     ):
         """emcee's ``sample`` with the run's sequence of moves drawn first, so that a move that can
         batch its proposals (:meth:`IndependenceMove.plan`) knows how many steps it takes. The
