@@ -118,6 +118,8 @@ class IndependenceMove(emcee.moves.MHMove):
             self.L = np.linalg.cholesky(c)
         except np.linalg.LinAlgError:  # eigenvalue floor at 1e-14 of the largest can still fail: jitter
             self.L = np.linalg.cholesky(c + 1e-10 * np.max(np.diag(c)) * np.eye(c.shape[0]))
+        # (a product with the inverse factor, once, instead of a general solve at every step: ~0.1 ms)
+        self._L_inv = np.linalg.inv(self.L)
         self.n_proposed = 0
         self.n_accepted = 0
         self._planned = 0  # steps this move takes in the current run (plan); 0: one call per step
@@ -139,7 +141,7 @@ class IndependenceMove(emcee.moves.MHMove):
 
     def log_q(self, x):
         """log proposal density up to a constant (the constant cancels in the ratio)."""
-        z = np.linalg.solve(self.L, (np.atleast_2d(x) - self.mean).T)
+        z = self._L_inv @ (np.atleast_2d(x) - self.mean).T
         maha = np.einsum("ij,ij->j", z, z)
         return -0.5 * (self.nu + self.mean.size) * np.log1p(maha / self.nu)
 
