@@ -882,47 +882,6 @@ def test_sampler_subclass_gives_emcee_chains_across_rounds():
         s.run_mcmc(np.random.default_rng(0).standard_normal((16, 3)), 2, progress=False)
 
 
-def test_independence_move_batches_its_planned_steps():
-    """In moves._Sampler the run's moves are drawn first and the IndependenceMove evaluates the
-    proposals of several of its steps in one log_prob call (IndependenceMove.plan): fewer calls,
-    every proposal evaluated once, and the chain still samples its target. Target: a correlated
-    3-D Gaussian; proposal a t shifted by 1 sd with sds × 0.6 (it misses the tails, so the chain
-    leans on the accept/reject of every step); 70 % independence steps, the rest DE. The means and
-    variances of 32 × 2 500 draws lie within 5 Monte Carlo errors of the truth (errors from
-    emcee's τ, and for a variance from the sd of (x − μ)² over the draws)."""
-    import emcee
-
-    cov = np.array([[1.0, 0.5, 0.0], [0.5, 2.0, 0.3], [0.0, 0.3, 0.5]])
-    prec = np.linalg.inv(cov)
-    calls, points = [0], [0]
-
-    def log_prob(x):
-        calls[0] += 1
-        points[0] += x.shape[0]
-        return -0.5 * np.einsum("ij,jk,ik->i", x, prec, x)
-
-    sd = np.sqrt(np.diag(cov))
-    ind = inf_moves.IndependenceMove(sd, 0.36 * cov, nu=4.0)
-    s = inf_moves._Sampler(32, 3, log_prob, vectorize=True, moves=[(ind, 0.7), (emcee.moves.DEMove(), 0.3)])
-    state = emcee.State(np.random.default_rng(1).multivariate_normal(np.zeros(3), cov, 32))
-    state.random_state = np.random.RandomState(5).get_state()
-    n = 2500
-    s.run_mcmc(state, n, progress=False)
-    n_ind = ind.n_proposed // 32
-    # every independence step's proposals evaluated once, BATCH_POINTS // 32 = 15 steps a call
-    n_de = n - n_ind
-    assert points[0] == 32 + 32 * n
-    assert calls[0] == 1 + 2 * n_de + -(-n_ind // (inf_moves.IndependenceMove.BATCH_POINTS // 32))
-    assert ind._planned == 0 and ind._batch is None  # reset after the run
-    x = s.get_chain()[n // 5 :].reshape(-1, 3)
-    tau = float(np.max(emcee.autocorr.integrated_time(s.get_chain()[n // 5 :], quiet=True)))
-    n_eff = x.shape[0] / tau
-    se_mean = np.sqrt(np.diag(cov) / n_eff)
-    assert np.all(np.abs(x.mean(axis=0)) < 5 * se_mean), (x.mean(axis=0), se_mean)
-    se_var = np.std(x**2, axis=0) / np.sqrt(n_eff)
-    assert np.all(np.abs(x.var(axis=0) - np.diag(cov)) < 5 * se_var), (x.var(axis=0), se_var)
-
-
 def test_pooled_round_check_derives_only_after_the_parameters_pass():
     """_default_converged with the ensembles' pool diagnoses the parameters first and asks for the
     derived draws only when they pass (a failing round does not compute them, as without a pool);

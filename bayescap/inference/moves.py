@@ -105,11 +105,6 @@ class IndependenceMove(emcee.moves.MHMove):
     cover what the t misses (skewed upper limits, bounds). Calibration on known targets:
     ``benchmarks/check_moves.py``."""
 
-    #: the most ``log_prob`` points one batched call of planned steps evaluates (:meth:`plan`): below
-    #: :class:`~bayescap.inference.lockstep.Lockstep`'s ``solo_points``, so that a batch still shares
-    #: its call with the other ensembles' requests
-    BATCH_POINTS = 480
-
     def __init__(self, mean, cov, *, nu: float = 6.0, scale: float = 1.0):
         self.mean = np.asarray(mean, float)
         self.nu = float(nu)
@@ -118,63 +113,21 @@ class IndependenceMove(emcee.moves.MHMove):
             self.L = np.linalg.cholesky(c)
         except np.linalg.LinAlgError:  # eigenvalue floor at 1e-14 of the largest can still fail: jitter
             self.L = np.linalg.cholesky(c + 1e-10 * np.max(np.diag(c)) * np.eye(c.shape[0]))
-        # (a product with the inverse factor, once, instead of a general solve at every step: ~0.1 ms)
-        self._L_inv = np.linalg.inv(self.L)
         self.n_proposed = 0
         self.n_accepted = 0
-        self._planned = 0  # steps this move takes in the current run (plan); 0: one call per step
-        self._batch = None  # (proposals (B, n, d), their log q (B, n), their log p (B, n)), next index
-        self._next = 0
         super().__init__(self._get_proposal, ndim=self.mean.size)
-
-    def plan(self, n_steps: int):
-        """Announce that this move takes the next ``n_steps`` steps of the run (:class:`_Sampler`
-        draws the run's sequence of moves first). The proposals do not depend on the walkers'
-        positions, so those of several steps are drawn, and their ``log_prob`` evaluated, in one
-        call (at most :data:`BATCH_POINTS` points): a call on a few walkers costs mostly per-call
-        overhead. Each step then accepts or rejects its own proposals against the walkers' current
-        positions, as one step at a time would: the same Markov chain (the random stream is drawn
-        in a different order). 0 (the default, and after each run): one call per step."""
-        self._planned = max(0, int(n_steps))
-        self._batch = None
-        self._next = 0
 
     def log_q(self, x):
         """log proposal density up to a constant (the constant cancels in the ratio)."""
-        z = self._L_inv @ (np.atleast_2d(x) - self.mean).T
+        z = np.linalg.solve(self.L, (np.atleast_2d(x) - self.mean).T)
         maha = np.einsum("ij,ij->j", z, z)
         return -0.5 * (self.nu + self.mean.size) * np.log1p(maha / self.nu)
 
     def propose(self, model, state):
-        if self._planned > 0:
-            state, accepted = self._propose_planned(model, state)
-        else:
-            state, accepted = super().propose(model, state)
+        state, accepted = super().propose(model, state)
         self.n_proposed += accepted.size
         self.n_accepted += int(np.sum(accepted))
         return state, accepted
-
-    def _propose_planned(self, model, state):
-        """One step of :meth:`propose` from the batch of :meth:`plan` (drawn and evaluated when it
-        is used up): emcee's ``MHMove.propose`` with the proposals, their log q and log p taken
-        from the batch."""
-        n, d = state.coords.shape
-        if self._batch is None or self._next >= self._batch[0].shape[0]:
-            b = max(1, min(self._planned, self.BATCH_POINTS // max(n, 1)))
-            z = model.random.standard_normal((b, n, d))
-            u = model.random.chisquare(self.nu, size=(b, n)) / self.nu
-            q = self.mean + (z @ self.L.T) / np.sqrt(u)[..., None]
-            log_q_new = -0.5 * (self.nu + d) * np.log1p(np.einsum("bij,bij->bi", z, z) / u / self.nu)
-            lp, _ = model.compute_log_prob_fn(q.reshape(b * n, d))
-            self._batch, self._next = (q, log_q_new, np.asarray(lp, float).reshape(b, n)), 0
-        q, log_q_new, lp = (a[self._next] for a in self._batch)
-        self._next += 1
-        self._planned -= 1
-        # MHMove: log p(x') − log p(x) + log q(x) − log q(x')
-        lnpdiff = lp - state.log_prob + self.log_q(state.coords) - log_q_new
-        accepted = np.log(model.random.rand(n)) < lnpdiff
-        new_state = emcee.State(q, log_prob=lp)
-        return self.update(state, new_state, accepted), accepted
 
     def _get_proposal(self, coords, random):
         n, d = coords.shape
@@ -196,9 +149,7 @@ class _Sampler(emcee.EnsembleSampler):
     - ``sample`` copies the generator's state (``RandomState.get_state``, 42 µs) into the state
       of every step; bayescap uses only the state ``run_mcmc`` returns, so the copy is taken
       there, once (the intermediate states carry ``_RANDOM_STATE_LATER``, and setting it is a
-      no-op, as emcee's setter ignores a state it cannot set);
-    - :meth:`sample` draws the run's moves first, so that the IndependenceMove evaluates the
-      proposals of several of its steps in one call (:meth:`IndependenceMove.plan`)."""
+      no-op, as emcee's setter ignores a state it cannot set)."""
 
     @property
     def random_state(self):
@@ -208,68 +159,6 @@ class _Sampler(emcee.EnsembleSampler):
     def random_state(self, state):
         if not (isinstance(state, str) and state == _RANDOM_STATE_LATER):
             emcee.EnsembleSampler.random_state.fset(self, state)
-
-    def sample(
-        self,
-        initial_state,
-        iterations=1,
-        tune=False,
-        skip_initial_state_check=False,
-        store=True,
-        progress=False,
-        **kwargs,
-    ):
-        """emcee's ``sample`` with the run's sequence of moves drawn first, so that a move that can
-        batch its proposals (:meth:`IndependenceMove.plan`) knows how many steps it takes. The
-        rest is emcee's loop: the initial state's checks, one move per step, every step stored.
-        Runs without such a move, without a fixed length, with tuning or with emcee's other options
-        (thinning, a progress bar) are emcee's own (the same chain as emcee's sampler, bit for bit)."""
-        if iterations is None or tune or progress or kwargs or not any(hasattr(m, "plan") for m in self._moves):
-            yield from super().sample(
-                initial_state,
-                iterations=iterations,
-                tune=tune,
-                skip_initial_state_check=skip_initial_state_check,
-                store=store,
-                progress=progress,
-                **kwargs,
-            )
-            return
-        from emcee.ensemble import walkers_independent
-        from emcee.model import Model
-
-        state = emcee.State(initial_state, copy=True)
-        if np.shape(state.coords) != (self.nwalkers, self.ndim):
-            raise ValueError(f"incompatible input dimensions {np.shape(state.coords)}")
-        if not skip_initial_state_check and not walkers_independent(state.coords):
-            raise ValueError(
-                "Initial state has a large condition number. Make sure that your walkers are linearly "
-                "independent for the best performance"
-            )
-        self.random_state = state.random_state
-        if state.log_prob is None:
-            state.log_prob, state.blobs = self.compute_log_prob(state.coords)
-        if np.shape(state.log_prob) != (self.nwalkers,):
-            raise ValueError("incompatible input dimensions")
-        if np.any(np.isnan(state.log_prob)):
-            raise ValueError("The initial log_prob was NaN")
-        if store:
-            self.backend.grow(iterations, state.blobs)
-        model = Model(self.log_prob_fn, self.compute_log_prob, map, self._random)
-        picks = self._random.choice(len(self._moves), size=int(iterations), p=self._weights)
-        planned = [(j, m) for j, m in enumerate(self._moves) if hasattr(m, "plan")]
-        for j, m in planned:
-            m.plan(int(np.count_nonzero(picks == j)))
-        try:
-            for j in picks:
-                state, accepted = self._moves[j].propose(model, state)
-                state.random_state = self.random_state
-                if store:
-                    self.backend.save_step(state, accepted)
-                yield state
-        finally:
-            for _, m in planned:
-                m.plan(0)
 
     def run_mcmc(self, initial_state, nsteps, **kwargs):
         state = super().run_mcmc(initial_state, nsteps, **kwargs)
