@@ -882,6 +882,38 @@ def test_sampler_subclass_gives_emcee_chains_across_rounds():
         s.run_mcmc(np.random.default_rng(0).standard_normal((16, 3)), 2, progress=False)
 
 
+def test_pooled_round_check_derives_only_after_the_parameters_pass():
+    """_default_converged with the ensembles' pool diagnoses the parameters first and asks for the
+    derived draws only when they pass (a failing round does not compute them, as without a pool);
+    the answer and the cache of a passing chain are those of the check without a pool."""
+    from dataclasses import replace
+
+    class InProcessPool:  # the pool's interface, run here
+        n_processes = 2
+
+        def map(self, fn, items):
+            return [fn(x) for x in items]
+
+    chain = np.random.default_rng(4).standard_normal((4, 40, 16, 3))
+    calls = []
+
+    def derived_fn(ch):
+        calls.append(1)
+        return {"sum": ch.sum(axis=-1)}
+
+    base = replace(inf_presets.QUALITY_PRESETS["standard"], tau_factor=0.0, end_mcse_goal=None)
+    for target, passes in ((1.0, True), (1e9, False)):
+        settings = replace(base, ess_target=target)
+        calls.clear()
+        pooled, alone = {}, {}
+        got = inf_mcmc._default_converged(chain, settings, pooled, derived_fn, InProcessPool())
+        assert got is passes and len(calls) == int(passes)
+        assert inf_mcmc._default_converged(chain, settings, alone, derived_fn, None) is passes
+        if passes:
+            assert pooled.keys() == alone.keys() and "sum" in pooled
+            assert all(pooled[k] == alone[k] for k in pooled if k != "_tau")
+
+
 def test_round_checks_compute_the_derived_draws_once_per_chain(monkeypatch, basler_fit):
     """``FitResult.chain_check_fns``: the convergence check and the interval-end check of a round
     are given the same chain; its derived quantities (capacity, TR, ...) are computed once for both,

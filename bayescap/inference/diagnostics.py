@@ -5,6 +5,7 @@ on ``posterior.nc``."""
 
 from __future__ import annotations
 
+import functools
 import warnings
 
 import numpy as np
@@ -41,6 +42,7 @@ def integrated_time(chain):
     return np.max(np.array(taus), axis=0)
 
 
+@functools.lru_cache(maxsize=2)
 def draw_order(n_steps, n_walkers):
     """``(order, step, walker)``: the draws of one ensemble as one chain. Draw ``j`` of the chain is
     the ensemble's step-major draw ``order[j]`` (``step * n_walkers + walker``), from step
@@ -51,14 +53,18 @@ def draw_order(n_steps, n_walkers):
     as a difference between the halves, and a slow burn-in transient of the clip spread cannot pass
     the check as a split of the walkers would let it. Within a half each walker's steps are
     consecutive, so the autocorrelation ESS sees each walker's own correlation in time. The layout
-    of ``posterior.nc`` (:mod:`bayescap.posterior.inference_data`)."""
+    of ``posterior.nc`` (:mod:`bayescap.posterior.inference_data`). The last two shapes' orders are
+    cached (a round's check asks for the same one for every quantity); the arrays are read-only."""
     n = n_steps * n_walkers
     i = np.arange(n)
     half = n // 2
     part = np.where(i < half, 0, np.where(i >= n - half, 2, 1))
     s, w = np.divmod(i, n_walkers)
     order = np.lexsort((s, w, part))
-    return order, s[order], w[order]
+    out = (order, s[order], w[order])
+    for a in out:  # cached (every quantity of a chain asks for the same order): read-only
+        a.setflags(write=False)
+    return out
 
 
 def by_ensemble(x_esw):

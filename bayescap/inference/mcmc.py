@@ -496,9 +496,10 @@ def _default_converged(chain, settings, cache=None, derived_fn=None, pool=None, 
     result: :class:`~bayescap.posterior.FitResult` flags the ends instead).
 
     Without ``pool`` the quantities are checked one after the other, stopping at the first
-    failure. With the ensembles' ``pool`` (idle between rounds) every quantity is diagnosed, shared
-    out among its processes: the rank sorts cost ~2 ms per quantity and were 20 % of a standard fit
-    on the Basler CSV. The answer and the cache are the same either way."""
+    failure. With the ensembles' ``pool`` (idle between rounds) every parameter is diagnosed, shared
+    out among its processes (the rank sorts cost ~2 ms per quantity and were 20 % of a standard fit
+    on the Basler CSV), then, when they all pass, every derived quantity. The answer is the same
+    either way, and so is the cache of a chain that passes."""
     E, S, W, D = chain.shape
     tau = integrated_time(chain)
     if cache is not None:
@@ -518,13 +519,18 @@ def _default_converged(chain, settings, cache=None, derived_fn=None, pool=None, 
         return d["rhat"] < settings.rhat_target and min(d["ess_bulk"], d["ess_tail"]) >= settings.ess_target
 
     if pool is not None:
-        items = [(j, chain[..., j]) for j in range(D)]
-        if derived_fn is not None:
-            items += list(derived_fn(chain).items())
-        diags = _shared_out(pool, _diagnostics_share, [x for _, x in items])
-        for (key, _), d in zip(items, diags):
-            if not ok(key, d):
-                return False
+        # the parameters first, then (when they pass) the derived quantities: a round whose
+        # parameters fail does not compute the derived draws (~0.1 s on 26 000 draws, growing with
+        # the chain), as without a pool
+        for items in ([(j, chain[..., j]) for j in range(D)], derived_fn):
+            if callable(items):
+                items = list(items(chain).items())
+            if not items:
+                continue
+            diags = _shared_out(pool, _diagnostics_share, [x for _, x in items])
+            for (key, _), d in zip(items, diags):
+                if not ok(key, d):
+                    return False
     else:
         for j in range(D):
             if not ok(j, fast_diagnostics(chain[..., j])):
