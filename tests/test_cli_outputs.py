@@ -161,7 +161,7 @@ def test_the_out_set_is_replaced_as_a_whole(small_csv, out_set, tmp_path, capsys
     def killed(*a, **k):
         raise OSError(5, "Input/output error")
 
-    monkeypatch.setattr(text, "plot_ptc", killed)
+    monkeypatch.setattr(text, "to_inference_data", killed)  # after result.json and report.txt are in the new set
     assert main(["fit", str(small_csv), "--quality", "fast", "--seed", "3", "--out", str(out)]) == 1
     assert (out / "result.json").read_text() == second and _leftovers(tmp_path) == []
     capsys.readouterr()
