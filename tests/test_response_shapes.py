@@ -183,16 +183,16 @@ def test_two_slope_ptc_gets_the_spline_without_photons():
     assert N_BASIS == 4
 
 
-def test_rich_shape_is_the_spline_only_without_photons(tmp_path):
+def test_rich_shape_is_the_spline_with_and_without_photons(tmp_path):
     """The non-linear zoo's 16-bit two-slope camera (frames simulated, seed of the zoo): without
-    photon counts the degree test (its χ² leg) picks the spline; with them the F-test on the means
-    picks the degree-8 polynomial; the quadratic camera without photons keeps degree 4."""
-    from bayescap.model.response import N_BASIS, PROXY_DEGREE, RICH_BASIS
+    photon counts the degree test (its χ² leg) picks the spline, with them the F-test on the means
+    does; the quadratic camera without photons keeps degree 4."""
+    from bayescap.model.response import N_BASIS, RICH_BASIS
     from bayescap.validation.zoo_nonlinear import ensure_csvs, nonlinear_zoo
 
     want = {
         "nl_two_slope_16bit_noph": RICH_BASIS,
-        "nl_two_slope_16bit_ph": PROXY_DEGREE,
+        "nl_two_slope_16bit_ph": RICH_BASIS,
         "nl_quadratic_16bit_noph": N_BASIS,
     }
     for z in nonlinear_zoo():
