@@ -121,8 +121,7 @@ def test_spline_log_slope_is_local_and_integrates_exactly():
     interval 1/n² wide) and lie on the h table's nodes."""
     from scipy.integrate import quad
 
-    from bayescap.model.response import RICH_BASIS, log_slope
-    from bayescap.model.response import N_TABLE
+    from bayescap.model.response import N_TABLE, RICH_BASIS, log_slope
     from bayescap.model.response_spline import SPLINE_INTERVALS, knots
 
     rng = np.random.default_rng(1)
