@@ -151,7 +151,7 @@ def test_full_well_without_photons_spans_both_readings_of_the_bend():
 
 def test_the_richer_log_slope_only_for_a_knee():
     """response_degree_evidence on signals against photons with 3e-4 relative scatter: a soft knee
-    in the top quarter needs the degree-8 log-slope (F-test p < RICH_P_VALUE), a quadratic
+    in the top quarter needs the richer log-slope (F-test p < RICH_P_VALUE), a quadratic
     compression (exactly a low-degree curve) does not."""
     from bayescap.model.response import RICH_P_VALUE, response_degree_evidence
 

@@ -117,11 +117,12 @@ def test_spline_log_slope_is_local_and_integrates_exactly():
     L(0) = 0, the table's h and h' against adaptive quadrature of exp(L) and a finite difference,
     the forward response inverts it (h within 1e-6: the means with photons are precise to ~1e-4);
     and a change of the last value bends L only in the top
-    intervals (the low rows, which pin K, keep L = 0)."""
+    interval (the low rows, which pin K, keep L = 0); the knots crowd towards the clip (the last
+    interval 1/n² wide) and lie on the h table's nodes."""
     from scipy.integrate import quad
 
-    from bayescap.model.response import RICH_BASIS, log_slope
-    from bayescap.model.response_spline import SPLINE_INTERVALS
+    from bayescap.model.response import N_TABLE, RICH_BASIS, log_slope
+    from bayescap.model.response_spline import SPLINE_INTERVALS, knots
 
     rng = np.random.default_rng(1)
     theta = np.cumsum(rng.normal(0.0, 0.05, (6, RICH_BASIS)), axis=1)  # steps at the prior's scale
@@ -147,7 +148,11 @@ def test_spline_log_slope_is_local_and_integrates_exactly():
     step[0, -1] = -0.5
     u = np.linspace(0.0, 1.0, 201)[None, :]
     L = log_slope(u, step)[0]
-    assert np.all(L[u[0] <= 1.0 - 2.0 / SPLINE_INTERVALS] == 0.0) and L[-1] == pytest.approx(-0.5)
+    t = knots()
+    assert t[0] == 0.0 and t[-1] == 1.0 and np.all(np.diff(t) > 0) and np.all(np.diff(t, 2) < 0)
+    assert 1.0 - t[-2] == pytest.approx(1.0 / SPLINE_INTERVALS**2)
+    assert np.allclose(t * N_TABLE, np.round(t * N_TABLE), atol=1e-9)  # knots on the table's nodes
+    assert np.all(L[u[0] <= t[-2]] == 0.0) and np.all(L[u[0] > t[-2]] < 0.0) and L[-1] == pytest.approx(-0.5)
 
 
 def test_two_slope_ptc_gets_the_spline_without_photons():
@@ -177,16 +182,16 @@ def test_two_slope_ptc_gets_the_spline_without_photons():
     assert N_BASIS == 4
 
 
-def test_rich_shape_is_the_spline_only_without_photons(tmp_path):
+def test_rich_shape_is_the_spline_with_and_without_photons(tmp_path):
     """The non-linear zoo's 16-bit two-slope camera (frames simulated, seed of the zoo): without
-    photon counts the degree test (its χ² leg) picks the spline; with them the F-test on the means
-    picks the degree-8 polynomial; the quadratic camera without photons keeps degree 4."""
-    from bayescap.model.response import N_BASIS, PROXY_DEGREE, RICH_BASIS
+    photon counts the degree test (its χ² leg) picks the spline, with them the F-test on the means
+    does; the quadratic camera without photons keeps degree 4."""
+    from bayescap.model.response import N_BASIS, RICH_BASIS
     from bayescap.validation.zoo_nonlinear import ensure_csvs, nonlinear_zoo
 
     want = {
         "nl_two_slope_16bit_noph": RICH_BASIS,
-        "nl_two_slope_16bit_ph": PROXY_DEGREE,
+        "nl_two_slope_16bit_ph": RICH_BASIS,
         "nl_quadratic_16bit_noph": N_BASIS,
     }
     for z in nonlinear_zoo():

@@ -7,7 +7,7 @@ linear signal x = charge/K (DN). The model writes its inverse, the *linearisatio
 
 with B_{k,m} the Bernstein polynomials of degree m (:data:`N_BASIS`) on [0, 1] without B_{0,m}, or
 (:data:`RICH_BASIS` coefficients, when the data show a knee or a kink) the quadratic B-splines on
-:data:`SPLINE_INTERVALS` uniform intervals without the first (either way L(0) = 0: h'(0) = 1, and
+:data:`SPLINE_INTERVALS` intervals (knots crowding towards the clip) without the first (either way L(0) = 0: h'(0) = 1, and
 K stays the small-signal gain), ``S_ref`` the largest unclipped
 measured signal. h' = exp(L) > 0, so the response is monotone whatever the coefficients; beyond
 S_ref the slope is held at its value there (the clip level lies a little above). The integral

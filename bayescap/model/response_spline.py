@@ -1,21 +1,32 @@
-"""The rich log-slope of :mod:`bayescap.model.response`: a quadratic B-spline on uniform intervals.
+"""The rich log-slope of :mod:`bayescap.model.response`: a quadratic B-spline, its knots closer
+together towards the clip.
 
-L(u) = Σ_k θ_k B_k(u), the B-splines of the clamped knot vector on :data:`SPLINE_INTERVALS` uniform
+L(u) = Σ_k θ_k B_k(u), the B-splines of the clamped knot vector on :data:`SPLINE_INTERVALS`
 intervals of [0, 1] less the first (the only one not zero at u = 0: L(0) = 0, so K stays the
 small-signal gain). Local: a knee or a kink bends L only within about an interval of it. C¹, so
 exp(L) and its derivative are continuous for the response's Hermite table, whose nodes include the
-knots (128 intervals, 16 per spline interval).
+knots (:func:`knots`: 1 − (1 − j/n)², on the 128-interval table's grid for n = 8).
+
+**Why the knots crowd towards u = 1.** A response that saturates softly before the ADC clips (a
+knee: slope 1 − tanh²) has a log-slope L = −log(1 − ((S − S_k)/w)²) in the output S: it rises without
+bound towards the asymptote, so most of its change is in the last few per cent of the signal (on
+the non-linear zoo's 16-bit soft knee, L goes from 0.5 to 2.0 over the last 5 % of S, and those 5 %
+hold 14 % of the clip charge). Uniform knots (one interval per 12.5 % of S) cannot follow it: the
+fit's h(clip), hence ``full_well_e``, came out 1-2 % low with ±0.4 % intervals (docs/
+real_sensors.md, "The soft knee at the clip"). Knots at 1 − (1 − j/n)² make the last interval 1/n² wide (1.6 %) and the first
+2/n − 1/n² (23 %): a smooth compression (quadratic, cubic) needs no more resolution low down,
+and a kink (a two-slope ADC) is taken up within an interval wherever it falls.
 """
 
 from __future__ import annotations
 
 import numpy as np
 
-__all__ = ["SPLINE_INTERVALS", "RICH_BASIS", "spline_basis", "is_spline", "h_table_spline"]
+__all__ = ["SPLINE_INTERVALS", "RICH_BASIS", "knots", "spline_basis", "is_spline", "h_table_spline"]
 
 #: the log-slope when the data show a shape a degree-4 polynomial cannot follow (a knee or a kink in
-#: the top rows: :func:`bayescap.model.response.response_degree_evidence`): a quadratic B-spline on this many uniform
-#: intervals of [0, 1] (local: a kink bends L only within about one interval of it, where a global
+#: the top rows: :func:`bayescap.model.response.response_degree_evidence`): a quadratic B-spline on this many
+#: intervals of [0, 1] (:func:`knots`; local: a kink bends L only within about one interval of it, where a global
 #: polynomial's overshoot reaches down into the low rows and pulls K; C¹, so h' and h'' stay
 #: continuous for the table's Hermite data)
 SPLINE_INTERVALS = 8
@@ -25,13 +36,18 @@ SPLINE_INTERVALS = 8
 RICH_BASIS = SPLINE_INTERVALS + 1
 
 
+def knots(n=SPLINE_INTERVALS):
+    """The spline's n + 1 distinct knots on [0, 1]: 1 − (1 − j/n)², j = 0..n (module docstring)."""
+    return 1.0 - (1.0 - np.arange(n + 1) / n) ** 2
+
+
 def spline_basis(u, derivative=False):
     """The :data:`RICH_BASIS` quadratic B-splines (or their derivatives) at ``u`` (clipped to
     [0, 1]): u's shape + (m,)."""
     from scipy.interpolate import BSpline
 
     n = SPLINE_INTERVALS
-    t = np.concatenate([[0.0, 0.0], np.linspace(0.0, 1.0, n + 1), [1.0, 1.0]])
+    t = np.concatenate([[0.0, 0.0], knots(n), [1.0, 1.0]])
     b = BSpline(t, np.eye(n + 2)[:, 1:], 2, extrapolate=False)
     if derivative:
         b = b.derivative()

@@ -18,7 +18,6 @@ from bayescap.model.response import (
     EVIDENCE_MIN,
     EVIDENCE_SIGMA,
     N_BASIS,
-    PROXY_DEGREE,
     RICH_BASIS,
     RICH_P_VALUE,
     VARIANCE_EVIDENCE_MIN,
@@ -537,13 +536,12 @@ def _select_ptc_curvature(d: PTCData, sig, rows, reasons, how) -> bool:
 def _response_degree(d: PTCData, full, how) -> int:
     """The response's log-slope, as its number of coefficients: richer when a degree-4 shape leaves
     structure (:func:`~bayescap.model.response.response_degree_evidence` at :data:`RICH_P_VALUE`,
-    over the rows the response is selected on), else :data:`N_BASIS`. With photon counts (an F-test
-    on the means against the photons) the richer shape is the degree-:data:`PROXY_DEGREE` Bernstein
-    polynomial: the means, precise to ~1e-4, pin a smooth shape, and a knee or a kink that it
-    smooths is taken up by the mean discrepancy (the spline's fixed knots, which a kink seldom meets,
-    moved K by 1-3 sd on the 16-bit two-slope camera, benchmarks/results/zoo_nonlinear_seeds.md).
-    Without them (the temporal PTC; the F-test or the polynomial's χ²) it is the local spline
-    (:data:`RICH_BASIS` values), so a knee or a kink does not pull the low rows that pin K."""
+    over the rows the response is selected on; with photon counts an F-test on the means against
+    the photons, without them on the temporal PTC, or the degree-4 proxy's χ²), else
+    :data:`N_BASIS`. The richer shape is the local spline (:data:`RICH_BASIS` values, its knots
+    crowding towards the clip), so a knee or a kink does not pull the low rows that pin K, and a
+    soft knee's steep log-slope just below the clip is followed (a degree-8 polynomial left the
+    16-bit soft knee's top unclipped rows 0.4-1.5 % off with photons, docs/real_sensors.md)."""
     sig = d.mean_dn - d.dark_mean_dn
     ok = _unclipped_rows(d, full)
     if not np.any(ok):
@@ -560,16 +558,12 @@ def _response_degree(d: PTCData, full, how) -> int:
     if ev is None or not ev[0] < RICH_P_VALUE:
         return N_BASIS
     photons = d.photons_per_pixel is not None
-    rich = (
-        f"degree {PROXY_DEGREE}"
-        if photons
-        else f"a quadratic spline on {SPLINE_INTERVALS} intervals (local: it bends only near a knee or kink)"
-    )
     how["response_nonlinearity"] = how.get("response_nonlinearity", "") + (
         f"; {what} has a shape a degree-{N_BASIS} log-slope does not follow (a knee or a kink: "
-        f"{'F-test' if photons else 'F-test or χ²'} p = {ev[0]:.1g} over {ev[1]} rows), so the log-slope is {rich}"
+        f"{'F-test' if photons else 'F-test or χ²'} p = {ev[0]:.1g} over {ev[1]} rows), so the log-slope is "
+        f"a quadratic spline on {SPLINE_INTERVALS} intervals (local: it bends only near a knee or kink)"
     )
-    return PROXY_DEGREE if photons else RICH_BASIS
+    return RICH_BASIS
 
 
 def _select_offset_spread(d: PTCData, dsnu: bool, full, reasons, how) -> bool:
