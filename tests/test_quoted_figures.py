@@ -39,7 +39,12 @@ QUOTED = [
         "| two_slope, no photons | 15 | **42/45 (93.3 %)** [82, 98] | 14/15 | 13/15 | 15/15 | 0 | +0.02 ± 0.27 | 1.01 |",
     ),
     ("README.md", "the soft knee holds 97/105", "zoo_nonlinear_seeds.md", "| soft_knee | 30 | **97/105 (92.4 %)**"),
-    ("README.md", "(57/60 with photon counts, 40/45 without", "zoo_nonlinear_seeds.md", "| soft_knee, photons | 15 | **57/60"),
+    (
+        "README.md",
+        "(57/60 with photon counts, 40/45 without",
+        "zoo_nonlinear_seeds.md",
+        "| soft_knee, photons | 15 | **57/60",
+    ),
     ("README.md", "quadratic lowest, 97/105 each", "zoo_nonlinear_seeds.md", "| quadratic | 30 | **97/105 (92.4 %)**"),
     ("docs/real_sensors.md", "There 700 of 735 checks hold (95.2 %)", "zoo_nonlinear_seeds.md", "**700/735 (95.2 %)**"),
     (
