@@ -185,8 +185,11 @@ def test_two_slope_ptc_gets_the_spline_without_photons():
 def test_rich_shape_is_the_spline_with_and_without_photons(tmp_path):
     """The non-linear zoo's 16-bit two-slope camera (frames simulated, seed of the zoo): without
     photon counts the degree test (its χ² leg) picks the spline, with them the F-test on the means
-    does; the quadratic camera without photons keeps degree 4."""
+    does; the quadratic camera without photons keeps degree 4. A saved result records the spline's
+    knots, and a file whose knots differ is refused."""
     from bayescap.model.response import N_BASIS, RICH_BASIS
+    from bayescap.model.response_spline import SPLINE_INTERVALS, knots
+    from bayescap.posterior.storage import _check_response_knots, _response_knots
     from bayescap.validation.zoo_nonlinear import ensure_csvs, nonlinear_zoo
 
     want = {
@@ -198,6 +201,15 @@ def test_rich_shape_is_the_spline_with_and_without_photons(tmp_path):
         if z.name in want:
             terms = select_terms(bayescap.load(str(ensure_csvs(z, tmp_path)[0])))
             assert terms.nonlinearity and terms.response_degree == want[z.name], z.name
+            # a saved result carries the spline's knots; a file with other knots, or none recorded,
+            # is refused on loading (its coefficients on other knots are another shape)
+            saved = _response_knots(terms)
+            assert saved == (knots().tolist() if want[z.name] == RICH_BASIS else None), z.name
+            _check_response_knots("fit.nc", terms, {"response_spline_knots": saved})
+            if saved is not None:
+                for other in ({}, {"response_spline_knots": np.linspace(0.0, 1.0, SPLINE_INTERVALS + 1).tolist()}):
+                    with pytest.raises(ValueError, match="knots are"):
+                        _check_response_knots("fit.nc", terms, other)
 
 
 def test_bf_factor_is_astier_eq16():

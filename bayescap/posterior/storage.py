@@ -22,6 +22,7 @@ from bayescap.inference.chains import ChainResult
 from bayescap.io.atomic import atomic_write_bytes
 from bayescap.io.ptc_csv import PTCData
 from bayescap.model.ptc_model import PTCModel
+from bayescap.model.response_spline import is_spline, knots
 from bayescap.model.terms import ModelTerms
 from bayescap.physics import optics
 from bayescap.posterior.inference_data import INPUT_COLUMNS, _plain, draw_order, to_inference_data
@@ -76,6 +77,30 @@ def _mtf_from_state(state):
     return getattr(optics, cls)(**kw)
 
 
+def _response_knots(terms) -> list | None:
+    """The response spline's knots when the model has one, else None. Saved with the result: the
+    file holds the spline's coefficients, which on other knots are another shape."""
+    if getattr(terms, "nonlinearity", False) and is_spline(int(getattr(terms, "response_degree", 0))):
+        return [float(k) for k in knots()]
+    return None
+
+
+def _check_response_knots(path, terms, state) -> None:
+    """Refuse a file whose response spline has knots other than this bayescap's (or none recorded):
+    its draws would be read back on another shape."""
+    here = _response_knots(terms)
+    if here is None:
+        return
+    saved = state.get("response_spline_knots")
+    if saved is not None and len(saved) == len(here) and np.allclose(saved, here, rtol=0.0, atol=1e-12):
+        return
+    was = "not recorded in the file" if saved is None else "at " + ", ".join(f"{k:.4g}" for k in saved)
+    raise ValueError(
+        f"{path}: its response is a spline log-slope whose knots are {was}, not at this bayescap's "
+        f"{', '.join(f'{k:.4g}' for k in here)}: its draws would be read on another shape; fit the data again"
+    )
+
+
 def _result_state(result) -> dict:
     c = result.chains
     m = result.model
@@ -95,6 +120,7 @@ def _result_state(result) -> dict:
             "outliers": list(getattr(result, "outliers", [])),
             "model_selection": getattr(result, "model_selection", None),
             "terms": dataclasses.asdict(m.terms),
+            "response_spline_knots": _response_knots(m.terms),
             "prior": m.__dict__.get("PRIOR"),
             "data_source": str(m.data.source),
             "data_metadata": m.data.metadata,
@@ -191,6 +217,7 @@ def load_result(path, result_cls):
     cols = {k: np.asarray(cd[k].values) for k in INPUT_COLUMNS if k in cd}
     data = PTCData(**cols, metadata=state["data_metadata"], source=state["data_source"])
     terms = ModelTerms(**state["terms"])
+    _check_response_knots(path, terms, state)
     prior = state["prior"]
     model = PTCModel(data, terms=terms, prior={k: _tuples(v) for k, v in prior.items()} if prior else None)
 
