@@ -89,6 +89,13 @@ BENCHMARKS = {
         "1 min",
         None,
     ),
+    "fast_gate_scope": (
+        "the fast path's interval-end gate on every quantity against one scoped to the printed parameters or "
+        "the eight EMVA 1288 ones (FastSettings.end_parameters): CPU time, draws, fallbacks, coverage, the "
+        "largest ungated end error, on the Basler set and 19 zoo sensors",
+        "3-6 min",
+        None,
+    ),
     "gain_joint": (
         "joint fit of simulated gain series (shared QE, PRNU, DSNU, dark current): sampler check, truth inside "
         "the joint intervals, width against separate fits; two series also by MCMC",
