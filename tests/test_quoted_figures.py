@@ -61,7 +61,7 @@ QUOTED = [
     ),
     (
         "docs/real_sensors.md",
-        "with photon counts 57 of 60 (55), without 40 of 45 (38)",
+        "with photon counts 57 of 60, without 40 of 45",
         "zoo_nonlinear_seeds.md",
         "| soft_knee, photons | 15 | **57/60",
     ),

@@ -12,7 +12,7 @@ knee: slope 1 − tanh²) has a log-slope L = −log(1 − ((S − S_k)/w)²) in
 bound towards the asymptote, so most of its change is in the last few per cent of the signal (on
 the non-linear zoo's 16-bit soft knee, L goes from 0.5 to 2.0 over the last 5 % of S, and those 5 %
 hold 14 % of the clip charge). Uniform knots (one interval per 12.5 % of S) cannot follow it: the
-fit's h(clip), hence ``full_well_e``, came out 1-2 % low with ±0.4 % intervals (docs/
+fit's h(clip), hence ``full_well_e``, comes out low by more than its interval allows (docs/
 real_sensors.md, "The soft knee at the clip"). Knots at 1 − (1 − j/n)² make the last interval 1/n² wide (1.6 %) and the first
 2/n − 1/n² (23 %): a smooth compression (quadratic, cubic) needs no more resolution low down,
 and a kink (a two-slope ADC) is taken up within an interval wherever it falls.

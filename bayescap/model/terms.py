@@ -540,8 +540,8 @@ def _response_degree(d: PTCData, full, how) -> int:
     the photons, without them on the temporal PTC, or the degree-4 proxy's χ²), else
     :data:`N_BASIS`. The richer shape is the local spline (:data:`RICH_BASIS` values, its knots
     crowding towards the clip), so a knee or a kink does not pull the low rows that pin K, and a
-    soft knee's steep log-slope just below the clip is followed (a degree-8 polynomial left the
-    16-bit soft knee's top unclipped rows 0.4-1.5 % off with photons, docs/real_sensors.md)."""
+    soft knee's steep log-slope just below the clip is followed (a degree-8 polynomial does not
+    follow it there, docs/real_sensors.md)."""
     sig = d.mean_dn - d.dark_mean_dn
     ok = _unclipped_rows(d, full)
     if not np.any(ok):
